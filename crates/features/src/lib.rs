@@ -1,1 +1,24 @@
-//! placeholder
+//! ORB features for the ferroslam core: descriptor and keypoint types, the scale pyramid,
+//! the keypoint grid used for radius search, and the Hamming matchers of ORB-SLAM2/3.
+//!
+//! Conventions:
+//! - Keypoints are UNDISTORTED pixel coordinates (x right, y down), angles in degrees
+//!   in `[0, 360)` as produced by OpenCV's ORB, `octave` is the pyramid level.
+//! - Descriptors are 256-bit ORB descriptors stored as `[u8; 32]`; distances are Hamming
+//!   distances in `0..=256`.
+//! - Functions never panic on malformed input (mismatched slice lengths, out-of-range
+//!   octaves, non-finite coordinates): such entries are skipped or left unmatched, as
+//!   documented on each item.
+#![warn(missing_docs)]
+
+pub mod descriptor;
+pub mod error;
+pub mod grid;
+pub mod keypoint;
+pub mod pyramid;
+
+pub use descriptor::{hamming, Descriptor};
+pub use error::FeaturesError;
+pub use grid::{ImageBounds, KeypointGrid};
+pub use keypoint::Keypoint;
+pub use pyramid::ScalePyramid;

@@ -1,0 +1,17 @@
+//! The crate's error type.
+
+/// Errors raised by `ferroslam-features` constructors on invalid input.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FeaturesError {
+    /// The scale pyramid needs a finite scale factor > 1 and at least one level.
+    #[error(
+        "invalid scale pyramid (scale_factor = {scale_factor}, n_levels = {n_levels}): \
+         use a finite scale factor > 1 (ORB-SLAM uses 1.2) and n_levels >= 1 (ORB-SLAM uses 8)"
+    )]
+    InvalidPyramid {
+        /// The rejected scale factor.
+        scale_factor: f64,
+        /// The rejected number of levels.
+        n_levels: usize,
+    },
+}

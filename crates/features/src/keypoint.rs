@@ -1,0 +1,20 @@
+//! ORB keypoints as seen by the core.
+
+/// One ORB keypoint.
+///
+/// `x`, `y` are UNDISTORTED pixel coordinates at level 0 (x right, y down); `octave` is the
+/// pyramid level the feature was detected at; `angle_deg` is the orientation in degrees,
+/// `[0, 360)` (OpenCV convention); `response` is the detector score (larger is stronger).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Keypoint {
+    /// Undistorted pixel column (px).
+    pub x: f32,
+    /// Undistorted pixel row (px).
+    pub y: f32,
+    /// Pyramid level (0 = full resolution).
+    pub octave: u8,
+    /// Orientation in degrees, `[0, 360)`.
+    pub angle_deg: f32,
+    /// Detector response.
+    pub response: f32,
+}
