@@ -1,0 +1,45 @@
+"""ferroslam: visual SLAM (ORB-SLAM pipeline) for Python with a Rust core.
+
+Pure-Python parts (``datasets``, ``features``, ``metrics``, ``io``, ``plot``) import without
+the native extension; ``SlamSystem`` needs ``ferroslam._core`` (built with maturin).
+"""
+
+from __future__ import annotations
+
+from importlib import metadata as _metadata
+
+from . import datasets, io, metrics
+from .camera import Camera
+from .trajectory import Trajectory
+
+try:
+    __version__ = _metadata.version("ferroslam")
+except _metadata.PackageNotFoundError:  # running from a source checkout
+    __version__ = "0.0.0.dev0"
+
+try:
+    from ._core import SlamError
+except ImportError:  # native module not built (or older than SlamError)
+
+    class SlamError(RuntimeError):  # type: ignore[no-redef]
+        """Failure inside the SLAM core (placeholder: the native module is not available)."""
+
+
+__all__ = [
+    "Camera",
+    "SlamError",
+    "SlamSystem",
+    "Trajectory",
+    "__version__",
+    "datasets",
+    "io",
+    "metrics",
+]
+
+
+def __getattr__(name: str):
+    if name == "SlamSystem":  # native; imported on first use so the rest works without it
+        from ._core import SlamSystem
+
+        return SlamSystem
+    raise AttributeError(f"module 'ferroslam' has no attribute {name!r}")

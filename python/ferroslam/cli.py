@@ -1,0 +1,184 @@
+"""Command line: ``ferroslam run`` (track a sequence) and ``ferroslam eval ate|rpe``.
+
+``build_parser()`` is separate from ``main()`` so the parser is testable without a process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+__all__ = ["build_parser", "main"]
+
+SENSORS = ("mono", "stereo", "rgbd")
+ALIGNMENTS = ("se3", "sim3", "none")
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _add_eval_inputs(p: argparse.ArgumentParser, default_align: str) -> None:
+    p.add_argument("ref", type=Path, help="reference (ground-truth) trajectory file")
+    p.add_argument("est", type=Path, help="estimated trajectory file")
+    p.add_argument("--format", choices=("tum", "kitti"), default="tum",
+                   help="file format of both files (default: tum)")
+    p.add_argument("--align", choices=ALIGNMENTS, default=default_align,
+                   help=f"alignment of the estimate (default: {default_align})")
+    p.add_argument("--max-diff", type=float, default=0.01,
+                   help="timestamp association tolerance in seconds (default: 0.01)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``ferroslam`` argument parser (subcommands ``run`` and ``eval {ate,rpe}``)."""
+    parser = argparse.ArgumentParser(
+        prog="ferroslam", description="Visual SLAM (ORB-SLAM pipeline) with a Rust core."
+    )
+    parser.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    run = sub.add_parser("run", help="track a dataset sequence and evaluate it")
+    run.add_argument("path", type=Path, help="sequence folder (TUM RGB-D layout)")
+    algo = run.add_argument_group("algorithm")
+    algo.add_argument("--sensor", choices=SENSORS, required=True, help="camera setup")
+    algo.add_argument("--format", choices=("auto", "tum"), default="auto",
+                      help="dataset layout (default: detect)")
+    algo.add_argument("--config", type=Path, help="JSON file of SlamSystem/extractor options")
+    algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
+    algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
+    output = run.add_argument_group("output")
+    output.add_argument("--out", type=Path,
+                        help="output folder (default: out/<sequence name>)")
+    output.add_argument("--silent", action="store_true", help="no progress bar, no summary")
+
+    ev = sub.add_parser("eval", help="evaluate trajectory files")
+    ev_sub = ev.add_subparsers(dest="metric", metavar="METRIC", required=True)
+    ate_p = ev_sub.add_parser("ate", help="absolute trajectory error (translation, metres)")
+    _add_eval_inputs(ate_p, "se3")
+    rpe_p = ev_sub.add_parser("rpe", help="relative pose error over --delta frames")
+    _add_eval_inputs(rpe_p, "none")
+    rpe_p.add_argument("--delta", type=_positive_int, default=1, help="frames (default: 1)")
+    return parser
+
+
+def _load_config(path: Optional[Path]) -> dict:
+    if path is None:
+        return {}
+    if not path.is_file():
+        raise FileNotFoundError(f"config file not found: {path}")
+    try:
+        config = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: invalid JSON: {err}") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: the config must be a JSON object of options")
+    if "track_feature_range" in config:  # JSON has no tuples
+        config["track_feature_range"] = tuple(config["track_feature_range"])
+    return config
+
+
+def _cmd_run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    if args.sensor != "rgbd":
+        parser.error(f"--sensor {args.sensor} is not implemented yet (only rgbd)")
+    from .datasets import open_sequence
+    from .io import write_tum_trajectory
+    from .pipeline import run_sequence
+    from .plot import plot_trajectory_top_view
+
+    config = _load_config(args.config)
+    if args.seed is not None:
+        config["seed"] = args.seed
+    seq = open_sequence(args.path, args.format)
+    out = args.out if args.out is not None else Path("out") / seq.name
+    out.mkdir(parents=True, exist_ok=True)
+    result = run_sequence(seq, config, max_frames=args.max_frames, progress=not args.silent,
+                          sensor=args.sensor)
+
+    write_tum_trajectory(out / "trajectory.txt", result.trajectory.timestamps,
+                         result.trajectory.poses)
+    write_tum_trajectory(out / "keyframes.txt", result.keyframes.timestamps,
+                         result.keyframes.poses)
+    if result.ate_frames is not None:
+        plot_trajectory_top_view(result.ate_frames.aligned, result.ate_frames.reference,
+                                 out / "trajectory_top.png",
+                                 title=f"{seq.name} (SE(3)-aligned to ground truth)")
+    else:
+        plot_trajectory_top_view(result.trajectory, None, out / "trajectory_top.png",
+                                 title=seq.name)
+    summary = result.summary()
+    (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    if not args.silent:
+        _print_summary(summary, out)
+    return 0
+
+
+def _print_summary(summary: dict, out: Path) -> None:
+    print(f"sequence        {summary['sequence']}  ({summary['sensor']})")
+    print(f"tracked frames  {summary['tracked_frames']}/{summary['frames']}  "
+          f"keyframes {summary['keyframes']}  map points {summary['map_points']}")
+    frame = summary["timing_ms"].get("frame_ms")
+    if frame:
+        print(f"time per frame  median {frame['median']:.1f} ms  p95 {frame['p95']:.1f} ms")
+    metrics = summary["metrics"]
+    for name, label in (("ate_frames", "ATE frames"), ("ate_keyframes", "ATE keyframes")):
+        if name in metrics:
+            m = metrics[name]
+            print(f"{label:<15} RMSE {m['rmse']:.4f} m  (SE(3), {m['pairs']} poses)")
+    if "rpe_frames" in metrics:
+        r = metrics["rpe_frames"]
+        print(f"RPE (1 frame)   {r['trans_rmse_m']:.4f} m  {r['rot_rmse_deg']:.3f} deg RMSE")
+    for err in summary["metric_errors"]:
+        print(f"note: {err}")
+    print(f"results in      {out}")
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from . import io, metrics
+
+    read = io.read_tum_trajectory if args.format == "tum" else io.read_kitti_poses
+    ref, est = read(args.ref), read(args.est)
+    if args.metric == "ate":
+        r = metrics.ate(ref, est, align=args.align, max_diff=args.max_diff)
+        print(f"ATE ({args.align}, {r.pairs} pairs, scale {r.scale:.6f})")
+        for k in ("rmse", "mean", "median", "std", "min", "max"):
+            print(f"  {k:<6} {getattr(r, k):.6f} {r.unit}")
+    else:
+        r = metrics.rpe(ref, est, delta=args.delta, align=args.align, max_diff=args.max_diff)
+        print(f"RPE (delta {r.delta} frames, {args.align}, {r.pairs} pairs)")
+        for k in ("rmse", "mean", "median", "std", "min", "max"):
+            print(f"  {k:<6} {getattr(r, f'trans_{k}'):.6f} m  "
+                  f"{getattr(r, f'rot_deg_{k}'):.4f} deg")
+    return 0
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``ferroslam`` command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.version:
+        from . import __version__
+
+        print(__version__)
+        return 0
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        if args.command == "run":
+            return _cmd_run(args, parser)
+        return _cmd_eval(args)
+    except (FileNotFoundError, ImportError, ValueError, NotImplementedError) as err:
+        print(f"ferroslam: error: {err}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

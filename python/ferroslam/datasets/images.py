@@ -1,0 +1,48 @@
+"""Image file loading with clear errors (shared by every dataset loader)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["IMAGE_EXTENSIONS", "read_depth", "read_gray"]
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
+
+
+def _decode(path: Path, flags: int) -> np.ndarray:
+    if path.suffix.lower() not in IMAGE_EXTENSIONS:
+        raise ValueError(f"unsupported image type {path.suffix!r} (use .png or .jpg): {path}")
+    if not path.is_file():
+        raise FileNotFoundError(f"image not found: {path}")
+    # np.fromfile + imdecode also handles non-ASCII paths, unlike cv2.imread.
+    data = np.fromfile(path, dtype=np.uint8)
+    if data.size == 0:
+        raise ValueError(f"empty image file: {path}")
+    image = cv2.imdecode(data, flags)
+    if image is None or image.size == 0:
+        raise ValueError(f"unreadable image file (corrupt or not an image): {path}")
+    return image
+
+
+def read_gray(path: str | Path) -> np.ndarray:
+    """8-bit grayscale image ``(H, W)`` uint8 from a .png/.jpg file."""
+    image = _decode(Path(path), cv2.IMREAD_GRAYSCALE)
+    if image.dtype != np.uint8:
+        raise ValueError(f"expected an 8-bit image, got {image.dtype}: {path}")
+    return image
+
+
+def read_depth(path: str | Path, depth_factor: float) -> np.ndarray:
+    """Depth map ``(H, W)`` float32 in metres from a 16-bit single-channel image.
+
+    ``metres = pixel / depth_factor``; 0 (no measurement) stays 0.
+    """
+    image = _decode(Path(path), cv2.IMREAD_UNCHANGED)
+    if image.ndim != 2 or image.dtype != np.uint16:
+        raise ValueError(
+            f"depth image must be single-channel 16-bit, got {image.dtype} {image.shape}: {path}"
+        )
+    return image.astype(np.float32) / np.float32(depth_factor)

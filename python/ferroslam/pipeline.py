@@ -1,0 +1,225 @@
+"""Run the SLAM core over a dataset sequence: load, extract ORB, sample depth, track.
+
+The heavy lifting happens in ``ferroslam._core.SlamSystem`` (Rust); this module feeds it
+frame by frame, times every stage and evaluates the result against ground truth.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import numpy as np
+from tqdm import tqdm
+
+from .features import OrbExtractor, sample_depth
+from .metrics import AteResult, RpeResult, ate, rpe
+from .trajectory import Trajectory
+
+__all__ = ["EXTRACTOR_KEYS", "RunResult", "make_extractor", "run_sequence"]
+
+SENSORS = ("mono", "stereo", "rgbd")
+# Extractor options; those the core also needs (pyramid shape, budget) are passed on too.
+EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
+_EXTRACTOR_ONLY = ("ini_fast", "min_fast")
+_TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced.
+
+    ``trajectory``: final poses ``T_w_c`` of all tracked frames (after bundle adjustment);
+    ``keyframes`` and ``keyframe_ids``: the keyframe poses; ``map_points (M, 3)`` world
+    points in metres; ``timings``: per-frame milliseconds (``load_ms``, ``extraction_ms``,
+    ``tracking_ms`` and ``mapping_ms`` as reported by the core, ``track_call_ms`` measured
+    around the call, ``frame_ms`` = extraction + depth sampling + tracking call);
+    ``states``: tracking state per frame; ``metrics``: ATE/RPE when ground truth exists.
+    """
+
+    sequence: str
+    sensor: str
+    config: dict
+    timestamps: np.ndarray
+    states: list
+    num_tracked: np.ndarray
+    timings: dict
+    trajectory: Trajectory
+    keyframes: Trajectory
+    keyframe_ids: np.ndarray
+    map_points: np.ndarray
+    groundtruth: Optional[Trajectory] = None
+    ate_frames: Optional[AteResult] = None
+    ate_keyframes: Optional[AteResult] = None
+    rpe_frames: Optional[RpeResult] = None
+    metric_errors: list = field(default_factory=list)
+
+    @property
+    def frames(self) -> int:
+        return len(self.states)
+
+    @property
+    def tracked_frames(self) -> int:
+        """Frames whose tracking state is ``"ok"``."""
+        return sum(s == "ok" for s in self.states)
+
+    def summary(self) -> dict:
+        """JSON-serialisable summary (what ``ferroslam run`` writes to results.json)."""
+        timing = {}
+        for name, values in self.timings.items():
+            v = np.asarray(values, dtype=np.float64)
+            v = v[np.isfinite(v)]
+            timing[name] = (
+                {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)),
+                 "mean": float(np.mean(v)), "max": float(np.max(v))}
+                if v.size else None
+            )
+        out: dict[str, Any] = {
+            "sequence": self.sequence,
+            "sensor": self.sensor,
+            "config": self.config,
+            "frames": self.frames,
+            "tracked_frames": self.tracked_frames,
+            "states": {s: self.states.count(s) for s in sorted(set(self.states))},
+            "trajectory_poses": len(self.trajectory),
+            "keyframes": len(self.keyframes),
+            "map_points": int(self.map_points.shape[0]),
+            "timing_ms": timing,
+            "metrics": {},
+            "metric_errors": list(self.metric_errors),
+        }
+        for name, result in (("ate_frames", self.ate_frames), ("ate_keyframes", self.ate_keyframes)):
+            if result is not None:
+                out["metrics"][name] = {
+                    "align": "se3", "pairs": result.pairs, "scale": result.scale, "unit": "m",
+                    **{k: getattr(result, k) for k in ("rmse", "mean", "median", "std", "min", "max")},
+                }
+        if self.rpe_frames is not None:
+            r = self.rpe_frames
+            out["metrics"]["rpe_frames"] = {
+                "delta_frames": r.delta, "pairs": r.pairs,
+                **{f"trans_{k}_m": getattr(r, f"trans_{k}") for k in ("rmse", "mean", "median")},
+                **{f"rot_{k}_deg": getattr(r, f"rot_deg_{k}") for k in ("rmse", "mean", "median")},
+            }
+        return out
+
+
+def make_extractor(config: dict) -> OrbExtractor:
+    """ORB extractor from the extractor keys of a run configuration."""
+    return OrbExtractor(**{k: config[k] for k in EXTRACTOR_KEYS if k in config})
+
+
+def _default_system_factory(*args, **kwargs):
+    try:
+        from ._core import SlamSystem  # the native module is only needed to actually run
+    except ImportError as err:
+        raise ImportError(
+            f"the native module ferroslam._core is not available ({err}); build it with "
+            "`maturin develop --release` in the repository root"
+        ) from err
+    return SlamSystem(*args, **kwargs)
+
+
+def _evaluate(result: RunResult, gt: Trajectory) -> None:
+    cases = (
+        ("ate_frames", lambda: ate(gt, result.trajectory, align="se3")),
+        ("ate_keyframes", lambda: ate(gt, result.keyframes, align="se3")),
+        ("rpe_frames", lambda: rpe(gt, result.trajectory, delta=1, align="none")),
+    )
+    for name, compute in cases:
+        try:
+            setattr(result, name, compute())
+        except ValueError as err:  # too few poses, no timestamps in common, degenerate
+            result.metric_errors.append(f"{name}: {err}")
+
+
+def run_sequence(
+    seq,
+    config: Optional[dict] = None,
+    max_frames: Optional[int] = None,
+    progress: bool = True,
+    *,
+    sensor: str = "rgbd",
+    system_factory: Optional[Callable[..., Any]] = None,
+) -> RunResult:
+    """Track a whole sequence and evaluate it.
+
+    Args:
+        seq: a dataset sequence (``len``, ``load_gray(i)``, ``load_depth(i)``, ``timestamps``,
+            ``camera``, ``has_groundtruth``, ``groundtruth()``), e.g. ``TumSequence``.
+        config: keyword options for ``SlamSystem`` (unknown keys: ``ValueError`` from the
+            core) plus the extractor options ``ini_fast`` and ``min_fast``.
+        max_frames: process only the first ``max_frames`` frames.
+        progress: show a tqdm progress bar.
+        sensor: only ``"rgbd"`` is implemented.
+        system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
+
+    Raises:
+        NotImplementedError: a sensor other than ``"rgbd"``.
+        ValueError: bad configuration or ``max_frames``.
+    """
+    if sensor not in SENSORS:
+        raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
+    if sensor != "rgbd":
+        raise NotImplementedError(f"sensor {sensor!r} is not implemented yet (only 'rgbd')")
+    config = dict(config or {})
+    if "sensor" in config:
+        raise ValueError("pass the sensor as run_sequence(sensor=...), not in config")
+    n = len(seq)
+    if max_frames is not None:
+        if int(max_frames) != max_frames or max_frames < 1:
+            raise ValueError(f"max_frames must be a positive integer, got {max_frames}")
+        n = min(n, int(max_frames))
+    extractor = make_extractor(config)
+    core_config = {k: v for k, v in config.items() if k not in _EXTRACTOR_ONLY}
+    cam = seq.camera
+    factory = system_factory or _default_system_factory
+    system = factory(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
+                     sensor=sensor, **core_config)
+
+    timings = {name: np.full(n, np.nan) for name in _TIMINGS}
+    states: list[str] = []
+    num_tracked = np.zeros(n, dtype=np.int64)
+    bar = tqdm(range(n), disable=not progress, desc=getattr(seq, "name", "sequence"), unit="frame")
+    for i in bar:
+        t0 = time.perf_counter()
+        gray = seq.load_gray(i)
+        depth = seq.load_depth(i)
+        t1 = time.perf_counter()
+        keypoints, descriptors = extractor.detect(gray)
+        depths = sample_depth(depth, keypoints)
+        t2 = time.perf_counter()
+        res = system.track_rgbd(float(seq.timestamps[i]), keypoints, descriptors, depths)
+        t3 = time.perf_counter()
+        timings["load_ms"][i] = (t1 - t0) * 1e3
+        timings["extraction_ms"][i] = (t2 - t1) * 1e3
+        timings["track_call_ms"][i] = (t3 - t2) * 1e3
+        timings["frame_ms"][i] = (t3 - t1) * 1e3
+        timings["tracking_ms"][i] = float(res.tracking_ms)
+        timings["mapping_ms"][i] = float(res.mapping_ms)
+        states.append(str(res.state))
+        num_tracked[i] = int(res.num_tracked)
+        if progress:
+            bar.set_postfix(state=res.state, tracked=res.num_tracked, refresh=False)
+    bar.close()
+
+    stamps, poses = system.frame_trajectory()
+    kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
+    result = RunResult(
+        sequence=str(getattr(seq, "name", "")),
+        sensor=sensor,
+        config=config,
+        timestamps=np.asarray(seq.timestamps[:n], dtype=np.float64),
+        states=states,
+        num_tracked=num_tracked,
+        timings=timings,
+        trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
+        keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
+        keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
+        map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
+    )
+    if getattr(seq, "has_groundtruth", False):
+        result.groundtruth = Trajectory(*seq.groundtruth())
+        _evaluate(result, result.groundtruth)
+    return result

@@ -1,0 +1,40 @@
+"""Shared fixtures: the real-data folder (``FERROSLAM_DATA`` or ``<repo>/../shared/data``).
+
+Tests needing data skip when it is missing, except on CI (``CI=true``), where the data is
+always provisioned and a missing folder must fail loudly instead of silently skipping.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from ferroslam._data import data_dir
+
+
+def require_data(*parts: str) -> Path:
+    """Path inside the shared data folder; skip (locally) or fail (CI) if it is missing."""
+    path = data_dir().joinpath(*parts)
+    if not path.exists():
+        message = f"shared test data missing: {path} (set FERROSLAM_DATA)"
+        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+            pytest.fail(message)
+        pytest.skip(message)
+    return path
+
+
+@pytest.fixture(scope="session")
+def tum_rpy() -> Path:
+    return require_data("tum", "rgbd_dataset_freiburg1_rpy")
+
+
+@pytest.fixture(scope="session")
+def tum_desk() -> Path:
+    return require_data("tum", "rgbd_dataset_freiburg1_desk")
+
+
+@pytest.fixture(scope="session")
+def groundtruth_dir() -> Path:
+    return require_data("groundtruth")

@@ -1,0 +1,185 @@
+"""ORB extraction: count, spread, orientation, descriptors, validation, speed."""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from ferroslam.datasets import TumSequence
+from ferroslam.features import OrbExtractor, level_budgets, sample_depth
+from ferroslam import features as F
+
+
+@pytest.fixture(scope="module")
+def frames(tum_rpy, tum_desk):
+    rpy = TumSequence(tum_rpy)
+    desk = TumSequence(tum_desk)
+    return [rpy.load_gray(i) for i in (0, 100, 200)] + [desk.load_gray(0)]
+
+
+@pytest.fixture(scope="module")
+def extractor():
+    return OrbExtractor()
+
+
+def test_level_budgets_follow_the_geometric_series():
+    b = level_budgets(1000, 1.2, 8)
+    assert b.sum() == 1000 and b.tolist() == [217, 181, 151, 126, 105, 87, 73, 60]
+    assert level_budgets(500, 2.0, 1).tolist() == [500]
+
+
+def test_output_format(frames, extractor):
+    kp, desc = extractor.detect(frames[0])
+    assert kp.dtype == np.float32 and kp.shape[1] == 5
+    assert desc.dtype == np.uint8 and desc.shape == (kp.shape[0], 32)
+    x, y, octave, angle, response = kp.T
+    assert np.all((x >= 19) & (x < 640 - 19) & (y >= 19) & (y < 480 - 19))
+    assert set(np.unique(octave).tolist()) == set(range(8))
+    assert np.all(np.diff(octave) >= 0)  # grouped by octave
+    assert np.all((angle >= 0) & (angle < 360))
+    assert np.all(response >= extractor.min_fast)
+    # level-0 coordinates of an octave-l point are integer level pixels times 1.2^l
+    level_xy = kp[:, :2] / extractor.scales[octave.astype(int)][:, None]
+    np.testing.assert_allclose(level_xy, np.round(level_xy), atol=1e-3)
+    assert len(np.unique(desc, axis=0)) > 0.95 * len(desc)
+
+
+@pytest.mark.parametrize("index", range(4))
+def test_count_and_even_spread(frames, extractor, index):
+    gray = frames[index]
+    kp, _ = extractor.detect(gray)
+    assert 950 <= len(kp) <= 1050
+    h, w = gray.shape
+    rows = np.minimum((kp[:, 1] * 4 // h).astype(int), 3)
+    cols = np.minimum((kp[:, 0] * 4 // w).astype(int), 3)
+    counts = np.bincount(rows * 4 + cols, minlength=16).reshape(4, 4)
+    # corners where features may lie (ORB keeps 19 px from the border)
+    corners = cv2.FastFeatureDetector_create(extractor.min_fast).detect(gray[16:-16, 16:-16])
+    xy = cv2.KeyPoint_convert(corners) + 16
+    texture = np.histogram2d(xy[:, 1], xy[:, 0], bins=4, range=[[0, h], [0, w]])[0]
+    textured = texture >= 30  # "blank" = (almost) no FAST corners even at the low threshold
+    assert textured.sum() >= 8
+    assert np.all(counts[textured] >= 5), f"features per cell\n{counts}\nFAST corners\n{texture}"
+    # and more even than plain OpenCV ORB (fewest features in a textured cell)
+    cv_kp = cv2.KeyPoint_convert(cv2.ORB_create(1000).detect(gray))
+    cv_counts = np.histogram2d(cv_kp[:, 1], cv_kp[:, 0], bins=4, range=[[0, h], [0, w]])[0]
+    assert counts[textured].min() >= cv_counts[textured].min()
+
+
+def test_spread_picks_cell_bests_first():
+    # 4 strong corners in one corner, 4 weak ones spread out: with budget 4, the spread
+    # takes the best of each quadrant rather than the 4 strongest.
+    xy = np.array([[20, 20], [21, 22], [23, 20], [25, 25],
+                   [200, 20], [20, 200], [200, 200], [110, 110]], np.float32)
+    score = np.array([90, 80, 70, 60, 10, 11, 12, 13], np.float32)
+    chosen = F._spread(xy, score, (240, 240), 4)
+    assert sorted(chosen.tolist()) == [0, 4, 5, 6]
+
+
+def test_orientation_matches_opencv(frames):
+    gray = frames[0]
+    orb = cv2.ORB_create(300, nlevels=1, edgeThreshold=19, scoreType=cv2.ORB_FAST_SCORE)
+    kps = orb.detect(gray)
+    xy = cv2.KeyPoint_convert(kps)
+    want = np.array([k.angle for k in kps])
+    got = F._orientation(gray, xy)
+    diff = np.abs((got - want + 180.0) % 360.0 - 180.0)
+    assert diff.max() < 0.1  # OpenCV's fastAtan2 is approximate
+
+
+def test_descriptors_match_opencv_on_same_keypoints(frames, extractor):
+    gray = frames[3]
+    kp, desc = extractor.detect(gray)
+    cv_kps = [cv2.KeyPoint(float(x), float(y), 31 * 1.2 ** o, float(a), float(r), int(o))
+              for x, y, o, a, r in kp[:50]]
+    orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)
+    _, cv_desc = orb.compute(gray, cv_kps)
+    np.testing.assert_array_equal(desc[:50], cv_desc)
+
+
+def test_rotation_invariance(frames, extractor):
+    gray = frames[3]
+    rotated = cv2.rotate(gray, cv2.ROTATE_90_CLOCKWISE)
+    kp1, d1 = extractor.detect(gray)
+    kp2, d2 = extractor.detect(rotated)
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d1, d2)
+    good = [m for m in matches if m.distance < 40]
+    h = gray.shape[0]
+    p1 = kp1[[m.queryIdx for m in good], :2]
+    p2 = kp2[[m.trainIdx for m in good], :2]
+    expected = np.stack([h - 1 - p1[:, 1], p1[:, 0]], 1)  # 90 deg clockwise
+    inliers = np.linalg.norm(p2 - expected, axis=1) < 3.0 * 1.2 ** 3
+    assert inliers.sum() > 150
+
+
+def test_color_input_and_blank_image(frames, extractor):
+    bgr = cv2.cvtColor(frames[0], cv2.COLOR_GRAY2BGR)
+    kp_bgr, _ = extractor.detect(bgr)
+    kp_gray, _ = extractor.detect(frames[0])
+    np.testing.assert_array_equal(kp_bgr, kp_gray)
+    kp, desc = extractor.detect(np.full((480, 640), 128, np.uint8))
+    assert kp.shape == (0, 5) and desc.shape == (0, 32)
+    kp, desc = extractor.detect(np.zeros((20, 20), np.uint8))
+    assert kp.shape == (0, 5)
+
+
+def test_input_validation(extractor):
+    with pytest.raises(ValueError, match="dtype must be uint8"):
+        extractor.detect(np.zeros((480, 640), np.float32))
+    with pytest.raises(ValueError, match="dtype must be uint8"):
+        extractor.detect(np.zeros((480, 640), np.uint16))
+    with pytest.raises(ValueError, match="NaN"):
+        extractor.detect(np.full((480, 640), np.nan, np.float32))
+    with pytest.raises(ValueError, match="empty"):
+        extractor.detect(np.zeros((0, 640), np.uint8))
+    with pytest.raises(ValueError, match="shape"):
+        extractor.detect(np.zeros((4, 480, 640), np.uint8))
+    with pytest.raises(ValueError, match="shape"):
+        extractor.detect(np.zeros(640, np.uint8))
+    with pytest.raises(ValueError, match="numpy array"):
+        extractor.detect([[1, 2], [3, 4]])
+    for kwargs in (dict(n_features=0), dict(scale_factor=1.0), dict(n_levels=0),
+                   dict(ini_fast=5, min_fast=7)):
+        with pytest.raises(ValueError):
+            OrbExtractor(**kwargs)
+
+
+def test_sample_depth():
+    depth = np.zeros((4, 5), np.float32)
+    depth[1, 2] = 1.5
+    depth[2, 3] = np.nan
+    depth[3, 4] = -1.0
+    kp = np.array([[2.2, 0.6], [2.9, 2.4], [4.0, 3.0], [-0.6, 0.0], [4.6, 0.0], [np.nan, 1.0],
+                   [1.0, 1.0]], np.float32)
+    out = sample_depth(depth, kp)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, [1.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert sample_depth(depth, np.zeros((0, 5), np.float32)).shape == (0,)
+    with pytest.raises(ValueError, match="depth"):
+        sample_depth(np.zeros((4, 5, 3)), kp)
+    with pytest.raises(ValueError, match="keypoints"):
+        sample_depth(depth, np.zeros(5))
+
+
+def test_real_depth_at_keypoints(tum_rpy, extractor):
+    seq = TumSequence(tum_rpy)
+    kp, _ = extractor.detect(seq.load_gray(0))
+    d = sample_depth(seq.load_depth(0), kp)
+    assert d.shape == (len(kp),) and 0.5 < np.mean(d > 0) <= 1.0
+
+
+def test_speed_report(frames, extractor):
+    """Not a hard limit (shared CI machines); prints the median for the record."""
+    gray = frames[0]
+    extractor.detect(gray)
+    times = []
+    for _ in range(20):
+        t = time.perf_counter()
+        extractor.detect(gray)
+        times.append((time.perf_counter() - t) * 1e3)
+    median = float(np.median(times))
+    print(f"ORB extraction 640x480: median {median:.2f} ms")
+    assert median < 100.0
