@@ -93,11 +93,12 @@ def test_orientation_matches_opencv(frames):
 def test_descriptors_match_opencv_on_same_keypoints(frames, extractor):
     gray = frames[3]
     kp, desc = extractor.detect(gray)
+    picked = np.arange(0, len(kp), 17)  # every octave
     cv_kps = [cv2.KeyPoint(float(x), float(y), 31 * 1.2 ** o, float(a), float(r), int(o))
-              for x, y, o, a, r in kp[:50]]
+              for x, y, o, a, r in kp[picked]]
     orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)
     _, cv_desc = orb.compute(gray, cv_kps)
-    np.testing.assert_array_equal(desc[:50], cv_desc)
+    np.testing.assert_array_equal(desc[picked], cv_desc)
 
 
 def test_rotation_invariance(frames, extractor):

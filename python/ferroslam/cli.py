@@ -11,8 +11,6 @@ import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
-import numpy as np
-
 __all__ = ["build_parser", "main"]
 
 SENSORS = ("mono", "stereo", "rgbd")

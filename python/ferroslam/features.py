@@ -315,13 +315,10 @@ class OrbExtractor:
                 kp[:, 3].tolist(), kp[:, 4].tolist(), kp[:, 2].astype(int).tolist())
         )
         cv_kps, descriptors = self._orb.compute(gray, cv_kps)
+        # Selected corners keep >= 19 level pixels from the border, so OpenCV keeps them all
+        # and, as they are sorted by octave, in order.
         if descriptors is None or len(cv_kps) != kp.shape[0]:
-            # OpenCV dropped border keypoints: keep the rows it described, matched by position.
-            if descriptors is None:
-                return np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8)
-            kept = cv2.KeyPoint_convert(cv_kps).reshape(-1, 2)
-            index = {(float(a), float(b)): i for i, (a, b) in enumerate(kp[:, :2].tolist())}
-            kp = kp[[index[(float(a), float(b))] for a, b in kept.tolist()]]
+            raise RuntimeError("OpenCV ORB dropped keypoints: border handling disagrees")
         return kp, descriptors
 
 

@@ -1,0 +1,70 @@
+"""A stand-in for ``ferroslam._core.SlamSystem`` with the same Python API.
+
+It "tracks" by looking up the ground-truth pose (perturbed by a fixed world transform), so
+the pipeline, writers, metrics and CLI can be tested without the native module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ferroslam.transforms import quat_to_matrix
+
+
+@dataclass
+class FakeTrackResult:
+    state: str
+    T_w_c: Optional[np.ndarray]
+    is_keyframe: bool
+    num_tracked: int
+    tracking_ms: float
+    mapping_ms: float
+
+
+class FakeSlamSystem:
+    KNOWN = {"scale_factor", "n_levels", "n_features", "track_feature_range", "skip_max_frames",
+             "bf", "depth_threshold", "seed"}
+
+    def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
+                 **config):
+        unknown = set(config) - self.KNOWN
+        if unknown:
+            raise ValueError(f"unknown option(s) {sorted(unknown)}")
+        assert np.asarray(dist).shape == (5,) and sensor == "rgbd"
+        self.config = config
+        self.gt_t, self.gt_T = groundtruth
+        # The map frame differs from the motion-capture frame by a rigid transform.
+        self.T_map_gt = np.eye(4)
+        self.T_map_gt[:3, :3] = quat_to_matrix(np.array([0.1, -0.2, 0.3, 0.9]))
+        self.T_map_gt[:3, 3] = [0.5, -1.0, 2.0]
+        self.stamps, self.poses, self.kf = [], [], []
+        self.calls = []
+
+    def track_rgbd(self, timestamp, keypoints, descriptors, depth_m):
+        assert keypoints.dtype == np.float32 and keypoints.shape[1] == 5
+        assert descriptors.dtype == np.uint8 and descriptors.shape == (len(keypoints), 32)
+        assert depth_m.dtype == np.float32 and depth_m.shape == (len(keypoints),)
+        self.calls.append(timestamp)
+        if len(self.calls) == 1:
+            return FakeTrackResult("not_initialized", None, False, 0, 1.0, 0.0)
+        i = int(np.argmin(np.abs(self.gt_t - timestamp)))
+        T = self.T_map_gt @ self.gt_T[i]
+        self.stamps.append(timestamp)
+        self.poses.append(T)
+        key = len(self.stamps) % 3 == 1
+        if key:
+            self.kf.append(len(self.stamps) - 1)
+        return FakeTrackResult("ok", T, key, int((depth_m > 0).sum()), 2.0, 0.5)
+
+    def frame_trajectory(self):
+        return np.array(self.stamps), np.array(self.poses).reshape(-1, 4, 4)
+
+    def keyframe_trajectory(self):
+        ids = np.arange(len(self.kf), dtype=np.uint32)
+        return ids, np.array(self.stamps)[self.kf], np.array(self.poses)[self.kf]
+
+    def map_points(self):
+        return np.zeros((10, 3))
