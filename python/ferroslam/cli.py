@@ -11,10 +11,10 @@ import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
-__all__ = ["build_parser", "main"]
+from .metrics import ALIGNMENTS
+from .pipeline import SENSORS
 
-SENSORS = ("mono", "stereo", "rgbd")
-ALIGNMENTS = ("se3", "sim3", "none")
+__all__ = ["build_parser", "main"]
 
 
 def _positive_int(text: str) -> int:
