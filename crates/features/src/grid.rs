@@ -43,7 +43,11 @@ impl KeypointGrid {
     pub fn new(keypoints: &[Keypoint], bounds: ImageBounds) -> Self {
         let inv = |n: usize, lo: f64, hi: f64| {
             let inv = n as f64 / (hi - lo);
-            if inv.is_finite() && inv > 0.0 { inv } else { 0.0 }
+            if inv.is_finite() && inv > 0.0 {
+                inv
+            } else {
+                0.0
+            }
         };
         let mut grid = Self {
             bounds,
@@ -133,7 +137,12 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    const BOUNDS: ImageBounds = ImageBounds { min_x: 0.0, max_x: 640.0, min_y: 0.0, max_y: 480.0 };
+    const BOUNDS: ImageBounds = ImageBounds {
+        min_x: 0.0,
+        max_x: 640.0,
+        min_y: 0.0,
+        max_y: 480.0,
+    };
 
     fn random_keypoints(rng: &mut ChaCha8Rng, n: usize) -> Vec<Keypoint> {
         (0..n)
@@ -172,8 +181,15 @@ mod tests {
         let seed = 7;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let kps = random_keypoints(&mut rng, 2000);
-        for bounds in [BOUNDS, ImageBounds { min_x: 5.0, max_x: 5.0, min_y: 0.0, max_y: f64::NAN }]
-        {
+        for bounds in [
+            BOUNDS,
+            ImageBounds {
+                min_x: 5.0,
+                max_x: 5.0,
+                min_y: 0.0,
+                max_y: f64::NAN,
+            },
+        ] {
             let grid = KeypointGrid::new(&kps, bounds);
             for q in 0..300 {
                 let x = rng.random_range(-50.0..690.0);
@@ -190,13 +206,30 @@ mod tests {
 
     #[test]
     fn boundary_is_strict_and_bad_radius_is_empty() {
-        let kp = Keypoint { x: 110.0, y: 100.0, octave: 0, angle_deg: 0.0, response: 1.0 };
+        let kp = Keypoint {
+            x: 110.0,
+            y: 100.0,
+            octave: 0,
+            angle_deg: 0.0,
+            response: 1.0,
+        };
         let grid = KeypointGrid::new(&[kp], BOUNDS);
-        assert!(grid.features_in_area(&[kp], 100.0, 100.0, 10.0, None, None).is_empty());
-        assert_eq!(grid.features_in_area(&[kp], 100.0, 100.0, 10.001, None, None), vec![0]);
-        assert!(grid.features_in_area(&[kp], 100.0, 100.0, f64::NAN, None, None).is_empty());
-        assert!(grid.features_in_area(&[kp], 100.0, 100.0, -1.0, None, None).is_empty());
+        assert!(grid
+            .features_in_area(&[kp], 100.0, 100.0, 10.0, None, None)
+            .is_empty());
+        assert_eq!(
+            grid.features_in_area(&[kp], 100.0, 100.0, 10.001, None, None),
+            vec![0]
+        );
+        assert!(grid
+            .features_in_area(&[kp], 100.0, 100.0, f64::NAN, None, None)
+            .is_empty());
+        assert!(grid
+            .features_in_area(&[kp], 100.0, 100.0, -1.0, None, None)
+            .is_empty());
         // A shorter keypoint slice than the grid was built from is tolerated.
-        assert!(grid.features_in_area(&[], 110.0, 100.0, 5.0, None, None).is_empty());
+        assert!(grid
+            .features_in_area(&[], 110.0, 100.0, 5.0, None, None)
+            .is_empty());
     }
 }

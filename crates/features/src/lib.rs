@@ -15,10 +15,15 @@ pub mod descriptor;
 pub mod error;
 pub mod grid;
 pub mod keypoint;
+pub mod matcher;
 pub mod pyramid;
 
 pub use descriptor::{hamming, Descriptor};
 pub use error::FeaturesError;
 pub use grid::{ImageBounds, KeypointGrid};
 pub use keypoint::Keypoint;
+pub use matcher::{
+    match_brute_force, search_by_projection, search_for_triangulation, MatchOptions,
+    ProjectionQuery, RotationHistogram,
+};
 pub use pyramid::ScalePyramid;

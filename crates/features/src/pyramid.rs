@@ -31,7 +31,10 @@ impl ScalePyramid {
     /// `n_levels == 0`.
     pub fn new(scale_factor: f64, n_levels: usize) -> Result<Self, FeaturesError> {
         if !(scale_factor.is_finite() && scale_factor > 1.0) || n_levels == 0 {
-            return Err(FeaturesError::InvalidPyramid { scale_factor, n_levels });
+            return Err(FeaturesError::InvalidPyramid {
+                scale_factor,
+                n_levels,
+            });
         }
         let scale: Vec<f64> = (0..n_levels).map(|i| scale_factor.powi(i as i32)).collect();
         let sigma2: Vec<f64> = scale.iter().map(|s| s * s).collect();
