@@ -1,0 +1,165 @@
+//! The per-keypoint arrays a keyframe is built from.
+
+use ferroslam_features::{Descriptor, ImageBounds, Keypoint, KeypointGrid};
+
+use crate::MapError;
+
+/// Keypoints of one frame with their descriptors, depths and virtual-right coordinates,
+/// plus the grid for radius search. Index `i` refers to the same feature in every array.
+///
+/// Build it with [`FrameFeatures::new`], which checks the lengths; the fields are public for
+/// reading, and every accessor of this crate tolerates inconsistent lengths (missing
+/// entries read as "no depth", "monocular").
+#[derive(Clone, Debug)]
+pub struct FrameFeatures {
+    /// UNDISTORTED keypoints (px).
+    pub keypoints: Vec<Keypoint>,
+    /// ORB descriptors, one per keypoint.
+    pub descriptors: Vec<Descriptor>,
+    /// Depth (m) along the camera z axis; `<= 0` (or NaN) means no depth.
+    pub depth: Vec<f32>,
+    /// Virtual right coordinate `u - bf / depth` (px); `< 0` means monocular.
+    pub u_right: Vec<f32>,
+    /// Grid over `keypoints` for [`KeypointGrid::features_in_area`].
+    pub grid: KeypointGrid,
+}
+
+impl FrameFeatures {
+    /// Bundles the arrays and builds the keypoint grid over `bounds`.
+    ///
+    /// `depth` and `u_right` may be empty (monocular frame): they are then filled with `-1`.
+    ///
+    /// # Errors
+    /// [`MapError::LengthMismatch`] if `descriptors` does not have one entry per keypoint, or
+    /// `depth` / `u_right` are neither empty nor one per keypoint.
+    pub fn new(
+        keypoints: Vec<Keypoint>,
+        descriptors: Vec<Descriptor>,
+        depth: Vec<f32>,
+        u_right: Vec<f32>,
+        bounds: ImageBounds,
+    ) -> Result<Self, MapError> {
+        let expected = keypoints.len();
+        let per_keypoint = |values: Vec<f32>, field| match values.len() {
+            0 => Ok(vec![-1.0; expected]),
+            got if got == expected => Ok(values),
+            got => Err(MapError::LengthMismatch {
+                field,
+                expected,
+                got,
+            }),
+        };
+        if descriptors.len() != expected {
+            return Err(MapError::LengthMismatch {
+                field: "descriptors",
+                expected,
+                got: descriptors.len(),
+            });
+        }
+        let depth = per_keypoint(depth, "depth")?;
+        let u_right = per_keypoint(u_right, "u_right")?;
+        let grid = KeypointGrid::new(&keypoints, bounds);
+        Ok(Self {
+            keypoints,
+            descriptors,
+            depth,
+            u_right,
+            grid,
+        })
+    }
+
+    /// Number of keypoints.
+    pub fn len(&self) -> usize {
+        self.keypoints.len()
+    }
+
+    /// True if there are no keypoints.
+    pub fn is_empty(&self) -> bool {
+        self.keypoints.is_empty()
+    }
+
+    /// True if keypoint `i` has a valid (positive) depth; false for out-of-range `i`.
+    pub fn has_depth(&self, i: usize) -> bool {
+        self.depth.get(i).is_some_and(|&d| d > 0.0)
+    }
+
+    /// True if keypoint `i` has a virtual right coordinate (stereo/RGB-D observation, counted
+    /// twice in ORB-SLAM's `nObs`); false for out-of-range `i`.
+    pub fn is_stereo(&self, i: usize) -> bool {
+        self.u_right.get(i).is_some_and(|&u| u >= 0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn keypoint(x: f32) -> Keypoint {
+        Keypoint {
+            x,
+            y: 10.0,
+            octave: 0,
+            angle_deg: 0.0,
+            response: 1.0,
+        }
+    }
+
+    const BOUNDS: ImageBounds = ImageBounds {
+        min_x: 0.0,
+        max_x: 640.0,
+        min_y: 0.0,
+        max_y: 480.0,
+    };
+
+    #[test]
+    fn monocular_arrays_may_be_empty() {
+        let f = FrameFeatures::new(
+            vec![keypoint(1.0); 3],
+            vec![[0; 32]; 3],
+            vec![],
+            vec![],
+            BOUNDS,
+        )
+        .unwrap();
+        assert_eq!(f.len(), 3);
+        assert!(!f.has_depth(0) && !f.is_stereo(0));
+        assert!(!f.has_depth(7) && !f.is_stereo(7));
+    }
+
+    #[test]
+    fn depth_and_right_coordinate() {
+        let f = FrameFeatures::new(
+            vec![keypoint(1.0), keypoint(2.0)],
+            vec![[0; 32]; 2],
+            vec![2.0, 0.0],
+            vec![0.5, -1.0],
+            BOUNDS,
+        )
+        .unwrap();
+        assert!(f.has_depth(0) && f.is_stereo(0));
+        assert!(!f.has_depth(1) && !f.is_stereo(1));
+        assert_eq!(
+            f.grid
+                .features_in_area(&f.keypoints, 2.0, 10.0, 0.5, None, None),
+            vec![1]
+        );
+    }
+
+    #[test]
+    fn rejects_mismatched_lengths() {
+        let kps = vec![keypoint(1.0); 2];
+        let err = FrameFeatures::new(kps.clone(), vec![[0; 32]; 1], vec![], vec![], BOUNDS);
+        assert!(matches!(
+            err,
+            Err(MapError::LengthMismatch {
+                field: "descriptors",
+                ..
+            })
+        ));
+        let err = FrameFeatures::new(kps, vec![[0; 32]; 2], vec![1.0], vec![], BOUNDS);
+        assert!(matches!(
+            err,
+            Err(MapError::LengthMismatch { field: "depth", .. })
+        ));
+    }
+}
