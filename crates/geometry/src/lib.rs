@@ -40,8 +40,15 @@
 
 #![warn(missing_docs)]
 
+pub mod camera;
+pub mod epnp;
 pub mod error;
+pub mod pnp;
 pub mod se3;
+pub mod sim3;
 pub mod so3;
+pub mod testing;
+pub mod triangulation;
+pub mod umeyama;
 
 pub use error::GeometryError;

@@ -54,9 +54,12 @@ pub fn log(t: &Isometry3<f64>) -> Vector6<f64> {
 pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
     let r = t.rotation.to_rotation_matrix().into_inner();
     let mut ad = Matrix6::zeros();
-    ad.fixed_view_mut::<3, 3>(TRANS.start, TRANS.start).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(TRANS.start, ROT.start).copy_from(&(so3::hat(&t.translation.vector) * r));
-    ad.fixed_view_mut::<3, 3>(ROT.start, ROT.start).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(TRANS.start, TRANS.start)
+        .copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(TRANS.start, ROT.start)
+        .copy_from(&(so3::hat(&t.translation.vector) * r));
+    ad.fixed_view_mut::<3, 3>(ROT.start, ROT.start)
+        .copy_from(&r);
     ad
 }
 

@@ -25,7 +25,11 @@ pub fn exp(phi: &Vector3<f64>) -> UnitQuaternion<f64> {
     let theta = phi.norm();
     let half = 0.5 * theta;
     // sin(theta/2)/theta, exact at 0 through its series.
-    let k = if theta < 1e-6 { 0.5 - theta * theta / 48.0 } else { half.sin() / theta };
+    let k = if theta < 1e-6 {
+        0.5 - theta * theta / 48.0
+    } else {
+        half.sin() / theta
+    };
     let v = phi * k;
     UnitQuaternion::new_unchecked(Quaternion::new(half.cos(), v.x, v.y, v.z))
 }
@@ -43,7 +47,11 @@ pub fn log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     }
     let n = v.norm();
     // theta / sin(theta/2) = 2 atan2(n, w) / n; finite and accurate for n > 0.
-    let k = if n < 1e-10 { 2.0 / w - 2.0 * n * n / (3.0 * w * w * w) } else { 2.0 * n.atan2(w) / n };
+    let k = if n < 1e-10 {
+        2.0 / w - 2.0 * n * n / (3.0 * w * w * w)
+    } else {
+        2.0 * n.atan2(w) / n
+    };
     v * k
 }
 
@@ -143,8 +151,16 @@ mod tests {
             Vector3::new(0.0, 3.1, 0.0),
         ] {
             let i = Matrix3::identity();
-            assert_relative_eq!(left_jacobian(&phi) * left_jacobian_inverse(&phi), i, epsilon = 1e-12);
-            assert_relative_eq!(right_jacobian(&phi) * right_jacobian_inverse(&phi), i, epsilon = 1e-12);
+            assert_relative_eq!(
+                left_jacobian(&phi) * left_jacobian_inverse(&phi),
+                i,
+                epsilon = 1e-12
+            );
+            assert_relative_eq!(
+                right_jacobian(&phi) * right_jacobian_inverse(&phi),
+                i,
+                epsilon = 1e-12
+            );
         }
     }
 
@@ -155,6 +171,10 @@ mod tests {
         let (b1, c1) = jacobian_coefficients(hi);
         assert_relative_eq!(b0, b1, max_relative = 1e-10);
         assert_relative_eq!(c0, c1, max_relative = 1e-10);
-        assert_relative_eq!(inverse_coefficient(lo), inverse_coefficient(hi), max_relative = 1e-10);
+        assert_relative_eq!(
+            inverse_coefficient(lo),
+            inverse_coefficient(hi),
+            max_relative = 1e-10
+        );
     }
 }
