@@ -1,1 +1,36 @@
-//! placeholder
+//! Nonlinear least squares for ferroslam: motion-only bundle adjustment and sparse local
+//! bundle adjustment, following ORB-SLAM2/3 `Optimizer::PoseOptimization` and
+//! `Optimizer::LocalBundleAdjustment`.
+//!
+//! Conventions (shared with `ferroslam_geometry`):
+//! - poses are `T_c_w` (world to camera), `p_c = T_c_w * p_w`, metres;
+//! - observations are undistorted pixel coordinates of an ideal pinhole ([`Intrinsics`]);
+//!   stereo / RGB-D observations add ORB-SLAM's virtual right coordinate `u_r = u - bf / z`;
+//! - pose increments are LEFT perturbations `T_c_w <- exp(xi) * T_c_w` with
+//!   `xi = [rho (0..3); phi (3..6)]` (`ferroslam_geometry::se3::{TRANS, ROT}`);
+//! - residuals are `e = observed - predicted`, weighted by `inv_sigma2` (information
+//!   `inv_sigma2 * I`), and the cost is `sum rho(chi2)` with `chi2 = inv_sigma2 * |e|^2`
+//!   and `rho` the identity or g2o's Huber kernel ([`robust`]).
+//!
+//! Entry points: [`optimize_pose`] (one camera, fixed points, outlier rejection),
+//! [`SymbolicBa`] + [`bundle_adjust`] (Levenberg-Marquardt with a Schur complement on the
+//! points, the reduced camera system factorised with faer's sparse Cholesky on a symbolic
+//! analysis built once per problem structure) and [`local_bundle_adjust`] (ORB-SLAM's
+//! robust-then-plain schedule with outlier classification).
+#![warn(missing_docs)]
+
+pub mod ba;
+pub mod error;
+pub mod intrinsics;
+mod lm;
+pub mod pose;
+pub mod residual;
+pub mod robust;
+
+pub use ba::{
+    bundle_adjust, local_bundle_adjust, BaOptions, BaProblem, BaReport, LocalBaResult, Observation,
+    SymbolicBa,
+};
+pub use error::OptimError;
+pub use intrinsics::Intrinsics;
+pub use pose::{optimize_pose, PoseEstimate, PoseObservation};

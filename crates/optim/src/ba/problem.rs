@@ -1,0 +1,143 @@
+//! The data of a bundle adjustment problem.
+
+use crate::error::OptimError;
+use crate::intrinsics::Intrinsics;
+use crate::residual;
+use crate::robust::chi2_threshold;
+use nalgebra::{Isometry3, Vector2, Vector3};
+
+/// One keypoint of a map point in a keyframe.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Index into [`BaProblem::poses`].
+    pub pose: usize,
+    /// Index into [`BaProblem::points`].
+    pub point: usize,
+    /// Observed undistorted keypoint, pixels.
+    pub uv: Vector2<f64>,
+    /// Virtual right coordinate `u - bf / depth` (pixels) for stereo / RGB-D, else `None`.
+    pub u_right: Option<f64>,
+    /// Information weight `1 / sigma^2` (1/pixels^2).
+    pub inv_sigma2: f64,
+}
+
+impl Observation {
+    /// True for a stereo / RGB-D observation (3 residual rows).
+    pub fn is_stereo(&self) -> bool {
+        self.u_right.is_some()
+    }
+}
+
+/// Poses, points and observations of a bundle adjustment.
+///
+/// Free poses (`pose_fixed[i] == false`) and every point observed by at least one free pose
+/// are optimised; fixed poses and points seen only from fixed poses stay as they are (the
+/// latter cannot move without a free camera to pull them; ORB-SLAM never builds them).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BaProblem {
+    /// Camera intrinsics shared by all keyframes.
+    pub intrinsics: Intrinsics,
+    /// World-to-camera poses `T_c_w`.
+    pub poses: Vec<Isometry3<f64>>,
+    /// `true` for poses held constant (gauge anchors, ORB-SLAM's fixed covisible keyframes).
+    pub pose_fixed: Vec<bool>,
+    /// World points `p_w`, metres.
+    pub points: Vec<Vector3<f64>>,
+    /// All observations.
+    pub observations: Vec<Observation>,
+}
+
+impl BaProblem {
+    /// Checks lengths, indices, finiteness and positive information weights.
+    pub fn validate(&self) -> Result<(), OptimError> {
+        self.intrinsics.validate()?;
+        if self.pose_fixed.len() != self.poses.len() {
+            return Err(OptimError::InvalidInput(format!(
+                "pose_fixed has {} flags for {} poses",
+                self.pose_fixed.len(),
+                self.poses.len()
+            )));
+        }
+        for (i, t) in self.poses.iter().enumerate() {
+            let finite = t
+                .translation
+                .vector
+                .iter()
+                .chain(t.rotation.coords.iter())
+                .all(|v| v.is_finite());
+            if !finite {
+                return Err(OptimError::NonFinite {
+                    what: "pose",
+                    index: i,
+                });
+            }
+        }
+        if let Some(i) = self
+            .points
+            .iter()
+            .position(|p| !p.iter().all(|v| v.is_finite()))
+        {
+            return Err(OptimError::NonFinite {
+                what: "point",
+                index: i,
+            });
+        }
+        for (i, o) in self.observations.iter().enumerate() {
+            for (what, index, len) in [
+                ("pose", o.pose, self.poses.len()),
+                ("point", o.point, self.points.len()),
+            ] {
+                if index >= len {
+                    return Err(OptimError::IndexOutOfRange {
+                        observation: i,
+                        what,
+                        index,
+                        len,
+                    });
+                }
+            }
+            let finite = o.uv.iter().all(|v| v.is_finite())
+                && o.u_right.is_none_or(f64::is_finite)
+                && o.inv_sigma2.is_finite();
+            if !finite {
+                return Err(OptimError::NonFinite {
+                    what: "observation",
+                    index: i,
+                });
+            }
+            if o.inv_sigma2 <= 0.0 {
+                return Err(OptimError::InvalidInput(format!(
+                    "observation {i} has inv_sigma2 = {} (must be > 0)",
+                    o.inv_sigma2
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// `inv_sigma2 * |e|^2` of observation `i` at the current estimate; `None` if the point is
+    /// not in front of the camera (or non-finite). Panics if `i` is out of range.
+    pub fn chi2(&self, i: usize) -> Option<f64> {
+        let o = &self.observations[i];
+        residual::chi2(
+            &self.intrinsics,
+            &self.poses[o.pose],
+            &self.points[o.point],
+            &o.uv,
+            o.u_right,
+            o.inv_sigma2,
+        )
+    }
+
+    /// ORB-SLAM's classification of every observation at the current estimate: outlier iff
+    /// `chi2` exceeds [`crate::robust::CHI2_MONO`] / [`crate::robust::CHI2_STEREO`] or the point
+    /// is not in front of the camera. Requires a valid problem (see [`Self::validate`]).
+    pub fn classify_outliers(&self) -> Vec<bool> {
+        (0..self.observations.len())
+            .map(|i| {
+                let stereo = self.observations[i].is_stereo();
+                self.chi2(i).is_none_or(|c| c > chi2_threshold(stereo))
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,220 @@
+//! Motion-only bundle adjustment: refine one camera pose against fixed world points with
+//! ORB-SLAM's outlier rejection schedule (`Optimizer::PoseOptimization`).
+
+use crate::error::OptimError;
+use crate::intrinsics::Intrinsics;
+use crate::lm::{damping_diagonal, predicted_decrease, Damping};
+use crate::residual;
+use crate::robust::{chi2_threshold, cost_and_weight};
+use ferroslam_geometry::se3;
+use nalgebra::{Isometry3, Matrix6, Vector2, Vector3, Vector6};
+
+/// Rounds of optimisation followed by re-classification of every observation.
+pub const ROUNDS: usize = 4;
+/// Levenberg-Marquardt iterations per round (ORB-SLAM uses 10 in each).
+pub const ITERATIONS_PER_ROUND: usize = 10;
+/// The first `ROBUST_ROUNDS` rounds use the Huber kernel; later ones plain least squares.
+pub const ROBUST_ROUNDS: usize = 2;
+/// Initial Marquardt damping (relative to the Hessian diagonal).
+const INITIAL_LAMBDA: f64 = 1e-5;
+/// Stop a round once an accepted step lowers the cost by less than this fraction.
+const RELATIVE_TOLERANCE: f64 = 1e-12;
+
+/// A fixed world point observed in the camera being optimised.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseObservation {
+    /// Point in the world frame, metres.
+    pub p_w: Vector3<f64>,
+    /// Observed undistorted keypoint, pixels.
+    pub uv: Vector2<f64>,
+    /// Virtual right coordinate `u - bf / depth` (pixels) for stereo / RGB-D, else `None`.
+    pub u_right: Option<f64>,
+    /// Information weight `1 / sigma^2` (1/pixels^2), ORB-SLAM's per-octave `invSigma2`.
+    pub inv_sigma2: f64,
+}
+
+/// Result of [`optimize_pose`].
+#[allow(non_snake_case)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseEstimate {
+    /// Refined world-to-camera pose.
+    pub T_c_w: Isometry3<f64>,
+    /// Observations classified as inliers by the final round.
+    pub num_inliers: usize,
+}
+
+/// Refines `T_c_w` from fixed 3D-2D (or 3D-stereo) correspondences, classifying outliers.
+///
+/// Schedule (ORB-SLAM2/3 `PoseOptimization`): [`ROUNDS`] rounds, each restarting from the
+/// initial `T_c_w` and running up to [`ITERATIONS_PER_ROUND`] Levenberg-Marquardt iterations
+/// over the observations currently flagged inlier, with the Huber kernel in the first
+/// [`ROBUST_ROUNDS`] rounds. After each round ALL observations are re-classified:
+/// outlier iff `chi2 > CHI2_MONO` (mono) / `> CHI2_STEREO` (stereo), or the point is not in
+/// front of the camera (or its prediction is non-finite).
+///
+/// `outlier` holds the initial flags on input and the final classification on output.
+/// With no usable observation the initial pose is returned unchanged.
+///
+/// # Errors
+/// [`OptimError::InvalidInput`] if `outlier.len() != obs.len()`, intrinsics are invalid or an
+/// `inv_sigma2` is not positive; [`OptimError::NonFinite`] for a non-finite pose or
+/// observation value.
+#[allow(non_snake_case)]
+pub fn optimize_pose(
+    T_c_w: &Isometry3<f64>,
+    obs: &[PoseObservation],
+    k: &Intrinsics,
+    outlier: &mut [bool],
+) -> Result<PoseEstimate, OptimError> {
+    validate(T_c_w, obs, k, outlier)?;
+    let mut pose = *T_c_w;
+    for round in 0..ROUNDS {
+        // Like ORB-SLAM, every round restarts from the initial guess so that a round spoiled
+        // by outliers does not bias the next.
+        let active: Vec<usize> = (0..obs.len())
+            .filter(|&i| !outlier[i] && chi2_of(k, T_c_w, &obs[i]).is_some())
+            .collect();
+        pose = refine(T_c_w, obs, &active, k, round < ROBUST_ROUNDS);
+        for (flag, o) in outlier.iter_mut().zip(obs) {
+            *flag = chi2_of(k, &pose, o).is_none_or(|c| c > chi2_threshold(o.u_right.is_some()));
+        }
+    }
+    let num_inliers = outlier.iter().filter(|&&o| !o).count();
+    Ok(PoseEstimate {
+        T_c_w: pose,
+        num_inliers,
+    })
+}
+
+#[allow(non_snake_case)]
+fn validate(
+    T_c_w: &Isometry3<f64>,
+    obs: &[PoseObservation],
+    k: &Intrinsics,
+    outlier: &[bool],
+) -> Result<(), OptimError> {
+    k.validate()?;
+    if outlier.len() != obs.len() {
+        return Err(OptimError::InvalidInput(format!(
+            "outlier has {} flags for {} observations",
+            outlier.len(),
+            obs.len()
+        )));
+    }
+    let pose_finite = T_c_w.translation.vector.iter().all(|v| v.is_finite())
+        && T_c_w.rotation.coords.iter().all(|v| v.is_finite());
+    if !pose_finite {
+        return Err(OptimError::NonFinite {
+            what: "pose",
+            index: 0,
+        });
+    }
+    for (i, o) in obs.iter().enumerate() {
+        let finite = o.p_w.iter().chain(o.uv.iter()).all(|v| v.is_finite())
+            && o.u_right.is_none_or(f64::is_finite)
+            && o.inv_sigma2.is_finite();
+        if !finite {
+            return Err(OptimError::NonFinite {
+                what: "observation",
+                index: i,
+            });
+        }
+        if o.inv_sigma2 <= 0.0 {
+            return Err(OptimError::InvalidInput(format!(
+                "observation {i} has inv_sigma2 = {} (must be > 0)",
+                o.inv_sigma2
+            )));
+        }
+    }
+    Ok(())
+}
+
+#[allow(non_snake_case)]
+fn chi2_of(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservation) -> Option<f64> {
+    residual::chi2(k, T_c_w, &o.p_w, &o.uv, o.u_right, o.inv_sigma2)
+}
+
+/// Cost `sum rho(chi2)` over `active`, infinite if any of them leaves the camera's domain
+/// (so such steps are rejected and the objective stays well defined).
+fn cost(
+    k: &Intrinsics,
+    pose: &Isometry3<f64>,
+    obs: &[PoseObservation],
+    active: &[usize],
+    robust: bool,
+) -> f64 {
+    active
+        .iter()
+        .map(|&i| {
+            let o = &obs[i];
+            chi2_of(k, pose, o).map_or(f64::INFINITY, |c| {
+                cost_and_weight(c, o.u_right.is_some(), robust).0
+            })
+        })
+        .sum()
+}
+
+/// Levenberg-Marquardt on the 6-dof pose over the `active` observations.
+fn refine(
+    start: &Isometry3<f64>,
+    obs: &[PoseObservation],
+    active: &[usize],
+    k: &Intrinsics,
+    robust: bool,
+) -> Isometry3<f64> {
+    let mut pose = *start;
+    if active.is_empty() {
+        return pose;
+    }
+    let mut current = cost(k, &pose, obs, active, robust);
+    let mut damping = Damping::new(INITIAL_LAMBDA);
+    for _ in 0..ITERATIONS_PER_ROUND {
+        let mut h = Matrix6::<f64>::zeros();
+        let mut g = Vector6::<f64>::zeros();
+        for &i in active {
+            let o = &obs[i];
+            // Valid by construction: the current pose was accepted with a finite cost.
+            let Some(lin) = residual::linearize(k, &pose, &o.p_w, &o.uv, o.u_right) else {
+                continue;
+            };
+            let chi2 = o.inv_sigma2 * lin.e.norm_squared();
+            let w = o.inv_sigma2 * cost_and_weight(chi2, o.u_right.is_some(), robust).1;
+            h += w * lin.d_e_d_xi.transpose() * lin.d_e_d_xi;
+            g += w * lin.d_e_d_xi.transpose() * lin.e;
+        }
+        let d = h.diagonal().map(damping_diagonal);
+        let accepted = loop {
+            if damping.exhausted() {
+                break None;
+            }
+            let lambda = damping.lambda();
+            let mut hd = h;
+            for j in 0..6 {
+                hd[(j, j)] += lambda * d[j];
+            }
+            let Some(chol) = hd.cholesky() else {
+                damping.reject();
+                continue;
+            };
+            let dx = chol.solve(&(-g));
+            let candidate = se3::exp(&dx) * pose;
+            let new_cost = cost(k, &candidate, obs, active, robust);
+            let predicted = predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
+            let actual = current - new_cost;
+            if actual > 0.0 && predicted > 0.0 {
+                damping.accept(actual / predicted);
+                break Some((candidate, new_cost, actual));
+            }
+            damping.reject();
+        };
+        let Some((candidate, new_cost, actual)) = accepted else {
+            break;
+        };
+        pose = candidate;
+        current = new_cost;
+        if actual <= RELATIVE_TOLERANCE * new_cost.max(f64::MIN_POSITIVE) {
+            break;
+        }
+    }
+    pose
+}
