@@ -1,1 +1,20 @@
-use pyo3::prelude::*; #[pymodule] fn _core(_m: &Bound<'_, PyModule>) -> PyResult<()> { Ok(()) }
+//! `ferroslam._core`: thin PyO3 bindings over the Rust SLAM system.
+//!
+//! Arrays are checked here (dtype, shape, finiteness) before the core sees them, so no panic
+//! reaches Python; errors are translated in one place, [`errors`].
+#![allow(non_snake_case)]
+
+mod convert;
+mod errors;
+mod system;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("SlamError", m.py().get_type::<errors::SlamError>())?;
+    m.add_class::<system::PySlamSystem>()?;
+    m.add_class::<system::PyTrackResult>()?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,1 +1,23 @@
-//! placeholder
+//! The ferroslam SLAM system: ORB-SLAM's tracking and local mapping on top of the
+//! `geometry`, `features`, `map` and `optim` crates.
+//!
+//! Conventions are those of `ferroslam_geometry`: `T_a_b` maps points from frame b into
+//! frame a, camera poses are `T_w_c`, metres / pixels / seconds. Keypoints enter raw
+//! (distorted) and are undistorted once, in [`frame::Frame`].
+#![allow(non_snake_case)]
+
+pub mod config;
+pub mod context;
+pub mod error;
+pub mod frame;
+pub mod frustum;
+pub mod local_mapping;
+pub mod system;
+pub mod tracking;
+pub mod trajectory;
+
+pub use config::SlamConfig;
+pub use error::SlamError;
+pub use frame::RgbdInput;
+pub use system::{SlamSystem, TrackResult};
+pub use tracking::TrackingState;

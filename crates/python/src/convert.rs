@@ -1,0 +1,90 @@
+//! numpy <-> core conversions with shape and value checks.
+
+use ferroslam_features::{Descriptor, Keypoint};
+use nalgebra::Isometry3;
+use numpy::ndarray::{Array1, Array3};
+use numpy::{PyArray1, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+/// Keypoints `(N, 5)` float32 `[x, y, octave, angle_deg, response]` in raw pixels.
+pub fn keypoints(arr: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<Keypoint>> {
+    let shape = arr.shape();
+    if shape[1] != 5 {
+        return Err(PyValueError::new_err(format!(
+            "keypoints must have shape (N, 5) [x, y, octave, angle, response], got ({}, {})",
+            shape[0], shape[1]
+        )));
+    }
+    let a = arr.as_array();
+    let mut out = Vec::with_capacity(shape[0]);
+    for (i, row) in a.rows().into_iter().enumerate() {
+        if row.iter().any(|v| !v.is_finite()) {
+            return Err(PyValueError::new_err(format!("keypoints row {i} contains NaN or inf")));
+        }
+        let octave = row[2];
+        if octave < 0.0 || octave.fract() != 0.0 || octave > 255.0 {
+            return Err(PyValueError::new_err(format!(
+                "keypoints row {i}: octave {octave} is not a small non-negative integer"
+            )));
+        }
+        out.push(Keypoint { x: row[0], y: row[1], octave: octave as u8, angle_deg: row[3], response: row[4] });
+    }
+    Ok(out)
+}
+
+/// Descriptors `(N, 32)` uint8.
+pub fn descriptors(arr: &PyReadonlyArray2<'_, u8>) -> PyResult<Vec<Descriptor>> {
+    let shape = arr.shape();
+    if shape[1] != 32 {
+        return Err(PyValueError::new_err(format!(
+            "descriptors must have shape (N, 32) uint8 (256-bit ORB), got ({}, {})",
+            shape[0], shape[1]
+        )));
+    }
+    Ok(arr
+        .as_array()
+        .rows()
+        .into_iter()
+        .map(|row| {
+            let mut d = [0u8; 32];
+            d.iter_mut().zip(row.iter()).for_each(|(o, v)| *o = *v);
+            d
+        })
+        .collect())
+}
+
+/// A 1-D float32 array copied out.
+pub fn floats(arr: &PyReadonlyArray1<'_, f32>) -> Vec<f32> {
+    arr.as_array().iter().copied().collect()
+}
+
+/// A pose as a `(4, 4)` row-major homogeneous matrix.
+pub fn pose_matrix(T: &Isometry3<f64>) -> [[f64; 4]; 4] {
+    let m = T.to_homogeneous();
+    let mut out = [[0.0; 4]; 4];
+    for (r, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = m[(r, c)];
+        }
+    }
+    out
+}
+
+/// Stacks poses into a `(K, 4, 4)` float64 array.
+pub fn pose_stack<'py>(py: Python<'py>, poses: &[Isometry3<f64>]) -> Bound<'py, PyArray3<f64>> {
+    let mut a = Array3::<f64>::zeros((poses.len(), 4, 4));
+    for (k, T) in poses.iter().enumerate() {
+        for (r, row) in pose_matrix(T).iter().enumerate() {
+            for (c, v) in row.iter().enumerate() {
+                a[(k, r, c)] = *v;
+            }
+        }
+    }
+    PyArray3::from_owned_array(py, a)
+}
+
+/// A 1-D float64 array.
+pub fn f64_array<'py>(py: Python<'py>, values: Vec<f64>) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_owned_array(py, Array1::from(values))
+}

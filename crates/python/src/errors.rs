@@ -1,0 +1,22 @@
+//! The single place where core errors become Python exceptions.
+
+use ferroslam_slam::SlamError as CoreError;
+use pyo3::create_exception;
+use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::PyErr;
+
+create_exception!(
+    ferroslam,
+    SlamError,
+    PyException,
+    "Base class of ferroslam errors that are not plain bad input."
+);
+
+/// Bad configuration or input -> `ValueError` (with the core's message naming the problem);
+/// internal failures -> `SlamError`.
+pub fn to_py(err: CoreError) -> PyErr {
+    match err {
+        CoreError::InvalidConfig(_) | CoreError::InvalidInput(_) => PyValueError::new_err(err.to_string()),
+        CoreError::Map(_) | CoreError::Optim(_) => SlamError::new_err(err.to_string()),
+    }
+}

@@ -1,0 +1,235 @@
+//! `SlamSystem` and `TrackResult` Python classes.
+
+use ferroslam_geometry::camera::{PinholeCamera, RadTan};
+use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, TrackResult, TrackingState};
+use numpy::ndarray::Array2;
+use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyNotImplementedError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::convert;
+use crate::errors::to_py;
+
+fn state_name(state: TrackingState) -> &'static str {
+    match state {
+        TrackingState::NotInitialized => "not_initialized",
+        TrackingState::Ok => "ok",
+        TrackingState::Lost => "lost",
+    }
+}
+
+/// Reads the keyword options into a config; unknown names are an error, not ignored.
+fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
+    let mut config = SlamConfig::default();
+    let Some(options) = options else { return Ok(config) };
+    for (key, value) in options.iter() {
+        let key: String = key.extract()?;
+        let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));
+        match key.as_str() {
+            "scale_factor" => config.scale_factor = value.extract().map_err(wrong)?,
+            "n_levels" => config.n_levels = value.extract().map_err(wrong)?,
+            "track_feature_range" => config.track_feature_range = value.extract().map_err(wrong)?,
+            "skip_max_frames" => config.skip_max_frames = value.extract().map_err(wrong)?,
+            "bf" => config.bf = value.extract().map_err(wrong)?,
+            "depth_threshold" => config.depth_threshold = value.extract().map_err(wrong)?,
+            "depth_range" => config.depth_range = value.extract().map_err(wrong)?,
+            "seed" => config.seed = value.extract().map_err(wrong)?,
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "unknown option {key:?}; known: scale_factor, n_levels, track_feature_range, \
+                     skip_max_frames, bf, depth_threshold, depth_range, seed"
+                )))
+            }
+        }
+    }
+    Ok(config)
+}
+
+/// Result of tracking one frame.
+#[pyclass(name = "TrackResult", module = "ferroslam._core", frozen)]
+pub struct PyTrackResult {
+    inner: TrackResult,
+}
+
+#[pymethods]
+impl PyTrackResult {
+    /// "not_initialized", "ok" or "lost".
+    #[getter]
+    fn state(&self) -> &'static str {
+        state_name(self.inner.state)
+    }
+
+    /// Camera pose in the world, (4, 4) float64, or None when not tracked.
+    #[getter]
+    fn T_w_c<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
+        self.inner.T_w_c.map(|T| {
+            let m = convert::pose_matrix(&T);
+            PyArray2::from_owned_array(py, Array2::from_shape_fn((4, 4), |(r, c)| m[r][c]))
+        })
+    }
+
+    /// Whether this frame became a keyframe.
+    #[getter]
+    fn is_keyframe(&self) -> bool {
+        self.inner.is_keyframe
+    }
+
+    /// Map points tracked as inliers.
+    #[getter]
+    fn num_tracked(&self) -> usize {
+        self.inner.num_tracked
+    }
+
+    /// Tracking wall time, milliseconds.
+    #[getter]
+    fn tracking_ms(&self) -> f64 {
+        self.inner.tracking_ms
+    }
+
+    /// Local mapping wall time, milliseconds.
+    #[getter]
+    fn mapping_ms(&self) -> f64 {
+        self.inner.mapping_ms
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "TrackResult(state={:?}, is_keyframe={}, num_tracked={})",
+            state_name(self.inner.state),
+            self.inner.is_keyframe,
+            self.inner.num_tracked
+        )
+    }
+}
+
+/// The SLAM system (synchronous: tracking and local mapping run inside each call).
+#[pyclass(name = "SlamSystem", module = "ferroslam._core")]
+pub struct PySlamSystem {
+    inner: SlamSystem,
+}
+
+#[pymethods]
+impl PySlamSystem {
+    #[new]
+    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", **options))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        dist: Vec<f64>,
+        width: u32,
+        height: u32,
+        sensor: &str,
+        options: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        if sensor != "rgbd" {
+            return Err(PyNotImplementedError::new_err(format!(
+                "sensor {sensor:?} is not implemented yet (available: \"rgbd\")"
+            )));
+        }
+        let d: [f64; 5] = match dist.len() {
+            0 => [0.0; 5],
+            4 => [dist[0], dist[1], dist[2], dist[3], 0.0],
+            5 => [dist[0], dist[1], dist[2], dist[3], dist[4]],
+            n => {
+                return Err(PyValueError::new_err(format!(
+                    "dist must hold 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {n}"
+                )))
+            }
+        };
+        let distortion = RadTan { k1: d[0], k2: d[1], p1: d[2], p2: d[3], k3: d[4] };
+        let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
+            .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
+        let config = parse_config(options)?;
+        let inner = SlamSystem::new(camera, config).map_err(to_py)?;
+        Ok(Self { inner })
+    }
+
+    /// Tracks one RGB-D frame.
+    ///
+    /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
+    /// descriptors: (N, 32) uint8; depth_m: (N,) float32 metres (0 = none).
+    fn track_rgbd(
+        &mut self,
+        py: Python<'_>,
+        timestamp: f64,
+        keypoints: PyReadonlyArray2<'_, f32>,
+        descriptors: PyReadonlyArray2<'_, u8>,
+        depth_m: PyReadonlyArray1<'_, f32>,
+    ) -> PyResult<PyTrackResult> {
+        let kps = convert::keypoints(&keypoints)?;
+        let descs = convert::descriptors(&descriptors)?;
+        if depth_m.len() != kps.len() || descs.len() != kps.len() {
+            return Err(PyValueError::new_err(format!(
+                "keypoints ({}), descriptors ({}) and depth_m ({}) must have the same length",
+                kps.len(),
+                descs.len(),
+                depth_m.len()
+            )));
+        }
+        let depth = convert::floats(&depth_m);
+        let inner = &mut self.inner;
+        let result = py.detach(move || {
+            inner.track_rgbd(&RgbdInput { timestamp, keypoints: &kps, descriptors: &descs, depth_m: &depth })
+        });
+        result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+    }
+
+    /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.
+    fn frame_trajectory<'py>(&self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>) {
+        let traj = self.inner.frame_trajectory();
+        let stamps = traj.iter().map(|(t, _)| *t).collect();
+        let poses: Vec<_> = traj.into_iter().map(|(_, T)| T).collect();
+        (convert::f64_array(py, stamps), convert::pose_stack(py, &poses))
+    }
+
+    /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes.
+    fn keyframe_trajectory<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> (Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>) {
+        let kfs = self.inner.keyframe_trajectory();
+        let ids: Vec<u32> = kfs.iter().map(|(id, _, _)| id.0).collect();
+        let stamps = kfs.iter().map(|(_, t, _)| *t).collect();
+        let poses: Vec<_> = kfs.into_iter().map(|(_, _, T)| T).collect();
+        (PyArray1::from_vec(py, ids), convert::f64_array(py, stamps), convert::pose_stack(py, &poses))
+    }
+
+    /// World positions of the map points, (M, 3) float64 metres.
+    fn map_points<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let pts = self.inner.map_points();
+        PyArray2::from_owned_array(py, Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]))
+    }
+
+    /// Clears the map; tracking restarts with the next frame.
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    /// "not_initialized", "ok" or "lost".
+    #[getter]
+    fn state(&self) -> &'static str {
+        state_name(self.inner.state())
+    }
+
+    /// Live keyframes in the map.
+    #[getter]
+    fn num_keyframes(&self) -> usize {
+        self.inner.map().num_keyframes()
+    }
+
+    /// Live map points.
+    #[getter]
+    fn num_map_points(&self) -> usize {
+        self.inner.map().num_map_points()
+    }
+
+    /// Map resets so far (tracking lost right after initialisation).
+    #[getter]
+    fn num_resets(&self) -> usize {
+        self.inner.resets()
+    }
+}

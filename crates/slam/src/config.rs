@@ -1,0 +1,79 @@
+//! Tuning knobs of the SLAM system, with ORB-SLAM2/3 RGB-D defaults.
+
+use crate::error::SlamError;
+
+/// Configuration of a [`crate::SlamSystem`].
+///
+/// Names mirror MATLAB's `rgbdvslam` where a knob exists there (`track_feature_range`,
+/// `skip_max_frames`, `depth_range`) and ORB-SLAM's settings otherwise.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlamConfig {
+    /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`).
+    pub scale_factor: f64,
+    /// Number of ORB pyramid levels.
+    pub n_levels: usize,
+    /// `(lower, upper)` tracked-feature limits: below `lower` tracking is lost; above `upper`
+    /// a keyframe is only forced by `skip_max_frames` (the frame is "too easy" to track).
+    pub track_feature_range: (usize, usize),
+    /// Maximum number of frames between two keyframes (ORB-SLAM `mMaxFrames`).
+    pub skip_max_frames: usize,
+    /// Stereo baseline times fx, in metres * pixels; the virtual right camera of RGB-D input.
+    pub bf: f64,
+    /// Points closer than `depth_threshold` baselines are "close" (trusted depth), metres / baseline.
+    pub depth_threshold: f64,
+    /// `(min, max)` valid sensor depth in metres; other depths count as missing.
+    pub depth_range: (f64, f64),
+    /// Seed of every random choice (RANSAC).
+    pub seed: u64,
+}
+
+impl Default for SlamConfig {
+    fn default() -> Self {
+        Self {
+            scale_factor: 1.2,
+            n_levels: 8,
+            track_feature_range: (30, 1000),
+            skip_max_frames: 30,
+            bf: 40.0,
+            depth_threshold: 40.0,
+            depth_range: (0.1, 8.0),
+            seed: 0,
+        }
+    }
+}
+
+impl SlamConfig {
+    /// Checks every field, naming the first invalid one.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        let bad = |what: &str| Err(SlamError::InvalidConfig(what.to_owned()));
+        if !(self.scale_factor.is_finite() && self.scale_factor > 1.0) {
+            return bad("scale_factor must be > 1");
+        }
+        if !(1..=32).contains(&self.n_levels) {
+            return bad("n_levels must be in 1..=32");
+        }
+        let (lo, hi) = self.track_feature_range;
+        if lo == 0 || lo >= hi {
+            return bad("track_feature_range must be (lower, upper) with 0 < lower < upper");
+        }
+        if self.skip_max_frames == 0 {
+            return bad("skip_max_frames must be >= 1");
+        }
+        if !(self.bf.is_finite() && self.bf > 0.0) {
+            return bad("bf must be a positive number (fx * baseline)");
+        }
+        if !(self.depth_threshold.is_finite() && self.depth_threshold > 0.0) {
+            return bad("depth_threshold must be positive");
+        }
+        let (dmin, dmax) = self.depth_range;
+        if !(dmin.is_finite() && dmax.is_finite() && 0.0 <= dmin && dmin < dmax) {
+            return bad("depth_range must be (min, max) with 0 <= min < max");
+        }
+        Ok(())
+    }
+
+    /// Depth below which a point is close enough to trust its measured depth, metres.
+    pub fn close_depth_m(&self, fx: f64) -> f64 {
+        self.bf * self.depth_threshold / fx
+    }
+}

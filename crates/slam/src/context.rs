@@ -1,0 +1,37 @@
+//! Read-only sensor and configuration context shared by the tracking and mapping stages.
+
+use ferroslam_features::ImageBounds;
+use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_optim::Intrinsics;
+
+use crate::config::SlamConfig;
+
+/// Calibration and settings every stage needs; fixed for the life of a system.
+#[derive(Clone, Debug)]
+pub struct Context {
+    /// Calibrated camera (keypoints are undistorted with it).
+    pub camera: PinholeCamera,
+    /// Undistorted image bounds, pixels.
+    pub bounds: ImageBounds,
+    /// Ideal pinhole + bf used by the optimisers.
+    pub intrinsics: Intrinsics,
+    /// User configuration.
+    pub config: SlamConfig,
+    /// Depth below which measured depth is trusted ("close" points), metres.
+    pub close_depth_m: f64,
+    /// Stereo baseline, metres (bf / fx).
+    pub baseline_m: f64,
+}
+
+impl Context {
+    /// Derives the context from a validated configuration.
+    pub fn new(camera: PinholeCamera, config: SlamConfig) -> Self {
+        let b = camera.undistorted_bounds();
+        let bounds = ImageBounds { min_x: b.min_x, max_x: b.max_x, min_y: b.min_y, max_y: b.max_y };
+        let intrinsics =
+            Intrinsics { fx: camera.fx, fy: camera.fy, cx: camera.cx, cy: camera.cy, bf: config.bf };
+        let close_depth_m = config.close_depth_m(camera.fx);
+        let baseline_m = config.bf / camera.fx;
+        Self { camera, bounds, intrinsics, config, close_depth_m, baseline_m }
+    }
+}

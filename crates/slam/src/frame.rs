@@ -1,0 +1,158 @@
+//! A tracked image: its features (undistorted, with depth) and their map associations.
+
+use ferroslam_features::{Descriptor, ImageBounds, Keypoint, ScalePyramid};
+use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_map::{FrameFeatures, MapPointId};
+use nalgebra::{Isometry3, Vector2, Vector3};
+
+use crate::config::SlamConfig;
+use crate::error::SlamError;
+
+/// One input frame during tracking.
+///
+/// `map_points[i]` is the map point matched to keypoint `i`; `vo_points[i]` is a temporary
+/// "visual odometry" point (ORB-SLAM `UpdateLastFrame`): a depth-backed world position that
+/// helps the motion model but is never inserted into the map.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Index of the frame in the input stream (0-based).
+    pub index: usize,
+    /// Capture time, seconds.
+    pub timestamp: f64,
+    /// Undistorted keypoints, descriptors, depth and virtual right coordinates.
+    pub features: FrameFeatures,
+    /// Map point matched to each keypoint.
+    pub map_points: Vec<Option<MapPointId>>,
+    /// Temporary depth points of the previous frame used by the motion model, world frame.
+    pub vo_points: Vec<Option<Vector3<f64>>>,
+    /// Whether the association of keypoint `i` was rejected by pose optimisation.
+    pub outlier: Vec<bool>,
+    /// Camera pose, world to camera.
+    pub T_c_w: Isometry3<f64>,
+}
+
+/// Raw per-frame input of an RGB-D camera: distorted keypoints with their sensor depth.
+pub struct RgbdInput<'a> {
+    /// Capture time, seconds.
+    pub timestamp: f64,
+    /// Keypoints in raw (distorted) pixel coordinates.
+    pub keypoints: &'a [Keypoint],
+    /// 256-bit ORB descriptors, one per keypoint.
+    pub descriptors: &'a [Descriptor],
+    /// Depth at each keypoint in metres; 0, negative or NaN means no measurement.
+    pub depth_m: &'a [f32],
+}
+
+impl RgbdInput<'_> {
+    /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
+    pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
+        let n = self.keypoints.len();
+        if !self.timestamp.is_finite() {
+            return Err(SlamError::InvalidInput("timestamp is not finite".into()));
+        }
+        if self.descriptors.len() != n || self.depth_m.len() != n {
+            return Err(SlamError::InvalidInput(format!(
+                "got {n} keypoints, {} descriptors and {} depths: lengths must match",
+                self.descriptors.len(),
+                self.depth_m.len()
+            )));
+        }
+        if let Some(i) = self.keypoints.iter().position(|k| !(k.x.is_finite() && k.y.is_finite())) {
+            return Err(SlamError::InvalidInput(format!("keypoint {i} has non-finite coordinates")));
+        }
+        if let Some(i) = self.keypoints.iter().position(|k| k.octave as usize >= n_levels) {
+            return Err(SlamError::InvalidInput(format!(
+                "keypoint {i} has octave {} but the pyramid has {n_levels} levels",
+                self.keypoints[i].octave
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl Frame {
+    /// Undistorts the keypoints and derives the virtual right coordinate from depth.
+    pub fn from_rgbd(
+        index: usize,
+        input: &RgbdInput<'_>,
+        camera: &PinholeCamera,
+        bounds: ImageBounds,
+        config: &SlamConfig,
+    ) -> Result<Self, SlamError> {
+        let (dmin, dmax) = config.depth_range;
+        let mut keypoints = Vec::with_capacity(input.keypoints.len());
+        let mut depth = Vec::with_capacity(input.keypoints.len());
+        let mut u_right = Vec::with_capacity(input.keypoints.len());
+        for (kp, &d) in input.keypoints.iter().zip(input.depth_m) {
+            let uv = camera.undistort_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
+            keypoints.push(Keypoint { x: uv.x as f32, y: uv.y as f32, ..*kp });
+            let d = d as f64;
+            if d.is_finite() && d > dmin && d < dmax {
+                depth.push(d as f32);
+                u_right.push((uv.x - config.bf / d) as f32);
+            } else {
+                depth.push(-1.0);
+                u_right.push(-1.0);
+            }
+        }
+        let n = keypoints.len();
+        let features = FrameFeatures::new(keypoints, input.descriptors.to_vec(), depth, u_right, bounds)?;
+        Ok(Self {
+            index,
+            timestamp: input.timestamp,
+            features,
+            map_points: vec![None; n],
+            vo_points: vec![None; n],
+            outlier: vec![false; n],
+            T_c_w: Isometry3::identity(),
+        })
+    }
+
+    /// Number of keypoints.
+    pub fn len(&self) -> usize {
+        self.map_points.len()
+    }
+
+    /// Whether the frame has no keypoints.
+    pub fn is_empty(&self) -> bool {
+        self.map_points.is_empty()
+    }
+
+    /// Camera centre in the world frame, metres.
+    pub fn camera_center(&self) -> Vector3<f64> {
+        self.T_c_w.inverse().translation.vector
+    }
+
+    /// Back-projects keypoint `i` with its measured depth into the world frame.
+    pub fn unproject_depth(&self, i: usize, camera: &PinholeCamera) -> Option<Vector3<f64>> {
+        unproject_depth(&self.features, i, camera, &self.T_c_w.inverse())
+    }
+
+    /// Forgets every association (before a new matching attempt).
+    pub fn clear_associations(&mut self) {
+        self.map_points.iter_mut().for_each(|m| *m = None);
+        self.vo_points.iter_mut().for_each(|m| *m = None);
+        self.outlier.iter_mut().for_each(|o| *o = false);
+    }
+
+    /// Information weight 1/sigma^2 of keypoint `i`, from its pyramid level.
+    pub fn inv_sigma2(&self, i: usize, pyramid: &ScalePyramid) -> f64 {
+        pyramid.inv_sigma2[self.features.keypoints[i].octave as usize]
+    }
+}
+
+/// Back-projects keypoint `i` of `features` with its depth, returning the world point.
+pub fn unproject_depth(
+    features: &FrameFeatures,
+    i: usize,
+    camera: &PinholeCamera,
+    T_w_c: &Isometry3<f64>,
+) -> Option<Vector3<f64>> {
+    let z = features.depth[i] as f64;
+    if z <= 0.0 {
+        return None;
+    }
+    let kp = &features.keypoints[i];
+    let ray = camera.unproject(&Vector2::new(kp.x as f64, kp.y as f64));
+    Some(T_w_c * nalgebra::Point3::from(ray * z)).map(|p| p.coords)
+}

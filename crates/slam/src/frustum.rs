@@ -1,0 +1,53 @@
+//! Visibility of a map point from a camera pose (ORB-SLAM `Frame::isInFrustum`).
+
+use ferroslam_features::ImageBounds;
+use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_map::{Map, MapPointId};
+use nalgebra::{Isometry3, Point3, Vector3};
+
+/// Where and at which pyramid level a map point should appear in an image.
+#[derive(Clone, Copy, Debug)]
+pub struct VisiblePoint {
+    /// The map point.
+    pub id: MapPointId,
+    /// Predicted pixel coordinates (undistorted).
+    pub u: f64,
+    /// Predicted pixel row (undistorted).
+    pub v: f64,
+    /// Predicted pyramid level from the viewing distance.
+    pub level: u8,
+    /// Cosine between the viewing ray and the point's mean viewing direction.
+    pub view_cos: f64,
+}
+
+/// Projects `mp` into a camera at `T_c_w` and checks ORB-SLAM's visibility conditions:
+/// positive depth, inside the image bounds, distance within the scale-invariance range
+/// (0.8 min, 1.2 max) and viewing angle with `cos >= min_view_cos` to the mean direction.
+pub fn visible_point(
+    map: &Map,
+    mp: MapPointId,
+    T_c_w: &Isometry3<f64>,
+    center_w: &Vector3<f64>,
+    camera: &PinholeCamera,
+    bounds: &ImageBounds,
+    min_view_cos: f64,
+) -> Option<VisiblePoint> {
+    let point = map.map_point(mp)?;
+    let p_w = point.position();
+    let p_c = T_c_w * Point3::from(p_w);
+    let uv = camera.project(&p_c.coords)?;
+    if uv.x < bounds.min_x || uv.x >= bounds.max_x || uv.y < bounds.min_y || uv.y >= bounds.max_y {
+        return None;
+    }
+    let ray = p_w - center_w;
+    let dist = ray.norm();
+    if dist < 0.8 * point.min_distance() || dist > 1.2 * point.max_distance() {
+        return None;
+    }
+    let view_cos = ray.dot(&point.normal()) / dist;
+    if view_cos < min_view_cos {
+        return None;
+    }
+    let level = map.pyramid().predict_level(dist, point.max_distance()) as u8;
+    Some(VisiblePoint { id: mp, u: uv.x, v: uv.y, level, view_cos })
+}

@@ -1,0 +1,536 @@
+//! Local mapping: what happens to the map when a keyframe is inserted (ORB-SLAM `LocalMapping`):
+//! new points from depth, culling of recent points, triangulation with covisible keyframes,
+//! fusion of duplicates, local bundle adjustment and culling of redundant keyframes.
+
+use std::collections::{HashMap, HashSet};
+
+use ferroslam_features::matcher::TH_LOW;
+use ferroslam_features::{hamming, search_for_triangulation, MatchOptions};
+use ferroslam_geometry::triangulation::triangulate_dlt;
+use ferroslam_map::{KeyFrameId, Map, MapPointId};
+use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
+use ferroslam_optim::{local_bundle_adjust, BaProblem, Observation};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector2, Vector3};
+
+use crate::context::Context;
+use crate::error::SlamError;
+use crate::frame::{unproject_depth, Frame};
+use crate::frustum::visible_point;
+
+/// Covisible keyframes searched for new points and fusion (ORB-SLAM, stereo/RGB-D).
+const TRIANGULATION_NEIGHBOURS: usize = 10;
+/// Observations a point needs to survive its first keyframes (stereo/RGB-D count 2 each).
+const MIN_POINT_OBSERVATIONS: usize = 3;
+
+/// What one keyframe's local mapping did, for logs and tests.
+#[derive(Clone, Debug, Default)]
+pub struct MappingReport {
+    /// Points created from depth when the keyframe was inserted.
+    pub depth_points: usize,
+    /// Points triangulated with covisible keyframes.
+    pub triangulated_points: usize,
+    /// Recent points removed for failing the culling tests.
+    pub culled_points: usize,
+    /// Duplicate points fused.
+    pub fused_points: usize,
+    /// Observations rejected by local BA.
+    pub ba_outliers: usize,
+    /// Keyframes removed as redundant.
+    pub culled_keyframes: usize,
+}
+
+/// State of local mapping between keyframes.
+#[derive(Debug, Default)]
+pub struct LocalMapper {
+    /// Points created recently and not yet proven (ORB-SLAM `mlpRecentAddedMapPoints`).
+    recent_points: Vec<MapPointId>,
+    /// The first keyframe of the map: never culled, always fixed in BA (gauge).
+    pub origin: Option<KeyFrameId>,
+}
+
+impl LocalMapper {
+    /// Forgets everything (after a map reset).
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+
+    /// Turns a tracked frame into a keyframe: links its matched points, and creates points
+    /// from measured depth for the closest unmatched features (ORB-SLAM `CreateNewKeyFrame`,
+    /// at least 100 points, all those closer than the close-depth threshold).
+    pub fn insert_keyframe(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+        report: &mut MappingReport,
+    ) -> Result<KeyFrameId, SlamError> {
+        let kf = map.insert_keyframe(frame.timestamp, frame.index, frame.T_c_w, frame.features.clone());
+        if self.origin.is_none() {
+            self.origin = Some(kf);
+        }
+        for i in 0..frame.len() {
+            let Some(m) = frame.map_points[i] else { continue };
+            if frame.outlier[i] || map.map_point(m).is_none_or(|p| p.observations().contains_key(&kf)) {
+                frame.map_points[i] = None;
+                continue;
+            }
+            map.add_observation(m, kf, i)?;
+            map.update_normal_and_depth(m)?;
+            map.compute_distinctive_descriptor(m)?;
+        }
+        let mut by_depth: Vec<(f32, usize)> = (0..frame.len())
+            .filter(|&i| frame.features.depth[i] > 0.0)
+            .map(|i| (frame.features.depth[i], i))
+            .collect();
+        by_depth.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let T_w_c = frame.T_c_w.inverse();
+        let mut n_points = 0;
+        for (z, i) in by_depth {
+            if frame.map_points[i].is_none() {
+                let Some(p_w) = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c) else {
+                    continue;
+                };
+                let m = map.create_map_point(p_w, kf)?;
+                map.add_observation(m, kf, i)?;
+                map.compute_distinctive_descriptor(m)?;
+                map.update_normal_and_depth(m)?;
+                frame.map_points[i] = Some(m);
+                self.recent_points.push(m);
+                report.depth_points += 1;
+            }
+            n_points += 1;
+            if z as f64 > ctx.close_depth_m && n_points > 100 {
+                break;
+            }
+        }
+        map.update_connections(kf)?;
+        Ok(kf)
+    }
+
+    /// Runs the local mapping stages for the keyframe just inserted.
+    pub fn process_keyframe(
+        &mut self,
+        kf: KeyFrameId,
+        map: &mut Map,
+        ctx: &Context,
+        report: &mut MappingReport,
+    ) -> Result<(), SlamError> {
+        report.culled_points += self.cull_recent_points(kf, map);
+        report.triangulated_points += self.create_new_points(kf, map, ctx)?;
+        report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
+        report.ba_outliers += self.local_bundle_adjust(kf, map, ctx)?;
+        report.culled_keyframes += self.cull_keyframes(kf, map, ctx);
+        Ok(())
+    }
+
+    /// ORB-SLAM `MapPointCulling`: a recent point dies if found in less than a quarter of the
+    /// frames that should have seen it, or if two keyframes later it has too few observations;
+    /// after three keyframes it is proven.
+    fn cull_recent_points(&mut self, current: KeyFrameId, map: &mut Map) -> usize {
+        let mut culled = 0;
+        let mut kept = Vec::with_capacity(self.recent_points.len());
+        for &m in &self.recent_points {
+            let Some(p) = map.map_point(m) else { continue };
+            let age = current.0.saturating_sub(p.first_keyframe().0);
+            if p.found_ratio() < 0.25 || (age >= 2 && p.num_observations() <= MIN_POINT_OBSERVATIONS) {
+                map.set_map_point_bad(m);
+                culled += 1;
+            } else if age < 3 {
+                kept.push(m);
+            }
+        }
+        self.recent_points = kept;
+        culled
+    }
+
+    /// Triangulates unmatched features of `kf` with those of its best covisible keyframes
+    /// (ORB-SLAM `CreateNewMapPoints`): epipolar matching, parallax, positive depth,
+    /// reprojection and scale-consistency checks. Close features with depth use it directly
+    /// when their stereo parallax beats the ray parallax.
+    fn create_new_points(&mut self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+        let neighbours = map.best_covisibles(kf, TRIANGULATION_NEIGHBOURS);
+        let pyramid = map.pyramid().clone();
+        let ratio_factor = 1.5 * pyramid.scale_factor;
+        let mut created = 0;
+        for kf2 in neighbours {
+            let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(kf2)) else { continue };
+            let (T_c1_w, T_c2_w) = (*k1.T_c_w(), *k2.T_c_w());
+            let (o1, o2) = (k1.camera_center(), k2.camera_center());
+            if (o2 - o1).norm() < ctx.baseline_m {
+                continue;
+            }
+            let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, ctx);
+            let epipole2 = ctx.camera.project(&(T_c2_w * Point3::from(o1)).coords).map(|e| (e.x, e.y));
+            let (f1, f2) = (k1.features(), k2.features());
+            let free1: Vec<bool> = k1.map_points().iter().map(Option::is_none).collect();
+            let free2: Vec<bool> = k2.map_points().iter().map(Option::is_none).collect();
+            let opts = MatchOptions { max_distance: TH_LOW, nn_ratio: None, check_orientation: true };
+            let pairs = search_for_triangulation(
+                &f1.keypoints,
+                &f1.descriptors,
+                &free1,
+                &f2.keypoints,
+                &f2.descriptors,
+                &free2,
+                &f21,
+                &pyramid.sigma2,
+                epipole2,
+                &opts,
+            );
+            let views = [View::new(map, kf), View::new(map, kf2)];
+            let mut new_points = Vec::new();
+            for (i1, i2) in pairs {
+                let Some(p_w) = triangulate_pair(&views, [i1, i2], ctx) else { continue };
+                let ok = views
+                    .iter()
+                    .zip([i1, i2])
+                    .all(|(v, i)| v.reprojection_ok(&p_w, i, &pyramid.sigma2, ctx));
+                if !ok {
+                    continue;
+                }
+                let (d1, d2) = ((p_w - o1).norm(), (p_w - o2).norm());
+                if d1 == 0.0 || d2 == 0.0 {
+                    continue;
+                }
+                let ratio_dist = d2 / d1;
+                let ratio_octave = pyramid.scale[views[0].octave(i1)] / pyramid.scale[views[1].octave(i2)];
+                if ratio_dist * ratio_factor < ratio_octave || ratio_dist > ratio_octave * ratio_factor {
+                    continue;
+                }
+                new_points.push((p_w, i1, i2));
+            }
+            for (p_w, i1, i2) in new_points {
+                let m = map.create_map_point(p_w, kf)?;
+                map.add_observation(m, kf, i1)?;
+                map.add_observation(m, kf2, i2)?;
+                map.compute_distinctive_descriptor(m)?;
+                map.update_normal_and_depth(m)?;
+                self.recent_points.push(m);
+                created += 1;
+            }
+        }
+        Ok(created)
+    }
+
+    /// Local BA over `kf` and its covisible keyframes, with the other keyframes that see
+    /// their points held fixed; rejected observations are erased from the map.
+    fn local_bundle_adjust(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+        let mut local: Vec<KeyFrameId> = vec![kf];
+        local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
+        let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
+        let mut points = Vec::new();
+        let mut seen = HashSet::new();
+        for &k in &local {
+            for m in map.keyframe(k).into_iter().flat_map(|k| k.map_points().iter().flatten()) {
+                if map.map_point(*m).is_some() && seen.insert(*m) {
+                    points.push(*m);
+                }
+            }
+        }
+        let mut fixed = Vec::new();
+        let mut fixed_set = HashSet::new();
+        for &m in &points {
+            for k in map.map_point(m).unwrap().observations().keys() {
+                if !local_set.contains(k) && fixed_set.insert(*k) {
+                    fixed.push(*k);
+                }
+            }
+        }
+        let pose_ids: Vec<KeyFrameId> = local.iter().chain(fixed.iter()).copied().collect();
+        let pose_index: HashMap<KeyFrameId, usize> =
+            pose_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+        let pyramid = map.pyramid();
+        let mut observations = Vec::new();
+        let mut obs_keys = Vec::new();
+        for (pi, &m) in points.iter().enumerate() {
+            for (&k, &i) in map.map_point(m).unwrap().observations() {
+                let Some(&pose) = pose_index.get(&k) else { continue };
+                let f = map.keyframe(k).unwrap().features();
+                let kp = &f.keypoints[i];
+                let ur = f.u_right[i];
+                observations.push(Observation {
+                    pose,
+                    point: pi,
+                    uv: Vector2::new(kp.x as f64, kp.y as f64),
+                    u_right: (ur >= 0.0).then_some(ur as f64),
+                    inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
+                });
+                obs_keys.push((m, k));
+            }
+        }
+        let mut problem = BaProblem {
+            intrinsics: ctx.intrinsics,
+            poses: pose_ids.iter().map(|k| *map.keyframe(*k).unwrap().T_c_w()).collect(),
+            pose_fixed: pose_ids
+                .iter()
+                .map(|k| !local_set.contains(k) || Some(*k) == self.origin)
+                .collect(),
+            points: points.iter().map(|m| map.map_point(*m).unwrap().position()).collect(),
+            observations,
+        };
+        let Ok(result) = local_bundle_adjust(&mut problem) else {
+            // A numerically failed BA leaves the map as it was; the next keyframe retries.
+            return Ok(0);
+        };
+        for (pi, &k) in pose_ids.iter().enumerate() {
+            if !problem.pose_fixed[pi] {
+                map.set_keyframe_pose(k, problem.poses[pi])?;
+            }
+        }
+        for (pi, &m) in points.iter().enumerate() {
+            map.set_map_point_position(m, problem.points[pi])?;
+        }
+        let mut n_outliers = 0;
+        for (o, &(m, k)) in obs_keys.iter().enumerate() {
+            if result.outlier[o] && map.map_point(m).is_some() {
+                map.erase_observation(m, k);
+                n_outliers += 1;
+            }
+        }
+        for &m in &points {
+            if map.map_point(m).is_some() {
+                map.update_normal_and_depth(m)?;
+            }
+        }
+        Ok(n_outliers)
+    }
+
+    /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close
+    /// points are seen, at the same or a finer scale, by at least three other keyframes.
+    fn cull_keyframes(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
+        let mut culled = 0;
+        for (candidate, _) in map.covisibles(kf) {
+            if Some(candidate) == self.origin {
+                continue;
+            }
+            let Some(k) = map.keyframe(candidate) else { continue };
+            let f = k.features();
+            let (mut n_points, mut n_redundant) = (0usize, 0usize);
+            for (i, m) in k.map_points().iter().enumerate() {
+                let Some(p) = m.and_then(|m| map.map_point(m)) else { continue };
+                let z = f.depth[i] as f64;
+                if z < 0.0 || z > ctx.close_depth_m {
+                    continue;
+                }
+                n_points += 1;
+                if p.num_observations() <= MIN_POINT_OBSERVATIONS {
+                    continue;
+                }
+                let level = f.keypoints[i].octave;
+                let n_finer = p
+                    .observations()
+                    .iter()
+                    .filter(|(k2, _)| **k2 != candidate)
+                    .filter(|(k2, i2)| {
+                        map.keyframe(**k2).is_some_and(|k2| k2.features().keypoints[**i2].octave <= level + 1)
+                    })
+                    .take(MIN_POINT_OBSERVATIONS)
+                    .count();
+                if n_finer >= MIN_POINT_OBSERVATIONS {
+                    n_redundant += 1;
+                }
+            }
+            if n_points > 0 && n_redundant as f64 > 0.9 * n_points as f64 {
+                if map.set_keyframe_bad(candidate) {
+                    culled += 1;
+                }
+            }
+        }
+        culled
+    }
+}
+
+/// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two cameras.
+fn fundamental_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>, ctx: &Context) -> Matrix3<f64> {
+    let T_21 = T_c2_w * T_c1_w.inverse();
+    let t = T_21.translation.vector;
+    let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
+    let e21 = t_hat * T_21.rotation.to_rotation_matrix().into_inner();
+    let c = &ctx.camera;
+    let k_inv = Matrix3::new(1.0 / c.fx, 0.0, -c.cx / c.fx, 0.0, 1.0 / c.fy, -c.cy / c.fy, 0.0, 0.0, 1.0);
+    k_inv.transpose() * e21 * k_inv
+}
+
+/// One keyframe's view of a feature, for triangulation checks.
+struct View<'a> {
+    T_c_w: Isometry3<f64>,
+    T_w_c: Isometry3<f64>,
+    features: &'a ferroslam_map::FrameFeatures,
+}
+
+impl<'a> View<'a> {
+    fn new(map: &'a Map, kf: KeyFrameId) -> Self {
+        let k = map.keyframe(kf).expect("view of a live keyframe");
+        Self { T_c_w: *k.T_c_w(), T_w_c: k.T_w_c(), features: k.features() }
+    }
+
+    fn octave(&self, i: usize) -> usize {
+        self.features.keypoints[i].octave as usize
+    }
+
+    fn pixel(&self, i: usize) -> Vector2<f64> {
+        let kp = &self.features.keypoints[i];
+        Vector2::new(kp.x as f64, kp.y as f64)
+    }
+
+    /// Cosine of the parallax a depth measurement gives (`2 atan(b / 2z)`), or 2 without depth.
+    fn stereo_parallax_cos(&self, i: usize, ctx: &Context) -> f64 {
+        let z = self.features.depth[i] as f64;
+        if z > 0.0 {
+            (2.0 * (ctx.baseline_m / 2.0).atan2(z)).cos()
+        } else {
+            2.0
+        }
+    }
+
+    /// ORB-SLAM's chi2 test (5.991 for (u, v), 7.8 with the right coordinate), positive depth.
+    fn reprojection_ok(&self, p_w: &Vector3<f64>, i: usize, sigma2: &[f64], ctx: &Context) -> bool {
+        let p_c = self.T_c_w * Point3::from(*p_w);
+        let Some(uv) = ctx.camera.project(&p_c.coords) else { return false };
+        let e = uv - self.pixel(i);
+        let s2 = sigma2[self.octave(i)];
+        let ur = self.features.u_right[i] as f64;
+        if ur >= 0.0 {
+            let er = uv.x - ctx.intrinsics.bf / p_c.z - ur;
+            e.norm_squared() + er * er <= CHI2_STEREO * s2
+        } else {
+            e.norm_squared() <= CHI2_MONO * s2
+        }
+    }
+}
+
+/// The world point of a matched pair: triangulated when the rays' parallax beats what the
+/// depth sensor offers, otherwise back-projected from the better depth (ORB-SLAM rule).
+fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Option<Vector3<f64>> {
+    let xn = [0, 1].map(|k| ctx.camera.unproject(&views[k].pixel(idx[k])));
+    let rays = [0, 1].map(|k| views[k].T_w_c.rotation * xn[k]);
+    let cos_rays = rays[0].dot(&rays[1]) / (rays[0].norm() * rays[1].norm());
+    let cos_stereo = [0, 1].map(|k| views[k].stereo_parallax_cos(idx[k], ctx));
+    let has_depth = [0, 1].map(|k| views[k].features.depth[idx[k]] > 0.0);
+    if cos_rays < cos_stereo[0].min(cos_stereo[1])
+        && cos_rays > 0.0
+        && (has_depth[0] || has_depth[1] || cos_rays < 0.9998)
+    {
+        triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &xn[0], &xn[1])
+    } else if has_depth[0] && cos_stereo[0] < cos_stereo[1] {
+        unproject_depth(views[0].features, idx[0], &ctx.camera, &views[0].T_w_c)
+    } else if has_depth[1] && cos_stereo[1] < cos_stereo[0] {
+        unproject_depth(views[1].features, idx[1], &ctx.camera, &views[1].T_w_c)
+    } else {
+        None
+    }
+}
+
+/// ORB-SLAM `SearchInNeighbors`: fuses the points of `kf` into its first and second
+/// covisibility neighbours and theirs into `kf`, then refreshes `kf`'s points and links.
+fn fuse_with_neighbours(kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+    let mut targets = Vec::new();
+    let mut seen: HashSet<KeyFrameId> = HashSet::from([kf]);
+    for n in map.best_covisibles(kf, TRIANGULATION_NEIGHBOURS) {
+        if seen.insert(n) {
+            targets.push(n);
+        }
+        for n2 in map.best_covisibles(n, 5) {
+            if seen.insert(n2) {
+                targets.push(n2);
+            }
+        }
+    }
+    let own: Vec<MapPointId> = map.keyframe(kf).map(|k| k.map_points().iter().flatten().copied().collect()).unwrap_or_default();
+    let mut fused = 0;
+    for &t in &targets {
+        fused += fuse_points_into(map, t, &own, ctx, 3.0)?;
+    }
+    let mut theirs = Vec::new();
+    let mut seen_points = HashSet::new();
+    for &t in &targets {
+        for m in map.keyframe(t).into_iter().flat_map(|k| k.map_points().iter().flatten()) {
+            if seen_points.insert(*m) {
+                theirs.push(*m);
+            }
+        }
+    }
+    fused += fuse_points_into(map, kf, &theirs, ctx, 3.0)?;
+    let refreshed: Vec<MapPointId> = map.keyframe(kf).map(|k| k.map_points().iter().flatten().copied().collect()).unwrap_or_default();
+    for m in refreshed {
+        if map.map_point(m).is_some() {
+            map.compute_distinctive_descriptor(m)?;
+            map.update_normal_and_depth(m)?;
+        }
+    }
+    map.update_connections(kf)?;
+    Ok(fused)
+}
+
+/// Projects `points` into keyframe `kf` and, for the best keypoint passing the reprojection
+/// test within `th * scale` pixels, either merges duplicates (the point with more
+/// observations survives) or adds the observation (ORB-SLAM `ORBmatcher::Fuse`).
+fn fuse_points_into(
+    map: &mut Map,
+    kf: KeyFrameId,
+    points: &[MapPointId],
+    ctx: &Context,
+    th: f64,
+) -> Result<usize, SlamError> {
+    let Some(k) = map.keyframe(kf) else { return Ok(0) };
+    let (T_c_w, center) = (*k.T_c_w(), k.camera_center());
+    let pyramid = map.pyramid().clone();
+    let mut fused = 0;
+    for &m in points {
+        let Some(p) = map.map_point(m) else { continue };
+        if p.observations().contains_key(&kf) {
+            continue;
+        }
+        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5) else {
+            continue;
+        };
+        let descriptor = *p.descriptor();
+        let z = (T_c_w * Point3::from(p.position())).z;
+        let ur_pred = vis.u - ctx.intrinsics.bf / z;
+        let k = map.keyframe(kf).unwrap();
+        let f = k.features();
+        let radius = th * pyramid.scale[vis.level as usize];
+        let mut best: Option<(u32, usize)> = None;
+        for i in f.grid.features_in_area(&f.keypoints, vis.u, vis.v, radius, None, None) {
+            let kp = &f.keypoints[i];
+            if kp.octave + 1 < vis.level || kp.octave > vis.level {
+                continue;
+            }
+            let (ex, ey) = (vis.u - kp.x as f64, vis.v - kp.y as f64);
+            let ur = f.u_right[i] as f64;
+            let inv_s2 = pyramid.inv_sigma2[kp.octave as usize];
+            let chi2_ok = if ur >= 0.0 {
+                let er = ur_pred - ur;
+                (ex * ex + ey * ey + er * er) * inv_s2 <= CHI2_STEREO
+            } else {
+                (ex * ex + ey * ey) * inv_s2 <= CHI2_MONO
+            };
+            if !chi2_ok {
+                continue;
+            }
+            let d = hamming(&descriptor, &f.descriptors[i]);
+            if best.is_none_or(|(bd, _)| d < bd) {
+                best = Some((d, i));
+            }
+        }
+        let Some((_, i)) = best.filter(|(d, _)| *d <= TH_LOW) else { continue };
+        match k.map_point(i).filter(|other| map.map_point(*other).is_some()) {
+            Some(other) if other != m => {
+                let n_other = map.map_point(other).unwrap().num_observations();
+                let n_this = map.map_point(m).unwrap().num_observations();
+                if n_other > n_this {
+                    map.replace_map_point(m, other)?;
+                } else {
+                    map.replace_map_point(other, m)?;
+                }
+                fused += 1;
+            }
+            Some(_) => {}
+            None => {
+                map.add_observation(m, kf, i)?;
+                fused += 1;
+            }
+        }
+    }
+    Ok(fused)
+}

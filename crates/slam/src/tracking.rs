@@ -1,0 +1,567 @@
+//! Tracking: the camera pose of every frame against the map (ORB-SLAM `Tracking`).
+//!
+//! Order of attempts, as ORB-SLAM: constant-velocity motion model, then the reference
+//! keyframe, then a PnP-RANSAC fallback against the reference keyframe's neighbourhood; a pose
+//! found by any of them is refined against the local map.
+
+use std::collections::{HashMap, HashSet};
+
+use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
+use ferroslam_features::{match_brute_force, search_by_projection, Descriptor, MatchOptions, ProjectionQuery};
+use ferroslam_geometry::pnp::{pnp_ransac, PnpRansacOptions};
+use ferroslam_map::{KeyFrameId, Map, MapPointId};
+use ferroslam_optim::{optimize_pose, PoseObservation};
+use nalgebra::{Isometry3, Point3, Vector2};
+
+use crate::context::Context;
+use crate::error::SlamError;
+use crate::frame::Frame;
+use crate::frustum::visible_point;
+
+/// Tracking state exposed to users.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrackingState {
+    /// No map yet: waiting for a frame good enough to start one.
+    NotInitialized,
+    /// The last frame was localised in the map.
+    Ok,
+    /// The last frame could not be localised.
+    Lost,
+}
+
+/// Minimum matches for the motion model and reference keyframe searches (ORB-SLAM).
+const MIN_SEARCH_MATCHES: usize = 20;
+const MIN_REFERENCE_MATCHES: usize = 15;
+/// Minimum inliers after pose optimisation before the local map refinement.
+const MIN_POSE_INLIERS: usize = 10;
+/// Features with depth needed to create the first RGB-D keyframe.
+pub const MIN_INIT_FEATURES: usize = 500;
+/// Local keyframes kept for local-map tracking.
+const MAX_LOCAL_KEYFRAMES: usize = 80;
+
+/// The state machine of tracking between frames.
+#[derive(Debug)]
+pub struct Tracker {
+    /// Current tracking state.
+    pub state: TrackingState,
+    /// Reference keyframe: the local keyframe sharing most points with the last frame.
+    pub reference_kf: Option<KeyFrameId>,
+    /// Last frame, with its temporary visual-odometry points.
+    last_frame: Option<Frame>,
+    /// Pose of the last frame relative to its reference keyframe, to follow BA corrections.
+    last_T_c_r: Option<(KeyFrameId, Isometry3<f64>)>,
+    /// Constant-velocity model `T_c_l`: motion from the last frame to the current one.
+    velocity: Option<Isometry3<f64>>,
+    /// Frame index of the last keyframe and of the last relocalisation.
+    pub last_keyframe_frame: usize,
+    last_relocalisation_frame: Option<usize>,
+    local_keyframes: Vec<KeyFrameId>,
+    local_points: Vec<MapPointId>,
+    /// Map point inliers of the last tracked frame.
+    pub matches_inliers: usize,
+}
+
+impl Default for Tracker {
+    fn default() -> Self {
+        Self {
+            state: TrackingState::NotInitialized,
+            reference_kf: None,
+            last_frame: None,
+            last_T_c_r: None,
+            velocity: None,
+            last_keyframe_frame: 0,
+            last_relocalisation_frame: None,
+            local_keyframes: Vec::new(),
+            local_points: Vec::new(),
+            matches_inliers: 0,
+        }
+    }
+}
+
+impl Tracker {
+    /// Estimates `frame.T_c_w` against the map. Returns whether tracking succeeded; on success
+    /// `frame.map_points` holds the inlier associations.
+    pub fn track(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+        self.refresh_last_frame_pose(map);
+        let recovered = match self.state {
+            TrackingState::Ok => {
+                (self.velocity.is_some() && self.track_with_motion_model(frame, map, ctx)?)
+                    || self.track_reference_keyframe(frame, map, ctx)?
+                    || self.relocalise(frame, map, ctx)?
+            }
+            _ => self.relocalise(frame, map, ctx)?,
+        };
+        let ok = recovered && self.track_local_map(frame, map, ctx)?;
+        if ok {
+            self.velocity = self.last_frame.as_ref().map(|last| frame.T_c_w * last.T_c_w.inverse());
+            self.state = TrackingState::Ok;
+        } else {
+            self.velocity = None;
+            self.state = TrackingState::Lost;
+        }
+        Ok(ok)
+    }
+
+    /// Keeps `frame` as the last frame, adding depth-backed temporary points (ORB-SLAM
+    /// `UpdateLastFrame`) so the motion model has matches where the map is thin.
+    pub fn set_last_frame(&mut self, mut frame: Frame, map: &Map, ctx: &Context, is_keyframe: bool) {
+        frame.vo_points.iter_mut().for_each(|p| *p = None);
+        for (i, m) in frame.map_points.iter_mut().enumerate() {
+            if frame.outlier[i] || m.is_some_and(|id| map.map_point(id).is_none()) {
+                *m = None;
+            }
+        }
+        if !is_keyframe {
+            let mut by_depth: Vec<(f32, usize)> = (0..frame.len())
+                .filter(|&i| frame.features.depth[i] > 0.0)
+                .map(|i| (frame.features.depth[i], i))
+                .collect();
+            by_depth.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut n_points = 0;
+            for (z, i) in by_depth {
+                if frame.map_points[i].is_none() {
+                    frame.vo_points[i] = frame.unproject_depth(i, &ctx.camera);
+                }
+                n_points += 1;
+                if z as f64 > ctx.close_depth_m && n_points > 100 {
+                    break;
+                }
+            }
+        }
+        self.last_T_c_r = self
+            .reference_kf
+            .and_then(|r| map.keyframe(r).map(|kf| (r, frame.T_c_w * kf.T_w_c())));
+        frame.outlier.iter_mut().for_each(|o| *o = false);
+        self.last_frame = Some(frame);
+    }
+
+    /// Starts tracking from scratch (after a map reset).
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+
+    /// Marks the frame index of a new keyframe.
+    pub fn on_keyframe(&mut self, frame_index: usize, kf: KeyFrameId) {
+        self.last_keyframe_frame = frame_index;
+        self.reference_kf = Some(kf);
+    }
+
+    /// Re-anchors the last frame to its reference keyframe, which local BA may have moved.
+    fn refresh_last_frame_pose(&mut self, map: &Map) {
+        if let (Some(last), Some((r, T_l_r))) = (self.last_frame.as_mut(), self.last_T_c_r) {
+            if let Some(kf) = map.keyframe(r) {
+                last.T_c_w = T_l_r * kf.T_c_w();
+            }
+        }
+    }
+
+    fn track_with_motion_model(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+        let (Some(last), Some(velocity)) = (self.last_frame.as_ref(), self.velocity) else {
+            return Ok(false);
+        };
+        frame.T_c_w = velocity * last.T_c_w;
+        frame.clear_associations();
+        let radius_px = 15.0;
+        let mut found = search_last_frame(frame, last, map, ctx, radius_px);
+        if found < MIN_SEARCH_MATCHES {
+            frame.clear_associations();
+            found = search_last_frame(frame, last, map, ctx, 2.0 * radius_px);
+        }
+        if found < MIN_SEARCH_MATCHES {
+            return Ok(false);
+        }
+        optimize_frame_pose(frame, map, ctx)?;
+        Ok(discard_outliers(frame) >= MIN_POSE_INLIERS)
+    }
+
+    fn track_reference_keyframe(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+        let (Some(r), Some(last)) = (self.reference_kf, self.last_frame.as_ref()) else {
+            return Ok(false);
+        };
+        frame.T_c_w = last.T_c_w;
+        frame.clear_associations();
+        if match_keyframe(frame, r, map, 0.7) < MIN_REFERENCE_MATCHES {
+            return Ok(false);
+        }
+        optimize_frame_pose(frame, map, ctx)?;
+        Ok(discard_outliers(frame) >= MIN_POSE_INLIERS)
+    }
+
+    /// PnP-RANSAC against the reference keyframe and its best covisible keyframes, for when
+    /// the motion model and the reference keyframe fail (or after tracking was lost).
+    fn relocalise(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+        let Some(r) = self.reference_kf.filter(|&r| map.keyframe(r).is_some()) else {
+            return Ok(false);
+        };
+        let mut candidates = vec![r];
+        candidates.extend(map.best_covisibles(r, 10));
+        for kf in candidates {
+            frame.clear_associations();
+            if match_keyframe(frame, kf, map, 0.75) < MIN_REFERENCE_MATCHES {
+                continue;
+            }
+            let matched: Vec<(usize, MapPointId)> = frame
+                .map_points
+                .iter()
+                .enumerate()
+                .filter_map(|(i, m)| m.map(|m| (i, m)))
+                .collect();
+            let points_w: Vec<_> =
+                matched.iter().map(|&(_, m)| map.map_point(m).unwrap().position()).collect();
+            let pixels: Vec<_> = matched
+                .iter()
+                .map(|&(i, _)| {
+                    let kp = &frame.features.keypoints[i];
+                    Vector2::new(kp.x as f64, kp.y as f64)
+                })
+                .collect();
+            let sigma2: Vec<_> = matched
+                .iter()
+                .map(|&(i, _)| map.pyramid().sigma2[frame.features.keypoints[i].octave as usize])
+                .collect();
+            let options = PnpRansacOptions {
+                min_inliers: MIN_POSE_INLIERS,
+                seed: ctx.config.seed ^ frame.index as u64,
+                ..PnpRansacOptions::default()
+            };
+            let Some(solution) = pnp_ransac(&points_w, &pixels, &sigma2, &ctx.camera, &options)
+            else {
+                continue;
+            };
+            for (k, &(i, _)) in matched.iter().enumerate() {
+                if !solution.inliers[k] {
+                    frame.map_points[i] = None;
+                }
+            }
+            frame.T_c_w = solution.T_c_w;
+            optimize_frame_pose(frame, map, ctx)?;
+            if discard_outliers(frame) >= MIN_POSE_INLIERS {
+                self.last_relocalisation_frame = Some(frame.index);
+                self.reference_kf = Some(kf);
+                return Ok(true);
+            }
+        }
+        frame.clear_associations();
+        Ok(false)
+    }
+
+    /// Refines the pose against every map point of the local keyframes (ORB-SLAM
+    /// `TrackLocalMap`), and counts the inliers that decide success.
+    fn track_local_map(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+        frame.vo_points.iter_mut().for_each(|p| *p = None);
+        self.update_local_keyframes(frame, map);
+        self.update_local_points(map);
+        let recently_relocalised =
+            self.last_relocalisation_frame.is_some_and(|f| frame.index < f + 2);
+        self.search_local_points(frame, map, ctx, if recently_relocalised { 5.0 } else { 3.0 })?;
+        optimize_frame_pose(frame, map, ctx)?;
+        let mut inliers = 0;
+        for i in 0..frame.len() {
+            let Some(m) = frame.map_points[i] else { continue };
+            if frame.outlier[i] {
+                frame.map_points[i] = None;
+                continue;
+            }
+            map.increase_found(m, 1)?;
+            if map.map_point(m).is_some_and(|p| p.num_observations() > 0) {
+                inliers += 1;
+            }
+        }
+        self.matches_inliers = inliers;
+        let min_inliers = if recently_relocalised { 50 } else { ctx.config.track_feature_range.0 };
+        Ok(inliers >= min_inliers)
+    }
+
+    /// Local keyframes: those observing the frame's points, their best covisibles, children and
+    /// parents (ORB-SLAM `UpdateLocalKeyFrames`); the most voted one becomes the reference.
+    fn update_local_keyframes(&mut self, frame: &Frame, map: &Map) {
+        let mut votes: HashMap<KeyFrameId, usize> = HashMap::new();
+        for m in frame.map_points.iter().flatten() {
+            if let Some(p) = map.map_point(*m) {
+                for kf in p.observations().keys() {
+                    *votes.entry(*kf).or_default() += 1;
+                }
+            }
+        }
+        let mut voted: Vec<(KeyFrameId, usize)> = votes.into_iter().collect();
+        voted.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        if let Some(&(best, _)) = voted.first() {
+            self.reference_kf = Some(best);
+        }
+        let mut local: Vec<KeyFrameId> = voted.iter().map(|v| v.0).collect();
+        let mut seen: HashSet<KeyFrameId> = local.iter().copied().collect();
+        let first_ring = local.clone();
+        for kf in first_ring {
+            if local.len() >= MAX_LOCAL_KEYFRAMES {
+                break;
+            }
+            let Some(k) = map.keyframe(kf) else { continue };
+            let neighbours = map.best_covisibles(kf, 10);
+            let family = k.children().iter().copied().chain(k.parent());
+            for n in neighbours.into_iter().chain(family) {
+                if map.keyframe(n).is_some() && seen.insert(n) {
+                    local.push(n);
+                }
+            }
+        }
+        self.local_keyframes = local;
+    }
+
+    fn update_local_points(&mut self, map: &Map) {
+        let mut seen = HashSet::new();
+        self.local_points.clear();
+        for &kf in &self.local_keyframes {
+            let Some(k) = map.keyframe(kf) else { continue };
+            for m in k.map_points().iter().flatten() {
+                if map.map_point(*m).is_some() && seen.insert(*m) {
+                    self.local_points.push(*m);
+                }
+            }
+        }
+    }
+
+    /// Projects the local points not yet matched into the frame and searches for their
+    /// keypoints (ORB-SLAM `SearchLocalPoints`, ratio 0.8, radius by viewing angle).
+    fn search_local_points(
+        &self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+        th: f64,
+    ) -> Result<(), SlamError> {
+        let in_frame: HashSet<MapPointId> = frame.map_points.iter().flatten().copied().collect();
+        for &m in &in_frame {
+            map.increase_visible(m, 1)?;
+        }
+        let center = frame.camera_center();
+        let pyramid = map.pyramid().clone();
+        let mut ids = Vec::new();
+        let mut queries = Vec::new();
+        for &m in &self.local_points {
+            if in_frame.contains(&m) {
+                continue;
+            }
+            let Some(vis) =
+                visible_point(map, m, &frame.T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5)
+            else {
+                continue;
+            };
+            map.increase_visible(m, 1)?;
+            let r = if vis.view_cos > 0.998 { 2.5 } else { 4.0 } * th;
+            queries.push(ProjectionQuery {
+                u: vis.u,
+                v: vis.v,
+                radius: r * pyramid.scale[vis.level as usize],
+                min_level: vis.level.saturating_sub(1),
+                max_level: vis.level,
+                descriptor: *map.map_point(m).unwrap().descriptor(),
+                angle_deg: None,
+            });
+            ids.push(m);
+        }
+        let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
+        let opts = MatchOptions { max_distance: TH_HIGH, nn_ratio: Some(0.8), check_orientation: false };
+        let found = search_by_projection(
+            &queries,
+            &frame.features.keypoints,
+            &frame.features.descriptors,
+            &frame.features.grid,
+            &taken,
+            &opts,
+        );
+        for (q, hit) in found.iter().enumerate() {
+            if let Some((i, _)) = hit {
+                frame.map_points[*i] = Some(ids[q]);
+            }
+        }
+        Ok(())
+    }
+
+    /// ORB-SLAM's keyframe decision for RGB-D, with MATLAB's `TrackFeatureRange` upper limit
+    /// and `SkipMaxFrames`: a frame tracking more than `upper` points is not a keyframe unless
+    /// `skip_max_frames` frames passed since the last one.
+    pub fn need_new_keyframe(&self, frame: &Frame, map: &Map, ctx: &Context) -> bool {
+        let Some(r) = self.reference_kf else { return false };
+        let n_kfs = map.num_keyframes();
+        let max_frames = ctx.config.skip_max_frames;
+        if self.last_relocalisation_frame.is_some_and(|f| frame.index < f + max_frames)
+            && n_kfs > max_frames
+        {
+            return false;
+        }
+        let min_obs = if n_kfs <= 2 { 2 } else { 3 };
+        let ref_matches = map.tracked_points(r, min_obs) as f64;
+        let (mut tracked_close, mut untracked_close) = (0, 0);
+        for i in 0..frame.len() {
+            let z = frame.features.depth[i] as f64;
+            if z > 0.0 && z < ctx.close_depth_m {
+                if frame.map_points[i].is_some() && !frame.outlier[i] {
+                    tracked_close += 1;
+                } else {
+                    untracked_close += 1;
+                }
+            }
+        }
+        let need_close = tracked_close < 100 && untracked_close > 70;
+        let inliers = self.matches_inliers;
+        let since_kf = frame.index.saturating_sub(self.last_keyframe_frame);
+        if inliers > ctx.config.track_feature_range.1 && since_kf < max_frames {
+            return false;
+        }
+        let ratio = if n_kfs < 2 { 0.4 } else { 0.75 };
+        // Local mapping runs inline, so it is always idle here (ORB-SLAM's c1b holds).
+        (inliers as f64) < ref_matches * ratio || need_close || since_kf >= max_frames
+    }
+}
+
+/// Matches the frame against the keypoints of keyframe `kf` that carry map points
+/// (brute force with ratio test and rotation consistency; a BoW search once a vocabulary exists).
+fn match_keyframe(frame: &mut Frame, kf: KeyFrameId, map: &Map, ratio: f32) -> usize {
+    let Some(k) = map.keyframe(kf) else { return 0 };
+    let mut train_kps = Vec::new();
+    let mut train_desc: Vec<Descriptor> = Vec::new();
+    let mut train_ids = Vec::new();
+    for (i, m) in k.map_points().iter().enumerate() {
+        if let Some(m) = m.filter(|m| map.map_point(*m).is_some()) {
+            train_kps.push(k.features().keypoints[i]);
+            train_desc.push(k.features().descriptors[i]);
+            train_ids.push(m);
+        }
+    }
+    let opts = MatchOptions { max_distance: TH_LOW, nn_ratio: Some(ratio), check_orientation: true };
+    let matches = match_brute_force(
+        &frame.features.keypoints,
+        &frame.features.descriptors,
+        &train_kps,
+        &train_desc,
+        &opts,
+    );
+    let mut n = 0;
+    for (i, m) in matches.iter().enumerate() {
+        if let Some(t) = m {
+            frame.map_points[i] = Some(train_ids[*t]);
+            n += 1;
+        }
+    }
+    n
+}
+
+/// Projects the last frame's map points and temporary points with the predicted pose and
+/// matches them in a radius `radius_px * scale(octave)` (ORB-SLAM motion-model search).
+fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, radius_px: f64) -> usize {
+    let pyramid = map.pyramid();
+    let n_levels = pyramid.n_levels as u8;
+    let center_in_last = last.T_c_w * Point3::from(frame.camera_center());
+    let forward = center_in_last.z > ctx.baseline_m;
+    let backward = -center_in_last.z > ctx.baseline_m;
+    let mut queries = Vec::new();
+    let mut sources = Vec::new();
+    for i in 0..last.len() {
+        let (p_w, descriptor, point) = if let Some(m) = last.map_points[i] {
+            let Some(p) = map.map_point(m) else { continue };
+            (p.position(), *p.descriptor(), Some(m))
+        } else if let Some(p_w) = last.vo_points[i] {
+            (p_w, last.features.descriptors[i], None)
+        } else {
+            continue;
+        };
+        let p_c = frame.T_c_w * Point3::from(p_w);
+        let Some(uv) = ctx.camera.project(&p_c.coords) else { continue };
+        let b = &ctx.bounds;
+        if uv.x < b.min_x || uv.x >= b.max_x || uv.y < b.min_y || uv.y >= b.max_y {
+            continue;
+        }
+        let kp = &last.features.keypoints[i];
+        let octave = kp.octave;
+        let (min_level, max_level) = if forward {
+            (octave, n_levels - 1)
+        } else if backward {
+            (0, octave)
+        } else {
+            (octave.saturating_sub(1), (octave + 1).min(n_levels - 1))
+        };
+        queries.push(ProjectionQuery {
+            u: uv.x,
+            v: uv.y,
+            radius: radius_px * pyramid.scale[octave as usize],
+            min_level,
+            max_level,
+            descriptor,
+            angle_deg: Some(kp.angle_deg),
+        });
+        sources.push((point, p_w));
+    }
+    let taken = vec![false; frame.len()];
+    let opts = MatchOptions { max_distance: TH_HIGH, nn_ratio: None, check_orientation: true };
+    let found = search_by_projection(
+        &queries,
+        &frame.features.keypoints,
+        &frame.features.descriptors,
+        &frame.features.grid,
+        &taken,
+        &opts,
+    );
+    let mut n = 0;
+    for (q, hit) in found.iter().enumerate() {
+        if let Some((i, _)) = hit {
+            match sources[q] {
+                (Some(m), _) => frame.map_points[*i] = Some(m),
+                (None, p_w) => frame.vo_points[*i] = Some(p_w),
+            }
+            n += 1;
+        }
+    }
+    n
+}
+
+/// Motion-only BA of `frame` on its map point and temporary point matches; sets the pose and
+/// the outlier flags.
+pub fn optimize_frame_pose(frame: &mut Frame, map: &Map, ctx: &Context) -> Result<usize, SlamError> {
+    let pyramid = map.pyramid();
+    let mut obs = Vec::new();
+    let mut index = Vec::new();
+    for i in 0..frame.len() {
+        let p_w = match (frame.map_points[i], frame.vo_points[i]) {
+            (Some(m), _) => match map.map_point(m) {
+                Some(p) => p.position(),
+                None => continue,
+            },
+            (None, Some(p)) => p,
+            (None, None) => continue,
+        };
+        let kp = &frame.features.keypoints[i];
+        let ur = frame.features.u_right[i];
+        obs.push(PoseObservation {
+            p_w,
+            uv: Vector2::new(kp.x as f64, kp.y as f64),
+            u_right: (ur >= 0.0).then_some(ur as f64),
+            inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
+        });
+        index.push(i);
+    }
+    if obs.len() < 3 {
+        return Ok(0);
+    }
+    let mut outlier = vec![false; obs.len()];
+    let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.intrinsics, &mut outlier)?;
+    frame.T_c_w = estimate.T_c_w;
+    for (k, &i) in index.iter().enumerate() {
+        frame.outlier[i] = outlier[k];
+    }
+    Ok(estimate.num_inliers)
+}
+
+/// Drops the associations flagged as outliers; returns the remaining map point matches.
+fn discard_outliers(frame: &mut Frame) -> usize {
+    let mut n = 0;
+    for i in 0..frame.len() {
+        if frame.outlier[i] {
+            frame.map_points[i] = None;
+            frame.vo_points[i] = None;
+            frame.outlier[i] = false;
+        } else if frame.map_points[i].is_some() {
+            n += 1;
+        }
+    }
+    n
+}
