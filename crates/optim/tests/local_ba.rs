@@ -187,6 +187,7 @@ fn symbolic_is_reusable_across_calls_and_problems() {
     let options = BaOptions {
         max_iterations: 4,
         robust: false,
+        function_tolerance: 1e-12,
         ..BaOptions::default()
     };
 
@@ -373,4 +374,19 @@ fn bad_input_is_reported() {
     let mut p = s.problem.clone();
     p.observations[0].inv_sigma2 = f64::NAN;
     assert!(bundle_adjust(&mut p, &symbolic, &BaOptions::default()).is_err());
+}
+
+#[test]
+fn free_pose_without_observations_does_not_move() {
+    let mut s = scene(&SceneSpec {
+        seed: 29,
+        points: 80,
+        ..MONO_SPEC
+    });
+    let lonely = Isometry3::translation(1.0, 2.0, 3.0);
+    s.problem.poses.push(lonely);
+    s.problem.pose_fixed.push(false);
+    let r = local_bundle_adjust(&mut s.problem).unwrap();
+    assert!(r.report.final_cost < r.report.initial_cost);
+    assert_eq!(*s.problem.poses.last().unwrap(), lonely);
 }
