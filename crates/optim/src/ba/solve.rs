@@ -6,7 +6,7 @@
 //! factorises `S` numerically on the reused symbolic Cholesky, back-substitutes the point
 //! steps and accepts the step iff the cost decreases (Nielsen's lambda update).
 
-use super::problem::BaProblem;
+use super::problem::{BaProblem, Observation};
 use super::symbolic::SymbolicBa;
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
@@ -123,14 +123,16 @@ pub(crate) fn bundle_adjust_masked(
     let mut iterations = 0;
     let mut trial_poses = problem.poses.clone();
     let mut trial_points = problem.points.clone();
+    let mut lin = Linearization::default();
+    let mut y_scratch = Vec::new();
     while iterations < options.max_iterations {
         iterations += 1;
-        let lin = ctx.linearize(problem);
+        ctx.linearize(problem, &mut lin);
         let mut last_failure = None;
         let mut factorised = false;
         let mut accepted = None;
         while !damping.exhausted() {
-            let step = match ctx.step(&lin, llt, damping.lambda()) {
+            let step = match ctx.step(&lin, llt, damping.lambda(), &mut y_scratch) {
                 Ok(step) => {
                     factorised = true;
                     step
@@ -186,6 +188,31 @@ pub(crate) fn bundle_adjust_masked(
     })
 }
 
+/// `block -= y w^T` for one 6x6 block of a block column of the CSC values; `start[c]` is where
+/// column `c` begins, `offset` the block's first row within it; only the upper triangle of a
+/// diagonal block is stored. This is the solver's hot loop: fixed-size rows so it vectorises.
+fn subtract_outer(
+    column: &mut [f64],
+    start: &[usize; 6],
+    offset: usize,
+    diagonal: bool,
+    y: &Matrix6x3<f64>,
+    w: &Matrix6x3<f64>,
+) {
+    // Column-major: y's three columns are contiguous runs of 6.
+    let (y0, rest) = y.as_slice().split_at(6);
+    let (y1, y2) = rest.split_at(6);
+    for c in 0..6 {
+        let (w0, w1, w2) = (w[(c, 0)], w[(c, 1)], w[(c, 2)]);
+        let s = start[c] + offset;
+        let rows = if diagonal { c + 1 } else { 6 };
+        let dst = &mut column[s..s + rows];
+        for (r, v) in dst.iter_mut().enumerate() {
+            *v -= y0[r] * w0 + y1[r] * w1 + y2[r] * w2;
+        }
+    }
+}
+
 /// Per-observation linearisation (weights include `inv_sigma2` and the kernel's IRLS factor;
 /// zero weight for inactive observations).
 #[derive(Clone, Copy)]
@@ -216,6 +243,7 @@ impl ObsLin {
 
 /// Gauss-Newton blocks at the current estimate: `H = [U W; W^T V]`, gradient `[b_c; b_p]`
 /// (half the cost gradient).
+#[derive(Default)]
 struct Linearization {
     obs: Vec<ObsLin>,
     u: Vec<Matrix6<f64>>,
@@ -262,34 +290,16 @@ impl Context<'_> {
             .sum()
     }
 
-    fn linearize(&self, problem: &BaProblem) -> Linearization {
+    /// Linearises at the current estimate into `lin`, reusing its storage (the per-observation
+    /// buffer is megabytes: reallocating it every iteration costs page faults).
+    fn linearize(&self, problem: &BaProblem, lin: &mut Linearization) {
         let sym = self.symbolic;
-        let obs: Vec<ObsLin> = problem
-            .observations
-            .par_iter()
-            .zip(self.active.par_iter())
-            .map(|(o, &active)| {
-                if !active {
-                    return ObsLin::INACTIVE;
-                }
-                let pose = &problem.poses[o.pose];
-                let Some(l) =
-                    residual::linearize(&self.k, pose, &problem.points[o.point], &o.uv, o.u_right)
-                else {
-                    // Unreachable for an accepted estimate (its cost is finite).
-                    return ObsLin::INACTIVE;
-                };
-                let chi2 = o.inv_sigma2 * l.e.norm_squared();
-                let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
-                ObsLin {
-                    w,
-                    e: l.e,
-                    d_e_d_xi: l.d_e_d_xi,
-                    d_e_d_p_w: l.d_e_d_p_w,
-                    w_cp: w * l.d_e_d_xi.transpose() * l.d_e_d_p_w,
-                }
-            })
-            .collect();
+        lin.obs.resize(problem.observations.len(), ObsLin::INACTIVE);
+        lin.obs
+            .par_iter_mut()
+            .zip(problem.observations.par_iter().zip(self.active.par_iter()))
+            .for_each(|(out, (o, &active))| *out = self.linearize_one(problem, o, active));
+        let obs = &lin.obs;
         let (u, b_c) = (0..sym.free_poses.len())
             .into_par_iter()
             .map(|f| {
@@ -318,12 +328,28 @@ impl Context<'_> {
                 (v, b)
             })
             .unzip();
-        Linearization {
-            obs,
-            u,
-            b_c,
-            v,
-            b_p,
+        (lin.u, lin.b_c, lin.v, lin.b_p) = (u, b_c, v, b_p);
+    }
+
+    fn linearize_one(&self, problem: &BaProblem, o: &Observation, active: bool) -> ObsLin {
+        if !active {
+            return ObsLin::INACTIVE;
+        }
+        let pose = &problem.poses[o.pose];
+        let Some(l) =
+            residual::linearize(&self.k, pose, &problem.points[o.point], &o.uv, o.u_right)
+        else {
+            // Unreachable for an accepted estimate (its cost is finite).
+            return ObsLin::INACTIVE;
+        };
+        let chi2 = o.inv_sigma2 * l.e.norm_squared();
+        let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
+        ObsLin {
+            w,
+            e: l.e,
+            d_e_d_xi: l.d_e_d_xi,
+            d_e_d_p_w: l.d_e_d_p_w,
+            w_cp: w * l.d_e_d_xi.transpose() * l.d_e_d_p_w,
         }
     }
 
@@ -333,6 +359,7 @@ impl Context<'_> {
         lin: &Linearization,
         llt: &SymbolicLlt<usize>,
         lambda: f64,
+        y: &mut Vec<Matrix6x3<f64>>,
     ) -> Result<Step, OptimError> {
         let sym = self.symbolic;
         let damp3 = |m: &Matrix3<f64>| m.diagonal().map(damping_diagonal);
@@ -348,13 +375,14 @@ impl Context<'_> {
             .collect();
         let problem_obs_point = |i: usize| sym.point_index[self.observation_point(i)];
         // Y = W V^-1 per observation of a free pose and an optimised point.
-        let y: Vec<Matrix6x3<f64>> = (0..lin.obs.len())
-            .into_par_iter()
-            .map(|i| match problem_obs_point(i) {
+        y.resize(lin.obs.len(), Matrix6x3::zeros());
+        y.par_iter_mut().enumerate().for_each(|(i, y)| {
+            *y = match problem_obs_point(i) {
                 Some(p) if lin.obs[i].w > 0.0 => lin.obs[i].w_cp * v_inv[p],
                 _ => Matrix6x3::zeros(),
-            })
-            .collect();
+            }
+        });
+        let y = &*y;
 
         // Assemble the upper triangle of S and r = -b_c + W V^-1 b_p per block column.
         let col_ptr = sym.pattern.col_ptr();
@@ -385,16 +413,14 @@ impl Context<'_> {
                 // -Y_a W_b^T, written column by column straight into the CSC values (the
                 // hot loop of the whole solver: no temporaries, rows contiguous).
                 for t in sym.schur_terms.row(b) {
-                    let y_a = &y[t.obs_a];
-                    let w_b = &lin.obs[t.obs_b].w_cp;
-                    let rows_in = |c: usize| if t.slot == diag_slot { c + 1 } else { 6 };
-                    for c in 0..6 {
-                        let (w0, w1, w2) = (w_b[(c, 0)], w_b[(c, 1)], w_b[(c, 2)]);
-                        let s = start[c] + 6 * t.slot;
-                        for (r, v) in column[s..s + rows_in(c)].iter_mut().enumerate() {
-                            *v -= y_a[(r, 0)] * w0 + y_a[(r, 1)] * w1 + y_a[(r, 2)] * w2;
-                        }
-                    }
+                    subtract_outer(
+                        column,
+                        &start,
+                        6 * t.slot,
+                        t.slot == diag_slot,
+                        &y[t.obs_a],
+                        &lin.obs[t.obs_b].w_cp,
+                    );
                 }
                 let mut r = -lin.b_c[b];
                 for &i in sym.pose_obs.row(b) {
