@@ -19,6 +19,17 @@ fn state_name(state: TrackingState) -> &'static str {
     }
 }
 
+/// A two-element sequence (tuple, list or array) as a pair.
+fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(key: &str, value: &Bound<'py, PyAny>) -> PyResult<(T, T)> {
+    let items: Vec<T> = value
+        .extract()
+        .map_err(|e| PyTypeError::new_err(format!("option {key}: expected a pair of numbers: {e}")))?;
+    match items[..] {
+        [a, b] => Ok((a, b)),
+        _ => Err(PyValueError::new_err(format!("option {key}: expected 2 values, got {}", items.len()))),
+    }
+}
+
 /// Reads the keyword options into a config; unknown names are an error, not ignored.
 fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
     let mut config = SlamConfig::default();
@@ -29,11 +40,11 @@ fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
         match key.as_str() {
             "scale_factor" => config.scale_factor = value.extract().map_err(wrong)?,
             "n_levels" => config.n_levels = value.extract().map_err(wrong)?,
-            "track_feature_range" => config.track_feature_range = value.extract().map_err(wrong)?,
+            "track_feature_range" => config.track_feature_range = pair(&key, &value)?,
             "skip_max_frames" => config.skip_max_frames = value.extract().map_err(wrong)?,
             "bf" => config.bf = value.extract().map_err(wrong)?,
             "depth_threshold" => config.depth_threshold = value.extract().map_err(wrong)?,
-            "depth_range" => config.depth_range = value.extract().map_err(wrong)?,
+            "depth_range" => config.depth_range = pair(&key, &value)?,
             "seed" => config.seed = value.extract().map_err(wrong)?,
             _ => {
                 return Err(PyValueError::new_err(format!(

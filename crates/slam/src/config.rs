@@ -12,8 +12,9 @@ pub struct SlamConfig {
     pub scale_factor: f64,
     /// Number of ORB pyramid levels.
     pub n_levels: usize,
-    /// `(lower, upper)` tracked-feature limits: below `lower` tracking is lost; above `upper`
-    /// a keyframe is only forced by `skip_max_frames` (the frame is "too easy" to track).
+    /// `(lower, upper)` tracked-feature limits: below `lower` tracking is lost; below `upper`
+    /// the frame becomes a keyframe (MATLAB `TrackFeatureRange`); above it, only ORB-SLAM's
+    /// rules or `skip_max_frames` make one.
     pub track_feature_range: (usize, usize),
     /// Maximum number of frames between two keyframes (ORB-SLAM `mMaxFrames`).
     pub skip_max_frames: usize,

@@ -91,7 +91,12 @@ impl Tracker {
             }
             _ => self.relocalise(frame, map, ctx)?,
         };
+        let dbg_pre = (frame.map_points.iter().flatten().count(), frame.T_c_w);
         let ok = recovered && self.track_local_map(frame, map, ctx)?;
+        if std::env::var("FS_TRACE").is_ok() {
+            let d = frame.T_c_w * dbg_pre.1.inverse();
+            eprintln!("frame {} state {:?} recovered {} pre {} ok {} inliers {} dT {:.3} rot {:.2}", frame.index, self.state, recovered, dbg_pre.0, ok, self.matches_inliers, d.translation.vector.norm(), d.rotation.angle().to_degrees());
+        }
         if ok {
             self.velocity = self.last_frame.as_ref().map(|last| frame.T_c_w * last.T_c_w.inverse());
             self.state = TrackingState::Ok;
@@ -167,6 +172,7 @@ impl Tracker {
             frame.clear_associations();
             found = search_last_frame(frame, last, map, ctx, 2.0 * radius_px);
         }
+        if std::env::var("FS_TRACE").is_ok() { eprintln!("  motion found {found}"); }
         if found < MIN_SEARCH_MATCHES {
             return Ok(false);
         }
@@ -180,10 +186,14 @@ impl Tracker {
         };
         frame.T_c_w = last.T_c_w;
         frame.clear_associations();
-        if match_keyframe(frame, r, map, 0.7) < MIN_REFERENCE_MATCHES {
+        let nref = match_keyframe(frame, r, map, 0.7);
+        if std::env::var("FS_TRACE").is_ok() { eprintln!("  refkf found {nref}"); }
+        if nref < MIN_REFERENCE_MATCHES {
             return Ok(false);
         }
-        optimize_frame_pose(frame, map, ctx)?;
+        let before = frame.T_c_w;
+        let ninl = optimize_frame_pose(frame, map, ctx)?;
+        if std::env::var("FS_TRACE").is_ok() { let d = frame.T_c_w * before.inverse(); eprintln!("  refkf optimized inliers {ninl} dT {:.3} rot {:.2}", d.translation.vector.norm(), d.rotation.angle().to_degrees()); }
         Ok(discard_outliers(frame) >= MIN_POSE_INLIERS)
     }
 
@@ -235,6 +245,7 @@ impl Tracker {
             }
             frame.T_c_w = solution.T_c_w;
             optimize_frame_pose(frame, map, ctx)?;
+            if std::env::var("FS_TRACE").is_ok() { eprintln!("  reloc kf {:?} pnp inliers {}", kf, solution.inliers.iter().filter(|x| **x).count()); }
             if discard_outliers(frame) >= MIN_POSE_INLIERS {
                 self.last_relocalisation_frame = Some(frame.index);
                 self.reference_kf = Some(kf);
@@ -405,12 +416,13 @@ impl Tracker {
         let need_close = tracked_close < 100 && untracked_close > 70;
         let inliers = self.matches_inliers;
         let since_kf = frame.index.saturating_sub(self.last_keyframe_frame);
-        if inliers > ctx.config.track_feature_range.1 && since_kf < max_frames {
-            return false;
-        }
         let ratio = if n_kfs < 2 { 0.4 } else { 0.75 };
-        // Local mapping runs inline, so it is always idle here (ORB-SLAM's c1b holds).
-        (inliers as f64) < ref_matches * ratio || need_close || since_kf >= max_frames
+        // MATLAB's rule (fewer tracked points than the upper limit, or SkipMaxFrames reached)
+        // or ORB-SLAM's (tracking much less than the reference keyframe, or close structure
+        // left untracked); local mapping runs inline, so it is always idle here.
+        let matlab = inliers < ctx.config.track_feature_range.1 || since_kf >= max_frames;
+        let orb_slam = (inliers as f64) < ref_matches * ratio || need_close;
+        (matlab || orb_slam) && inliers > 15
     }
 }
 
@@ -492,6 +504,7 @@ fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, 
         sources.push((point, p_w));
     }
     let taken = vec![false; frame.len()];
+    if std::env::var("FS_TRACE").is_ok() { eprintln!("  motion queries {} (last mps {}, vo {})", queries.len(), last.map_points.iter().flatten().count(), last.vo_points.iter().flatten().count()); }
     let opts = MatchOptions { max_distance: TH_HIGH, nn_ratio: None, check_orientation: true };
     let found = search_by_projection(
         &queries,
