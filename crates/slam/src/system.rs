@@ -81,10 +81,19 @@ impl SlamSystem {
         let start = Instant::now();
         let mut frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx.camera, self.ctx.bounds, &self.ctx.config)?;
         self.frames_seen += 1;
-        let tracked = match self.tracker.state {
-            TrackingState::NotInitialized => self.initialise(&mut frame)?,
-            _ => self.tracker.track(&mut frame, &mut self.map, &self.ctx)?,
-        };
+        if self.tracker.state == TrackingState::NotInitialized {
+            let initialised = self.initialise(frame)?;
+            return Ok(TrackResult {
+                state: self.tracker.state,
+                T_w_c: initialised.then(Isometry3::identity),
+                is_keyframe: initialised,
+                num_tracked: self.tracker.matches_inliers,
+                tracking_ms: start.elapsed().as_secs_f64() * 1e3,
+                mapping_ms: 0.0,
+                mapping: None,
+            });
+        }
+        let tracked = self.tracker.track(&mut frame, &mut self.map, &self.ctx)?;
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         let mut result = TrackResult {
             state: self.tracker.state,
@@ -122,7 +131,7 @@ impl SlamSystem {
 
     /// Creates the map from the first frame with enough depth (ORB-SLAM `StereoInitialization`):
     /// the camera is the world origin and every feature with depth becomes a map point.
-    fn initialise(&mut self, frame: &mut Frame) -> Result<bool, SlamError> {
+    fn initialise(&mut self, mut frame: Frame) -> Result<bool, SlamError> {
         let with_depth = frame.features.depth.iter().filter(|&&z| z > 0.0).count();
         if with_depth < MIN_INIT_FEATURES {
             return Ok(false);
@@ -131,11 +140,10 @@ impl SlamSystem {
         let mut report = MappingReport::default();
         // Every feature with depth becomes a point at initialisation, not only the close ones.
         let ctx = Context { close_depth_m: f64::INFINITY, ..self.ctx.clone() };
-        let kf = self.mapper.insert_keyframe(frame, &mut self.map, &ctx, &mut report)?;
+        let kf = self.mapper.insert_keyframe(&mut frame, &mut self.map, &ctx, &mut report)?;
         self.tracker.on_keyframe(frame.index, kf);
         self.tracker.state = TrackingState::Ok;
         self.tracker.matches_inliers = report.depth_points;
-        let frame = frame.clone();
         self.trajectory.push(frame.timestamp, &frame.T_c_w, kf, &self.map);
         self.tracker.set_last_frame(frame, &self.map, &self.ctx, true);
         Ok(true)

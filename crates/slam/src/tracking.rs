@@ -32,6 +32,10 @@ pub enum TrackingState {
 /// Minimum matches for the motion model and reference keyframe searches (ORB-SLAM).
 const MIN_SEARCH_MATCHES: usize = 20;
 const MIN_REFERENCE_MATCHES: usize = 15;
+/// Motion-model inliers above which the pose is trusted without a PnP cross-check.
+const STRONG_POSE_INLIERS: usize = 50;
+/// Below this many motion-model matches the search is repeated with twice the radius.
+const RETRY_SEARCH_MATCHES: usize = 100;
 /// Minimum inliers after pose optimisation before the local map refinement.
 const MIN_POSE_INLIERS: usize = 10;
 /// Features with depth needed to create the first RGB-D keyframe.
@@ -85,11 +89,31 @@ impl Tracker {
         self.refresh_last_frame_pose(map);
         let recovered = match self.state {
             TrackingState::Ok => {
-                (self.velocity.is_some() && self.track_with_motion_model(frame, map, ctx)?)
-                    || self.track_reference_keyframe(frame, map, ctx)?
-                    || self.relocalise(frame, map, ctx)?
+                let by_motion =
+                    if self.velocity.is_some() { self.track_with_motion_model(frame, map, ctx)? } else { 0 };
+                if by_motion >= STRONG_POSE_INLIERS {
+                    true
+                } else {
+                    // A weak motion-model pose under fast rotation is often wrong: let
+                    // PnP against the reference keyframe compete and keep the better one.
+                    let motion_guess = (by_motion >= MIN_POSE_INLIERS).then(|| frame.clone());
+                    let by_pnp = self.relocalise(frame, map, ctx)?;
+                    match motion_guess {
+                        Some(guess) if by_motion >= by_pnp => {
+                            *frame = guess;
+                            true
+                        }
+                        _ => by_pnp >= MIN_POSE_INLIERS,
+                    }
+                }
             }
-            _ => self.relocalise(frame, map, ctx)?,
+            _ => {
+                let found = self.relocalise(frame, map, ctx)? >= MIN_POSE_INLIERS;
+                if found {
+                    self.last_relocalisation_frame = Some(frame.index);
+                }
+                found
+            }
         };
         let dbg_pre = (frame.map_points.iter().flatten().count(), frame.T_c_w);
         let ok = recovered && self.track_local_map(frame, map, ctx)?;
@@ -160,48 +184,38 @@ impl Tracker {
         }
     }
 
-    fn track_with_motion_model(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+    /// Returns the number of map point inliers (0 on failure).
+    fn track_with_motion_model(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
         let (Some(last), Some(velocity)) = (self.last_frame.as_ref(), self.velocity) else {
-            return Ok(false);
+            return Ok(0);
         };
         frame.T_c_w = velocity * last.T_c_w;
         frame.clear_associations();
         let radius_px = 15.0;
         let mut found = search_last_frame(frame, last, map, ctx, radius_px);
-        if found < MIN_SEARCH_MATCHES {
+        if found < RETRY_SEARCH_MATCHES {
             frame.clear_associations();
             found = search_last_frame(frame, last, map, ctx, 2.0 * radius_px);
         }
         if std::env::var("FS_TRACE").is_ok() { eprintln!("  motion found {found}"); }
         if found < MIN_SEARCH_MATCHES {
-            return Ok(false);
+            return Ok(0);
         }
         optimize_frame_pose(frame, map, ctx)?;
-        Ok(discard_outliers(frame) >= MIN_POSE_INLIERS)
+        let inliers = discard_outliers(frame);
+        Ok(if inliers >= MIN_POSE_INLIERS { inliers } else { 0 })
     }
 
-    fn track_reference_keyframe(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
-        let (Some(r), Some(last)) = (self.reference_kf, self.last_frame.as_ref()) else {
-            return Ok(false);
-        };
-        frame.T_c_w = last.T_c_w;
-        frame.clear_associations();
-        let nref = match_keyframe(frame, r, map, 0.7);
-        if std::env::var("FS_TRACE").is_ok() { eprintln!("  refkf found {nref}"); }
-        if nref < MIN_REFERENCE_MATCHES {
-            return Ok(false);
-        }
-        let before = frame.T_c_w;
-        let ninl = optimize_frame_pose(frame, map, ctx)?;
-        if std::env::var("FS_TRACE").is_ok() { let d = frame.T_c_w * before.inverse(); eprintln!("  refkf optimized inliers {ninl} dT {:.3} rot {:.2}", d.translation.vector.norm(), d.rotation.angle().to_degrees()); }
-        Ok(discard_outliers(frame) >= MIN_POSE_INLIERS)
-    }
-
-    /// PnP-RANSAC against the reference keyframe and its best covisible keyframes, for when
-    /// the motion model and the reference keyframe fail (or after tracking was lost).
-    fn relocalise(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+    /// Reference keyframe tracking and relocalisation in one: descriptor matches against the
+    /// reference keyframe, then its best covisible keyframes, each solved by PnP-RANSAC
+    /// before motion-only BA. Used when the motion model fails or tracking was lost; RANSAC
+    /// keeps brute-force mismatches from dragging the pose (ORB-SLAM starts BA from the last
+    /// pose, which diverges under fast rotation).
+    /// Returns the number of map point inliers of the first keyframe that localises the
+    /// frame (0 on failure, with the associations cleared).
+    fn relocalise(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
         let Some(r) = self.reference_kf.filter(|&r| map.keyframe(r).is_some()) else {
-            return Ok(false);
+            return Ok(0);
         };
         let mut candidates = vec![r];
         candidates.extend(map.best_covisibles(r, 10));
@@ -246,14 +260,14 @@ impl Tracker {
             frame.T_c_w = solution.T_c_w;
             optimize_frame_pose(frame, map, ctx)?;
             if std::env::var("FS_TRACE").is_ok() { eprintln!("  reloc kf {:?} pnp inliers {}", kf, solution.inliers.iter().filter(|x| **x).count()); }
-            if discard_outliers(frame) >= MIN_POSE_INLIERS {
-                self.last_relocalisation_frame = Some(frame.index);
+            let inliers = discard_outliers(frame);
+            if inliers >= MIN_POSE_INLIERS {
                 self.reference_kf = Some(kf);
-                return Ok(true);
+                return Ok(inliers);
             }
         }
         frame.clear_associations();
-        Ok(false)
+        Ok(0)
     }
 
     /// Refines the pose against every map point of the local keyframes (ORB-SLAM

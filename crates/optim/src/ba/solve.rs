@@ -287,6 +287,10 @@ impl Context<'_> {
                     cost_and_weight(c, o.is_stereo(), self.robust).0
                 })
             })
+            .collect::<Vec<f64>>()
+            // Summed in a fixed order: a parallel float sum varies run to run, and LM's
+            // accept/reject on it would make the whole SLAM run non-deterministic.
+            .iter()
             .sum()
     }
 
