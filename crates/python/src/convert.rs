@@ -2,10 +2,41 @@
 
 use ferroslam_features::{Descriptor, Keypoint};
 use nalgebra::Isometry3;
-use numpy::ndarray::{Array1, Array3};
-use numpy::{PyArray1, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
-use pyo3::exceptions::PyValueError;
+use numpy::ndarray::{Array1, Array3, Dimension};
+use numpy::{Element, PyArray, PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
+
+/// `obj` as a read-only numpy array of element `T` and rank `D`.
+///
+/// A `TypeError` names the argument, what was `expected` and what was passed: numpy's own
+/// conversion error ("'ndarray' object cannot be cast as 'ndarray'") names neither.
+pub fn array<'py, T: Element, D: Dimension>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    expected: &str,
+) -> PyResult<PyReadonlyArray<'py, T, D>> {
+    match obj.cast::<PyArray<T, D>>() {
+        // A borrow conflict (array mutably borrowed elsewhere) keeps numpy's own error.
+        Ok(arr) => arr.try_readonly().map_err(PyErr::from),
+        Err(_) => {
+            let got = match obj.cast::<PyUntypedArray>() {
+                Ok(a) => format!("{} array of shape {}", a.dtype(), shape_tuple(a.shape())),
+                Err(_) => obj.get_type().name().map_or_else(|_| "another type".into(), |n| n.to_string()),
+            };
+            Err(PyTypeError::new_err(format!("{name} must be {expected}, got {got}")))
+        }
+    }
+}
+
+/// A shape written as Python writes it: `(3,)`, `(3, 5)`.
+fn shape_tuple(shape: &[usize]) -> String {
+    match shape {
+        [n] => format!("({n},)"),
+        _ => format!("({})", shape.iter().map(usize::to_string).collect::<Vec<_>>().join(", ")),
+    }
+}
 
 /// Keypoints `(N, 5)` float32 `[x, y, octave, angle_deg, response]` in raw pixels.
 pub fn keypoints(arr: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<Keypoint>> {

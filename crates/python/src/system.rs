@@ -167,10 +167,13 @@ impl PySlamSystem {
         &mut self,
         py: Python<'_>,
         timestamp: f64,
-        keypoints: PyReadonlyArray2<'_, f32>,
-        descriptors: PyReadonlyArray2<'_, u8>,
-        depth_m: PyReadonlyArray1<'_, f32>,
+        keypoints: &Bound<'_, PyAny>,
+        descriptors: &Bound<'_, PyAny>,
+        depth_m: &Bound<'_, PyAny>,
     ) -> PyResult<PyTrackResult> {
+        let keypoints: PyReadonlyArray2<'_, f32> = convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
+        let descriptors: PyReadonlyArray2<'_, u8> = convert::array(descriptors, "descriptors", "a uint8 (N, 32) array")?;
+        let depth_m: PyReadonlyArray1<'_, f32> = convert::array(depth_m, "depth_m", "a float32 (N,) array")?;
         let kps = convert::keypoints(&keypoints)?;
         let descs = convert::descriptors(&descriptors)?;
         if depth_m.len() != kps.len() || descs.len() != kps.len() {
