@@ -1,0 +1,154 @@
+"""Type stub of ``ferroslam._core``, the native module built from ``crates/python/src``.
+
+Conventions: ``T_w_c`` maps camera points into the world (p_w = T_w_c @ p_c), as (4, 4)
+float64 homogeneous matrices; metres, pixels, seconds. Bad input raises ``TypeError``
+(wrong array dtype/rank, wrong option type) or ``ValueError`` (wrong shape, lengths,
+values, configuration), always naming the problem; ``SlamError`` is an internal failure.
+"""
+
+import sys
+from typing import Any, Literal, Sequence, TypedDict, Union, final
+
+import numpy as np
+from numpy.typing import NDArray
+
+if sys.version_info >= (3, 11):
+    from typing import Unpack
+else:
+    from typing_extensions import Unpack
+
+__all__ = ["SlamError", "SlamSystem", "TrackResult", "__version__"]
+
+__version__: str
+"""Version of the Rust crate the module was built from."""
+
+_State = Literal["not_initialized", "ok", "lost"]
+_Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
+
+class _SlamOptions(TypedDict, total=False):
+    """Keyword options of ``SlamSystem``; any other name raises ``ValueError``."""
+
+    scale_factor: float
+    """Scale between ORB pyramid levels, > 1 (default 1.2)."""
+    n_levels: int
+    """ORB pyramid levels, 1..=32 (default 8); keypoint octaves must be below it."""
+    track_feature_range: Sequence[int]
+    """(lower, upper), 0 < lower < upper (default (30, 1000)): tracking is lost below
+    ``lower`` tracked points; a frame with fewer than ``upper`` becomes a keyframe."""
+    skip_max_frames: int
+    """Maximum frames between two keyframes, >= 1 (default 30)."""
+    bf: float
+    """fx * baseline of the virtual right camera, pixels * metres, > 0 (default 40)."""
+    depth_threshold: float
+    """Close-point threshold in baselines, > 0 (default 40)."""
+    depth_range: Sequence[float]
+    """(min, max) valid sensor depth in metres, 0 <= min < max (default (0.1, 8.0))."""
+    seed: int
+    """Seed of every random choice (RANSAC), >= 0 (default 0)."""
+
+class SlamError(Exception):
+    """Base class of ferroslam errors that are not plain bad input (internal failures)."""
+
+@final
+class TrackResult:
+    """Result of tracking one frame (returned by ``SlamSystem.track_rgbd``, immutable)."""
+
+    @property
+    def state(self) -> _State:
+        """Tracking state after this frame."""
+    @property
+    def T_w_c(self) -> NDArray[np.float64] | None:
+        """Camera pose in the world, (4, 4) float64, or None when the frame was not tracked."""
+    @property
+    def is_keyframe(self) -> bool:
+        """Whether this frame became a keyframe."""
+    @property
+    def num_tracked(self) -> int:
+        """Map points tracked as inliers."""
+    @property
+    def tracking_ms(self) -> float:
+        """Tracking wall time, milliseconds."""
+    @property
+    def mapping_ms(self) -> float:
+        """Local mapping wall time, milliseconds (0 unless a keyframe was inserted)."""
+
+@final
+class SlamSystem:
+    """The SLAM system: tracking and local mapping run synchronously inside each call."""
+
+    def __new__(
+        cls,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        dist: _Floats,
+        width: int,
+        height: int,
+        *,
+        sensor: str = "rgbd",
+        **options: Unpack[_SlamOptions],
+    ) -> SlamSystem:
+        """Creates a system for a pinhole + radial-tangential camera.
+
+        Args:
+            fx, fy, cx, cy: intrinsics in pixels (fx, fy > 0).
+            dist: 0, 4 or 5 coefficients ``k1 k2 p1 p2 [k3]``.
+            width, height: image size in pixels (> 0).
+            sensor: only ``"rgbd"``; others raise ``NotImplementedError``.
+            options: see ``_SlamOptions``.
+
+        Raises:
+            ValueError: invalid camera or option value, unknown option name.
+            TypeError: option of the wrong type.
+            NotImplementedError: a sensor other than ``"rgbd"``.
+        """
+    def track_rgbd(
+        self,
+        timestamp: float,
+        keypoints: NDArray[np.float32],
+        descriptors: NDArray[np.uint8],
+        depth_m: NDArray[np.float32],
+    ) -> TrackResult:
+        """Tracks one RGB-D frame (the GIL is released while it runs).
+
+        Args:
+            timestamp: seconds, finite, strictly after the previous accepted frame's.
+            keypoints: (N, 5) float32 ``[x, y, octave, angle_deg, response]``, raw
+                (distorted) pixels; finite; octave an integer in ``[0, n_levels)``.
+            descriptors: (N, 32) uint8, 256-bit ORB.
+            depth_m: (N,) float32 depth at each keypoint in metres (0, NaN or out of
+                ``depth_range`` = no depth).
+
+        Raises:
+            TypeError: an array of the wrong dtype or rank (or not an array).
+            ValueError: wrong shape, lengths differ, NaN/inf keypoints, bad octave,
+                timestamp not increasing; the system is unchanged then.
+            SlamError: internal failure.
+        """
+    def frame_trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(timestamps (N,) float64, T_w_c (N, 4, 4) float64)`` of every tracked frame,
+        relative to its reference keyframe, so later map corrections are included."""
+    def keyframe_trajectory(
+        self,
+    ) -> tuple[NDArray[np.uint32], NDArray[np.float64], NDArray[np.float64]]:
+        """``(ids (K,) uint32, timestamps (K,) float64, T_w_c (K, 4, 4) float64)`` of the
+        live keyframes."""
+    def map_points(self) -> NDArray[np.float64]:
+        """World positions of the live map points, (M, 3) float64 metres."""
+    def reset(self) -> None:
+        """Clears the map and the trajectory and counts a reset; tracking initialises again
+        with the next frame, whose timestamp must still follow the last accepted one."""
+    @property
+    def state(self) -> _State:
+        """Current tracking state."""
+    @property
+    def num_keyframes(self) -> int:
+        """Live keyframes in the map."""
+    @property
+    def num_map_points(self) -> int:
+        """Live map points."""
+    @property
+    def num_resets(self) -> int:
+        """Map resets so far: automatic ones (tracking lost with at most 5 keyframes in the
+        map) and ``reset()`` calls."""
