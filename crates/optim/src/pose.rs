@@ -14,7 +14,7 @@ pub const ROUNDS: usize = 4;
 /// Levenberg-Marquardt iterations per round (ORB-SLAM uses 10 in each).
 pub const ITERATIONS_PER_ROUND: usize = 10;
 /// The first `ROBUST_ROUNDS` rounds use the Huber kernel; later ones plain least squares.
-pub const ROBUST_ROUNDS: usize = 2;
+pub const ROBUST_ROUNDS: usize = 3;
 /// Initial Marquardt damping (relative to the Hessian diagonal).
 const INITIAL_LAMBDA: f64 = 1e-5;
 /// Stop a round once an accepted step lowers the cost by less than this fraction.

@@ -33,7 +33,7 @@ impl Default for SlamConfig {
         Self {
             scale_factor: 1.2,
             n_levels: 8,
-            track_feature_range: (30, 1000),
+            track_feature_range: (30, 100),
             skip_max_frames: 30,
             bf: 40.0,
             depth_threshold: 40.0,

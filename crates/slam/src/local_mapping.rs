@@ -274,10 +274,6 @@ impl LocalMapper {
         };
         for (pi, &k) in pose_ids.iter().enumerate() {
             if !problem.pose_fixed[pi] {
-                if std::env::var("FS_TRACE").is_ok() {
-                    let d = problem.poses[pi] * map.keyframe(k).unwrap().T_c_w().inverse();
-                    eprintln!("  BA kf {:?} c_before {:.3?} c_after {:.3?} moved {:.3} m {:.2} deg (cost {:.1} -> {:.1}, {} obs, {} fixed)", k, map.keyframe(k).unwrap().camera_center().as_slice(), problem.poses[pi].inverse().translation.vector.as_slice(), d.translation.vector.norm(), d.rotation.angle().to_degrees(), result.report.initial_cost, result.report.final_cost, problem.observations.len(), problem.pose_fixed.iter().filter(|f| **f).count());
-                }
                 map.set_keyframe_pose(k, problem.poses[pi])?;
             }
         }

@@ -115,12 +115,7 @@ impl Tracker {
                 found
             }
         };
-        let dbg_pre = (frame.map_points.iter().flatten().count(), frame.T_c_w);
         let ok = recovered && self.track_local_map(frame, map, ctx)?;
-        if std::env::var("FS_TRACE").is_ok() {
-            let d = frame.T_c_w * dbg_pre.1.inverse();
-            eprintln!("frame {} state {:?} recovered {} pre {} ok {} inliers {} dT {:.3} rot {:.2}", frame.index, self.state, recovered, dbg_pre.0, ok, self.matches_inliers, d.translation.vector.norm(), d.rotation.angle().to_degrees());
-        }
         if ok {
             self.velocity = self.last_frame.as_ref().map(|last| frame.T_c_w * last.T_c_w.inverse());
             self.state = TrackingState::Ok;
@@ -197,7 +192,6 @@ impl Tracker {
             frame.clear_associations();
             found = search_last_frame(frame, last, map, ctx, 2.0 * radius_px);
         }
-        if std::env::var("FS_TRACE").is_ok() { eprintln!("  motion found {found}"); }
         if found < MIN_SEARCH_MATCHES {
             return Ok(0);
         }
@@ -259,7 +253,6 @@ impl Tracker {
             }
             frame.T_c_w = solution.T_c_w;
             optimize_frame_pose(frame, map, ctx)?;
-            if std::env::var("FS_TRACE").is_ok() { eprintln!("  reloc kf {:?} pnp inliers {}", kf, solution.inliers.iter().filter(|x| **x).count()); }
             let inliers = discard_outliers(frame);
             if inliers >= MIN_POSE_INLIERS {
                 self.reference_kf = Some(kf);
@@ -518,7 +511,6 @@ fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, 
         sources.push((point, p_w));
     }
     let taken = vec![false; frame.len()];
-    if std::env::var("FS_TRACE").is_ok() { eprintln!("  motion queries {} (last mps {}, vo {})", queries.len(), last.map_points.iter().flatten().count(), last.vo_points.iter().flatten().count()); }
     let opts = MatchOptions { max_distance: TH_HIGH, nn_ratio: None, check_orientation: true };
     let found = search_by_projection(
         &queries,

@@ -151,13 +151,6 @@ pub(crate) fn bundle_adjust_masked(
                 trial_points[point] = problem.points[point] + step.d_point[p];
             }
             let new_cost = ctx.cost(problem, &trial_poses, &trial_points);
-            if std::env::var("BA_TRACE").is_ok() {
-                eprintln!(
-                    "  it {iterations} lambda {:.1e} cost {cost:.6} -> {new_cost:.6} pred {:.3e}",
-                    damping.lambda(),
-                    step.predicted_decrease
-                );
-            }
             let actual = cost - new_cost;
             if actual > 0.0 && step.predicted_decrease > 0.0 {
                 damping.accept(actual / step.predicted_decrease);
