@@ -26,25 +26,30 @@ _State = Literal["not_initialized", "ok", "lost"]
 _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 
 class _SlamOptions(TypedDict, total=False):
-    """Keyword options of ``SlamSystem``; any other name raises ``ValueError``."""
+    """Keyword options of ``SlamSystem``; any other name raises ``ValueError``.
+
+    Omitted options take ORB-SLAM2/3 RGB-D defaults (``SlamConfig::default()`` in
+    ``crates/slam/src/config.rs``).
+    """
 
     scale_factor: float
-    """Scale between ORB pyramid levels, > 1 (default 1.2)."""
+    """Scale between ORB pyramid levels, > 1."""
     n_levels: int
-    """ORB pyramid levels, 1..=32 (default 8); keypoint octaves must be below it."""
+    """ORB pyramid levels, 1..=32; keypoint octaves must be below it."""
     track_feature_range: Sequence[int]
-    """(lower, upper), 0 < lower < upper (default (30, 1000)): tracking is lost below
-    ``lower`` tracked points; a frame with fewer than ``upper`` becomes a keyframe."""
+    """(lower, upper), 0 < lower < upper (MATLAB ``TrackFeatureRange``): tracking fails
+    with fewer than ``lower`` inliers; fewer than ``upper`` makes the frame a keyframe
+    (ORB-SLAM's keyframe rules apply too)."""
     skip_max_frames: int
-    """Maximum frames between two keyframes, >= 1 (default 30)."""
+    """Frames after which a keyframe is inserted regardless of tracking quality, >= 1."""
     bf: float
-    """fx * baseline of the virtual right camera, pixels * metres, > 0 (default 40)."""
+    """fx * baseline of the virtual right camera, pixels * metres, > 0."""
     depth_threshold: float
-    """Close-point threshold in baselines, > 0 (default 40)."""
+    """Close-point threshold in baselines, > 0."""
     depth_range: Sequence[float]
-    """(min, max) valid sensor depth in metres, 0 <= min < max (default (0.1, 8.0))."""
+    """(min, max) valid sensor depth in metres, 0 <= min < max."""
     seed: int
-    """Seed of every random choice (RANSAC), >= 0 (default 0)."""
+    """Seed of every random choice (RANSAC), >= 0."""
 
 class SlamError(Exception):
     """Base class of ferroslam errors that are not plain bad input (internal failures)."""
