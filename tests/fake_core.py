@@ -25,8 +25,9 @@ class FakeTrackResult:
 
 
 class FakeSlamSystem:
-    KNOWN = {"scale_factor", "n_levels", "n_features", "track_feature_range", "skip_max_frames",
-             "bf", "depth_threshold", "seed"}
+    # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
+    KNOWN = {"scale_factor", "n_levels", "track_feature_range", "skip_max_frames", "bf",
+             "depth_threshold", "depth_range", "seed"}
 
     def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
                  **config):

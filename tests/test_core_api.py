@@ -265,6 +265,15 @@ def test_bad_options(camera, case):
         make_system(camera, **options)
 
 
+def test_fake_core_knows_the_same_options(camera):
+    from fake_core import FakeSlamSystem
+
+    with pytest.raises(ValueError, match="known: ") as err:
+        make_system(camera, not_an_option=1)
+    known = {k.strip() for k in str(err.value).split("known: ", 1)[1].split(",")}
+    assert FakeSlamSystem.KNOWN == known
+
+
 def test_good_options_and_dist_lengths(camera):
     c = camera
     for dist in ([], c.dist[:4], c.dist, tuple(c.dist)):
