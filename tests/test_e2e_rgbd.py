@@ -1,0 +1,85 @@
+"""End to end: RGB-D SLAM on the real TUM fr1/rpy frames, against the motion-capture truth.
+
+fr1/rpy is the hard hand-held case: rotation about all three axes at ~50 deg/s on average with
+peaks of ~155 deg/s (motion blur), and only 17 cm of translation. Bounds below were measured
+on this build (`python benches/tum_stages.py`, see README) and sit ~25% above the measured
+values, so a real regression fails while the run-to-run spread of equivalent builds (the
+pipeline is deterministic for a fixed build, but small changes move ATE by a few mm) does not.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ferroslam import metrics
+from ferroslam.cli import main as cli_main
+from ferroslam.datasets import TumSequence
+from ferroslam.pipeline import run_sequence
+from ferroslam.trajectory import Trajectory
+
+# Measured: keyframe ATE 3.13 cm, all-frame ATE 3.15 cm (SE(3) alignment, 300 frames).
+# ORB-SLAM3 RGB-D on the same frames: 2.9 cm; the issue's ORB-SLAM2-class target is < 2 cm,
+# which this build does not reach yet.
+KEYFRAME_ATE_BOUND_M = 0.040
+FRAME_ATE_BOUND_M = 0.040
+# Measured: 1.2-1.5 deg RMSE per frame; GT association alone (5 ms at 50 deg/s) adds ~0.25.
+RPE_ROT_BOUND_DEG = 2.0
+
+
+@pytest.fixture(scope="module")
+def rpy_run(tum_rpy):
+    seq = TumSequence(tum_rpy)
+    return seq, run_sequence(seq, {}, progress=False)
+
+
+def test_tracks_every_frame(rpy_run):
+    seq, result = rpy_run
+    assert len(result.states) == len(seq) == 300
+    assert all(s == "ok" for s in result.states), [
+        (i, s) for i, s in enumerate(result.states) if s != "ok"
+    ]
+    assert len(result.trajectory.timestamps) == 300
+
+
+def test_keyframe_and_frame_ate(rpy_run):
+    seq, result = rpy_run
+    gt = Trajectory(*seq.groundtruth())
+    kf = metrics.ate(gt, result.keyframes, align="se3")
+    frames = metrics.ate(gt, result.trajectory, align="se3")
+    assert kf.pairs == len(result.keyframes.timestamps) >= 20
+    assert kf.rmse < KEYFRAME_ATE_BOUND_M, f"keyframe ATE {kf.rmse:.4f} m"
+    assert frames.rmse < FRAME_ATE_BOUND_M, f"frame ATE {frames.rmse:.4f} m"
+    rpe = metrics.rpe(gt, result.trajectory, delta=1)
+    assert rpe.rot_deg_rmse < RPE_ROT_BOUND_DEG
+
+
+def test_map_is_metric_and_bounded(rpy_run):
+    _, result = rpy_run
+    points = result.map_points
+    assert points.shape[1] == 3 and len(points) > 1000
+    # The room: every point within ~8 m (the depth range) of the start, none at infinity.
+    assert np.isfinite(points).all()
+    assert np.percentile(np.linalg.norm(points, axis=1), 99) < 8.0
+
+
+def test_deterministic(tum_rpy):
+    seq = TumSequence(tum_rpy)
+    first = run_sequence(seq, {}, max_frames=40, progress=False)
+    second = run_sequence(seq, {}, max_frames=40, progress=False)
+    np.testing.assert_array_equal(first.trajectory.poses, second.trajectory.poses)
+
+
+def test_cli_run_writes_outputs(tum_rpy, tmp_path, capsys):
+    out = tmp_path / "run"
+    code = cli_main(["run", str(tum_rpy), "--sensor", "rgbd", "--max-frames", "40",
+                     "--out", str(out), "--silent"])
+    assert code == 0
+    for name in ("trajectory.txt", "keyframes.txt", "trajectory_top.png", "results.json"):
+        assert (out / name).stat().st_size > 0, name
+    rows = np.loadtxt(out / "trajectory.txt")
+    assert rows.shape == (40, 8)
+    summary = json.loads((out / "results.json").read_text())
+    assert summary["tracked_frames"] == 40
