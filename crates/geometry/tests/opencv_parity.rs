@@ -7,7 +7,10 @@ use nalgebra::Vector2;
 
 #[test]
 fn tum_fr1_undistortion_matches_opencv() {
-    let (_, fr1) = test_cameras().into_iter().find(|(name, _)| *name == "tum_fr1").unwrap();
+    let (_, fr1) = test_cameras()
+        .into_iter()
+        .find(|(name, _)| *name == "tum_fr1")
+        .unwrap();
     let cases = [
         ((600.0, 400.0), (592.694_485_23, 397.454_106_47)),
         ((320.0, 240.0), (319.998_022_03, 240.011_099_96)),
@@ -16,7 +19,10 @@ fn tum_fr1_undistortion_matches_opencv() {
     for ((ux, uy), (ex, ey)) in cases {
         let raw = Vector2::new(ux, uy);
         let und = fr1.undistort_pixel(&raw);
-        assert!((und - Vector2::new(ex, ey)).norm() < 1e-5, "{raw:?} -> {und:?}, OpenCV ({ex}, {ey})");
+        assert!(
+            (und - Vector2::new(ex, ey)).norm() < 1e-5,
+            "{raw:?} -> {und:?}, OpenCV ({ex}, {ey})"
+        );
         assert!((fr1.distort_pixel(&und) - raw).norm() < 1e-6);
     }
 }

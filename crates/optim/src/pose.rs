@@ -110,21 +110,13 @@ fn validate(
         });
     }
     for (i, o) in obs.iter().enumerate() {
-        let finite = o.p_w.iter().chain(o.uv.iter()).all(|v| v.is_finite())
-            && o.u_right.is_none_or(f64::is_finite)
-            && o.inv_sigma2.is_finite();
-        if !finite {
+        if !o.p_w.iter().all(|v| v.is_finite()) {
             return Err(OptimError::NonFinite {
                 what: "observation",
                 index: i,
             });
         }
-        if o.inv_sigma2 <= 0.0 {
-            return Err(OptimError::InvalidInput(format!(
-                "observation {i} has inv_sigma2 = {} (must be > 0)",
-                o.inv_sigma2
-            )));
-        }
+        residual::validate_measurement(i, &o.uv, o.u_right, o.inv_sigma2)?;
     }
     Ok(())
 }

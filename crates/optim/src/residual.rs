@@ -5,6 +5,7 @@
 //! (and the corresponding Jacobian row) zero, so one code path serves both kinds; the
 //! information is `inv_sigma2 * I` on the used rows.
 
+use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
 use ferroslam_geometry::so3;
 use nalgebra::{Isometry3, Matrix3, Matrix3x6, Point3, Vector2, Vector3};
@@ -226,4 +227,29 @@ mod tests {
         )
         .is_none());
     }
+}
+
+/// Checks one measurement: finite `uv` / `u_right` / `inv_sigma2` and positive information.
+/// `index` names the observation in the error.
+pub fn validate_measurement(
+    index: usize,
+    uv: &Vector2<f64>,
+    u_right: Option<f64>,
+    inv_sigma2: f64,
+) -> Result<(), OptimError> {
+    let finite = uv.iter().all(|v| v.is_finite())
+        && u_right.is_none_or(f64::is_finite)
+        && inv_sigma2.is_finite();
+    if !finite {
+        return Err(OptimError::NonFinite {
+            what: "observation",
+            index,
+        });
+    }
+    if inv_sigma2 <= 0.0 {
+        return Err(OptimError::InvalidInput(format!(
+            "observation {index} has inv_sigma2 = {inv_sigma2} (must be > 0)"
+        )));
+    }
+    Ok(())
 }

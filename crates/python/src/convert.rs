@@ -23,9 +23,14 @@ pub fn array<'py, T: Element, D: Dimension>(
         Err(_) => {
             let got = match obj.cast::<PyUntypedArray>() {
                 Ok(a) => format!("{} array of shape {}", a.dtype(), shape_tuple(a.shape())),
-                Err(_) => obj.get_type().name().map_or_else(|_| "another type".into(), |n| n.to_string()),
+                Err(_) => obj
+                    .get_type()
+                    .name()
+                    .map_or_else(|_| "another type".into(), |n| n.to_string()),
             };
-            Err(PyTypeError::new_err(format!("{name} must be {expected}, got {got}")))
+            Err(PyTypeError::new_err(format!(
+                "{name} must be {expected}, got {got}"
+            )))
         }
     }
 }
@@ -34,7 +39,14 @@ pub fn array<'py, T: Element, D: Dimension>(
 fn shape_tuple(shape: &[usize]) -> String {
     match shape {
         [n] => format!("({n},)"),
-        _ => format!("({})", shape.iter().map(usize::to_string).collect::<Vec<_>>().join(", ")),
+        _ => format!(
+            "({})",
+            shape
+                .iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
     }
 }
 
@@ -51,7 +63,9 @@ pub fn keypoints(arr: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<Keypoint>> {
     let mut out = Vec::with_capacity(shape[0]);
     for (i, row) in a.rows().into_iter().enumerate() {
         if row.iter().any(|v| !v.is_finite()) {
-            return Err(PyValueError::new_err(format!("keypoints row {i} contains NaN or inf")));
+            return Err(PyValueError::new_err(format!(
+                "keypoints row {i} contains NaN or inf"
+            )));
         }
         let octave = row[2];
         if octave < 0.0 || octave.fract() != 0.0 || octave > 255.0 {
@@ -59,7 +73,13 @@ pub fn keypoints(arr: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<Keypoint>> {
                 "keypoints row {i}: octave {octave} is not a small non-negative integer"
             )));
         }
-        out.push(Keypoint { x: row[0], y: row[1], octave: octave as u8, angle_deg: row[3], response: row[4] });
+        out.push(Keypoint {
+            x: row[0],
+            y: row[1],
+            octave: octave as u8,
+            angle_deg: row[3],
+            response: row[4],
+        });
     }
     Ok(out)
 }

@@ -16,7 +16,9 @@ create_exception!(
 /// internal failures -> `SlamError`.
 pub fn to_py(err: CoreError) -> PyErr {
     match err {
-        CoreError::InvalidConfig(_) | CoreError::InvalidInput(_) => PyValueError::new_err(err.to_string()),
+        CoreError::InvalidConfig(_) | CoreError::InvalidInput(_) => {
+            PyValueError::new_err(err.to_string())
+        }
         CoreError::Map(_) | CoreError::Optim(_) => SlamError::new_err(err.to_string()),
     }
 }

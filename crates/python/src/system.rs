@@ -3,7 +3,9 @@
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
 use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, TrackResult, TrackingState};
 use numpy::ndarray::Array2;
-use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::exceptions::{PyNotImplementedError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -20,20 +22,28 @@ fn state_name(state: TrackingState) -> &'static str {
 }
 
 /// A two-element sequence (tuple, list or array) as a pair.
-fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(key: &str, value: &Bound<'py, PyAny>) -> PyResult<(T, T)> {
-    let items: Vec<T> = value
-        .extract()
-        .map_err(|e| PyTypeError::new_err(format!("option {key}: expected a pair of numbers: {e}")))?;
+fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(
+    key: &str,
+    value: &Bound<'py, PyAny>,
+) -> PyResult<(T, T)> {
+    let items: Vec<T> = value.extract().map_err(|e| {
+        PyTypeError::new_err(format!("option {key}: expected a pair of numbers: {e}"))
+    })?;
     match items[..] {
         [a, b] => Ok((a, b)),
-        _ => Err(PyValueError::new_err(format!("option {key}: expected 2 values, got {}", items.len()))),
+        _ => Err(PyValueError::new_err(format!(
+            "option {key}: expected 2 values, got {}",
+            items.len()
+        ))),
     }
 }
 
 /// Reads the keyword options into a config; unknown names are an error, not ignored.
 fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
     let mut config = SlamConfig::default();
-    let Some(options) = options else { return Ok(config) };
+    let Some(options) = options else {
+        return Ok(config);
+    };
     for (key, value) in options.iter() {
         let key: String = key.extract()?;
         let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));
@@ -151,7 +161,13 @@ impl PySlamSystem {
                 )))
             }
         };
-        let distortion = RadTan { k1: d[0], k2: d[1], p1: d[2], p2: d[3], k3: d[4] };
+        let distortion = RadTan {
+            k1: d[0],
+            k2: d[1],
+            p1: d[2],
+            p2: d[3],
+            k3: d[4],
+        };
         let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
             .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
         let config = parse_config(options)?;
@@ -171,9 +187,12 @@ impl PySlamSystem {
         descriptors: &Bound<'_, PyAny>,
         depth_m: &Bound<'_, PyAny>,
     ) -> PyResult<PyTrackResult> {
-        let keypoints: PyReadonlyArray2<'_, f32> = convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
-        let descriptors: PyReadonlyArray2<'_, u8> = convert::array(descriptors, "descriptors", "a uint8 (N, 32) array")?;
-        let depth_m: PyReadonlyArray1<'_, f32> = convert::array(depth_m, "depth_m", "a float32 (N,) array")?;
+        let keypoints: PyReadonlyArray2<'_, f32> =
+            convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
+        let descriptors: PyReadonlyArray2<'_, u8> =
+            convert::array(descriptors, "descriptors", "a uint8 (N, 32) array")?;
+        let depth_m: PyReadonlyArray1<'_, f32> =
+            convert::array(depth_m, "depth_m", "a float32 (N,) array")?;
         let kps = convert::keypoints(&keypoints)?;
         let descs = convert::descriptors(&descriptors)?;
         if depth_m.len() != kps.len() || descs.len() != kps.len() {
@@ -187,35 +206,57 @@ impl PySlamSystem {
         let depth = convert::floats(&depth_m);
         let inner = &mut self.inner;
         let result = py.detach(move || {
-            inner.track_rgbd(&RgbdInput { timestamp, keypoints: &kps, descriptors: &descs, depth_m: &depth })
+            inner.track_rgbd(&RgbdInput {
+                timestamp,
+                keypoints: &kps,
+                descriptors: &descs,
+                depth_m: &depth,
+            })
         });
         result.map(|inner| PyTrackResult { inner }).map_err(to_py)
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.
-    fn frame_trajectory<'py>(&self, py: Python<'py>) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>) {
+    fn frame_trajectory<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>) {
         let traj = self.inner.frame_trajectory();
         let stamps = traj.iter().map(|(t, _)| *t).collect();
         let poses: Vec<_> = traj.into_iter().map(|(_, T)| T).collect();
-        (convert::f64_array(py, stamps), convert::pose_stack(py, &poses))
+        (
+            convert::f64_array(py, stamps),
+            convert::pose_stack(py, &poses),
+        )
     }
 
     /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes.
     fn keyframe_trajectory<'py>(
         &self,
         py: Python<'py>,
-    ) -> (Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>) {
+    ) -> (
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray3<f64>>,
+    ) {
         let kfs = self.inner.keyframe_trajectory();
         let ids: Vec<u32> = kfs.iter().map(|(id, _, _)| id.0).collect();
         let stamps = kfs.iter().map(|(_, t, _)| *t).collect();
         let poses: Vec<_> = kfs.into_iter().map(|(_, _, T)| T).collect();
-        (PyArray1::from_vec(py, ids), convert::f64_array(py, stamps), convert::pose_stack(py, &poses))
+        (
+            PyArray1::from_vec(py, ids),
+            convert::f64_array(py, stamps),
+            convert::pose_stack(py, &poses),
+        )
     }
 
     /// World positions of the map points, (M, 3) float64 metres.
     fn map_points<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         let pts = self.inner.map_points();
-        PyArray2::from_owned_array(py, Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]))
+        PyArray2::from_owned_array(
+            py,
+            Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]),
+        )
     }
 
     /// Clears the map; tracking restarts with the next frame.

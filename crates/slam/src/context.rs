@@ -27,11 +27,28 @@ impl Context {
     /// Derives the context from a validated configuration.
     pub fn new(camera: PinholeCamera, config: SlamConfig) -> Self {
         let b = camera.undistorted_bounds();
-        let bounds = ImageBounds { min_x: b.min_x, max_x: b.max_x, min_y: b.min_y, max_y: b.max_y };
-        let intrinsics =
-            Intrinsics { fx: camera.fx, fy: camera.fy, cx: camera.cx, cy: camera.cy, bf: config.bf };
+        let bounds = ImageBounds {
+            min_x: b.min_x,
+            max_x: b.max_x,
+            min_y: b.min_y,
+            max_y: b.max_y,
+        };
+        let intrinsics = Intrinsics {
+            fx: camera.fx,
+            fy: camera.fy,
+            cx: camera.cx,
+            cy: camera.cy,
+            bf: config.bf,
+        };
         let close_depth_m = config.close_depth_m(camera.fx);
         let baseline_m = config.bf / camera.fx;
-        Self { camera, bounds, intrinsics, config, close_depth_m, baseline_m }
+        Self {
+            camera,
+            bounds,
+            intrinsics,
+            config,
+            close_depth_m,
+            baseline_m,
+        }
     }
 }

@@ -1,6 +1,8 @@
 //! A tracked image: its features (undistorted, with depth) and their map associations.
 
-use ferroslam_features::{Descriptor, ImageBounds, Keypoint, ScalePyramid};
+use ferroslam_features::{
+    search_by_projection, Descriptor, ImageBounds, Keypoint, MatchOptions, ProjectionQuery,
+};
 use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{FrameFeatures, MapPointId};
 use nalgebra::{Isometry3, Vector2, Vector3};
@@ -57,10 +59,20 @@ impl RgbdInput<'_> {
                 self.depth_m.len()
             )));
         }
-        if let Some(i) = self.keypoints.iter().position(|k| !(k.x.is_finite() && k.y.is_finite())) {
-            return Err(SlamError::InvalidInput(format!("keypoint {i} has non-finite coordinates")));
+        if let Some(i) = self
+            .keypoints
+            .iter()
+            .position(|k| !(k.x.is_finite() && k.y.is_finite()))
+        {
+            return Err(SlamError::InvalidInput(format!(
+                "keypoint {i} has non-finite coordinates"
+            )));
         }
-        if let Some(i) = self.keypoints.iter().position(|k| k.octave as usize >= n_levels) {
+        if let Some(i) = self
+            .keypoints
+            .iter()
+            .position(|k| k.octave as usize >= n_levels)
+        {
             return Err(SlamError::InvalidInput(format!(
                 "keypoint {i} has octave {} but the pyramid has {n_levels} levels",
                 self.keypoints[i].octave
@@ -85,7 +97,11 @@ impl Frame {
         let mut u_right = Vec::with_capacity(input.keypoints.len());
         for (kp, &d) in input.keypoints.iter().zip(input.depth_m) {
             let uv = camera.undistort_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
-            keypoints.push(Keypoint { x: uv.x as f32, y: uv.y as f32, ..*kp });
+            keypoints.push(Keypoint {
+                x: uv.x as f32,
+                y: uv.y as f32,
+                ..*kp
+            });
             let d = d as f64;
             if d.is_finite() && d > dmin && d < dmax {
                 depth.push(d as f32);
@@ -96,7 +112,13 @@ impl Frame {
             }
         }
         let n = keypoints.len();
-        let features = FrameFeatures::new(keypoints, input.descriptors.to_vec(), depth, u_right, bounds)?;
+        let features = FrameFeatures::new(
+            keypoints,
+            input.descriptors.to_vec(),
+            depth,
+            u_right,
+            bounds,
+        )?;
         Ok(Self {
             index,
             timestamp: input.timestamp,
@@ -135,9 +157,16 @@ impl Frame {
         self.outlier.iter_mut().for_each(|o| *o = false);
     }
 
-    /// Information weight 1/sigma^2 of keypoint `i`, from its pyramid level.
-    pub fn inv_sigma2(&self, i: usize, pyramid: &ScalePyramid) -> f64 {
-        pyramid.inv_sigma2[self.features.keypoints[i].octave as usize]
+    /// Matches projected points against this frame's keypoints (see
+    /// [`ferroslam_features::search_by_projection`]): per query, `(keypoint, distance)`.
+    pub fn search_by_projection(
+        &self,
+        queries: &[ProjectionQuery],
+        taken: &[bool],
+        opts: &MatchOptions,
+    ) -> Vec<Option<(usize, u32)>> {
+        let f = &self.features;
+        search_by_projection(queries, &f.keypoints, &f.descriptors, &f.grid, taken, opts)
     }
 }
 

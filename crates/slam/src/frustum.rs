@@ -49,5 +49,11 @@ pub fn visible_point(
         return None;
     }
     let level = map.pyramid().predict_level(dist, point.max_distance()) as u8;
-    Some(VisiblePoint { id: mp, u: uv.x, v: uv.y, level, view_cos })
+    Some(VisiblePoint {
+        id: mp,
+        u: uv.x,
+        v: uv.y,
+        level,
+        view_cos,
+    })
 }

@@ -64,13 +64,24 @@ impl LocalMapper {
         ctx: &Context,
         report: &mut MappingReport,
     ) -> Result<KeyFrameId, SlamError> {
-        let kf = map.insert_keyframe(frame.timestamp, frame.index, frame.T_c_w, frame.features.clone());
+        let kf = map.insert_keyframe(
+            frame.timestamp,
+            frame.index,
+            frame.T_c_w,
+            frame.features.clone(),
+        );
         if self.origin.is_none() {
             self.origin = Some(kf);
         }
         for i in 0..frame.len() {
-            let Some(m) = frame.map_points[i] else { continue };
-            if frame.outlier[i] || map.map_point(m).is_none_or(|p| p.observations().contains_key(&kf)) {
+            let Some(m) = frame.map_points[i] else {
+                continue;
+            };
+            if frame.outlier[i]
+                || map
+                    .map_point(m)
+                    .is_none_or(|p| p.observations().contains_key(&kf))
+            {
                 frame.map_points[i] = None;
                 continue;
             }
@@ -132,7 +143,9 @@ impl LocalMapper {
         for &m in &self.recent_points {
             let Some(p) = map.map_point(m) else { continue };
             let age = current.0.saturating_sub(p.first_keyframe().0);
-            if p.found_ratio() < 0.25 || (age >= 2 && p.num_observations() <= MIN_POINT_OBSERVATIONS) {
+            if p.found_ratio() < 0.25
+                || (age >= 2 && p.num_observations() <= MIN_POINT_OBSERVATIONS)
+            {
                 map.set_map_point_bad(m);
                 culled += 1;
             } else if age < 3 {
@@ -147,24 +160,38 @@ impl LocalMapper {
     /// (ORB-SLAM `CreateNewMapPoints`): epipolar matching, parallax, positive depth,
     /// reprojection and scale-consistency checks. Close features with depth use it directly
     /// when their stereo parallax beats the ray parallax.
-    fn create_new_points(&mut self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+    fn create_new_points(
+        &mut self,
+        kf: KeyFrameId,
+        map: &mut Map,
+        ctx: &Context,
+    ) -> Result<usize, SlamError> {
         let neighbours = map.best_covisibles(kf, TRIANGULATION_NEIGHBOURS);
         let pyramid = map.pyramid().clone();
         let ratio_factor = 1.5 * pyramid.scale_factor;
         let mut created = 0;
         for kf2 in neighbours {
-            let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(kf2)) else { continue };
+            let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(kf2)) else {
+                continue;
+            };
             let (T_c1_w, T_c2_w) = (*k1.T_c_w(), *k2.T_c_w());
             let (o1, o2) = (k1.camera_center(), k2.camera_center());
             if (o2 - o1).norm() < ctx.baseline_m {
                 continue;
             }
             let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, ctx);
-            let epipole2 = ctx.camera.project(&(T_c2_w * Point3::from(o1)).coords).map(|e| (e.x, e.y));
+            let epipole2 = ctx
+                .camera
+                .project(&(T_c2_w * Point3::from(o1)).coords)
+                .map(|e| (e.x, e.y));
             let (f1, f2) = (k1.features(), k2.features());
             let free1: Vec<bool> = k1.map_points().iter().map(Option::is_none).collect();
             let free2: Vec<bool> = k2.map_points().iter().map(Option::is_none).collect();
-            let opts = MatchOptions { max_distance: TH_LOW, nn_ratio: None, check_orientation: true };
+            let opts = MatchOptions {
+                max_distance: TH_LOW,
+                nn_ratio: None,
+                check_orientation: true,
+            };
             let pairs = search_for_triangulation(
                 &f1.keypoints,
                 &f1.descriptors,
@@ -180,7 +207,9 @@ impl LocalMapper {
             let views = [View::new(map, kf), View::new(map, kf2)];
             let mut new_points = Vec::new();
             for (i1, i2) in pairs {
-                let Some(p_w) = triangulate_pair(&views, [i1, i2], ctx) else { continue };
+                let Some(p_w) = triangulate_pair(&views, [i1, i2], ctx) else {
+                    continue;
+                };
                 let ok = views
                     .iter()
                     .zip([i1, i2])
@@ -193,8 +222,11 @@ impl LocalMapper {
                     continue;
                 }
                 let ratio_dist = d2 / d1;
-                let ratio_octave = pyramid.scale[views[0].octave(i1)] / pyramid.scale[views[1].octave(i2)];
-                if ratio_dist * ratio_factor < ratio_octave || ratio_dist > ratio_octave * ratio_factor {
+                let ratio_octave =
+                    pyramid.scale[views[0].octave(i1)] / pyramid.scale[views[1].octave(i2)];
+                if ratio_dist * ratio_factor < ratio_octave
+                    || ratio_dist > ratio_octave * ratio_factor
+                {
                     continue;
                 }
                 new_points.push((p_w, i1, i2));
@@ -214,14 +246,23 @@ impl LocalMapper {
 
     /// Local BA over `kf` and its covisible keyframes, with the other keyframes that see
     /// their points held fixed; rejected observations are erased from the map.
-    fn local_bundle_adjust(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+    fn local_bundle_adjust(
+        &self,
+        kf: KeyFrameId,
+        map: &mut Map,
+        ctx: &Context,
+    ) -> Result<usize, SlamError> {
         let mut local: Vec<KeyFrameId> = vec![kf];
         local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
         let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
         let mut points = Vec::new();
         let mut seen = HashSet::new();
         for &k in &local {
-            for m in map.keyframe(k).into_iter().flat_map(|k| k.map_points().iter().flatten()) {
+            for m in map
+                .keyframe(k)
+                .into_iter()
+                .flat_map(|k| k.map_points().iter().flatten())
+            {
                 if map.map_point(*m).is_some() && seen.insert(*m) {
                     points.push(*m);
                 }
@@ -244,7 +285,9 @@ impl LocalMapper {
         let mut obs_keys = Vec::new();
         for (pi, &m) in points.iter().enumerate() {
             for (&k, &i) in map.map_point(m).unwrap().observations() {
-                let Some(&pose) = pose_index.get(&k) else { continue };
+                let Some(&pose) = pose_index.get(&k) else {
+                    continue;
+                };
                 let f = map.keyframe(k).unwrap().features();
                 let kp = &f.keypoints[i];
                 let ur = f.u_right[i];
@@ -260,12 +303,18 @@ impl LocalMapper {
         }
         let mut problem = BaProblem {
             intrinsics: ctx.intrinsics,
-            poses: pose_ids.iter().map(|k| *map.keyframe(*k).unwrap().T_c_w()).collect(),
+            poses: pose_ids
+                .iter()
+                .map(|k| *map.keyframe(*k).unwrap().T_c_w())
+                .collect(),
             pose_fixed: pose_ids
                 .iter()
                 .map(|k| !local_set.contains(k) || Some(*k) == self.origin)
                 .collect(),
-            points: points.iter().map(|m| map.map_point(*m).unwrap().position()).collect(),
+            points: points
+                .iter()
+                .map(|m| map.map_point(*m).unwrap().position())
+                .collect(),
             observations,
         };
         let Ok(result) = local_bundle_adjust(&mut problem) else {
@@ -303,11 +352,15 @@ impl LocalMapper {
             if Some(candidate) == self.origin {
                 continue;
             }
-            let Some(k) = map.keyframe(candidate) else { continue };
+            let Some(k) = map.keyframe(candidate) else {
+                continue;
+            };
             let f = k.features();
             let (mut n_points, mut n_redundant) = (0usize, 0usize);
             for (i, m) in k.map_points().iter().enumerate() {
-                let Some(p) = m.and_then(|m| map.map_point(m)) else { continue };
+                let Some(p) = m.and_then(|m| map.map_point(m)) else {
+                    continue;
+                };
                 let z = f.depth[i] as f64;
                 if z < 0.0 || z > ctx.close_depth_m {
                     continue;
@@ -322,7 +375,8 @@ impl LocalMapper {
                     .iter()
                     .filter(|(k2, _)| **k2 != candidate)
                     .filter(|(k2, i2)| {
-                        map.keyframe(**k2).is_some_and(|k2| k2.features().keypoints[**i2].octave <= level + 1)
+                        map.keyframe(**k2)
+                            .is_some_and(|k2| k2.features().keypoints[**i2].octave <= level + 1)
                     })
                     .take(MIN_POINT_OBSERVATIONS)
                     .count();
@@ -341,13 +395,27 @@ impl LocalMapper {
 }
 
 /// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two cameras.
-fn fundamental_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>, ctx: &Context) -> Matrix3<f64> {
+fn fundamental_matrix(
+    T_c1_w: &Isometry3<f64>,
+    T_c2_w: &Isometry3<f64>,
+    ctx: &Context,
+) -> Matrix3<f64> {
     let T_21 = T_c2_w * T_c1_w.inverse();
     let t = T_21.translation.vector;
     let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
     let e21 = t_hat * T_21.rotation.to_rotation_matrix().into_inner();
     let c = &ctx.camera;
-    let k_inv = Matrix3::new(1.0 / c.fx, 0.0, -c.cx / c.fx, 0.0, 1.0 / c.fy, -c.cy / c.fy, 0.0, 0.0, 1.0);
+    let k_inv = Matrix3::new(
+        1.0 / c.fx,
+        0.0,
+        -c.cx / c.fx,
+        0.0,
+        1.0 / c.fy,
+        -c.cy / c.fy,
+        0.0,
+        0.0,
+        1.0,
+    );
     k_inv.transpose() * e21 * k_inv
 }
 
@@ -361,7 +429,11 @@ struct View<'a> {
 impl<'a> View<'a> {
     fn new(map: &'a Map, kf: KeyFrameId) -> Self {
         let k = map.keyframe(kf).expect("view of a live keyframe");
-        Self { T_c_w: *k.T_c_w(), T_w_c: k.T_w_c(), features: k.features() }
+        Self {
+            T_c_w: *k.T_c_w(),
+            T_w_c: k.T_w_c(),
+            features: k.features(),
+        }
     }
 
     fn octave(&self, i: usize) -> usize {
@@ -386,7 +458,9 @@ impl<'a> View<'a> {
     /// ORB-SLAM's chi2 test (5.991 for (u, v), 7.8 with the right coordinate), positive depth.
     fn reprojection_ok(&self, p_w: &Vector3<f64>, i: usize, sigma2: &[f64], ctx: &Context) -> bool {
         let p_c = self.T_c_w * Point3::from(*p_w);
-        let Some(uv) = ctx.camera.project(&p_c.coords) else { return false };
+        let Some(uv) = ctx.camera.project(&p_c.coords) else {
+            return false;
+        };
         let e = uv - self.pixel(i);
         let s2 = sigma2[self.octave(i)];
         let ur = self.features.u_right[i] as f64;
@@ -436,7 +510,10 @@ fn fuse_with_neighbours(kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<
             }
         }
     }
-    let own: Vec<MapPointId> = map.keyframe(kf).map(|k| k.map_points().iter().flatten().copied().collect()).unwrap_or_default();
+    let own: Vec<MapPointId> = map
+        .keyframe(kf)
+        .map(|k| k.map_points().iter().flatten().copied().collect())
+        .unwrap_or_default();
     let mut fused = 0;
     for &t in &targets {
         fused += fuse_points_into(map, t, &own, ctx, 3.0)?;
@@ -444,14 +521,21 @@ fn fuse_with_neighbours(kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<
     let mut theirs = Vec::new();
     let mut seen_points = HashSet::new();
     for &t in &targets {
-        for m in map.keyframe(t).into_iter().flat_map(|k| k.map_points().iter().flatten()) {
+        for m in map
+            .keyframe(t)
+            .into_iter()
+            .flat_map(|k| k.map_points().iter().flatten())
+        {
             if seen_points.insert(*m) {
                 theirs.push(*m);
             }
         }
     }
     fused += fuse_points_into(map, kf, &theirs, ctx, 3.0)?;
-    let refreshed: Vec<MapPointId> = map.keyframe(kf).map(|k| k.map_points().iter().flatten().copied().collect()).unwrap_or_default();
+    let refreshed: Vec<MapPointId> = map
+        .keyframe(kf)
+        .map(|k| k.map_points().iter().flatten().copied().collect())
+        .unwrap_or_default();
     for m in refreshed {
         if map.map_point(m).is_some() {
             map.compute_distinctive_descriptor(m)?;
@@ -472,7 +556,9 @@ fn fuse_points_into(
     ctx: &Context,
     th: f64,
 ) -> Result<usize, SlamError> {
-    let Some(k) = map.keyframe(kf) else { return Ok(0) };
+    let Some(k) = map.keyframe(kf) else {
+        return Ok(0);
+    };
     let (T_c_w, center) = (*k.T_c_w(), k.camera_center());
     let pyramid = map.pyramid().clone();
     let mut fused = 0;
@@ -481,7 +567,8 @@ fn fuse_points_into(
         if p.observations().contains_key(&kf) {
             continue;
         }
-        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5) else {
+        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5)
+        else {
             continue;
         };
         let descriptor = *p.descriptor();
@@ -491,7 +578,10 @@ fn fuse_points_into(
         let f = k.features();
         let radius = th * pyramid.scale[vis.level as usize];
         let mut best: Option<(u32, usize)> = None;
-        for i in f.grid.features_in_area(&f.keypoints, vis.u, vis.v, radius, None, None) {
+        for i in f
+            .grid
+            .features_in_area(&f.keypoints, vis.u, vis.v, radius, None, None)
+        {
             let kp = &f.keypoints[i];
             if kp.octave + 1 < vis.level || kp.octave > vis.level {
                 continue;
@@ -513,8 +603,13 @@ fn fuse_points_into(
                 best = Some((d, i));
             }
         }
-        let Some((_, i)) = best.filter(|(d, _)| *d <= TH_LOW) else { continue };
-        match k.map_point(i).filter(|other| map.map_point(*other).is_some()) {
+        let Some((_, i)) = best.filter(|(d, _)| *d <= TH_LOW) else {
+            continue;
+        };
+        match k
+            .map_point(i)
+            .filter(|other| map.map_point(*other).is_some())
+        {
             Some(other) if other != m => {
                 let n_other = map.map_point(other).unwrap().num_observations();
                 let n_this = map.map_point(m).unwrap().num_observations();

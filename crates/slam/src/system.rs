@@ -79,7 +79,13 @@ impl SlamSystem {
         }
         self.last_timestamp = Some(input.timestamp);
         let start = Instant::now();
-        let mut frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx.camera, self.ctx.bounds, &self.ctx.config)?;
+        let mut frame = Frame::from_rgbd(
+            self.frames_seen,
+            input,
+            &self.ctx.camera,
+            self.ctx.bounds,
+            &self.ctx.config,
+        )?;
         self.frames_seen += 1;
         if self.tracker.state == TrackingState::NotInitialized {
             let initialised = self.initialise(frame)?;
@@ -99,7 +105,11 @@ impl SlamSystem {
             state: self.tracker.state,
             T_w_c: tracked.then(|| frame.T_c_w.inverse()),
             is_keyframe: false,
-            num_tracked: if tracked { self.tracker.matches_inliers } else { 0 },
+            num_tracked: if tracked {
+                self.tracker.matches_inliers
+            } else {
+                0
+            },
             tracking_ms,
             mapping_ms: 0.0,
             mapping: None,
@@ -115,17 +125,22 @@ impl SlamSystem {
             && self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx);
         if new_keyframe {
             let mut report = MappingReport::default();
-            let kf = self.mapper.insert_keyframe(&mut frame, &mut self.map, &self.ctx, &mut report)?;
+            let kf =
+                self.mapper
+                    .insert_keyframe(&mut frame, &mut self.map, &self.ctx, &mut report)?;
             self.tracker.on_keyframe(frame.index, kf);
-            self.mapper.process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
+            self.mapper
+                .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
             result.is_keyframe = true;
             result.mapping = Some(report);
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(r) = self.tracker.reference_kf {
-            self.trajectory.push(frame.timestamp, &frame.T_c_w, r, &self.map);
+            self.trajectory
+                .push(frame.timestamp, &frame.T_c_w, r, &self.map);
         }
-        self.tracker.set_last_frame(frame, &self.map, &self.ctx, new_keyframe);
+        self.tracker
+            .set_last_frame(frame, &self.map, &self.ctx, new_keyframe);
         Ok(result)
     }
 
@@ -139,13 +154,20 @@ impl SlamSystem {
         frame.T_c_w = Isometry3::identity();
         let mut report = MappingReport::default();
         // Every feature with depth becomes a point at initialisation, not only the close ones.
-        let ctx = Context { close_depth_m: f64::INFINITY, ..self.ctx.clone() };
-        let kf = self.mapper.insert_keyframe(&mut frame, &mut self.map, &ctx, &mut report)?;
+        let ctx = Context {
+            close_depth_m: f64::INFINITY,
+            ..self.ctx.clone()
+        };
+        let kf = self
+            .mapper
+            .insert_keyframe(&mut frame, &mut self.map, &ctx, &mut report)?;
         self.tracker.on_keyframe(frame.index, kf);
         self.tracker.state = TrackingState::Ok;
         self.tracker.matches_inliers = report.depth_points;
-        self.trajectory.push(frame.timestamp, &frame.T_c_w, kf, &self.map);
-        self.tracker.set_last_frame(frame, &self.map, &self.ctx, true);
+        self.trajectory
+            .push(frame.timestamp, &frame.T_c_w, kf, &self.map);
+        self.tracker
+            .set_last_frame(frame, &self.map, &self.ctx, true);
         Ok(true)
     }
 
@@ -183,12 +205,20 @@ impl SlamSystem {
         self.map
             .keyframe_ids()
             .into_iter()
-            .filter_map(|id| self.map.keyframe(id).map(|k| (id, k.timestamp(), k.T_w_c())))
+            .filter_map(|id| {
+                self.map
+                    .keyframe(id)
+                    .map(|k| (id, k.timestamp(), k.T_w_c()))
+            })
             .collect()
     }
 
     /// World positions of every live map point, metres.
     pub fn map_points(&self) -> Vec<Vector3<f64>> {
-        self.map.map_point_ids().into_iter().filter_map(|m| self.map.map_point(m).map(|p| p.position())).collect()
+        self.map
+            .map_point_ids()
+            .into_iter()
+            .filter_map(|m| self.map.map_point(m).map(|p| p.position()))
+            .collect()
     }
 }

@@ -7,7 +7,7 @@
 use std::collections::{HashMap, HashSet};
 
 use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
-use ferroslam_features::{match_brute_force, search_by_projection, Descriptor, MatchOptions, ProjectionQuery};
+use ferroslam_features::{match_brute_force, Descriptor, MatchOptions, ProjectionQuery};
 use ferroslam_geometry::pnp::{pnp_ransac, PnpRansacOptions};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::{optimize_pose, PoseObservation};
@@ -85,12 +85,20 @@ impl Default for Tracker {
 impl Tracker {
     /// Estimates `frame.T_c_w` against the map. Returns whether tracking succeeded; on success
     /// `frame.map_points` holds the inlier associations.
-    pub fn track(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+    pub fn track(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+    ) -> Result<bool, SlamError> {
         self.refresh_last_frame_pose(map);
         let recovered = match self.state {
             TrackingState::Ok => {
-                let by_motion =
-                    if self.velocity.is_some() { self.track_with_motion_model(frame, map, ctx)? } else { 0 };
+                let by_motion = if self.velocity.is_some() {
+                    self.track_with_motion_model(frame, map, ctx)?
+                } else {
+                    0
+                };
                 if by_motion >= STRONG_POSE_INLIERS {
                     true
                 } else {
@@ -117,7 +125,10 @@ impl Tracker {
         };
         let ok = recovered && self.track_local_map(frame, map, ctx)?;
         if ok {
-            self.velocity = self.last_frame.as_ref().map(|last| frame.T_c_w * last.T_c_w.inverse());
+            self.velocity = self
+                .last_frame
+                .as_ref()
+                .map(|last| frame.T_c_w * last.T_c_w.inverse());
             self.state = TrackingState::Ok;
         } else {
             self.velocity = None;
@@ -128,7 +139,13 @@ impl Tracker {
 
     /// Keeps `frame` as the last frame, adding depth-backed temporary points (ORB-SLAM
     /// `UpdateLastFrame`) so the motion model has matches where the map is thin.
-    pub fn set_last_frame(&mut self, mut frame: Frame, map: &Map, ctx: &Context, is_keyframe: bool) {
+    pub fn set_last_frame(
+        &mut self,
+        mut frame: Frame,
+        map: &Map,
+        ctx: &Context,
+        is_keyframe: bool,
+    ) {
         frame.vo_points.iter_mut().for_each(|p| *p = None);
         for (i, m) in frame.map_points.iter_mut().enumerate() {
             if frame.outlier[i] || m.is_some_and(|id| map.map_point(id).is_none()) {
@@ -180,7 +197,12 @@ impl Tracker {
     }
 
     /// Returns the number of map point inliers (0 on failure).
-    fn track_with_motion_model(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+    fn track_with_motion_model(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+    ) -> Result<usize, SlamError> {
         let (Some(last), Some(velocity)) = (self.last_frame.as_ref(), self.velocity) else {
             return Ok(0);
         };
@@ -197,7 +219,11 @@ impl Tracker {
         }
         optimize_frame_pose(frame, map, ctx)?;
         let inliers = discard_outliers(frame);
-        Ok(if inliers >= MIN_POSE_INLIERS { inliers } else { 0 })
+        Ok(if inliers >= MIN_POSE_INLIERS {
+            inliers
+        } else {
+            0
+        })
     }
 
     /// Reference keyframe tracking and relocalisation in one: descriptor matches against the
@@ -207,7 +233,12 @@ impl Tracker {
     /// pose, which diverges under fast rotation).
     /// Returns the number of map point inliers of the first keyframe that localises the
     /// frame (0 on failure, with the associations cleared).
-    fn relocalise(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
+    fn relocalise(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+    ) -> Result<usize, SlamError> {
         let Some(r) = self.reference_kf.filter(|&r| map.keyframe(r).is_some()) else {
             return Ok(0);
         };
@@ -224,8 +255,10 @@ impl Tracker {
                 .enumerate()
                 .filter_map(|(i, m)| m.map(|m| (i, m)))
                 .collect();
-            let points_w: Vec<_> =
-                matched.iter().map(|&(_, m)| map.map_point(m).unwrap().position()).collect();
+            let points_w: Vec<_> = matched
+                .iter()
+                .map(|&(_, m)| map.map_point(m).unwrap().position())
+                .collect();
             let pixels: Vec<_> = matched
                 .iter()
                 .map(|&(i, _)| {
@@ -265,17 +298,30 @@ impl Tracker {
 
     /// Refines the pose against every map point of the local keyframes (ORB-SLAM
     /// `TrackLocalMap`), and counts the inliers that decide success.
-    fn track_local_map(&mut self, frame: &mut Frame, map: &mut Map, ctx: &Context) -> Result<bool, SlamError> {
+    fn track_local_map(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+    ) -> Result<bool, SlamError> {
         frame.vo_points.iter_mut().for_each(|p| *p = None);
         self.update_local_keyframes(frame, map);
         self.update_local_points(map);
-        let recently_relocalised =
-            self.last_relocalisation_frame.is_some_and(|f| frame.index < f + 2);
-        self.search_local_points(frame, map, ctx, if recently_relocalised { 5.0 } else { 3.0 })?;
+        let recently_relocalised = self
+            .last_relocalisation_frame
+            .is_some_and(|f| frame.index < f + 2);
+        self.search_local_points(
+            frame,
+            map,
+            ctx,
+            if recently_relocalised { 5.0 } else { 3.0 },
+        )?;
         optimize_frame_pose(frame, map, ctx)?;
         let mut inliers = 0;
         for i in 0..frame.len() {
-            let Some(m) = frame.map_points[i] else { continue };
+            let Some(m) = frame.map_points[i] else {
+                continue;
+            };
             if frame.outlier[i] {
                 frame.map_points[i] = None;
                 continue;
@@ -286,7 +332,11 @@ impl Tracker {
             }
         }
         self.matches_inliers = inliers;
-        let min_inliers = if recently_relocalised { 50 } else { ctx.config.track_feature_range.0 };
+        let min_inliers = if recently_relocalised {
+            50
+        } else {
+            ctx.config.track_feature_range.0
+        };
         Ok(inliers >= min_inliers)
     }
 
@@ -378,15 +428,12 @@ impl Tracker {
             ids.push(m);
         }
         let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
-        let opts = MatchOptions { max_distance: TH_HIGH, nn_ratio: Some(0.8), check_orientation: false };
-        let found = search_by_projection(
-            &queries,
-            &frame.features.keypoints,
-            &frame.features.descriptors,
-            &frame.features.grid,
-            &taken,
-            &opts,
-        );
+        let opts = MatchOptions {
+            max_distance: TH_HIGH,
+            nn_ratio: Some(0.8),
+            check_orientation: false,
+        };
+        let found = frame.search_by_projection(&queries, &taken, &opts);
         for (q, hit) in found.iter().enumerate() {
             if let Some((i, _)) = hit {
                 frame.map_points[*i] = Some(ids[q]);
@@ -399,10 +446,14 @@ impl Tracker {
     /// and `SkipMaxFrames`: a frame tracking more than `upper` points is not a keyframe unless
     /// `skip_max_frames` frames passed since the last one.
     pub fn need_new_keyframe(&self, frame: &Frame, map: &Map, ctx: &Context) -> bool {
-        let Some(r) = self.reference_kf else { return false };
+        let Some(r) = self.reference_kf else {
+            return false;
+        };
         let n_kfs = map.num_keyframes();
         let max_frames = ctx.config.skip_max_frames;
-        if self.last_relocalisation_frame.is_some_and(|f| frame.index < f + max_frames)
+        if self
+            .last_relocalisation_frame
+            .is_some_and(|f| frame.index < f + max_frames)
             && n_kfs > max_frames
         {
             return false;
@@ -447,7 +498,11 @@ fn match_keyframe(frame: &mut Frame, kf: KeyFrameId, map: &Map, ratio: f32) -> u
             train_ids.push(m);
         }
     }
-    let opts = MatchOptions { max_distance: TH_LOW, nn_ratio: Some(ratio), check_orientation: true };
+    let opts = MatchOptions {
+        max_distance: TH_LOW,
+        nn_ratio: Some(ratio),
+        check_orientation: true,
+    };
     let matches = match_brute_force(
         &frame.features.keypoints,
         &frame.features.descriptors,
@@ -467,7 +522,13 @@ fn match_keyframe(frame: &mut Frame, kf: KeyFrameId, map: &Map, ratio: f32) -> u
 
 /// Projects the last frame's map points and temporary points with the predicted pose and
 /// matches them in a radius `radius_px * scale(octave)` (ORB-SLAM motion-model search).
-fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, radius_px: f64) -> usize {
+fn search_last_frame(
+    frame: &mut Frame,
+    last: &Frame,
+    map: &Map,
+    ctx: &Context,
+    radius_px: f64,
+) -> usize {
     let pyramid = map.pyramid();
     let n_levels = pyramid.n_levels as u8;
     let center_in_last = last.T_c_w * Point3::from(frame.camera_center());
@@ -485,7 +546,9 @@ fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, 
             continue;
         };
         let p_c = frame.T_c_w * Point3::from(p_w);
-        let Some(uv) = ctx.camera.project(&p_c.coords) else { continue };
+        let Some(uv) = ctx.camera.project(&p_c.coords) else {
+            continue;
+        };
         let b = &ctx.bounds;
         if uv.x < b.min_x || uv.x >= b.max_x || uv.y < b.min_y || uv.y >= b.max_y {
             continue;
@@ -511,15 +574,12 @@ fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, 
         sources.push((point, p_w));
     }
     let taken = vec![false; frame.len()];
-    let opts = MatchOptions { max_distance: TH_HIGH, nn_ratio: None, check_orientation: true };
-    let found = search_by_projection(
-        &queries,
-        &frame.features.keypoints,
-        &frame.features.descriptors,
-        &frame.features.grid,
-        &taken,
-        &opts,
-    );
+    let opts = MatchOptions {
+        max_distance: TH_HIGH,
+        nn_ratio: None,
+        check_orientation: true,
+    };
+    let found = frame.search_by_projection(&queries, &taken, &opts);
     let mut n = 0;
     for (q, hit) in found.iter().enumerate() {
         if let Some((i, _)) = hit {
@@ -535,7 +595,11 @@ fn search_last_frame(frame: &mut Frame, last: &Frame, map: &Map, ctx: &Context, 
 
 /// Motion-only BA of `frame` on its map point and temporary point matches; sets the pose and
 /// the outlier flags.
-pub fn optimize_frame_pose(frame: &mut Frame, map: &Map, ctx: &Context) -> Result<usize, SlamError> {
+pub fn optimize_frame_pose(
+    frame: &mut Frame,
+    map: &Map,
+    ctx: &Context,
+) -> Result<usize, SlamError> {
     let pyramid = map.pyramid();
     let mut obs = Vec::new();
     let mut index = Vec::new();

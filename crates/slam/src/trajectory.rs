@@ -20,9 +20,19 @@ pub struct Trajectory {
 
 impl Trajectory {
     /// Records a tracked frame at pose `T_c_w` with reference keyframe `reference`.
-    pub fn push(&mut self, timestamp: f64, T_c_w: &Isometry3<f64>, reference: KeyFrameId, map: &Map) {
+    pub fn push(
+        &mut self,
+        timestamp: f64,
+        T_c_w: &Isometry3<f64>,
+        reference: KeyFrameId,
+        map: &Map,
+    ) {
         if let Some(T_r_w) = map.resolve_keyframe_pose(reference) {
-            self.frames.push(FrameRecord { timestamp, reference, T_c_r: T_c_w * T_r_w.inverse() });
+            self.frames.push(FrameRecord {
+                timestamp,
+                reference,
+                T_c_r: T_c_w * T_r_w.inverse(),
+            });
         }
     }
 
