@@ -26,3 +26,22 @@ fn tum_fr1_undistortion_matches_opencv() {
         assert!((fr1.distort_pixel(&und) - raw).norm() < 1e-6);
     }
 }
+
+#[test]
+fn undistortion_inverts_distortion_inside_the_undistorted_bounds() {
+    for (name, camera) in test_cameras() {
+        let b = camera.undistorted_bounds();
+        let mut worst: f64 = 0.0;
+        for i in 0..=40 {
+            for j in 0..=30 {
+                let uv = Vector2::new(
+                    b.min_x + (b.max_x - b.min_x) * i as f64 / 40.0,
+                    b.min_y + (b.max_y - b.min_y) * j as f64 / 30.0,
+                );
+                let back = camera.undistort_pixel(&camera.distort_pixel(&uv));
+                worst = worst.max((back - uv).norm());
+            }
+        }
+        assert!(worst < 1e-6, "{name}: worst round trip {worst} px");
+    }
+}

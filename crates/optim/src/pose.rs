@@ -189,7 +189,7 @@ fn refine(
                 continue;
             };
             let dx = chol.solve(&(-g));
-            let candidate = se3::exp(&dx) * pose;
+            let candidate = se3::retract(&dx, &pose);
             let new_cost = cost(k, &candidate, obs, active, robust);
             let predicted = predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
             let actual = current - new_cost;

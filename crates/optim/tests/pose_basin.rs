@@ -39,7 +39,14 @@ fn converges_from_several_degrees_off() {
             inv_sigma2: 1.0,
         });
     }
-    for (deg, metres) in [(1.0, 0.01), (3.0, 0.03), (5.0, 0.05), (8.0, 0.08)] {
+    for (deg, metres) in [
+        (1e-5, 1e-7),
+        (1e-3, 1e-5),
+        (1.0, 0.01),
+        (3.0, 0.03),
+        (5.0, 0.05),
+        (8.0, 0.08),
+    ] {
         let r = (deg as f64).to_radians();
         let delta = Vector6::new(metres, -metres, metres, r, -r * 0.5, r * 0.3);
         let init: Isometry3<f64> = se3::exp(&delta) * T_c_w;

@@ -125,10 +125,11 @@ impl Tracker {
         };
         let ok = recovered && self.track_local_map(frame, map, ctx)?;
         if ok {
-            self.velocity = self
-                .last_frame
-                .as_ref()
-                .map(|last| frame.T_c_w * last.T_c_w.inverse());
+            self.velocity = self.last_frame.as_ref().map(|last| {
+                let mut velocity = frame.T_c_w * last.T_c_w.inverse();
+                velocity.rotation.renormalize();
+                velocity
+            });
             self.state = TrackingState::Ok;
         } else {
             self.velocity = None;

@@ -145,7 +145,7 @@ pub(crate) fn bundle_adjust_masked(
                 Err(e) => return Err(e),
             };
             for (f, &pose) in symbolic.free_poses.iter().enumerate() {
-                trial_poses[pose] = se3::exp(&step.d_pose[f]) * problem.poses[pose];
+                trial_poses[pose] = se3::retract(&step.d_pose[f], &problem.poses[pose]);
             }
             for (p, &point) in symbolic.opt_points.iter().enumerate() {
                 trial_points[point] = problem.points[point] + step.d_point[p];
