@@ -20,7 +20,7 @@ from .trajectory import Trajectory
 __all__ = ["EXTRACTOR_KEYS", "RunResult", "make_extractor", "run_sequence"]
 
 SENSORS = ("mono", "stereo", "rgbd")
-# Extractor options; those the core also needs (pyramid shape, budget) are passed on too.
+# Extractor options; the pyramid shape (scale_factor, n_levels) is passed to the core too.
 EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
 _EXTRACTOR_ONLY = ("n_features", "ini_fast", "min_fast")
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")

@@ -63,6 +63,17 @@ pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
     ad
 }
 
+/// Left retraction `exp(delta) * T` (delta in the frame `T` maps into), with the rotation
+/// renormalised: products of quaternions drift off unit norm by rounding, and through a
+/// constant-velocity model (`T_k+1 = T_k T_k-1^-1 T_k`) that drift compounds geometrically
+/// until poses scale points by `|q|^2`. Every iterative update should go through here.
+#[allow(non_snake_case)]
+pub fn retract(delta: &Vector6<f64>, T: &Isometry3<f64>) -> Isometry3<f64> {
+    let mut out = exp(delta) * T;
+    out.rotation.renormalize();
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -88,15 +99,4 @@ mod tests {
         let lhs = t * exp(&xi) * t.inverse();
         assert_relative_eq!(lhs, exp(&(adjoint(&t) * xi)), epsilon = 1e-12);
     }
-}
-
-/// Left retraction `exp(delta) * T` (delta in the frame `T` maps into), with the rotation
-/// renormalised: products of quaternions drift off unit norm by rounding, and through a
-/// constant-velocity model (`T_k+1 = T_k T_k-1^-1 T_k`) that drift compounds geometrically
-/// until poses scale points by `|q|^2`. Every iterative update should go through here.
-#[allow(non_snake_case)]
-pub fn retract(delta: &Vector6<f64>, T: &Isometry3<f64>) -> Isometry3<f64> {
-    let mut out = exp(delta) * T;
-    out.rotation.renormalize();
-    out
 }

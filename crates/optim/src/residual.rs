@@ -118,6 +118,31 @@ pub fn chi2(
     residual(k, T_c_w, p_w, uv, u_right).map(|e| inv_sigma2 * e.norm_squared())
 }
 
+/// Checks one measurement: finite `uv` / `u_right` / `inv_sigma2` and positive information.
+/// `index` names the observation in the error.
+pub fn validate_measurement(
+    index: usize,
+    uv: &Vector2<f64>,
+    u_right: Option<f64>,
+    inv_sigma2: f64,
+) -> Result<(), OptimError> {
+    let finite = uv.iter().all(|v| v.is_finite())
+        && u_right.is_none_or(f64::is_finite)
+        && inv_sigma2.is_finite();
+    if !finite {
+        return Err(OptimError::NonFinite {
+            what: "observation",
+            index,
+        });
+    }
+    if inv_sigma2 <= 0.0 {
+        return Err(OptimError::InvalidInput(format!(
+            "observation {index} has inv_sigma2 = {inv_sigma2} (must be > 0)"
+        )));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,29 +252,4 @@ mod tests {
         )
         .is_none());
     }
-}
-
-/// Checks one measurement: finite `uv` / `u_right` / `inv_sigma2` and positive information.
-/// `index` names the observation in the error.
-pub fn validate_measurement(
-    index: usize,
-    uv: &Vector2<f64>,
-    u_right: Option<f64>,
-    inv_sigma2: f64,
-) -> Result<(), OptimError> {
-    let finite = uv.iter().all(|v| v.is_finite())
-        && u_right.is_none_or(f64::is_finite)
-        && inv_sigma2.is_finite();
-    if !finite {
-        return Err(OptimError::NonFinite {
-            what: "observation",
-            index,
-        });
-    }
-    if inv_sigma2 <= 0.0 {
-        return Err(OptimError::InvalidInput(format!(
-            "observation {index} has inv_sigma2 = {inv_sigma2} (must be > 0)"
-        )));
-    }
-    Ok(())
 }

@@ -47,7 +47,7 @@ fn converges_from_several_degrees_off() {
         (5.0, 0.05),
         (8.0, 0.08),
     ] {
-        let r = (deg as f64).to_radians();
+        let r = f64::to_radians(deg);
         let delta = Vector6::new(metres, -metres, metres, r, -r * 0.5, r * 0.3);
         let init: Isometry3<f64> = se3::exp(&delta) * T_c_w;
         let mut outlier = vec![false; obs.len()];

@@ -67,6 +67,13 @@ fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
     Ok(config)
 }
 
+/// `(ids (K,), timestamps (K,), T_w_c (K, 4, 4))` of keyframes, as numpy arrays.
+type KeyFrameArrays<'py> = (
+    Bound<'py, PyArray1<u32>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray3<f64>>,
+);
+
 /// Result of tracking one frame.
 #[pyclass(name = "TrackResult", module = "ferroslam._core", frozen)]
 pub struct PyTrackResult {
@@ -231,14 +238,7 @@ impl PySlamSystem {
     }
 
     /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes.
-    fn keyframe_trajectory<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> (
-        Bound<'py, PyArray1<u32>>,
-        Bound<'py, PyArray1<f64>>,
-        Bound<'py, PyArray3<f64>>,
-    ) {
+    fn keyframe_trajectory<'py>(&self, py: Python<'py>) -> KeyFrameArrays<'py> {
         let kfs = self.inner.keyframe_trajectory();
         let ids: Vec<u32> = kfs.iter().map(|(id, _, _)| id.0).collect();
         let stamps = kfs.iter().map(|(_, t, _)| *t).collect();

@@ -384,10 +384,11 @@ impl LocalMapper {
                     n_redundant += 1;
                 }
             }
-            if n_points > 0 && n_redundant as f64 > 0.9 * n_points as f64 {
-                if map.set_keyframe_bad(candidate) {
-                    culled += 1;
-                }
+            if n_points > 0
+                && n_redundant as f64 > 0.9 * n_points as f64
+                && map.set_keyframe_bad(candidate)
+            {
+                culled += 1;
             }
         }
         culled
