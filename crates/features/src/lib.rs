@@ -23,7 +23,7 @@ pub use error::FeaturesError;
 pub use grid::{ImageBounds, KeypointGrid};
 pub use keypoint::Keypoint;
 pub use matcher::{
-    match_brute_force, search_by_projection, search_for_triangulation, MatchOptions,
-    ProjectionQuery, RotationHistogram,
+    match_brute_force, search_by_projection, search_by_projection_with, search_for_triangulation,
+    MatchOptions, ProjectionQuery, RotationHistogram,
 };
 pub use pyramid::ScalePyramid;

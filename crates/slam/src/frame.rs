@@ -1,7 +1,7 @@
 //! A tracked image: its features (undistorted, with depth) and their map associations.
 
 use ferroslam_features::{
-    search_by_projection, Descriptor, ImageBounds, Keypoint, MatchOptions, ProjectionQuery,
+    search_by_projection_with, Descriptor, ImageBounds, Keypoint, MatchOptions, ProjectionQuery,
 };
 use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{FrameFeatures, MapPointId};
@@ -159,14 +159,32 @@ impl Frame {
 
     /// Matches projected points against this frame's keypoints (see
     /// [`ferroslam_features::search_by_projection`]): per query, `(keypoint, distance)`.
+    ///
+    /// `predicted_u_right[q]` is the right-image coordinate query `q` should have (`u - bf/z`);
+    /// candidates with a measured one further than the search radius away are skipped before
+    /// descriptors are compared, as ORB-SLAM does for stereo/RGB-D: a point on the wrong side
+    /// of a depth edge looks alike but sits at another depth.
     pub fn search_by_projection(
         &self,
         queries: &[ProjectionQuery],
+        predicted_u_right: &[f64],
         taken: &[bool],
         opts: &MatchOptions,
     ) -> Vec<Option<(usize, u32)>> {
         let f = &self.features;
-        search_by_projection(queries, &f.keypoints, &f.descriptors, &f.grid, taken, opts)
+        let depth_agrees = |q: usize, t: usize| {
+            let measured = f.u_right[t];
+            measured < 0.0 || (predicted_u_right[q] - measured as f64).abs() <= queries[q].radius
+        };
+        search_by_projection_with(
+            queries,
+            &f.keypoints,
+            &f.descriptors,
+            &f.grid,
+            taken,
+            opts,
+            depth_agrees,
+        )
     }
 }
 

@@ -14,6 +14,8 @@ pub struct VisiblePoint {
     pub u: f64,
     /// Predicted pixel row (undistorted).
     pub v: f64,
+    /// Depth of the point in the camera, metres.
+    pub z: f64,
     /// Predicted pyramid level from the viewing distance.
     pub level: u8,
     /// Cosine between the viewing ray and the point's mean viewing direction.
@@ -53,6 +55,7 @@ pub fn visible_point(
         id: mp,
         u: uv.x,
         v: uv.y,
+        z: p_c.z,
         level,
         view_cos,
     })

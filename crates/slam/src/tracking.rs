@@ -406,6 +406,7 @@ impl Tracker {
         let pyramid = map.pyramid().clone();
         let mut ids = Vec::new();
         let mut queries = Vec::new();
+        let mut u_right = Vec::new();
         for &m in &self.local_points {
             if in_frame.contains(&m) {
                 continue;
@@ -427,6 +428,7 @@ impl Tracker {
                 angle_deg: None,
             });
             ids.push(m);
+            u_right.push(vis.u - ctx.intrinsics.bf / vis.z);
         }
         let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
         let opts = MatchOptions {
@@ -434,7 +436,7 @@ impl Tracker {
             nn_ratio: Some(0.8),
             check_orientation: false,
         };
-        let found = frame.search_by_projection(&queries, &taken, &opts);
+        let found = frame.search_by_projection(&queries, &u_right, &taken, &opts);
         for (q, hit) in found.iter().enumerate() {
             if let Some((i, _)) = hit {
                 frame.map_points[*i] = Some(ids[q]);
@@ -536,6 +538,7 @@ fn search_last_frame(
     let forward = center_in_last.z > ctx.baseline_m;
     let backward = -center_in_last.z > ctx.baseline_m;
     let mut queries = Vec::new();
+    let mut u_right = Vec::new();
     let mut sources = Vec::new();
     for i in 0..last.len() {
         let (p_w, descriptor, point) = if let Some(m) = last.map_points[i] {
@@ -572,6 +575,7 @@ fn search_last_frame(
             descriptor,
             angle_deg: Some(kp.angle_deg),
         });
+        u_right.push(uv.x - ctx.intrinsics.bf / p_c.z);
         sources.push((point, p_w));
     }
     let taken = vec![false; frame.len()];
@@ -580,7 +584,7 @@ fn search_last_frame(
         nn_ratio: None,
         check_orientation: true,
     };
-    let found = frame.search_by_projection(&queries, &taken, &opts);
+    let found = frame.search_by_projection(&queries, &u_right, &taken, &opts);
     let mut n = 0;
     for (q, hit) in found.iter().enumerate() {
         if let Some((i, _)) = hit {

@@ -19,7 +19,7 @@ mod rotation;
 pub use brute_force::match_brute_force;
 pub use epipolar::search_for_triangulation;
 pub use options::{MatchOptions, TH_HIGH, TH_LOW};
-pub use projection::{search_by_projection, ProjectionQuery};
+pub use projection::{search_by_projection, search_by_projection_with, ProjectionQuery};
 pub use rotation::{RotationHistogram, HISTO_LENGTH};
 
 /// A query's chosen target: `(target index, Hamming distance)`.

@@ -47,10 +47,26 @@ pub fn search_by_projection(
     taken: &[bool],
     opts: &MatchOptions,
 ) -> Vec<Option<(usize, u32)>> {
+    search_by_projection_with(queries, target_kps, target, grid, taken, opts, |_, _| true)
+}
+
+/// [`search_by_projection`] with an extra test `accept(query, target)` on every candidate
+/// before descriptors are compared, e.g. ORB-SLAM's stereo check that the right-image
+/// coordinate predicted for the query agrees with the candidate's measured one.
+pub fn search_by_projection_with(
+    queries: &[ProjectionQuery],
+    target_kps: &[Keypoint],
+    target: &[Descriptor],
+    grid: &KeypointGrid,
+    taken: &[bool],
+    opts: &MatchOptions,
+    accept: impl Fn(usize, usize) -> bool + Sync,
+) -> Vec<Option<(usize, u32)>> {
     let n_target = target_kps.len().min(target.len());
     let mut matches: Vec<_> = queries
         .par_iter()
-        .map(|q| {
+        .enumerate()
+        .map(|(qi, q)| {
             let candidates = grid.features_in_area(
                 &target_kps[..n_target],
                 q.u,
@@ -61,7 +77,7 @@ pub fn search_by_projection(
             );
             let mut best = BestTwo::default();
             for t in candidates {
-                if !taken.get(t).copied().unwrap_or(false) {
+                if !taken.get(t).copied().unwrap_or(false) && accept(qi, t) {
                     best.push(hamming(&q.descriptor, &target[t]), t, target_kps[t].octave);
                 }
             }
@@ -245,5 +261,23 @@ mod tests {
         for (q, m) in got.iter().enumerate().skip(1) {
             assert_eq!(m.map(|(t, _)| t), Some(q * 10), "query {q}");
         }
+    }
+
+    #[test]
+    fn accept_filter_skips_candidates_before_choosing_the_best() {
+        let s = scene(31, 300);
+        let mut rng = rng(32);
+        let q = planted(&mut rng, &s, 7, 0);
+        let opts = MatchOptions {
+            max_distance: 256,
+            nn_ratio: None,
+            check_orientation: false,
+        };
+        let all = search_by_projection(&[q], &s.kps, &s.desc, &s.grid, &[], &opts);
+        assert_eq!(all[0].map(|m| m.0), Some(7));
+        // Refusing target 7 lets the next candidate in the window win (or none if alone).
+        let filtered =
+            search_by_projection_with(&[q], &s.kps, &s.desc, &s.grid, &[], &opts, |_, t| t != 7);
+        assert_ne!(filtered[0].map(|m| m.0), Some(7));
     }
 }
