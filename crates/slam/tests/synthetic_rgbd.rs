@@ -97,6 +97,21 @@ impl Scene {
     }
 }
 
+/// One frame's input (raw keypoints, descriptors, depths) at time `t`, seconds.
+fn input<'a>(
+    t: f64,
+    keypoints: &'a [Keypoint],
+    descriptors: &'a [Descriptor],
+    depth_m: &'a [f32],
+) -> RgbdInput<'a> {
+    RgbdInput {
+        timestamp: t,
+        keypoints,
+        descriptors,
+        depth_m,
+    }
+}
+
 fn run(scene: &Scene, frames: usize, noise_px: f64) -> SlamSystem {
     run_with(scene, frames, noise_px, SlamConfig::default())
 }
@@ -106,13 +121,8 @@ fn run_with(scene: &Scene, frames: usize, noise_px: f64, config: SlamConfig) -> 
     let mut rng = ChaCha8Rng::seed_from_u64(99);
     for i in 0..frames {
         let (kps, descs, depth) = scene.observe(i, &mut rng, noise_px);
-        let input = RgbdInput {
-            timestamp: i as f64 / 30.0,
-            keypoints: &kps,
-            descriptors: &descs,
-            depth_m: &depth,
-        };
-        let result = system.track_rgbd(&input).unwrap();
+        let frame = input(i as f64 / 30.0, &kps, &descs, &depth);
+        let result = system.track_rgbd(&frame).unwrap();
         assert_eq!(result.state, TrackingState::Ok, "frame {i}");
     }
     system
@@ -178,12 +188,7 @@ fn loses_tracking_without_features_and_relocalises() {
         "{} keyframes",
         system.map().num_keyframes()
     );
-    let empty = RgbdInput {
-        timestamp: 2.0,
-        keypoints: &[],
-        descriptors: &[],
-        depth_m: &[],
-    };
+    let empty = input(2.0, &[], &[], &[]);
     assert_eq!(
         system.track_rgbd(&empty).unwrap().state,
         TrackingState::Lost
@@ -191,12 +196,7 @@ fn loses_tracking_without_features_and_relocalises() {
     // Back at a viewpoint the map covers: PnP against the reference keyframe recovers.
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let (kps, descs, depth) = scene.observe(39, &mut rng, 0.0);
-    let again = RgbdInput {
-        timestamp: 2.1,
-        keypoints: &kps,
-        descriptors: &descs,
-        depth_m: &depth,
-    };
+    let again = input(2.1, &kps, &descs, &depth);
     let result = system.track_rgbd(&again).unwrap();
     assert_eq!(result.state, TrackingState::Ok);
     let error = se3::log(&(Scene::T_w_c(39).inverse() * result.T_w_c.unwrap()));
@@ -210,41 +210,21 @@ fn rejects_bad_input_without_changing_state() {
     let mut system = run(&scene, 3, 0.0);
     let mut rng = ChaCha8Rng::seed_from_u64(4);
     let (kps, descs, depth) = scene.observe(3, &mut rng, 0.0);
-    let stale = RgbdInput {
-        timestamp: 0.0,
-        keypoints: &kps,
-        descriptors: &descs,
-        depth_m: &depth,
-    };
+    let stale = input(0.0, &kps, &descs, &depth);
     assert!(
         matches!(system.track_rgbd(&stale), Err(SlamError::InvalidInput(m)) if m.contains("not after"))
     );
-    let short = RgbdInput {
-        timestamp: 1.0,
-        keypoints: &kps,
-        descriptors: &descs[1..],
-        depth_m: &depth,
-    };
+    let short = input(1.0, &kps, &descs[1..], &depth);
     assert!(
         matches!(system.track_rgbd(&short), Err(SlamError::InvalidInput(m)) if m.contains("lengths must match"))
     );
     let mut nan = kps.clone();
     nan[0].x = f32::NAN;
-    let bad = RgbdInput {
-        timestamp: 1.0,
-        keypoints: &nan,
-        descriptors: &descs,
-        depth_m: &depth,
-    };
+    let bad = input(1.0, &nan, &descs, &depth);
     assert!(
         matches!(system.track_rgbd(&bad), Err(SlamError::InvalidInput(m)) if m.contains("non-finite"))
     );
-    let good = RgbdInput {
-        timestamp: 0.1,
-        keypoints: &kps,
-        descriptors: &descs,
-        depth_m: &depth,
-    };
+    let good = input(0.1, &kps, &descs, &depth);
     assert_eq!(system.track_rgbd(&good).unwrap().state, TrackingState::Ok);
     assert_eq!(system.frame_trajectory().len(), 4);
 }
@@ -264,12 +244,7 @@ fn invalid_configuration_is_named() {
 fn resets_when_lost_right_after_initialisation() {
     let scene = Scene::new(4, 1500);
     let mut system = run(&scene, 3, 0.0);
-    let empty = RgbdInput {
-        timestamp: 1.0,
-        keypoints: &[],
-        descriptors: &[],
-        depth_m: &[],
-    };
+    let empty = input(1.0, &[], &[], &[]);
     assert_eq!(
         system.track_rgbd(&empty).unwrap().state,
         TrackingState::Lost
@@ -278,11 +253,6 @@ fn resets_when_lost_right_after_initialisation() {
     assert_eq!((system.resets(), system.map().num_keyframes()), (1, 0));
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let (kps, descs, depth) = scene.observe(3, &mut rng, 0.0);
-    let next = RgbdInput {
-        timestamp: 1.1,
-        keypoints: &kps,
-        descriptors: &descs,
-        depth_m: &depth,
-    };
+    let next = input(1.1, &kps, &descs, &depth);
     assert_eq!(system.track_rgbd(&next).unwrap().state, TrackingState::Ok);
 }
