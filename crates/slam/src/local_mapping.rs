@@ -44,8 +44,6 @@ pub struct MappingReport {
 pub struct LocalMapper {
     /// Points created recently and not yet proven (ORB-SLAM `mlpRecentAddedMapPoints`).
     recent_points: Vec<MapPointId>,
-    /// The first keyframe of the map: never culled, always fixed in BA (gauge).
-    pub origin: Option<KeyFrameId>,
 }
 
 impl LocalMapper {
@@ -70,9 +68,6 @@ impl LocalMapper {
             frame.T_c_w,
             frame.features.clone(),
         );
-        if self.origin.is_none() {
-            self.origin = Some(kf);
-        }
         for i in 0..frame.len() {
             let Some(m) = frame.map_points[i] else {
                 continue;
@@ -301,6 +296,8 @@ impl LocalMapper {
                 obs_keys.push((m, k));
             }
         }
+        // The map's first keyframe fixes the gauge.
+        let origin = map.origin();
         let mut problem = BaProblem {
             intrinsics: ctx.intrinsics,
             poses: pose_ids
@@ -309,7 +306,7 @@ impl LocalMapper {
                 .collect(),
             pose_fixed: pose_ids
                 .iter()
-                .map(|k| !local_set.contains(k) || Some(*k) == self.origin)
+                .map(|k| !local_set.contains(k) || Some(*k) == origin)
                 .collect(),
             points: points
                 .iter()
@@ -349,7 +346,7 @@ impl LocalMapper {
     fn cull_keyframes(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
         let mut culled = 0;
         for (candidate, _) in map.covisibles(kf) {
-            if Some(candidate) == self.origin {
+            if Some(candidate) == map.origin() {
                 continue;
             }
             let Some(k) = map.keyframe(candidate) else {

@@ -308,9 +308,11 @@ impl Tracker {
         frame.vo_points.iter_mut().for_each(|p| *p = None);
         self.update_local_keyframes(frame, map);
         self.update_local_points(map);
-        let recently_relocalised = self
-            .last_relocalisation_frame
-            .is_some_and(|f| frame.index < f + 2);
+        // ORB-SLAM: a wider search right after relocalisation, and a stricter inlier count
+        // for a second (`max_frames`) while the relocalised pose is still unconfirmed.
+        let since_relocalisation = self.last_relocalisation_frame.map(|f| frame.index - f);
+        let recently_relocalised = since_relocalisation.is_some_and(|n| n < 2);
+        let unconfirmed = since_relocalisation.is_some_and(|n| n < ctx.config.skip_max_frames);
         self.search_local_points(
             frame,
             map,
@@ -333,7 +335,7 @@ impl Tracker {
             }
         }
         self.matches_inliers = inliers;
-        let min_inliers = if recently_relocalised {
+        let min_inliers = if unconfirmed {
             50
         } else {
             ctx.config.track_feature_range.0
