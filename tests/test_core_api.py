@@ -296,9 +296,12 @@ def test_good_options_and_dist_lengths(camera):
         ((517.3, 516.5, 318.6, 255.3, [0.1, 0.2, 0.0], 640, 480),
          "dist must hold 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got 3"),
         ((517.3, 516.5, 318.6, 255.3, [float("nan")] * 5, 640, 480), "`k1` = NaN"),
-        ((517.3, 516.5, 318.6, 255.3, [], 0, 480), "`width` = 0: image size must be positive"),
+        ((517.3, 516.5, 318.6, 255.3, [], 0, 480), "width = 0: image size must be positive"),
+        ((517.3, 516.5, 318.6, 255.3, [], 640, -480), "height = -480: image size must be positive"),
+        ((517.3, 516.5, 318.6, 255.3, [], 2**40, 480), "width = 1099511627776: image size"),
     ],
-    ids=["fx 0", "fx negative", "fy 0", "cx NaN", "dist 3 values", "dist NaN", "width 0"],
+    ids=["fx 0", "fx negative", "fy 0", "cx NaN", "dist 3 values", "dist NaN", "width 0",
+         "height negative", "width too large"],
 )
 def test_bad_camera(camera_args, message):
     with pytest.raises(ValueError, match=re.escape(message)):

@@ -148,8 +148,8 @@ impl PySlamSystem {
         cx: f64,
         cy: f64,
         dist: Vec<f64>,
-        width: u32,
-        height: u32,
+        width: i64,
+        height: i64,
         sensor: &str,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
@@ -175,6 +175,14 @@ impl PySlamSystem {
             p2: d[3],
             k3: d[4],
         };
+        let size = |name: &str, v: i64| {
+            u32::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "invalid camera: {name} = {v}: image size must be positive"
+                ))
+            })
+        };
+        let (width, height) = (size("width", width)?, size("height", height)?);
         let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
             .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
         let config = parse_config(options)?;
