@@ -145,9 +145,19 @@ impl Frame {
         self.T_c_w.inverse().translation.vector
     }
 
-    /// Back-projects keypoint `i` with its measured depth into the world frame.
-    pub fn unproject_depth(&self, i: usize, camera: &PinholeCamera) -> Option<Vector3<f64>> {
-        unproject_depth(&self.features, i, camera, &self.T_c_w.inverse())
+    /// Keypoints with measured depth, closest first, as far as ORB-SLAM back-projects them
+    /// (`UpdateLastFrame`, `CreateNewKeyFrame`): every close one (depth below `close_depth_m`)
+    /// and at least the 100 closest.
+    pub fn closest_depth_features(&self, close_depth_m: f64) -> Vec<usize> {
+        let depth = &self.features.depth;
+        let mut by_depth: Vec<usize> = (0..self.len()).filter(|&i| depth[i] > 0.0).collect();
+        by_depth.sort_by(|&a, &b| depth[a].total_cmp(&depth[b]));
+        let beyond = by_depth
+            .iter()
+            .enumerate()
+            .position(|(n, &i)| depth[i] as f64 > close_depth_m && n + 1 > 100);
+        by_depth.truncate(beyond.map_or(by_depth.len(), |n| n + 1));
+        by_depth
     }
 
     /// Forgets every association (before a new matching attempt).

@@ -54,12 +54,14 @@ impl LocalMapper {
 
     /// Turns a tracked frame into a keyframe: links its matched points, and creates points
     /// from measured depth for the closest unmatched features (ORB-SLAM `CreateNewKeyFrame`,
-    /// at least 100 points, all those closer than the close-depth threshold).
+    /// at least 100 points, all those closer than `close_depth_m`; the first keyframe passes
+    /// infinity to keep every feature with depth).
     pub fn insert_keyframe(
         &mut self,
         frame: &mut Frame,
         map: &mut Map,
         ctx: &Context,
+        close_depth_m: f64,
         report: &mut MappingReport,
     ) -> Result<KeyFrameId, SlamError> {
         let kf = map.insert_keyframe(
@@ -84,30 +86,21 @@ impl LocalMapper {
             map.update_normal_and_depth(m)?;
             map.compute_distinctive_descriptor(m)?;
         }
-        let mut by_depth: Vec<(f32, usize)> = (0..frame.len())
-            .filter(|&i| frame.features.depth[i] > 0.0)
-            .map(|i| (frame.features.depth[i], i))
-            .collect();
-        by_depth.sort_by(|a, b| a.0.total_cmp(&b.0));
         let T_w_c = frame.T_c_w.inverse();
-        let mut n_points = 0;
-        for (z, i) in by_depth {
-            if frame.map_points[i].is_none() {
-                let Some(p_w) = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c) else {
-                    continue;
-                };
-                let m = map.create_map_point(p_w, kf)?;
-                map.add_observation(m, kf, i)?;
-                map.compute_distinctive_descriptor(m)?;
-                map.update_normal_and_depth(m)?;
-                frame.map_points[i] = Some(m);
-                self.recent_points.push(m);
-                report.depth_points += 1;
+        for i in frame.closest_depth_features(close_depth_m) {
+            if frame.map_points[i].is_some() {
+                continue;
             }
-            n_points += 1;
-            if z as f64 > ctx.close_depth_m && n_points > 100 {
-                break;
-            }
+            let Some(p_w) = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c) else {
+                continue;
+            };
+            let m = map.create_map_point(p_w, kf)?;
+            map.add_observation(m, kf, i)?;
+            map.compute_distinctive_descriptor(m)?;
+            map.update_normal_and_depth(m)?;
+            frame.map_points[i] = Some(m);
+            self.recent_points.push(m);
+            report.depth_points += 1;
         }
         map.update_connections(kf)?;
         Ok(kf)

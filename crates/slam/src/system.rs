@@ -125,9 +125,13 @@ impl SlamSystem {
             && self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx);
         if new_keyframe {
             let mut report = MappingReport::default();
-            let kf =
-                self.mapper
-                    .insert_keyframe(&mut frame, &mut self.map, &self.ctx, &mut report)?;
+            let kf = self.mapper.insert_keyframe(
+                &mut frame,
+                &mut self.map,
+                &self.ctx,
+                self.ctx.close_depth_m,
+                &mut report,
+            )?;
             self.tracker.on_keyframe(frame.index, kf);
             self.mapper
                 .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
@@ -154,13 +158,13 @@ impl SlamSystem {
         frame.T_c_w = Isometry3::identity();
         let mut report = MappingReport::default();
         // Every feature with depth becomes a point at initialisation, not only the close ones.
-        let ctx = Context {
-            close_depth_m: f64::INFINITY,
-            ..self.ctx.clone()
-        };
-        let kf = self
-            .mapper
-            .insert_keyframe(&mut frame, &mut self.map, &ctx, &mut report)?;
+        let kf = self.mapper.insert_keyframe(
+            &mut frame,
+            &mut self.map,
+            &self.ctx,
+            f64::INFINITY,
+            &mut report,
+        )?;
         self.tracker.on_keyframe(frame.index, kf);
         self.tracker.state = TrackingState::Ok;
         self.tracker.matches_inliers = report.depth_points;

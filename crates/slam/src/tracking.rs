@@ -15,7 +15,7 @@ use nalgebra::{Isometry3, Point3, Vector2};
 
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::Frame;
+use crate::frame::{unproject_depth, Frame};
 use crate::frustum::visible_point;
 
 /// Tracking state exposed to users.
@@ -154,19 +154,10 @@ impl Tracker {
             }
         }
         if !is_keyframe {
-            let mut by_depth: Vec<(f32, usize)> = (0..frame.len())
-                .filter(|&i| frame.features.depth[i] > 0.0)
-                .map(|i| (frame.features.depth[i], i))
-                .collect();
-            by_depth.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let mut n_points = 0;
-            for (z, i) in by_depth {
+            let T_w_c = frame.T_c_w.inverse();
+            for i in frame.closest_depth_features(ctx.close_depth_m) {
                 if frame.map_points[i].is_none() {
-                    frame.vo_points[i] = frame.unproject_depth(i, &ctx.camera);
-                }
-                n_points += 1;
-                if z as f64 > ctx.close_depth_m && n_points > 100 {
-                    break;
+                    frame.vo_points[i] = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c);
                 }
             }
         }
