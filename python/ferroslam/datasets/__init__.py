@@ -1,5 +1,12 @@
-"""Dataset loaders. Each sequence type offers ``len()``, indexing/iteration over frames,
-``load_gray(i)``, ``load_depth(i)``, ``camera``, ``timestamps`` and ``groundtruth()``."""
+"""Dataset loaders (TUM RGB-D, KITTI odometry, EuRoC MAV).
+
+Every sequence type offers ``len()``, indexing/iteration over frames, ``name``,
+``timestamps`` (float64 seconds, strictly increasing), ``camera`` (intrinsics of the images
+``load_gray`` returns), ``load_gray(i)`` (``(H, W)`` uint8), ``has_groundtruth`` and
+``groundtruth()`` (``(timestamps (M,), T_w_c (M, 4, 4))`` of that camera). TUM adds
+``load_depth(i)``; stereo sequences (``is_stereo``) add ``load_stereo(i)`` (rectified
+``(left, right)``) and ``baseline_m``.
+"""
 
 from __future__ import annotations
 
@@ -7,29 +14,66 @@ from pathlib import Path
 from typing import Union
 
 from ..camera import Camera, read_camera_yaml
+from .euroc import EurocFrame, EurocSequence, ImuParams, read_sensor_yaml
+from .kitti import KittiFrame, KittiSequence, read_kitti_calib
 from .tum import TUM_CAMERAS, TumFrame, TumSequence, associate_greedy
 
 __all__ = [
     "TUM_CAMERAS",
     "Camera",
+    "EurocFrame",
+    "EurocSequence",
+    "ImuParams",
+    "KittiFrame",
+    "KittiSequence",
+    "Sequence",
     "TumFrame",
     "TumSequence",
     "associate_greedy",
+    "detect_format",
     "open_sequence",
     "read_camera_yaml",
+    "read_kitti_calib",
+    "read_sensor_yaml",
 ]
 
+Sequence = Union[TumSequence, KittiSequence, EurocSequence]
 
-def open_sequence(path: Union[str, Path], format: str = "auto", **kwargs) -> TumSequence:
-    """Open a sequence folder, detecting its layout (only TUM RGB-D so far).
+_LOADERS = {"tum": TumSequence, "kitti": KittiSequence, "euroc": EurocSequence}
+_EXPECTED = (
+    "rgb.txt (TUM), calib.txt + image_0/ or image_l/ (KITTI), mav0/ or cam0/data.csv (EuRoC)"
+)
 
-    Raises ``FileNotFoundError`` for a missing folder and ``ValueError`` for an unknown layout.
+
+def detect_format(path: Union[str, Path]) -> str:
+    """``"tum"``, ``"kitti"`` or ``"euroc"`` from the files in folder ``path``.
+
+    Raises ``ValueError`` (saying what was expected) if no layout matches.
+    """
+    path = Path(path)
+    if (path / "rgb.txt").is_file():
+        return "tum"
+    if (path / "calib.txt").is_file() and any((path / d).is_dir() for d in ("image_0", "image_l")):
+        return "kitti"
+    if (path / "mav0").is_dir() or (path / "cam0" / "data.csv").is_file():
+        return "euroc"
+    raise ValueError(f"cannot detect the dataset layout of {path} (expected {_EXPECTED})")
+
+
+def open_sequence(path: Union[str, Path], format: str = "auto", **kwargs) -> Sequence:
+    """Open a sequence folder as ``TumSequence``, ``KittiSequence`` or ``EurocSequence``.
+
+    ``format`` is ``"auto"`` (see :func:`detect_format`), ``"tum"``, ``"kitti"`` or
+    ``"euroc"``; ``kwargs`` go to the loader (e.g. ``stereo=False``).
+
+    Raises ``FileNotFoundError`` for a missing folder and ``ValueError`` for an unknown
+    format or layout.
     """
     path = Path(path).expanduser()
     if not path.is_dir():
         raise FileNotFoundError(f"sequence folder not found: {path}")
-    if format == "tum" or (format == "auto" and (path / "rgb.txt").is_file()):
-        return TumSequence(path, **kwargs)
-    if format != "auto":
-        raise ValueError(f"dataset format {format!r} is not implemented yet (only 'tum')")
-    raise ValueError(f"cannot detect the dataset layout of {path} (expected rgb.txt: TUM)")
+    if format == "auto":
+        format = detect_format(path)
+    if format not in _LOADERS:
+        raise ValueError(f"unknown dataset format {format!r} (use auto, {', '.join(_LOADERS)})")
+    return _LOADERS[format](path, **kwargs)
