@@ -290,9 +290,21 @@ class OrbExtractor:
         Raises:
             ValueError: wrong dtype or shape, empty image, NaN values.
         """
+        keypoints, descriptors, _ = self.detect_with_pyramid(gray)
+        return keypoints, descriptors
+
+    def detect_with_pyramid(
+        self, gray: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        """As :meth:`detect`, also returning the pyramid the corners were found on.
+
+        Stereo matching refines disparities on these levels (ORB-SLAM correlates patches on
+        the keypoint's level).
+        """
         gray = _validate_gray(gray)
+        levels = self.pyramid(gray)
         per_level = []
-        for octave, (level, budget) in enumerate(zip(self.pyramid(gray), self.budgets)):
+        for octave, (level, budget) in enumerate(zip(levels, self.budgets)):
             xy, score = self._level_keypoints(level, int(budget))
             if score.size == 0:
                 continue
@@ -304,9 +316,9 @@ class OrbExtractor:
             rows[:, 4] = score
             per_level.append(rows)
         if not per_level:
-            return np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8)
-        keypoints = np.concatenate(per_level)
-        return self._describe(gray, keypoints)
+            return np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8), levels
+        keypoints, descriptors = self._describe(gray, np.concatenate(per_level))
+        return keypoints, descriptors, levels
 
     def _describe(self, gray: np.ndarray, kp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         size = (2 * _HALF_PATCH + 1) * self.scales[kp[:, 2].astype(np.intp)]

@@ -7,6 +7,7 @@ frame by frame, times every stage and evaluates the result against ground truth.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
@@ -121,6 +122,62 @@ def _default_system_factory(*args, **kwargs):
     return SlamSystem(*args, **kwargs)
 
 
+class _RgbdFeed:
+    """Loads colour + depth, extracts ORB, samples depth at the keypoints."""
+
+    def __init__(self, seq, extractor: OrbExtractor) -> None:
+        self.seq, self.extractor = seq, extractor
+
+    def system_options(self) -> dict:
+        return {}
+
+    def load(self, i: int):
+        return self.seq.load_gray(i), self.seq.load_depth(i)
+
+    def features(self, data) -> tuple:
+        gray, depth = data
+        keypoints, descriptors = self.extractor.detect(gray)
+        return keypoints, descriptors, sample_depth(depth, keypoints)
+
+    @staticmethod
+    def track(system, timestamp: float, features: tuple):
+        return system.track_rgbd(timestamp, *features)
+
+    def close(self) -> None:
+        pass
+
+
+class _StereoFeed:
+    """Loads a rectified pair and extracts ORB on both images at once (OpenCV releases the
+    GIL, so the two extractions run on two cores)."""
+
+    def __init__(self, seq, extractor: OrbExtractor) -> None:
+        if not getattr(seq, "is_stereo", False):
+            raise ValueError(f"{getattr(seq, 'name', seq)} is not a stereo sequence")
+        self.seq, self.extractor = seq, extractor
+        self.pool = ThreadPoolExecutor(max_workers=2)
+
+    def system_options(self) -> dict:
+        return {"baseline": float(self.seq.baseline_m)}
+
+    def load(self, i: int):
+        return self.seq.load_stereo(i)
+
+    def features(self, data) -> tuple:
+        left, right = self.pool.map(self.extractor.detect_with_pyramid, data)
+        return left[0], left[1], left[2], right[0], right[1], right[2]
+
+    @staticmethod
+    def track(system, timestamp: float, features: tuple):
+        return system.track_stereo(timestamp, *features)
+
+    def close(self) -> None:
+        self.pool.shutdown()
+
+
+_FEEDS = {"rgbd": _RgbdFeed, "stereo": _StereoFeed}
+
+
 def _evaluate(result: RunResult, gt: Trajectory) -> None:
     cases = (
         ("ate_frames", lambda: ate(gt, result.trajectory, align="se3")),
@@ -152,17 +209,20 @@ def run_sequence(
             core) plus the extractor options ``ini_fast`` and ``min_fast``.
         max_frames: process only the first ``max_frames`` frames.
         progress: show a tqdm progress bar.
-        sensor: only ``"rgbd"`` is implemented.
+        sensor: ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs ``is_stereo``,
+            ``load_stereo(i)`` giving a rectified pair and ``baseline_m``).
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
 
     Raises:
-        NotImplementedError: a sensor other than ``"rgbd"``.
+        NotImplementedError: ``"mono"`` (not implemented yet).
         ValueError: bad configuration or ``max_frames``.
     """
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
-    if sensor != "rgbd":
-        raise NotImplementedError(f"sensor {sensor!r} is not implemented yet (only 'rgbd')")
+    if sensor not in _FEEDS:
+        raise NotImplementedError(
+            f"sensor {sensor!r} is not implemented yet (available: {', '.join(_FEEDS)})"
+        )
     config = dict(config or {})
     if "sensor" in config:
         raise ValueError("pass the sensor as run_sequence(sensor=...), not in config")
@@ -173,10 +233,18 @@ def run_sequence(
         n = min(n, int(max_frames))
     extractor = make_extractor(config)
     core_config = {k: v for k, v in config.items() if k not in _EXTRACTOR_ONLY}
+    feed = _FEEDS[sensor](seq, extractor)
     cam = seq.camera
     factory = system_factory or _default_system_factory
     system = factory(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
-                     sensor=sensor, **core_config)
+                     sensor=sensor, **{**feed.system_options(), **core_config})
+    try:
+        return _run(seq, system, feed, n, sensor, config, progress)
+    finally:
+        feed.close()
+
+
+def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -> RunResult:
 
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
@@ -184,13 +252,11 @@ def run_sequence(
     bar = tqdm(range(n), disable=not progress, desc=getattr(seq, "name", "sequence"), unit="frame")
     for i in bar:
         t0 = time.perf_counter()
-        gray = seq.load_gray(i)
-        depth = seq.load_depth(i)
+        data = feed.load(i)
         t1 = time.perf_counter()
-        keypoints, descriptors = extractor.detect(gray)
-        depths = sample_depth(depth, keypoints)
+        features = feed.features(data)
         t2 = time.perf_counter()
-        res = system.track_rgbd(float(seq.timestamps[i]), keypoints, descriptors, depths)
+        res = feed.track(system, float(seq.timestamps[i]), features)
         t3 = time.perf_counter()
         timings["load_ms"][i] = (t1 - t0) * 1e3
         timings["extraction_ms"][i] = (t2 - t1) * 1e3

@@ -14,4 +14,14 @@ pub enum FeaturesError {
         /// The rejected number of levels.
         n_levels: usize,
     },
+    /// An image buffer does not hold `width * height` bytes, or the image is empty.
+    #[error("invalid image: {width}x{height} needs {} bytes, got {len}", width.saturating_mul(*height))]
+    InvalidImage {
+        /// Claimed width, pixels.
+        width: usize,
+        /// Claimed height, pixels.
+        height: usize,
+        /// Buffer length, bytes.
+        len: usize,
+    },
 }

@@ -14,16 +14,20 @@
 pub mod descriptor;
 pub mod error;
 pub mod grid;
+pub mod image;
 pub mod keypoint;
 pub mod matcher;
 pub mod pyramid;
+pub mod stereo;
 
 pub use descriptor::{hamming, Descriptor};
 pub use error::FeaturesError;
 pub use grid::{ImageBounds, KeypointGrid};
+pub use image::GrayImage;
 pub use keypoint::Keypoint;
 pub use matcher::{
     match_brute_force, search_by_projection, search_by_projection_with, search_for_triangulation,
     MatchOptions, ProjectionQuery, RotationHistogram,
 };
 pub use pyramid::ScalePyramid;
+pub use stereo::{match_stereo, StereoMatch, StereoView};

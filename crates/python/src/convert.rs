@@ -1,6 +1,7 @@
 //! numpy <-> core conversions with shape and value checks.
 
-use ferroslam_features::{Descriptor, Keypoint};
+use ferroslam_features::{Descriptor, FeaturesError, GrayImage, Keypoint};
+use numpy::PyReadonlyArray2 as Image;
 use nalgebra::Isometry3;
 use numpy::ndarray::{Array1, Array3, Dimension};
 use numpy::{Element, PyArray, PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray};
@@ -138,4 +139,36 @@ pub fn pose_stack<'py>(py: Python<'py>, poses: &[Isometry3<f64>]) -> Bound<'py, 
 /// A 1-D float64 array.
 pub fn f64_array<'py>(py: Python<'py>, values: Vec<f64>) -> Bound<'py, PyArray1<f64>> {
     PyArray1::from_owned_array(py, Array1::from(values))
+}
+
+/// An image pyramid given as a sequence of 2-D uint8 arrays: `(width, height, pixels)` per
+/// level, pixels copied row-major (numpy views need not be contiguous).
+pub fn pyramid(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<(usize, usize, Vec<u8>)>> {
+    let levels: Vec<Bound<'_, PyAny>> = obj.extract().map_err(|_| {
+        PyTypeError::new_err(format!("{name} must be a list of 2-D uint8 arrays (pyramid levels)"))
+    })?;
+    if levels.is_empty() {
+        return Err(PyValueError::new_err(format!("{name} is empty: give at least level 0")));
+    }
+    levels
+        .iter()
+        .enumerate()
+        .map(|(l, level)| {
+            let img: Image<'_, u8> =
+                array(level, &format!("{name}[{l}]"), "a 2-D uint8 array")?;
+            let shape = img.shape();
+            if shape[0] == 0 || shape[1] == 0 {
+                return Err(PyValueError::new_err(format!("{name}[{l}] is an empty image")));
+            }
+            Ok((shape[1], shape[0], img.as_array().iter().copied().collect()))
+        })
+        .collect()
+}
+
+/// Borrowed views of the levels returned by [`pyramid`].
+pub fn views(levels: &[(usize, usize, Vec<u8>)]) -> Result<Vec<GrayImage<'_>>, FeaturesError> {
+    levels
+        .iter()
+        .map(|(w, h, data)| GrayImage::new(*w, *h, data))
+        .collect()
 }

@@ -1,7 +1,8 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
-use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, TrackResult, TrackingState};
+use ferroslam_features::StereoView;
+use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, StereoInput, TrackResult, TrackingState};
 use numpy::ndarray::Array2;
 use numpy::{
     PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
@@ -38,13 +39,22 @@ fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(
     }
 }
 
+/// Sensors the core can track.
+const SENSORS: [&str; 2] = ["rgbd", "stereo"];
+
 /// Reads the keyword options into a config; unknown names are an error, not ignored.
-fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
+///
+/// A stereo system needs `baseline` (metres) and derives `bf = fx * baseline` from it; an
+/// RGB-D system takes the virtual baseline as `bf` directly (ORB-SLAM's setting).
+fn parse_config(
+    sensor: &str,
+    fx: f64,
+    options: Option<&Bound<'_, PyDict>>,
+) -> PyResult<SlamConfig> {
     let mut config = SlamConfig::default();
-    let Some(options) = options else {
-        return Ok(config);
-    };
-    for (key, value) in options.iter() {
+    let mut baseline: Option<f64> = None;
+    let mut bf_given = false;
+    for (key, value) in options.map(|o| o.iter()).into_iter().flatten() {
         let key: String = key.extract()?;
         let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));
         match key.as_str() {
@@ -52,17 +62,41 @@ fn parse_config(options: Option<&Bound<'_, PyDict>>) -> PyResult<SlamConfig> {
             "n_levels" => config.n_levels = value.extract().map_err(wrong)?,
             "track_feature_range" => config.track_feature_range = pair(&key, &value)?,
             "skip_max_frames" => config.skip_max_frames = value.extract().map_err(wrong)?,
-            "bf" => config.bf = value.extract().map_err(wrong)?,
+            "bf" => {
+                config.bf = value.extract().map_err(wrong)?;
+                bf_given = true;
+            }
+            "baseline" => baseline = Some(value.extract().map_err(wrong)?),
             "depth_threshold" => config.depth_threshold = value.extract().map_err(wrong)?,
             "depth_range" => config.depth_range = pair(&key, &value)?,
             "seed" => config.seed = value.extract().map_err(wrong)?,
             _ => {
                 return Err(PyValueError::new_err(format!(
                     "unknown option {key:?}; known: scale_factor, n_levels, track_feature_range, \
-                     skip_max_frames, bf, depth_threshold, depth_range, seed"
+                     skip_max_frames, bf (rgbd), baseline (stereo), depth_threshold, \
+                     depth_range, seed"
                 )))
             }
         }
+    }
+    match (sensor, baseline) {
+        ("stereo", Some(b)) if b.is_finite() && b > 0.0 && !bf_given => config.bf = fx * b,
+        ("stereo", Some(b)) if !bf_given => {
+            return Err(PyValueError::new_err(format!(
+                "option baseline: must be a positive number of metres, got {b}"
+            )))
+        }
+        ("stereo", _) => {
+            return Err(PyValueError::new_err(
+                "sensor 'stereo' needs baseline=<metres> (and no bf: it is fx * baseline)",
+            ))
+        }
+        (_, Some(_)) => {
+            return Err(PyValueError::new_err(format!(
+                "option baseline applies to sensor 'stereo', not {sensor:?} (RGB-D uses bf)"
+            )))
+        }
+        _ => {}
     }
     Ok(config)
 }
@@ -135,6 +169,20 @@ impl PyTrackResult {
 #[pyclass(name = "SlamSystem", module = "ferroslam._core")]
 pub struct PySlamSystem {
     inner: SlamSystem,
+    sensor: &'static str,
+}
+
+impl PySlamSystem {
+    fn expect_sensor(&self, sensor: &str, method: &str) -> PyResult<()> {
+        if self.sensor == sensor {
+            return Ok(());
+        }
+        Err(PyValueError::new_err(format!(
+            "{method} needs a system created with sensor={sensor:?}; this one is {:?} \
+             (use track_{})",
+            self.sensor, self.sensor
+        )))
+    }
 }
 
 #[pymethods]
@@ -153,11 +201,11 @@ impl PySlamSystem {
         sensor: &str,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        if sensor != "rgbd" {
+        let Some(sensor) = SENSORS.iter().copied().find(|&s| s == sensor) else {
             return Err(PyNotImplementedError::new_err(format!(
-                "sensor {sensor:?} is not implemented yet (available: \"rgbd\")"
+                "sensor {sensor:?} is not implemented yet (available: {SENSORS:?})"
             )));
-        }
+        };
         let d: [f64; 5] = match dist.len() {
             0 => [0.0; 5],
             4 => [dist[0], dist[1], dist[2], dist[3], 0.0],
@@ -185,9 +233,9 @@ impl PySlamSystem {
         let (width, height) = (size("width", width)?, size("height", height)?);
         let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
             .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
-        let config = parse_config(options)?;
+        let config = parse_config(sensor, fx, options)?;
         let inner = SlamSystem::new(camera, config).map_err(to_py)?;
-        Ok(Self { inner })
+        Ok(Self { inner, sensor })
     }
 
     /// Tracks one RGB-D frame.
@@ -202,6 +250,7 @@ impl PySlamSystem {
         descriptors: &Bound<'_, PyAny>,
         depth_m: &Bound<'_, PyAny>,
     ) -> PyResult<PyTrackResult> {
+        self.expect_sensor("rgbd", "track_rgbd")?;
         let keypoints: PyReadonlyArray2<'_, f32> =
             convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
         let descriptors: PyReadonlyArray2<'_, u8> =
@@ -229,6 +278,80 @@ impl PySlamSystem {
             })
         });
         result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+    }
+
+    /// Tracks one rectified stereo pair.
+    ///
+    /// left/right keypoints: (N, 5) float32 [x, y, octave, angle_deg, response] in rectified
+    /// pixels; descriptors: (N, 32) uint8; pyramids: lists of 2-D uint8 arrays (level l is the
+    /// image scaled by scale_factor^-l, as used for detection), equal sizes left and right.
+    #[allow(clippy::too_many_arguments)]
+    fn track_stereo(
+        &mut self,
+        py: Python<'_>,
+        timestamp: f64,
+        left_keypoints: &Bound<'_, PyAny>,
+        left_descriptors: &Bound<'_, PyAny>,
+        left_pyramid: &Bound<'_, PyAny>,
+        right_keypoints: &Bound<'_, PyAny>,
+        right_descriptors: &Bound<'_, PyAny>,
+        right_pyramid: &Bound<'_, PyAny>,
+    ) -> PyResult<PyTrackResult> {
+        self.expect_sensor("stereo", "track_stereo")?;
+        let features = |kp: &Bound<'_, PyAny>, desc: &Bound<'_, PyAny>, side: &str| {
+            let kp: PyReadonlyArray2<'_, f32> = convert::array(
+                kp,
+                &format!("{side}_keypoints"),
+                "a float32 (N, 5) array",
+            )?;
+            let desc: PyReadonlyArray2<'_, u8> = convert::array(
+                desc,
+                &format!("{side}_descriptors"),
+                "a uint8 (N, 32) array",
+            )?;
+            let (kps, descs) = (convert::keypoints(&kp)?, convert::descriptors(&desc)?);
+            if kps.len() != descs.len() {
+                return Err(PyValueError::new_err(format!(
+                    "{side}_keypoints ({}) and {side}_descriptors ({}) must have the same length",
+                    kps.len(),
+                    descs.len()
+                )));
+            }
+            Ok((kps, descs))
+        };
+        let (lk, ld) = features(left_keypoints, left_descriptors, "left")?;
+        let (rk, rd) = features(right_keypoints, right_descriptors, "right")?;
+        let lp = convert::pyramid(left_pyramid, "left_pyramid")?;
+        let rp = convert::pyramid(right_pyramid, "right_pyramid")?;
+        let inner = &mut self.inner;
+        let result = py.detach(move || {
+            let (li, ri) = match (convert::views(&lp), convert::views(&rp)) {
+                (Ok(l), Ok(r)) => (l, r),
+                (Err(e), _) | (_, Err(e)) => {
+                    return Err(ferroslam_slam::SlamError::InvalidInput(e.to_string()))
+                }
+            };
+            inner.track_stereo(&StereoInput {
+                timestamp,
+                left: StereoView {
+                    keypoints: &lk,
+                    descriptors: &ld,
+                    levels: &li,
+                },
+                right: StereoView {
+                    keypoints: &rk,
+                    descriptors: &rd,
+                    levels: &ri,
+                },
+            })
+        });
+        result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+    }
+
+    /// The sensor this system was created for: "rgbd" or "stereo".
+    #[getter]
+    fn sensor(&self) -> &'static str {
+        self.sensor
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.

@@ -1,13 +1,14 @@
 //! A tracked image: its features (undistorted, with depth) and their map associations.
 
 use ferroslam_features::{
-    search_by_projection_with, Descriptor, ImageBounds, Keypoint, MatchOptions, ProjectionQuery,
+    match_stereo, search_by_projection_with, Descriptor, ImageBounds, Keypoint, MatchOptions,
+    ProjectionQuery, ScalePyramid, StereoView,
 };
 use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{FrameFeatures, MapPointId};
 use nalgebra::{Isometry3, Vector2, Vector3};
 
-use crate::config::SlamConfig;
+use crate::context::Context;
 use crate::error::SlamError;
 
 /// One input frame during tracking.
@@ -48,49 +49,99 @@ pub struct RgbdInput<'a> {
 impl RgbdInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
     pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
-        let n = self.keypoints.len();
-        if !self.timestamp.is_finite() {
-            return Err(SlamError::InvalidInput("timestamp is not finite".into()));
-        }
-        if self.descriptors.len() != n || self.depth_m.len() != n {
+        validate_features(self.timestamp, self.keypoints, self.descriptors, n_levels)?;
+        if self.depth_m.len() != self.keypoints.len() {
             return Err(SlamError::InvalidInput(format!(
-                "got {n} keypoints, {} descriptors and {} depths: lengths must match",
-                self.descriptors.len(),
+                "got {} keypoints and {} depths: lengths must match",
+                self.keypoints.len(),
                 self.depth_m.len()
-            )));
-        }
-        if let Some(i) = self
-            .keypoints
-            .iter()
-            .position(|k| !(k.x.is_finite() && k.y.is_finite()))
-        {
-            return Err(SlamError::InvalidInput(format!(
-                "keypoint {i} has non-finite coordinates"
-            )));
-        }
-        if let Some(i) = self
-            .keypoints
-            .iter()
-            .position(|k| k.octave as usize >= n_levels)
-        {
-            return Err(SlamError::InvalidInput(format!(
-                "keypoint {i} has octave {} but the pyramid has {n_levels} levels",
-                self.keypoints[i].octave
             )));
         }
         Ok(())
     }
 }
 
+/// Raw per-frame input of a rectified stereo camera: features and image pyramids of both
+/// images (keypoints in rectified pixels; the left image is the tracked frame).
+pub struct StereoInput<'a> {
+    /// Capture time of the pair, seconds.
+    pub timestamp: f64,
+    /// Left image: keypoints, descriptors, pyramid.
+    pub left: StereoView<'a>,
+    /// Right image: keypoints, descriptors, pyramid.
+    pub right: StereoView<'a>,
+}
+
+impl StereoInput<'_> {
+    /// Rejects inconsistent lengths, non-finite coordinates, octaves beyond the pyramid,
+    /// missing pyramid levels and left/right images of different sizes.
+    pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
+        for (side, view) in [("left", &self.left), ("right", &self.right)] {
+            validate_features(self.timestamp, view.keypoints, view.descriptors, n_levels)
+                .map_err(|e| SlamError::InvalidInput(format!("{side} image: {e}")))?;
+            let top = view.keypoints.iter().map(|k| k.octave as usize + 1).max();
+            if view.levels.len() < top.unwrap_or(1) {
+                return Err(SlamError::InvalidInput(format!(
+                    "{side} image: keypoints reach octave {} but only {} pyramid levels were given",
+                    top.unwrap_or(1) - 1,
+                    view.levels.len()
+                )));
+            }
+        }
+        let size = |v: &StereoView<'_>, l: usize| v.levels.get(l).map(|i| (i.width(), i.height()));
+        for l in 0..self.left.levels.len().min(self.right.levels.len()) {
+            if size(&self.left, l) != size(&self.right, l) {
+                return Err(SlamError::InvalidInput(format!(
+                    "left and right images differ in size at pyramid level {l}: {:?} vs {:?} \
+                     (width, height)",
+                    size(&self.left, l).unwrap_or_default(),
+                    size(&self.right, l).unwrap_or_default()
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks what every sensor's features share: finite time and coordinates, one descriptor
+/// per keypoint, octaves inside the pyramid.
+fn validate_features(
+    timestamp: f64,
+    keypoints: &[Keypoint],
+    descriptors: &[Descriptor],
+    n_levels: usize,
+) -> Result<(), SlamError> {
+    let n = keypoints.len();
+    if !timestamp.is_finite() {
+        return Err(SlamError::InvalidInput("timestamp is not finite".into()));
+    }
+    if descriptors.len() != n {
+        return Err(SlamError::InvalidInput(format!(
+            "got {n} keypoints and {} descriptors: lengths must match",
+            descriptors.len()
+        )));
+    }
+    if let Some(i) = keypoints
+        .iter()
+        .position(|k| !(k.x.is_finite() && k.y.is_finite()))
+    {
+        return Err(SlamError::InvalidInput(format!(
+            "keypoint {i} has non-finite coordinates"
+        )));
+    }
+    if let Some(i) = keypoints.iter().position(|k| k.octave as usize >= n_levels) {
+        return Err(SlamError::InvalidInput(format!(
+            "keypoint {i} has octave {} but the pyramid has {n_levels} levels",
+            keypoints[i].octave
+        )));
+    }
+    Ok(())
+}
+
 impl Frame {
     /// Undistorts the keypoints and derives the virtual right coordinate from depth.
-    pub fn from_rgbd(
-        index: usize,
-        input: &RgbdInput<'_>,
-        camera: &PinholeCamera,
-        bounds: ImageBounds,
-        config: &SlamConfig,
-    ) -> Result<Self, SlamError> {
+    pub fn from_rgbd(index: usize, input: &RgbdInput<'_>, ctx: &Context) -> Result<Self, SlamError> {
+        let (camera, config) = (&ctx.camera, &ctx.config);
         let (dmin, dmax) = config.depth_range;
         let mut keypoints = Vec::with_capacity(input.keypoints.len());
         let mut depth = Vec::with_capacity(input.keypoints.len());
@@ -111,17 +162,51 @@ impl Frame {
                 u_right.push(-1.0);
             }
         }
-        let n = keypoints.len();
-        let features = FrameFeatures::new(
-            keypoints,
-            input.descriptors.to_vec(),
+        Self::new(index, input.timestamp, keypoints, input.descriptors, depth, u_right, ctx.bounds)
+    }
+
+    /// Matches the left keypoints into the right image (see [`match_stereo`]); depth and
+    /// right coordinate come from the disparity. The camera must be the rectified pinhole.
+    pub fn from_stereo(
+        index: usize,
+        input: &StereoInput<'_>,
+        pyramid: &ScalePyramid,
+        ctx: &Context,
+    ) -> Result<Self, SlamError> {
+        let matches = match_stereo(&input.left, &input.right, pyramid, ctx.config.bf, ctx.camera.fx);
+        let (dmin, dmax) = ctx.config.depth_range;
+        let (u_right, depth) = matches
+            .iter()
+            .map(|m| match m {
+                Some(m) if (dmin..dmax).contains(&(m.depth_m as f64)) => (m.u_right, m.depth_m),
+                _ => (-1.0, -1.0),
+            })
+            .unzip();
+        Self::new(
+            index,
+            input.timestamp,
+            input.left.keypoints.to_vec(),
+            input.left.descriptors,
             depth,
             u_right,
-            bounds,
-        )?;
+            ctx.bounds,
+        )
+    }
+
+    fn new(
+        index: usize,
+        timestamp: f64,
+        keypoints: Vec<Keypoint>,
+        descriptors: &[Descriptor],
+        depth: Vec<f32>,
+        u_right: Vec<f32>,
+        bounds: ImageBounds,
+    ) -> Result<Self, SlamError> {
+        let n = keypoints.len();
+        let features = FrameFeatures::new(keypoints, descriptors.to_vec(), depth, u_right, bounds)?;
         Ok(Self {
             index,
-            timestamp: input.timestamp,
+            timestamp,
             features,
             map_points: vec![None; n],
             vo_points: vec![None; n],

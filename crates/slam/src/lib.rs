@@ -18,6 +18,6 @@ pub mod trajectory;
 
 pub use config::SlamConfig;
 pub use error::SlamError;
-pub use frame::RgbdInput;
+pub use frame::{RgbdInput, StereoInput};
 pub use system::{SlamSystem, TrackResult};
 pub use tracking::TrackingState;

@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Vector3};
 use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::{Frame, RgbdInput};
+use crate::frame::{Frame, RgbdInput, StereoInput};
 use crate::local_mapping::{LocalMapper, MappingReport};
 use crate::tracking::{Tracker, TrackingState, MIN_INIT_FEATURES};
 use crate::trajectory::Trajectory;
@@ -70,22 +70,46 @@ impl SlamSystem {
     /// `InvalidInput` for mismatched lengths, non-finite values, octaves beyond the pyramid or
     /// a timestamp not after the previous one; the system state is unchanged then.
     pub fn track_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<TrackResult, SlamError> {
+        let start = Instant::now();
         input.validate(self.ctx.config.n_levels)?;
-        if let Some(t) = self.last_timestamp.filter(|&t| input.timestamp <= t) {
+        self.check_timestamp(input.timestamp)?;
+        let frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx)?;
+        self.track_frame(frame, start)
+    }
+
+    /// Tracks one rectified stereo pair: the left keypoints are matched into the right image
+    /// (depth from disparity, `bf` of the configuration) and the left frame is tracked.
+    ///
+    /// # Errors
+    /// `InvalidInput` as [`Self::track_rgbd`], for pyramids that miss levels or differ in size
+    /// between the images, and when the camera has distortion (stereo input must be rectified).
+    pub fn track_stereo(&mut self, input: &StereoInput<'_>) -> Result<TrackResult, SlamError> {
+        let start = Instant::now();
+        if self.ctx.camera.is_distorted() {
+            return Err(SlamError::InvalidInput(
+                "stereo input must come from rectified images, but the camera has distortion \
+                 coefficients: rectify the pair and pass the rectified pinhole intrinsics"
+                    .into(),
+            ));
+        }
+        input.validate(self.ctx.config.n_levels)?;
+        self.check_timestamp(input.timestamp)?;
+        let frame = Frame::from_stereo(self.frames_seen, input, self.map.pyramid(), &self.ctx)?;
+        self.track_frame(frame, start)
+    }
+
+    fn check_timestamp(&mut self, timestamp: f64) -> Result<(), SlamError> {
+        if let Some(t) = self.last_timestamp.filter(|&t| timestamp <= t) {
             return Err(SlamError::InvalidInput(format!(
-                "timestamp {} is not after the previous frame's {t}",
-                input.timestamp
+                "timestamp {timestamp} is not after the previous frame's {t}"
             )));
         }
-        self.last_timestamp = Some(input.timestamp);
-        let start = Instant::now();
-        let mut frame = Frame::from_rgbd(
-            self.frames_seen,
-            input,
-            &self.ctx.camera,
-            self.ctx.bounds,
-            &self.ctx.config,
-        )?;
+        self.last_timestamp = Some(timestamp);
+        Ok(())
+    }
+
+    /// Initialises or tracks a frame with depth, then inserts a keyframe when needed.
+    fn track_frame(&mut self, mut frame: Frame, start: Instant) -> Result<TrackResult, SlamError> {
         self.frames_seen += 1;
         if self.tracker.state == TrackingState::NotInitialized {
             let initialised = self.initialise(frame)?;
