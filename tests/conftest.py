@@ -38,3 +38,13 @@ def tum_desk() -> Path:
 @pytest.fixture(scope="session")
 def groundtruth_dir() -> Path:
     return require_data("groundtruth")
+
+
+@pytest.fixture(scope="session")
+def kitti_stereo() -> Path:
+    return require_data("kitti", "stereo_51_frames")
+
+
+@pytest.fixture(scope="session")
+def euroc_micro() -> Path:
+    return require_data("euroc", "V1_01_easy_micro")

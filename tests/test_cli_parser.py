@@ -50,7 +50,7 @@ def test_other_sensors_not_implemented(tmp_path, capsys):
     assert exit_info.value.code == 2
     assert "not implemented yet" in capsys.readouterr().err
     with pytest.raises(NotImplementedError, match="not implemented yet"):
-        pipeline.run_sequence(None, {}, sensor="stereo")
+        pipeline.run_sequence(None, {}, sensor="mono")
 
 
 def test_eval_parser_defaults():

@@ -308,7 +308,7 @@ def test_bad_camera(camera_args, message):
         SlamSystem(*camera_args)
 
 
-@pytest.mark.parametrize("sensor", ["mono", "stereo"])
+@pytest.mark.parametrize("sensor", ["mono", "lidar"])
 def test_unimplemented_sensors(camera, sensor):
     with pytest.raises(NotImplementedError, match=f'sensor "{sensor}" is not implemented yet'):
         make_system(camera, sensor=sensor)

@@ -17,18 +17,19 @@ if sys.version_info >= (3, 11):
 else:
     from typing_extensions import Unpack
 
-__all__ = ["SlamError", "SlamSystem", "TrackResult", "__version__"]
+__all__ = ["SlamError", "SlamSystem", "TrackResult", "__version__", "match_stereo"]
 
 __version__: str
 """Version of the Rust crate the module was built from."""
 
 _State = Literal["not_initialized", "ok", "lost"]
+_Sensor = Literal["rgbd", "stereo"]
 _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 
 class _SlamOptions(TypedDict, total=False):
     """Keyword options of ``SlamSystem``; any other name raises ``ValueError``.
 
-    Omitted options take ORB-SLAM2/3 RGB-D defaults (``SlamConfig::default()`` in
+    Omitted options take ORB-SLAM2/3 defaults (``SlamConfig::default()`` in
     ``crates/slam/src/config.rs``).
     """
 
@@ -43,11 +44,14 @@ class _SlamOptions(TypedDict, total=False):
     skip_max_frames: int
     """Frames after which a keyframe is inserted regardless of tracking quality, >= 1."""
     bf: float
-    """fx * baseline of the virtual right camera, pixels * metres, > 0."""
+    """RGB-D only: fx * baseline of the virtual right camera, pixels * metres, > 0."""
+    baseline: float
+    """Stereo only (required): baseline of the rectified pair in metres, > 0; bf = fx * it."""
     depth_threshold: float
     """Close-point threshold in baselines, > 0."""
     depth_range: Sequence[float]
-    """(min, max) valid sensor depth in metres, 0 <= min < max."""
+    """(min, max) valid depth in metres, 0 <= min < max (max may be inf); default (0.1, 8)
+    for RGB-D, (0, inf) for stereo."""
     seed: int
     """Seed of every random choice (RANSAC), >= 0."""
 
@@ -56,7 +60,7 @@ class SlamError(Exception):
 
 @final
 class TrackResult:
-    """Result of tracking one frame (returned by ``SlamSystem.track_rgbd``, immutable)."""
+    """Result of tracking one frame (returned by ``SlamSystem.track_*``, immutable)."""
 
     @property
     def state(self) -> _State:
@@ -91,7 +95,7 @@ class SlamSystem:
         width: int,
         height: int,
         *,
-        sensor: str = "rgbd",
+        sensor: _Sensor = "rgbd",
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
         """Creates a system for a pinhole + radial-tangential camera.
@@ -100,13 +104,14 @@ class SlamSystem:
             fx, fy, cx, cy: intrinsics in pixels (fx, fy > 0).
             dist: 0, 4 or 5 coefficients ``k1 k2 p1 p2 [k3]``.
             width, height: image size in pixels (> 0).
-            sensor: only ``"rgbd"``; others raise ``NotImplementedError``.
+            sensor: ``"rgbd"`` or ``"stereo"`` (rectified pair: ``dist`` must be zeros and
+                ``baseline`` is required); others raise ``NotImplementedError``.
             options: see ``_SlamOptions``.
 
         Raises:
             ValueError: invalid camera or option value, unknown option name.
             TypeError: option of the wrong type.
-            NotImplementedError: a sensor other than ``"rgbd"``.
+            NotImplementedError: an unknown sensor (``"mono"`` is not implemented yet).
         """
     def track_rgbd(
         self,
@@ -115,7 +120,8 @@ class SlamSystem:
         descriptors: NDArray[np.uint8],
         depth_m: NDArray[np.float32],
     ) -> TrackResult:
-        """Tracks one RGB-D frame (the GIL is released while it runs).
+        """Tracks one RGB-D frame (the GIL is released while it runs); the system must have
+        been created with ``sensor="rgbd"``.
 
         Args:
             timestamp: seconds, finite, strictly after the previous accepted frame's.
@@ -129,6 +135,36 @@ class SlamSystem:
             TypeError: an array of the wrong dtype or rank (or not an array).
             ValueError: wrong shape, lengths differ, NaN/inf keypoints, bad octave,
                 timestamp not increasing; the system is unchanged then.
+            SlamError: internal failure.
+        """
+    def track_stereo(
+        self,
+        timestamp: float,
+        left_keypoints: NDArray[np.float32],
+        left_descriptors: NDArray[np.uint8],
+        left_pyramid: Sequence[NDArray[np.uint8]],
+        right_keypoints: NDArray[np.float32],
+        right_descriptors: NDArray[np.uint8],
+        right_pyramid: Sequence[NDArray[np.uint8]],
+    ) -> TrackResult:
+        """Tracks one rectified stereo pair (the GIL is released while it runs).
+
+        Left keypoints are matched into the right image (row band, octave, Hamming distance,
+        SAD refinement on the keypoint's pyramid level); depth is ``bf / disparity``.
+
+        Args:
+            timestamp: seconds, finite, strictly after the previous accepted frame's.
+            left_keypoints, right_keypoints: (N, 5) float32 ``[x, y, octave, angle_deg,
+                response]`` in rectified pixels.
+            left_descriptors, right_descriptors: (N, 32) uint8.
+            left_pyramid, right_pyramid: the images' pyramids (level ``l`` scaled by
+                ``scale_factor ** -l``), 2-D uint8, same sizes left and right, at least
+                one level beyond the highest octave.
+
+        Raises:
+            TypeError: an array of the wrong dtype or rank (or not an array).
+            ValueError: as ``track_rgbd``; a system not created with ``sensor="stereo"``,
+                a camera with distortion, missing pyramid levels, left/right sizes differ.
             SlamError: internal failure.
         """
     def frame_trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -145,6 +181,9 @@ class SlamSystem:
         """Clears the map and the trajectory and counts a reset; tracking initialises again
         with the next frame, whose timestamp must still follow the last accepted one."""
     @property
+    def sensor(self) -> _Sensor:
+        """The sensor the system was created for."""
+    @property
     def state(self) -> _State:
         """Current tracking state."""
     @property
@@ -157,3 +196,22 @@ class SlamSystem:
     def num_resets(self) -> int:
         """Map resets so far: automatic ones (tracking lost with at most 5 keyframes in the
         map) and ``reset()`` calls."""
+
+def match_stereo(
+    left_keypoints: NDArray[np.float32],
+    left_descriptors: NDArray[np.uint8],
+    left_pyramid: Sequence[NDArray[np.uint8]],
+    right_keypoints: NDArray[np.float32],
+    right_descriptors: NDArray[np.uint8],
+    right_pyramid: Sequence[NDArray[np.uint8]],
+    *,
+    fx: float,
+    baseline: float,
+    scale_factor: float = 1.2,
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The core's stereo matcher on its own: ``(u_right (N,), depth_m (N,))`` float32 for the
+    left keypoints of a rectified pair, -1 where no reliable match exists.
+
+    Raises:
+        TypeError / ValueError: as ``SlamSystem.track_stereo``; non-positive fx or baseline.
+    """

@@ -44,10 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     run = sub.add_parser("run", help="track a dataset sequence and evaluate it")
-    run.add_argument("path", type=Path, help="sequence folder (TUM RGB-D layout)")
+    run.add_argument("path", type=Path,
+                     help="sequence folder: TUM RGB-D, KITTI odometry or EuRoC (ASL) layout")
     algo = run.add_argument_group("algorithm")
     algo.add_argument("--sensor", choices=SENSORS, required=True, help="camera setup")
-    algo.add_argument("--format", choices=("auto", "tum"), default="auto",
+    algo.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
                       help="dataset layout (default: detect)")
     algo.add_argument("--config", type=Path, help="JSON file of SlamSystem/extractor options")
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
@@ -84,8 +85,8 @@ def _load_config(path: Optional[Path]) -> dict:
 
 
 def _cmd_run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    if args.sensor != "rgbd":
-        parser.error(f"--sensor {args.sensor} is not implemented yet (only rgbd)")
+    if args.sensor == "mono":
+        parser.error("--sensor mono is not implemented yet (available: rgbd, stereo)")
     from .datasets import open_sequence
     from .io import write_tum_trajectory
     from .pipeline import run_sequence
@@ -130,6 +131,10 @@ def _print_summary(summary: dict, out: Path) -> None:
         if name in metrics:
             m = metrics[name]
             print(f"{label:<15} RMSE {m['rmse']:.4f} m  (SE(3), {m['pairs']} poses)")
+    if "path_length" in metrics:
+        p = metrics["path_length"]
+        print(f"path length     {p['estimate_m']:.3f} m vs {p['reference_m']:.3f} m "
+              f"(scale error {100 * p['scale_error']:+.2f} %)")
     if "rpe_frames" in metrics:
         r = metrics["rpe_frames"]
         print(f"RPE (1 frame)   {r['trans_rmse_m']:.4f} m  {r['rot_rmse_deg']:.3f} deg RMSE")

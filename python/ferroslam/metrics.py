@@ -23,11 +23,13 @@ from .transforms import inverse, rotation_angle
 __all__ = [
     "ALIGNMENTS",
     "AteResult",
+    "PathLengthResult",
     "RpeResult",
     "Stats",
     "Trajectory",
     "associate",
     "ate",
+    "path_length",
     "rpe",
     "stats",
     "umeyama_alignment",
@@ -249,6 +251,37 @@ def ate(
     return AteResult(
         **vars(s), errors=errors, scale=c, alignment=S, pairs=len(ref), aligned=est, reference=ref
     )
+
+
+@dataclass(frozen=True)
+class PathLengthResult:
+    """Path lengths (metres) of the associated poses; ``scale_error = estimate / reference - 1``
+    measures metric scale independently of any alignment."""
+
+    estimate_m: float
+    reference_m: float
+    pairs: int
+
+    @property
+    def scale_error(self) -> float:
+        return self.estimate_m / self.reference_m - 1.0
+
+
+def path_length(
+    traj_ref: Trajectory, traj_est: Trajectory, max_diff: float = 0.01
+) -> PathLengthResult:
+    """Lengths of both trajectories over the poses they have in common (by timestamp).
+
+    Raises:
+        ValueError: fewer than two associated poses or a reference that does not move.
+    """
+    ref, est, _, _ = _associated_aligned(traj_ref, traj_est, "none", max_diff)
+    if len(ref) < 2:
+        raise ValueError(f"path length needs at least 2 associated poses, got {len(ref)}")
+    result = PathLengthResult(est.path_length(), ref.path_length(), len(ref))
+    if not result.reference_m > 0:
+        raise ValueError("the reference trajectory does not move: no scale to compare")
+    return result
 
 
 def rpe(

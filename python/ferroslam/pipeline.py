@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .features import OrbExtractor, sample_depth
-from .metrics import AteResult, RpeResult, ate, rpe
+from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .trajectory import Trajectory
 
 __all__ = ["EXTRACTOR_KEYS", "RunResult", "make_extractor", "run_sequence"]
@@ -36,7 +36,8 @@ class RunResult:
     points in metres; ``timings``: per-frame milliseconds (``load_ms``, ``extraction_ms``,
     ``tracking_ms`` and ``mapping_ms`` as reported by the core, ``track_call_ms`` measured
     around the call, ``frame_ms`` = extraction + depth sampling + tracking call);
-    ``states``: tracking state per frame; ``metrics``: ATE/RPE when ground truth exists.
+    ``states``: tracking state per frame; ATE, RPE and path length (metric scale) when
+    ground truth exists.
     """
 
     sequence: str
@@ -54,6 +55,7 @@ class RunResult:
     ate_frames: Optional[AteResult] = None
     ate_keyframes: Optional[AteResult] = None
     rpe_frames: Optional[RpeResult] = None
+    path_length: Optional[PathLengthResult] = None
     metric_errors: list = field(default_factory=list)
 
     @property
@@ -103,6 +105,12 @@ class RunResult:
                 **{f"trans_{k}_m": getattr(r, f"trans_{k}") for k in ("rmse", "mean", "median")},
                 **{f"rot_{k}_deg": getattr(r, f"rot_deg_{k}") for k in ("rmse", "mean", "median")},
             }
+        if self.path_length is not None:
+            p = self.path_length
+            out["metrics"]["path_length"] = {
+                "estimate_m": p.estimate_m, "reference_m": p.reference_m, "pairs": p.pairs,
+                "scale_error": p.scale_error,
+            }
         return out
 
 
@@ -126,6 +134,10 @@ class _RgbdFeed:
     """Loads colour + depth, extracts ORB, samples depth at the keypoints."""
 
     def __init__(self, seq, extractor: OrbExtractor) -> None:
+        if not hasattr(seq, "load_depth"):
+            raise ValueError(
+                f"{getattr(seq, 'name', seq)} has no depth images: use sensor 'stereo' or 'mono'"
+            )
         self.seq, self.extractor = seq, extractor
 
     def system_options(self) -> dict:
@@ -153,7 +165,9 @@ class _StereoFeed:
 
     def __init__(self, seq, extractor: OrbExtractor) -> None:
         if not getattr(seq, "is_stereo", False):
-            raise ValueError(f"{getattr(seq, 'name', seq)} is not a stereo sequence")
+            raise ValueError(
+                f"{getattr(seq, 'name', seq)} is not a stereo sequence (no right images)"
+            )
         self.seq, self.extractor = seq, extractor
         self.pool = ThreadPoolExecutor(max_workers=2)
 
@@ -183,6 +197,7 @@ def _evaluate(result: RunResult, gt: Trajectory) -> None:
         ("ate_frames", lambda: ate(gt, result.trajectory, align="se3")),
         ("ate_keyframes", lambda: ate(gt, result.keyframes, align="se3")),
         ("rpe_frames", lambda: rpe(gt, result.trajectory, delta=1, align="none")),
+        ("path_length", lambda: path_length(gt, result.trajectory)),
     )
     for name, compute in cases:
         try:

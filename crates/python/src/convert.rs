@@ -1,9 +1,9 @@
 //! numpy <-> core conversions with shape and value checks.
 
 use ferroslam_features::{Descriptor, FeaturesError, GrayImage, Keypoint};
-use numpy::PyReadonlyArray2 as Image;
 use nalgebra::Isometry3;
 use numpy::ndarray::{Array1, Array3, Dimension};
+use numpy::PyReadonlyArray2 as Image;
 use numpy::{Element, PyArray, PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -145,20 +145,25 @@ pub fn f64_array<'py>(py: Python<'py>, values: Vec<f64>) -> Bound<'py, PyArray1<
 /// level, pixels copied row-major (numpy views need not be contiguous).
 pub fn pyramid(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<(usize, usize, Vec<u8>)>> {
     let levels: Vec<Bound<'_, PyAny>> = obj.extract().map_err(|_| {
-        PyTypeError::new_err(format!("{name} must be a list of 2-D uint8 arrays (pyramid levels)"))
+        PyTypeError::new_err(format!(
+            "{name} must be a list of 2-D uint8 arrays (pyramid levels)"
+        ))
     })?;
     if levels.is_empty() {
-        return Err(PyValueError::new_err(format!("{name} is empty: give at least level 0")));
+        return Err(PyValueError::new_err(format!(
+            "{name} is empty: give at least level 0"
+        )));
     }
     levels
         .iter()
         .enumerate()
         .map(|(l, level)| {
-            let img: Image<'_, u8> =
-                array(level, &format!("{name}[{l}]"), "a 2-D uint8 array")?;
+            let img: Image<'_, u8> = array(level, &format!("{name}[{l}]"), "a 2-D uint8 array")?;
             let shape = img.shape();
             if shape[0] == 0 || shape[1] == 0 {
-                return Err(PyValueError::new_err(format!("{name}[{l}] is an empty image")));
+                return Err(PyValueError::new_err(format!(
+                    "{name}[{l}] is an empty image"
+                )));
             }
             Ok((shape[1], shape[0], img.as_array().iter().copied().collect()))
         })
@@ -171,4 +176,31 @@ pub fn views(levels: &[(usize, usize, Vec<u8>)]) -> Result<Vec<GrayImage<'_>>, F
         .iter()
         .map(|(w, h, data)| GrayImage::new(*w, *h, data))
         .collect()
+}
+
+/// `{side}_keypoints (N, 5)` float32 and `{side}_descriptors (N, 32)` uint8 of one image.
+pub fn features(
+    keypoints: &Bound<'_, PyAny>,
+    descriptors: &Bound<'_, PyAny>,
+    side: &str,
+) -> PyResult<(Vec<Keypoint>, Vec<Descriptor>)> {
+    let kp: PyReadonlyArray2<'_, f32> = array(
+        keypoints,
+        &format!("{side}_keypoints"),
+        "a float32 (N, 5) array",
+    )?;
+    let desc: PyReadonlyArray2<'_, u8> = array(
+        descriptors,
+        &format!("{side}_descriptors"),
+        "a uint8 (N, 32) array",
+    )?;
+    let (kps, descs) = (self::keypoints(&kp)?, self::descriptors(&desc)?);
+    if kps.len() != descs.len() {
+        return Err(PyValueError::new_err(format!(
+            "{side}_keypoints ({}) and {side}_descriptors ({}) must have the same length",
+            kps.len(),
+            descs.len()
+        )));
+    }
+    Ok((kps, descs))
 }

@@ -6,6 +6,7 @@
 
 mod convert;
 mod errors;
+mod stereo;
 mod system;
 
 use pyo3::prelude::*;
@@ -15,6 +16,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SlamError", m.py().get_type::<errors::SlamError>())?;
     m.add_class::<system::PySlamSystem>()?;
     m.add_class::<system::PyTrackResult>()?;
+    m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -1,7 +1,7 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
-use ferroslam_geometry::camera::{PinholeCamera, RadTan};
 use ferroslam_features::StereoView;
+use ferroslam_geometry::camera::{PinholeCamera, RadTan};
 use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, StereoInput, TrackResult, TrackingState};
 use numpy::ndarray::Array2;
 use numpy::{
@@ -54,6 +54,10 @@ fn parse_config(
     let mut config = SlamConfig::default();
     let mut baseline: Option<f64> = None;
     let mut bf_given = false;
+    if sensor == "stereo" {
+        // Stereo depth has no sensor range: disparity already bounds it.
+        config.depth_range = (0.0, f64::INFINITY);
+    }
     for (key, value) in options.map(|o| o.iter()).into_iter().flatten() {
         let key: String = key.extract()?;
         let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));
@@ -73,7 +77,7 @@ fn parse_config(
             _ => {
                 return Err(PyValueError::new_err(format!(
                     "unknown option {key:?}; known: scale_factor, n_levels, track_feature_range, \
-                     skip_max_frames, bf (rgbd), baseline (stereo), depth_threshold, \
+                     skip_max_frames, bf, baseline, depth_threshold, \
                      depth_range, seed"
                 )))
             }
@@ -298,29 +302,8 @@ impl PySlamSystem {
         right_pyramid: &Bound<'_, PyAny>,
     ) -> PyResult<PyTrackResult> {
         self.expect_sensor("stereo", "track_stereo")?;
-        let features = |kp: &Bound<'_, PyAny>, desc: &Bound<'_, PyAny>, side: &str| {
-            let kp: PyReadonlyArray2<'_, f32> = convert::array(
-                kp,
-                &format!("{side}_keypoints"),
-                "a float32 (N, 5) array",
-            )?;
-            let desc: PyReadonlyArray2<'_, u8> = convert::array(
-                desc,
-                &format!("{side}_descriptors"),
-                "a uint8 (N, 32) array",
-            )?;
-            let (kps, descs) = (convert::keypoints(&kp)?, convert::descriptors(&desc)?);
-            if kps.len() != descs.len() {
-                return Err(PyValueError::new_err(format!(
-                    "{side}_keypoints ({}) and {side}_descriptors ({}) must have the same length",
-                    kps.len(),
-                    descs.len()
-                )));
-            }
-            Ok((kps, descs))
-        };
-        let (lk, ld) = features(left_keypoints, left_descriptors, "left")?;
-        let (rk, rd) = features(right_keypoints, right_descriptors, "right")?;
+        let (lk, ld) = convert::features(left_keypoints, left_descriptors, "left")?;
+        let (rk, rd) = convert::features(right_keypoints, right_descriptors, "right")?;
         let lp = convert::pyramid(left_pyramid, "left_pyramid")?;
         let rp = convert::pyramid(right_pyramid, "right_pyramid")?;
         let inner = &mut self.inner;

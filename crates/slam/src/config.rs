@@ -22,7 +22,8 @@ pub struct SlamConfig {
     pub bf: f64,
     /// Points closer than `depth_threshold` baselines are "close" (trusted depth), metres / baseline.
     pub depth_threshold: f64,
-    /// `(min, max)` valid sensor depth in metres; other depths count as missing.
+    /// `(min, max)` valid measured depth in metres (RGB-D sensor depth or stereo depth from
+    /// disparity); other depths count as missing. `max` may be infinite.
     pub depth_range: (f64, f64),
     /// Seed of every random choice (RANSAC).
     pub seed: u64,
@@ -67,7 +68,7 @@ impl SlamConfig {
             return bad("depth_threshold must be positive");
         }
         let (dmin, dmax) = self.depth_range;
-        if !(dmin.is_finite() && dmax.is_finite() && 0.0 <= dmin && dmin < dmax) {
+        if !(dmin.is_finite() && !dmax.is_nan() && 0.0 <= dmin && dmin < dmax) {
             return bad("depth_range must be (min, max) with 0 <= min < max");
         }
         Ok(())
