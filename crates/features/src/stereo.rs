@@ -69,8 +69,10 @@ pub fn match_stereo(
     let threshold = (TH_HIGH + TH_LOW) / 2;
     let mut costs: Vec<(u32, usize)> = Vec::new();
     for (i, kp) in left.keypoints.iter().enumerate() {
-        let (Some(desc), true) = (left.descriptors.get(i), kp.x.is_finite() && kp.y.is_finite())
-        else {
+        let (Some(desc), true) = (
+            left.descriptors.get(i),
+            kp.x.is_finite() && kp.y.is_finite(),
+        ) else {
             continue;
         };
         let level = kp.octave as usize;
@@ -84,7 +86,9 @@ pub fn match_stereo(
         let mut best: Option<(u32, usize)> = None;
         for &j in &rows[kp.y as usize] {
             let r = &right.keypoints[j];
-            if (r.octave as i32 - level as i32).abs() > 1 || !(min_u..=max_u).contains(&(r.x as f64)) {
+            if (r.octave as i32 - level as i32).abs() > 1
+                || !(min_u..=max_u).contains(&(r.x as f64))
+            {
                 continue;
             }
             let d = hamming(desc, &right.descriptors[j]);
@@ -95,7 +99,8 @@ pub fn match_stereo(
         let Some((_, j)) = best.filter(|&(d, _)| d < threshold) else {
             continue;
         };
-        let Some((u_r, sad)) = refine_by_correlation(left, right, kp, right.keypoints[j].x, pyramid)
+        let Some((u_r, sad)) =
+            refine_by_correlation(left, right, kp, right.keypoints[j].x, pyramid)
         else {
             continue;
         };
@@ -202,7 +207,10 @@ fn refine_by_correlation(
         return None;
     }
     let inc = best as isize - SEARCH_HALF;
-    Some((pyramid.scale[level] * ((ur0 + inc) as f64 + delta), costs[best]))
+    Some((
+        pyramid.scale[level] * ((ur0 + inc) as f64 + delta),
+        costs[best],
+    ))
 }
 
 /// Drops matches whose correlation cost exceeds 1.5 x 1.4 x the median (ORB-SLAM's rule).
@@ -275,8 +283,16 @@ mod tests {
             let ri = [GrayImage::new(W, H, &self.right).unwrap()];
             let dl = vec![[7u8; 32]; l.len()];
             let dr = vec![[7u8; 32]; r.len()];
-            let left = StereoView { keypoints: l, descriptors: &dl, levels: &li };
-            let right = StereoView { keypoints: r, descriptors: &dr, levels: &ri };
+            let left = StereoView {
+                keypoints: l,
+                descriptors: &dl,
+                levels: &li,
+            };
+            let right = StereoView {
+                keypoints: r,
+                descriptors: &dr,
+                levels: &ri,
+            };
             match_stereo(&left, &right, &self.pyramid, bf, 100.0)
         }
     }
@@ -287,7 +303,10 @@ mod tests {
         let pair = Pair::new(d);
         let l = [keypoint(80.0, 30.0, 0), keypoint(100.0, 25.0, 0)];
         // The descriptor match lands a pixel off; correlation must pull it to the truth.
-        let r = [keypoint(80.0 - 13.0, 30.5, 0), keypoint(100.0 - 11.0, 24.0, 0)];
+        let r = [
+            keypoint(80.0 - 13.0, 30.5, 0),
+            keypoint(100.0 - 11.0, 24.0, 0),
+        ];
         let m = pair.run(&l, &r, 50.0);
         for (kp, m) in l.iter().zip(&m) {
             let m = m.expect("matched");
@@ -327,7 +346,13 @@ mod tests {
 
     #[test]
     fn costly_outliers_are_rejected_against_the_median() {
-        let mut out = vec![Some(StereoMatch { u_right: 1.0, depth_m: 1.0 }); 4];
+        let mut out = vec![
+            Some(StereoMatch {
+                u_right: 1.0,
+                depth_m: 1.0
+            });
+            4
+        ];
         reject_costly_matches(&mut out, vec![(100, 0), (110, 1), (120, 2), (400, 3)]);
         assert_eq!(out.iter().filter(|m| m.is_some()).count(), 3);
         assert!(out[3].is_none());

@@ -140,7 +140,11 @@ fn validate_features(
 
 impl Frame {
     /// Undistorts the keypoints and derives the virtual right coordinate from depth.
-    pub fn from_rgbd(index: usize, input: &RgbdInput<'_>, ctx: &Context) -> Result<Self, SlamError> {
+    pub fn from_rgbd(
+        index: usize,
+        input: &RgbdInput<'_>,
+        ctx: &Context,
+    ) -> Result<Self, SlamError> {
         let (camera, config) = (&ctx.camera, &ctx.config);
         let (dmin, dmax) = config.depth_range;
         let mut keypoints = Vec::with_capacity(input.keypoints.len());
@@ -162,7 +166,15 @@ impl Frame {
                 u_right.push(-1.0);
             }
         }
-        Self::new(index, input.timestamp, keypoints, input.descriptors, depth, u_right, ctx.bounds)
+        Self::new(
+            index,
+            input.timestamp,
+            keypoints,
+            input.descriptors,
+            depth,
+            u_right,
+            ctx.bounds,
+        )
     }
 
     /// Matches the left keypoints into the right image (see [`match_stereo`]); depth and
@@ -173,7 +185,13 @@ impl Frame {
         pyramid: &ScalePyramid,
         ctx: &Context,
     ) -> Result<Self, SlamError> {
-        let matches = match_stereo(&input.left, &input.right, pyramid, ctx.config.bf, ctx.camera.fx);
+        let matches = match_stereo(
+            &input.left,
+            &input.right,
+            pyramid,
+            ctx.config.bf,
+            ctx.camera.fx,
+        );
         let (dmin, dmax) = ctx.config.depth_range;
         let (u_right, depth) = matches
             .iter()
