@@ -49,6 +49,7 @@ pub mod sim3;
 pub mod so3;
 pub mod testing;
 pub mod triangulation;
+pub mod two_view;
 pub mod umeyama;
 
 pub use error::GeometryError;
