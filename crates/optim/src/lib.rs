@@ -16,7 +16,9 @@
 //! [`SymbolicBa`] + [`bundle_adjust`] (Levenberg-Marquardt with a Schur complement on the
 //! points, the reduced camera system factorised with faer's sparse Cholesky on a symbolic
 //! analysis built once per problem structure) and [`local_bundle_adjust`] (ORB-SLAM's
-//! robust-then-plain schedule with outlier classification).
+//! robust-then-plain schedule with outlier classification). [`pose_graph`] holds the SE(3) /
+//! Sim(3) pose-graph optimiser ([`SymbolicPoseGraph`] + [`optimize_pose_graph`], same
+//! Levenberg-Marquardt and sparse Cholesky pattern) and a g2o reader ([`read_g2o`]).
 #![warn(missing_docs)]
 
 pub mod ba;
@@ -24,6 +26,7 @@ pub mod error;
 pub mod intrinsics;
 mod lm;
 pub mod pose;
+pub mod pose_graph;
 pub mod residual;
 pub mod robust;
 
@@ -34,3 +37,7 @@ pub use ba::{
 pub use error::OptimError;
 pub use intrinsics::Intrinsics;
 pub use pose::{optimize_pose, PoseEstimate, PoseObservation};
+pub use pose_graph::{
+    optimize_pose_graph, read_g2o, PoseEdge, PoseGraph, PoseGraphOptions, PoseGraphReport,
+    Se3PoseGraph, Sim3PoseGraph, SymbolicPoseGraph,
+};

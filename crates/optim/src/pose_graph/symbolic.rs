@@ -1,0 +1,157 @@
+//! Structure of a pose graph's normal equations, analysed once and reused by every iteration.
+//!
+//! Unknowns are the free poses, `D` each, in pose order. Block `(a, b)` of the Hessian is
+//! non-zero iff `a == b` or an edge joins free poses `a` and `b`. Only the upper triangle is
+//! stored (faer reads it as self-adjoint), in CSC with sorted rows: in block column `b` the
+//! off-diagonal blocks come first (`D` rows each, in block-row order), then the upper part of
+//! the diagonal block (`c + 1` rows in column `c`), so each column's last entry is its
+//! diagonal.
+
+use super::group::PoseGroup;
+use super::problem::PoseGraph;
+use crate::error::OptimError;
+use faer::sparse::linalg::solvers::SymbolicLlt;
+use faer::sparse::SymbolicSparseColMat;
+use faer::Side;
+
+/// Where an edge's blocks land: the free indices of its ends and, if both are free and
+/// distinct, the slot of the off-diagonal block in block column `max(fi, fj)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct EdgeSlots {
+    pub(crate) free_from: Option<usize>,
+    pub(crate) free_to: Option<usize>,
+    pub(crate) cross_slot: Option<usize>,
+}
+
+/// Pattern, ordering and symbolic Cholesky of a pose graph's Hessian. Build it once per
+/// structure (same number of poses, fixed flags and edge `(from, to)` pairs) with
+/// [`SymbolicPoseGraph::new`] and pass it to every [`super::optimize_pose_graph`] call.
+#[derive(Clone, Debug)]
+pub struct SymbolicPoseGraph {
+    pub(crate) fixed: Vec<bool>,
+    pub(crate) incidence: Vec<(usize, usize)>,
+    /// Per free pose: the pose index.
+    pub(crate) free_poses: Vec<usize>,
+    pub(crate) edge_slots: Vec<EdgeSlots>,
+    /// Tangent dimension the pattern was built for.
+    pub(crate) dim: usize,
+    /// Upper-triangular CSC pattern (`dim * free` square).
+    pub(crate) pattern: SymbolicSparseColMat<usize>,
+    /// Symbolic Cholesky (fill-reducing ordering included), `None` without free poses.
+    pub(crate) llt: Option<SymbolicLlt<usize>>,
+}
+
+impl SymbolicPoseGraph {
+    /// Analyses `graph`'s structure (values are only validated, not used).
+    ///
+    /// # Errors
+    /// Any [`PoseGraph::validate`] error; [`OptimError::Solver`] if faer's symbolic analysis
+    /// fails (out of memory).
+    pub fn new<G: PoseGroup<D>, const D: usize>(
+        graph: &PoseGraph<G, D>,
+    ) -> Result<Self, OptimError> {
+        graph.validate()?;
+        let mut free_poses = Vec::new();
+        let free_index: Vec<Option<usize>> = graph
+            .fixed
+            .iter()
+            .enumerate()
+            .map(|(i, &fixed)| {
+                (!fixed).then(|| {
+                    free_poses.push(i);
+                    free_poses.len() - 1
+                })
+            })
+            .collect();
+        let nfree = free_poses.len();
+        let free_pair =
+            |e: &super::problem::PoseEdge<G, D>| match (free_index[e.from], free_index[e.to]) {
+                (Some(a), Some(b)) if a != b => Some((a.min(b), a.max(b))),
+                _ => None,
+            };
+        let mut block_rows: Vec<Vec<usize>> = vec![Vec::new(); nfree];
+        for (a, b) in graph.edges.iter().filter_map(free_pair) {
+            block_rows[b].push(a);
+        }
+        for rows in &mut block_rows {
+            rows.sort_unstable();
+            rows.dedup();
+        }
+        let edge_slots = graph
+            .edges
+            .iter()
+            .map(|e| EdgeSlots {
+                free_from: free_index[e.from],
+                free_to: free_index[e.to],
+                // Present by construction of block_rows.
+                cross_slot: free_pair(e).map(|(a, b)| block_rows[b].binary_search(&a).unwrap_or(0)),
+            })
+            .collect();
+
+        let n = D * nfree;
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let mut row_idx = Vec::new();
+        col_ptr.push(0usize);
+        for (b, rows) in block_rows.iter().enumerate() {
+            for c in 0..D {
+                for &a in rows {
+                    row_idx.extend(D * a..D * a + D);
+                }
+                row_idx.extend(D * b..=D * b + c);
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        let llt = if nfree == 0 {
+            None
+        } else {
+            Some(
+                SymbolicLlt::try_new(pattern.as_ref(), Side::Upper)
+                    .map_err(|e| OptimError::Solver(format!("{e:?}")))?,
+            )
+        };
+        Ok(Self {
+            fixed: graph.fixed.clone(),
+            incidence: graph.edges.iter().map(|e| (e.from, e.to)).collect(),
+            free_poses,
+            edge_slots,
+            dim: D,
+            pattern,
+            llt,
+        })
+    }
+
+    /// Number of optimised poses.
+    pub fn num_free_poses(&self) -> usize {
+        self.free_poses.len()
+    }
+
+    /// Stored (upper-triangular) non-zeros of the Hessian.
+    pub fn hessian_nnz(&self) -> usize {
+        self.pattern.row_idx().len()
+    }
+
+    /// True if `graph` has exactly the structure this analysis was built for.
+    pub fn matches<G: PoseGroup<D>, const D: usize>(&self, graph: &PoseGraph<G, D>) -> bool {
+        self.dim == D
+            && graph.fixed == self.fixed
+            && graph.poses.len() == self.fixed.len()
+            && graph.edges.len() == self.incidence.len()
+            && graph
+                .edges
+                .iter()
+                .zip(&self.incidence)
+                .all(|(e, &(i, j))| e.from == i && e.to == j)
+    }
+
+    /// Index in the CSC values of entry `(r, c)` of block `slot` in block column `b`
+    /// (`slot == None`: the diagonal block, `r <= c`).
+    pub(crate) fn value_index(&self, b: usize, slot: Option<usize>, r: usize, c: usize) -> usize {
+        let col = self.dim * b + c;
+        let start = self.pattern.col_ptr()[col];
+        match slot {
+            Some(s) => start + self.dim * s + r,
+            None => self.pattern.col_ptr()[col + 1] - 1 - (c - r),
+        }
+    }
+}
