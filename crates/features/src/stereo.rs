@@ -16,6 +16,7 @@ use crate::image::GrayImage;
 use crate::keypoint::Keypoint;
 use crate::matcher::{TH_HIGH, TH_LOW};
 use crate::pyramid::ScalePyramid;
+use rayon::prelude::*;
 
 /// Half size of the SAD correlation window, level pixels (11 x 11 patch).
 const PATCH_HALF: isize = 5;
@@ -65,63 +66,73 @@ pub fn match_stereo(
         return out;
     }
     let rows = rows_of_right_keypoints(right, pyramid, base.height());
-    let (min_d, max_d) = (0.0, fx);
-    let threshold = (TH_HIGH + TH_LOW) / 2;
-    let mut costs: Vec<(u32, usize)> = Vec::new();
-    for (i, kp) in left.keypoints.iter().enumerate() {
-        let (Some(desc), true) = (
-            left.descriptors.get(i),
-            kp.x.is_finite() && kp.y.is_finite(),
-        ) else {
-            continue;
-        };
-        let level = kp.octave as usize;
-        if level >= pyramid.n_levels || kp.y < 0.0 || kp.y as usize >= rows.len() {
-            continue;
+    let matched: Vec<Option<(StereoMatch, u32)>> = (0..n)
+        .into_par_iter()
+        .map(|i| match_one(i, left, right, &rows, pyramid, bf, fx))
+        .collect();
+    let mut costs = Vec::new();
+    for (i, m) in matched.into_iter().enumerate() {
+        if let Some((m, sad)) = m {
+            out[i] = Some(m);
+            costs.push((sad, i));
         }
-        let (u_l, min_u, max_u) = (kp.x as f64, kp.x as f64 - max_d, kp.x as f64 - min_d);
-        if max_u < 0.0 {
-            continue;
-        }
-        let mut best: Option<(u32, usize)> = None;
-        for &j in &rows[kp.y as usize] {
-            let r = &right.keypoints[j];
-            if (r.octave as i32 - level as i32).abs() > 1
-                || !(min_u..=max_u).contains(&(r.x as f64))
-            {
-                continue;
-            }
-            let d = hamming(desc, &right.descriptors[j]);
-            if best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((d, j));
-            }
-        }
-        let Some((_, j)) = best.filter(|&(d, _)| d < threshold) else {
-            continue;
-        };
-        let Some((u_r, sad)) =
-            refine_by_correlation(left, right, kp, right.keypoints[j].x, pyramid)
-        else {
-            continue;
-        };
-        let mut disparity = u_l - u_r;
-        if !(min_d..max_d).contains(&disparity) {
-            continue;
-        }
-        let mut u_r = u_r;
-        if disparity <= 0.0 {
-            // ORB-SLAM keeps zero-disparity matches as very far points.
-            disparity = 0.01;
-            u_r = u_l - 0.01;
-        }
-        out[i] = Some(StereoMatch {
-            u_right: u_r as f32,
-            depth_m: (bf / disparity) as f32,
-        });
-        costs.push((sad, i));
     }
     reject_costly_matches(&mut out, costs);
     out
+}
+
+/// The match of left keypoint `i` and its correlation cost, before the median test.
+fn match_one(
+    i: usize,
+    left: &StereoView<'_>,
+    right: &StereoView<'_>,
+    rows: &[Vec<usize>],
+    pyramid: &ScalePyramid,
+    bf: f64,
+    fx: f64,
+) -> Option<(StereoMatch, u32)> {
+    let kp = &left.keypoints[i];
+    let desc = left.descriptors.get(i)?;
+    let level = kp.octave as usize;
+    if !(kp.x.is_finite() && kp.y.is_finite())
+        || level >= pyramid.n_levels
+        || kp.y < 0.0
+        || kp.y as usize >= rows.len()
+    {
+        return None;
+    }
+    let (min_d, max_d) = (0.0, fx);
+    let (u_l, min_u, max_u) = (kp.x as f64, kp.x as f64 - max_d, kp.x as f64 - min_d);
+    if max_u < 0.0 {
+        return None;
+    }
+    let mut best: Option<(u32, usize)> = None;
+    for &j in &rows[kp.y as usize] {
+        let r = &right.keypoints[j];
+        if (r.octave as i32 - level as i32).abs() > 1 || !(min_u..=max_u).contains(&(r.x as f64)) {
+            continue;
+        }
+        let d = hamming(desc, &right.descriptors[j]);
+        if best.is_none_or(|(bd, _)| d < bd) {
+            best = Some((d, j));
+        }
+    }
+    let (_, j) = best.filter(|&(d, _)| d < (TH_HIGH + TH_LOW) / 2)?;
+    let (mut u_r, sad) = refine_by_correlation(left, right, kp, right.keypoints[j].x, pyramid)?;
+    let mut disparity = u_l - u_r;
+    if !(min_d..max_d).contains(&disparity) {
+        return None;
+    }
+    if disparity <= 0.0 {
+        // ORB-SLAM keeps zero-disparity matches as very far points.
+        disparity = 0.01;
+        u_r = u_l - 0.01;
+    }
+    let m = StereoMatch {
+        u_right: u_r as f32,
+        depth_m: (bf / disparity) as f32,
+    };
+    Some((m, sad))
 }
 
 /// For every image row (level 0), the right keypoints whose +-2 px (scaled) band covers it.
