@@ -1,13 +1,16 @@
-"""Per-stage timing of the whole pipeline on TUM fr1/rpy, against the 30 fps budget.
+"""Per-stage timing of the whole pipeline on a sequence, against its frame-rate budget.
 
 Runs ``ferroslam.pipeline.run_sequence`` (progress bar off) and prints median / p95 / mean
-milliseconds of each stage, the tracking outcome, ATE and frame time / 33.3 ms.
+milliseconds of each stage, the tracking outcome, ATE, scale error and frame time / budget
+(the median interval between the sequence's timestamps: 33.3 ms for TUM, ~100 ms for KITTI).
 
-    python benches/tum_stages.py [--max-frames N] [--config JSON] [--json OUT] [--sequence DIR]
+    python benches/stages.py [--sequence DIR] [--sensor rgbd|stereo] [--max-frames N]
+                             [--config JSON] [--json OUT]
 
 ``--config`` is an inline JSON object (``'{"seed": 3}'``) or a JSON file, as ``ferroslam run
---config``. The sequence defaults to ``$FERROSLAM_DATA/tum/rgbd_dataset_freiburg1_rpy``
-(``<repo>/../shared/data`` without the variable). Build the native module in release mode
+--config``. The sequence (any layout ``ferroslam run`` reads) defaults to
+``$FERROSLAM_DATA/tum/rgbd_dataset_freiburg1_rpy`` (``<repo>/../shared/data`` without the
+variable). Build the native module in release mode
 first (``maturin develop --release``). ``local mapping`` is timed on every tracked frame (it
 includes the keyframe decision); ``new KFs`` keeps the frames local mapping inserted.
 """
@@ -25,19 +28,18 @@ import numpy as np
 
 from ferroslam._data import data_dir
 from ferroslam.cli import _load_config  # the same JSON rules as `ferroslam run --config`
-from ferroslam.datasets import TumSequence
+from ferroslam.datasets import open_sequence
 from ferroslam._core import SlamSystem
 from ferroslam.pipeline import run_sequence
 
-BUDGET_MS = 1e3 / 30.0  # TUM RGB-D records at 30 Hz
 # (label, RunResult.timings key, frames included: all or keyframes only)
 STAGES = (
-    ("image load (rgb + depth)", "load_ms", "all"),
-    ("ORB extraction + depth", "extraction_ms", "all"),
+    ("image load", "load_ms", "all"),
+    ("ORB extraction (+ depth)", "extraction_ms", "all"),
     ("tracking (core)", "tracking_ms", "all"),
     ("local mapping (core)", "mapping_ms", "all"),
     ("local mapping, new KFs", "mapping_ms", "keyframes"),
-    ("track_rgbd call", "track_call_ms", "all"),
+    ("track_* call", "track_call_ms", "all"),
     ("whole frame (no load)", "frame_ms", "all"),
 )
 
@@ -69,11 +71,17 @@ class KeyframeRecorder:
         self.system = SlamSystem(*args, **kwargs)
         self.is_keyframe: list[bool] = []
 
-    def track_rgbd(self, *args):
+    def _track(self, method: str, *args):
         initialising = self.system.state == "not_initialized"
-        result = self.system.track_rgbd(*args)
+        result = getattr(self.system, method)(*args)
         self.is_keyframe.append(result.is_keyframe and not initialising)
         return result
+
+    def track_rgbd(self, *args):
+        return self._track("track_rgbd", *args)
+
+    def track_stereo(self, *args):
+        return self._track("track_stereo", *args)
 
     def __getattr__(self, name):
         return getattr(self.system, name)
@@ -97,7 +105,7 @@ def _ate(result, name: str) -> dict | None:
     return {"rmse_m": ate.rmse, "mean_m": ate.mean, "max_m": ate.max, "pairs": ate.pairs}
 
 
-def report(result, is_keyframe: np.ndarray, wall_s: float) -> dict:
+def report(result, is_keyframe: np.ndarray, wall_s: float, budget_ms: float) -> dict:
     rows = stage_table(result, is_keyframe)
     frame = next(r for r in rows if r["key"] == "frame_ms")
     return {
@@ -111,17 +119,19 @@ def report(result, is_keyframe: np.ndarray, wall_s: float) -> dict:
         "map_points": int(result.map_points.shape[0]),
         "ate_frames": _ate(result, "ate_frames"),
         "ate_keyframes": _ate(result, "ate_keyframes"),
+        "scale_error": None if result.path_length is None else result.path_length.scale_error,
         "metric_errors": list(result.metric_errors),
         "stages_ms": rows,
-        "budget_ms": BUDGET_MS,
-        "realtime_ratio": {k: frame[k] / BUDGET_MS for k in ("median", "p95", "mean")},
+        "sensor": result.sensor,
+        "budget_ms": budget_ms,
+        "realtime_ratio": {k: frame[k] / budget_ms for k in ("median", "p95", "mean")},
         "wall_s": wall_s,
         "machine": {"python": platform.python_version(), "processor": platform.machine()},
     }
 
 
 def print_report(rep: dict) -> None:
-    print(f"sequence {rep['sequence']}: {rep['frames']} frames, {rep['tracked_frames']} tracked "
+    print(f"sequence {rep['sequence']} ({rep['sensor']}): {rep['frames']} frames, {rep['tracked_frames']} tracked "
           f"(states {rep['states']}), {rep['keyframes_mapped']} keyframes mapped, "
           f"{rep['keyframes']} in the final map, {rep['map_points']} map points, "
           f"wall {rep['wall_s']:.1f} s")
@@ -133,13 +143,15 @@ def print_report(rep: dict) -> None:
         print(f"{r['stage']:<26} {r['n']:>6} {r['median']:8.2f} {r['p95']:8.2f} {r['mean']:8.2f} "
               f"{r['max']:8.2f}")
     ratio = rep["realtime_ratio"]
-    print(f"\nwhole frame / {BUDGET_MS:.1f} ms budget: median {ratio['median']:.2f}, "
+    print(f"\nwhole frame / {rep['budget_ms']:.1f} ms budget: median {ratio['median']:.2f}, "
           f"p95 {ratio['p95']:.2f}, mean {ratio['mean']:.2f}  (< 1 = real time)")
     for name in ("ate_frames", "ate_keyframes"):
         a = rep[name]
         if a is not None:
             print(f"{name:<14} rmse {a['rmse_m'] * 100:6.2f} cm  mean {a['mean_m'] * 100:6.2f} cm  "
                   f"max {a['max_m'] * 100:6.2f} cm  ({a['pairs']} poses, SE(3) alignment)")
+    if rep["scale_error"] is not None:
+        print(f"scale error    {100 * rep['scale_error']:+.2f} % (path length against the truth)")
     for err in rep["metric_errors"]:
         print(f"metric not computed: {err}")
 
@@ -148,7 +160,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sequence", type=Path,
                         default=data_dir() / "tum" / "rgbd_dataset_freiburg1_rpy",
-                        help="TUM sequence folder (default: fr1/rpy in the shared data)")
+                        help="sequence folder (default: TUM fr1/rpy in the shared data)")
+    parser.add_argument("--sensor", choices=("rgbd", "stereo"), default="rgbd")
     parser.add_argument("--max-frames", type=int, help="process only the first N frames")
     parser.add_argument("--config", help="JSON object or JSON file of SlamSystem/extractor options")
     parser.add_argument("--json", type=Path, metavar="OUT", help="also write the report as JSON")
@@ -156,7 +169,8 @@ def main(argv=None) -> int:
     if not args.sequence.is_dir():
         parser.error(f"sequence not found: {args.sequence} (set FERROSLAM_DATA)")
 
-    seq = TumSequence(args.sequence)
+    seq = open_sequence(args.sequence)
+    budget_ms = float(np.median(np.diff(seq.timestamps))) * 1e3
     start = time.perf_counter()
     recorders: list[KeyframeRecorder] = []
 
@@ -165,8 +179,9 @@ def main(argv=None) -> int:
         return recorders[-1]
 
     result = run_sequence(seq, _config(args.config), max_frames=args.max_frames, progress=False,
-                          system_factory=factory)
-    rep = report(result, np.array(recorders[0].is_keyframe, bool), time.perf_counter() - start)
+                          sensor=args.sensor, system_factory=factory)
+    rep = report(result, np.array(recorders[0].is_keyframe, bool), time.perf_counter() - start,
+                 budget_ms)
     print_report(rep)
     if args.json is not None:
         args.json.write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
