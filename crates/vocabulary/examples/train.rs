@@ -26,7 +26,9 @@ fn read_pack(path: &str) -> Result<Vec<Vec<Descriptor>>, Error> {
     let mut images = Vec::new();
     let mut rest = bytes.as_slice();
     while !rest.is_empty() {
-        let (count, tail) = rest.split_at_checked(4).ok_or("pack truncated in a count")?;
+        let (count, tail) = rest
+            .split_at_checked(4)
+            .ok_or("pack truncated in a count")?;
         let n = u32::from_le_bytes([count[0], count[1], count[2], count[3]]) as usize;
         let (rows, tail) = tail
             .split_at_checked(n.checked_mul(32).ok_or("bad count")?)
@@ -90,10 +92,20 @@ fn main() -> Result<(), Error> {
     let args = parse_args()?;
     let images = read_pack(&args.pack)?;
     let total: usize = images.iter().map(Vec::len).sum();
-    println!("training on {total} descriptors from {} images, k = {}, L = {}", images.len(), args.params.k, args.params.levels);
+    println!(
+        "training on {total} descriptors from {} images, k = {}, L = {}",
+        images.len(),
+        args.params.k,
+        args.params.levels
+    );
     let t = Instant::now();
     let voc = Vocabulary::train(&images, &args.params)?;
-    println!("trained in {:.2} s: {} nodes, {} words", t.elapsed().as_secs_f64(), voc.node_count(), voc.word_count());
+    println!(
+        "trained in {:.2} s: {} nodes, {} words",
+        t.elapsed().as_secs_f64(),
+        voc.node_count(),
+        voc.word_count()
+    );
     voc.save(&args.out)?;
     let t = Instant::now();
     let loaded = Vocabulary::load(&args.out)?;
@@ -121,10 +133,17 @@ fn evaluate(voc: &Vocabulary, frames: &[Vec<Descriptor>], near: usize, far: usiz
     let bows: Vec<_> = frames.iter().map(|f| voc.transform(f, 4).0).collect();
     let per_frame_ms = t.elapsed().as_secs_f64() * 1e3 / frames.len().max(1) as f64;
     let pairs: Vec<(f64, f64)> = (0..frames.len().saturating_sub(far))
-        .map(|i| (bows[i].l1_score(&bows[i + near]), bows[i].l1_score(&bows[i + far])))
+        .map(|i| {
+            (
+                bows[i].l1_score(&bows[i + near]),
+                bows[i].l1_score(&bows[i + far]),
+            )
+        })
         .collect();
     let wins = pairs.iter().filter(|(n, f)| n > f).count();
-    let mean = |sel: fn(&(f64, f64)) -> f64| pairs.iter().map(sel).sum::<f64>() / pairs.len().max(1) as f64;
+    let mean = |sel: fn(&(f64, f64)) -> f64| {
+        pairs.iter().map(sel).sum::<f64>() / pairs.len().max(1) as f64
+    };
     println!(
         "eval on {} frames (transform {:.2} ms/frame): score(i, i+{near}) > score(i, i+{far}) for {wins}/{} frames ({:.3}); mean scores {:.3} vs {:.3}",
         frames.len(),
@@ -134,5 +153,8 @@ fn evaluate(voc: &Vocabulary, frames: &[Vec<Descriptor>], near: usize, far: usiz
         mean(|p| p.0),
         mean(|p| p.1)
     );
-    println!("near_far_fraction {:.6}", wins as f64 / pairs.len().max(1) as f64);
+    println!(
+        "near_far_fraction {:.6}",
+        wins as f64 / pairs.len().max(1) as f64
+    );
 }

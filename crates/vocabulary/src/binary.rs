@@ -48,9 +48,15 @@ impl Vocabulary {
         ] {
             out.extend_from_slice(&field.to_le_bytes());
         }
-        parents[1..].iter().for_each(|p| out.extend_from_slice(&p.to_le_bytes()));
-        descriptors[1..].iter().for_each(|d| out.extend_from_slice(d));
-        weights[1..].iter().for_each(|w| out.extend_from_slice(&w.to_le_bytes()));
+        parents[1..]
+            .iter()
+            .for_each(|p| out.extend_from_slice(&p.to_le_bytes()));
+        descriptors[1..]
+            .iter()
+            .for_each(|d| out.extend_from_slice(d));
+        weights[1..]
+            .iter()
+            .for_each(|w| out.extend_from_slice(&w.to_le_bytes()));
         let sum = checksum(&out);
         out.extend_from_slice(&sum.to_le_bytes());
         out
@@ -73,10 +79,21 @@ impl Vocabulary {
         if &bytes[..8] != MAGIC {
             return Err(VocabularyError::BadMagic);
         }
-        let field = |i: usize| u32::from_le_bytes([bytes[8 + 4 * i], bytes[9 + 4 * i], bytes[10 + 4 * i], bytes[11 + 4 * i]]);
-        let (version, k, levels, weighting, n) = (field(0), field(1), field(2), field(3), field(4) as usize);
+        let field = |i: usize| {
+            u32::from_le_bytes([
+                bytes[8 + 4 * i],
+                bytes[9 + 4 * i],
+                bytes[10 + 4 * i],
+                bytes[11 + 4 * i],
+            ])
+        };
+        let (version, k, levels, weighting, n) =
+            (field(0), field(1), field(2), field(3), field(4) as usize);
         if version != FORMAT_VERSION {
-            return Err(VocabularyError::UnsupportedVersion { found: version, supported: FORMAT_VERSION });
+            return Err(VocabularyError::UnsupportedVersion {
+                found: version,
+                supported: FORMAT_VERSION,
+            });
         }
         if n < 2 {
             return Err(VocabularyError::Malformed(format!("node count {n} < 2")));
@@ -92,7 +109,11 @@ impl Vocabulary {
             )));
         }
         let body_len = bytes.len() - 8;
-        let stored = u64::from_le_bytes(bytes[body_len..].try_into().map_err(|_| truncated(needed, bytes.len()))?);
+        let stored = u64::from_le_bytes(
+            bytes[body_len..]
+                .try_into()
+                .map_err(|_| truncated(needed, bytes.len()))?,
+        );
         if checksum(&bytes[..body_len]) != stored {
             return Err(VocabularyError::ChecksumMismatch);
         }
@@ -101,7 +122,11 @@ impl Vocabulary {
         let (parent_bytes, rest) = bytes[HEADER_LEN..body_len].split_at(4 * m);
         let (descriptor_bytes, weight_bytes) = rest.split_at(32 * m);
         let parents = std::iter::once(0)
-            .chain(parent_bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+            .chain(
+                parent_bytes
+                    .chunks_exact(4)
+                    .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            )
             .collect();
         let descriptors = std::iter::once([0u8; 32])
             .chain(descriptor_bytes.chunks_exact(32).map(|c| {
@@ -111,9 +136,11 @@ impl Vocabulary {
             }))
             .collect();
         let weights = std::iter::once(0.0)
-            .chain(weight_bytes.chunks_exact(8).map(|c| {
-                f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]])
-            }))
+            .chain(
+                weight_bytes
+                    .chunks_exact(8)
+                    .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]])),
+            )
             .collect();
         Vocabulary::from_raw_parts(k, levels, weighting, parents, descriptors, weights)
     }
@@ -137,7 +164,10 @@ impl Vocabulary {
 }
 
 fn truncated(needed: u64, available: usize) -> VocabularyError {
-    VocabularyError::Truncated { needed, available: available as u64 }
+    VocabularyError::Truncated {
+        needed,
+        available: available as u64,
+    }
 }
 
 /// FNV-1a over little-endian u64 words (the tail zero-padded), with a final avalanche:
@@ -147,7 +177,8 @@ fn checksum(bytes: &[u8]) -> u64 {
     let mut h: u64 = 0xCBF2_9CE4_8422_2325 ^ bytes.len() as u64;
     let mut words = bytes.chunks_exact(8);
     for w in &mut words {
-        h = (h ^ u64::from_le_bytes([w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]])).wrapping_mul(PRIME);
+        h = (h ^ u64::from_le_bytes([w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]]))
+            .wrapping_mul(PRIME);
         h ^= h >> 29;
     }
     let mut tail = [0u8; 8];
@@ -184,7 +215,10 @@ mod tests {
     fn every_truncation_and_every_flipped_byte_is_an_error() {
         let bytes = tiny().to_bytes();
         for len in 0..bytes.len() {
-            assert!(Vocabulary::from_bytes(&bytes[..len]).is_err(), "length {len}");
+            assert!(
+                Vocabulary::from_bytes(&bytes[..len]).is_err(),
+                "length {len}"
+            );
         }
         for i in 0..bytes.len() {
             let mut b = bytes.clone();
@@ -193,23 +227,41 @@ mod tests {
         }
         let mut longer = bytes.clone();
         longer.push(0);
-        assert!(matches!(Vocabulary::from_bytes(&longer), Err(VocabularyError::Malformed(_))));
+        assert!(matches!(
+            Vocabulary::from_bytes(&longer),
+            Err(VocabularyError::Malformed(_))
+        ));
     }
 
     #[test]
     fn specific_errors() {
         let bytes = tiny().to_bytes();
-        assert!(matches!(Vocabulary::from_bytes(b"not a vocabulary at all, no no no"), Err(VocabularyError::BadMagic)));
-        assert!(matches!(Vocabulary::from_bytes(&bytes[..100]), Err(VocabularyError::Truncated { .. })));
+        assert!(matches!(
+            Vocabulary::from_bytes(b"not a vocabulary at all, no no no"),
+            Err(VocabularyError::BadMagic)
+        ));
+        assert!(matches!(
+            Vocabulary::from_bytes(&bytes[..100]),
+            Err(VocabularyError::Truncated { .. })
+        ));
         let mut v2 = bytes.clone();
         v2[8] = 2;
-        assert!(matches!(Vocabulary::from_bytes(&v2), Err(VocabularyError::UnsupportedVersion { found: 2, .. })));
+        assert!(matches!(
+            Vocabulary::from_bytes(&v2),
+            Err(VocabularyError::UnsupportedVersion { found: 2, .. })
+        ));
         let mut flipped = bytes.clone();
         flipped[HEADER_LEN + 20] ^= 1;
-        assert!(matches!(Vocabulary::from_bytes(&flipped), Err(VocabularyError::ChecksumMismatch)));
+        assert!(matches!(
+            Vocabulary::from_bytes(&flipped),
+            Err(VocabularyError::ChecksumMismatch)
+        ));
         // A huge node count in the header is reported as truncation, not an allocation.
         let mut huge = bytes;
         huge[24..28].copy_from_slice(&u32::MAX.to_le_bytes());
-        assert!(matches!(Vocabulary::from_bytes(&huge), Err(VocabularyError::Truncated { .. })));
+        assert!(matches!(
+            Vocabulary::from_bytes(&huge),
+            Err(VocabularyError::Truncated { .. })
+        ));
     }
 }

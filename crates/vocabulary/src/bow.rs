@@ -142,12 +142,9 @@ impl FeatureVector {
         &'a self,
         other: &'a FeatureVector,
     ) -> impl Iterator<Item = (NodeId, &'a [u32], &'a [u32])> + 'a {
-        self.nodes.iter().filter_map(move |(&n, a)| {
-            other
-                .nodes
-                .get(&n)
-                .map(|b| (n, a.as_slice(), b.as_slice()))
-        })
+        self.nodes
+            .iter()
+            .filter_map(move |(&n, a)| other.nodes.get(&n).map(|b| (n, a.as_slice(), b.as_slice())))
     }
 }
 
@@ -188,6 +185,9 @@ mod tests {
             b.push(n, f);
         }
         let common: Vec<_> = a.common_nodes(&b).collect();
-        assert_eq!(common, vec![(3, &[1, 2][..], &[0][..]), (9, &[3][..], &[2][..])]);
+        assert_eq!(
+            common,
+            vec![(3, &[1, 2][..], &[0][..]), (9, &[3][..], &[2][..])]
+        );
     }
 }

@@ -61,7 +61,10 @@ fn distinct_groups(all: &[Descriptor], members: &[u32], k: usize) -> Option<Vec<
         match groups.iter().position(|g| &g.centroid == d) {
             Some(i) => groups[i].members.push(m),
             None if groups.len() == k => return None,
-            None => groups.push(Cluster { centroid: *d, members: vec![m] }),
+            None => groups.push(Cluster {
+                centroid: *d,
+                members: vec![m],
+            }),
         }
     }
     Some(groups)
@@ -70,7 +73,12 @@ fn distinct_groups(all: &[Descriptor], members: &[u32], k: usize) -> Option<Vec<
 /// k-means++: first centroid uniform, each next one drawn with probability proportional to
 /// the squared Hamming distance to the nearest chosen centroid. Stops early if every
 /// remaining descriptor coincides with a chosen one.
-fn seed_kmeans_pp<R: Rng>(all: &[Descriptor], members: &[u32], k: usize, rng: &mut R) -> Vec<Descriptor> {
+fn seed_kmeans_pp<R: Rng>(
+    all: &[Descriptor],
+    members: &[u32],
+    k: usize,
+    rng: &mut R,
+) -> Vec<Descriptor> {
     let first = all[members[rng.random_range(0..members.len())] as usize];
     let mut centroids = vec![first];
     let mut nearest: Vec<u64> = members

@@ -79,7 +79,12 @@ impl Database {
     /// The `max_results` best-scoring entries accepted by `keep` that share at least one word
     /// with `bow`, as (id, L1 score in `(0, 1]`), best first (ties: smaller id first).
     /// `keep` is called once per candidate; pass e.g. `|id| !excluded.contains(&id)`.
-    pub fn query(&self, bow: &BowVector, max_results: usize, keep: impl Fn(EntryId) -> bool) -> Vec<(EntryId, f64)> {
+    pub fn query(
+        &self,
+        bow: &BowVector,
+        max_results: usize,
+        keep: impl Fn(EntryId) -> bool,
+    ) -> Vec<(EntryId, f64)> {
         let mut query = bow.clone();
         query.normalize_l1();
         let mut scores: HashMap<EntryId, Option<f64>> = HashMap::new();
@@ -91,8 +96,10 @@ impl Database {
                 }
             }
         }
-        let mut ranked: Vec<(EntryId, f64)> =
-            scores.into_iter().filter_map(|(id, s)| s.map(|s| (id, s.min(1.0)))).collect();
+        let mut ranked: Vec<(EntryId, f64)> = scores
+            .into_iter()
+            .filter_map(|(id, s)| s.map(|s| (id, s.min(1.0))))
+            .collect();
         ranked.sort_unstable_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
         ranked.truncate(max_results);
         ranked
@@ -101,7 +108,11 @@ impl Database {
     /// Number of distinct words each entry accepted by `keep` shares with `bow` (entries
     /// sharing none are omitted), in increasing id order: the first filter of ORB-SLAM's
     /// `DetectLoopCandidates` / `DetectRelocalizationCandidates`.
-    pub fn common_words(&self, bow: &BowVector, keep: impl Fn(EntryId) -> bool) -> Vec<(EntryId, u32)> {
+    pub fn common_words(
+        &self,
+        bow: &BowVector,
+        keep: impl Fn(EntryId) -> bool,
+    ) -> Vec<(EntryId, u32)> {
         let mut counts: HashMap<EntryId, Option<u32>> = HashMap::new();
         for (w, _) in bow.iter() {
             for &(id, _) in self.postings(w) {
@@ -110,7 +121,10 @@ impl Database {
                 }
             }
         }
-        let mut out: Vec<(EntryId, u32)> = counts.into_iter().filter_map(|(id, c)| c.map(|c| (id, c))).collect();
+        let mut out: Vec<(EntryId, u32)> = counts
+            .into_iter()
+            .filter_map(|(id, c)| c.map(|c| (id, c)))
+            .collect();
         out.sort_unstable();
         out
     }

@@ -30,7 +30,14 @@ impl Vocabulary {
     /// [`VocabularyError::Io`] when writing fails.
     pub fn write_dbow2_text<W: Write>(&self, writer: W) -> Result<()> {
         let mut w = BufWriter::new(writer);
-        write!(w, "{} {} {} {}", self.branching(), self.levels(), L1_SCORING, self.weighting().code())?;
+        write!(
+            w,
+            "{} {} {} {}",
+            self.branching(),
+            self.levels(),
+            L1_SCORING,
+            self.weighting().code()
+        )?;
         let (parents, descriptors, weights) = self.raw_parts();
         for node in 1..parents.len() {
             let leaf = u8::from(self.node_word(node as NodeId).is_some());
@@ -80,12 +87,17 @@ impl Vocabulary {
             weights.push(weight);
             leaf_flags.push((n, leaf));
         }
-        let vocabulary = Vocabulary::from_raw_parts(k, levels, weighting, parents, descriptors, weights)?;
+        let vocabulary =
+            Vocabulary::from_raw_parts(k, levels, weighting, parents, descriptors, weights)?;
         for (node, &(line, leaf)) in leaf_flags.iter().enumerate().skip(1) {
             if vocabulary.node_word(node as NodeId).is_some() != leaf {
                 return Err(parse_error(
                     line,
-                    if leaf { "node marked as leaf has children" } else { "node marked as inner has no children" },
+                    if leaf {
+                        "node marked as leaf has children"
+                    } else {
+                        "node marked as inner has no children"
+                    },
                 ));
             }
         }
@@ -110,12 +122,17 @@ impl Vocabulary {
 }
 
 fn parse_error(line: usize, message: impl Into<String>) -> VocabularyError {
-    VocabularyError::Parse { line, message: message.into() }
+    VocabularyError::Parse {
+        line,
+        message: message.into(),
+    }
 }
 
 fn parse_field<T: std::str::FromStr>(line: usize, token: Option<&str>, what: &str) -> Result<T> {
     let token = token.ok_or_else(|| parse_error(line, format!("missing {what}")))?;
-    token.parse().map_err(|_| parse_error(line, format!("bad {what} {token:?}")))
+    token
+        .parse()
+        .map_err(|_| parse_error(line, format!("bad {what} {token:?}")))
 }
 
 fn parse_header(line: usize, text: &str) -> Result<(u32, u32, Weighting)> {
@@ -128,9 +145,13 @@ fn parse_header(line: usize, text: &str) -> Result<(u32, u32, Weighting)> {
         return Err(parse_error(line, "header has more than 4 fields"));
     }
     if scoring != L1_SCORING {
-        return Err(parse_error(line, format!("scoring type {scoring} unsupported (only L1 = 0)")));
+        return Err(parse_error(
+            line,
+            format!("scoring type {scoring} unsupported (only L1 = 0)"),
+        ));
     }
-    let weighting = Weighting::from_code(weighting).map_err(|e| parse_error(line, e.to_string()))?;
+    let weighting =
+        Weighting::from_code(weighting).map_err(|e| parse_error(line, e.to_string()))?;
     Ok((k, levels, weighting))
 }
 
@@ -140,7 +161,12 @@ fn parse_node(line: usize, text: &str) -> Result<(NodeId, bool, Descriptor, f64)
     let leaf = match parse_field::<u32>(line, t.next(), "leaf flag")? {
         0 => false,
         1 => true,
-        other => return Err(parse_error(line, format!("leaf flag {other} is not 0 or 1"))),
+        other => {
+            return Err(parse_error(
+                line,
+                format!("leaf flag {other} is not 0 or 1"),
+            ))
+        }
     };
     let mut descriptor = [0u8; 32];
     for b in &mut descriptor {
@@ -215,6 +241,9 @@ mod tests {
         assert!(Vocabulary::read_dbow2_text("".as_bytes()).is_err());
         // Parent after child: structural error.
         let forward = text.replacen("\n0 0 1 1", "\n3 0 1 1", 1);
-        assert!(matches!(Vocabulary::read_dbow2_text(forward.as_bytes()), Err(VocabularyError::Malformed(_))));
+        assert!(matches!(
+            Vocabulary::read_dbow2_text(forward.as_bytes()),
+            Err(VocabularyError::Malformed(_))
+        ));
     }
 }

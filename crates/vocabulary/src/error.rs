@@ -16,7 +16,9 @@ pub enum VocabularyError {
     #[error("not a ferroslam vocabulary file (bad magic bytes)")]
     BadMagic,
     /// The binary file has a format version this build cannot read.
-    #[error("unsupported vocabulary format version {found} (this build reads version {supported})")]
+    #[error(
+        "unsupported vocabulary format version {found} (this build reads version {supported})"
+    )]
     UnsupportedVersion {
         /// Version in the file.
         found: u32,

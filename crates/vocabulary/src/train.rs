@@ -30,7 +30,13 @@ pub struct TrainParams {
 impl Default for TrainParams {
     /// `k = 10`, `levels = 6`, TF-IDF, 10 iterations, seed 0.
     fn default() -> Self {
-        TrainParams { k: 10, levels: 6, weighting: Weighting::TfIdf, max_iterations: 10, seed: 0 }
+        TrainParams {
+            k: 10,
+            levels: 6,
+            weighting: Weighting::TfIdf,
+            max_iterations: 10,
+            seed: 0,
+        }
     }
 }
 
@@ -62,16 +68,25 @@ impl Vocabulary {
             return Err(VocabularyError::NoTrainingData);
         }
         if all.len() > u32::MAX as usize {
-            return Err(VocabularyError::InvalidParameter(format!("{} descriptors is too many", all.len())));
+            return Err(VocabularyError::InvalidParameter(format!(
+                "{} descriptors is too many",
+                all.len()
+            )));
         }
         let members: Vec<u32> = (0..all.len() as u32).collect();
         let top = grow(&all, &members, 1, params, params.seed);
 
         let (parents, descriptors) = number_breadth_first(&top);
         let n = parents.len();
-        let weights = vec![1.0; n];
-        let mut vocabulary =
-            Vocabulary::from_raw_parts(params.k, params.levels, params.weighting, parents, descriptors, weights)?;
+        let weights = vec![0.0; n];
+        let mut vocabulary = Vocabulary::from_raw_parts(
+            params.k,
+            params.levels,
+            params.weighting,
+            parents,
+            descriptors,
+            weights,
+        )?;
         vocabulary.set_word_weights(images);
         Ok(vocabulary)
     }
@@ -121,9 +136,21 @@ impl Vocabulary {
 }
 
 /// Clusters `members` into the children of one node at depth `depth - 1`, recursing below.
-fn grow(all: &[Descriptor], members: &[u32], depth: u32, params: &TrainParams, seed: u64) -> Vec<Subtree> {
+fn grow(
+    all: &[Descriptor],
+    members: &[u32],
+    depth: u32,
+    params: &TrainParams,
+    seed: u64,
+) -> Vec<Subtree> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let clusters = k_majority(all, members, params.k as usize, params.max_iterations, &mut rng);
+    let clusters = k_majority(
+        all,
+        members,
+        params.k as usize,
+        params.max_iterations,
+        &mut rng,
+    );
     clusters
         .into_par_iter()
         .enumerate()
@@ -131,11 +158,20 @@ fn grow(all: &[Descriptor], members: &[u32], depth: u32, params: &TrainParams, s
             let first = all[cluster.members[0] as usize];
             let varied = cluster.members.iter().any(|&m| all[m as usize] != first);
             let children = if depth < params.levels && varied {
-                grow(all, &cluster.members, depth + 1, params, child_seed(seed, i as u64))
+                grow(
+                    all,
+                    &cluster.members,
+                    depth + 1,
+                    params,
+                    child_seed(seed, i as u64),
+                )
             } else {
                 Vec::new()
             };
-            Subtree { centroid: cluster.centroid, children }
+            Subtree {
+                centroid: cluster.centroid,
+                children,
+            }
         })
         .collect()
 }
@@ -172,8 +208,14 @@ mod tests {
     #[test]
     fn rejects_empty_and_bad_params() {
         let p = TrainParams::default();
-        assert!(matches!(Vocabulary::train(&[], &p), Err(VocabularyError::NoTrainingData)));
-        assert!(matches!(Vocabulary::train(&[vec![]], &p), Err(VocabularyError::NoTrainingData)));
+        assert!(matches!(
+            Vocabulary::train(&[], &p),
+            Err(VocabularyError::NoTrainingData)
+        ));
+        assert!(matches!(
+            Vocabulary::train(&[vec![]], &p),
+            Err(VocabularyError::NoTrainingData)
+        ));
         let bad = TrainParams { k: 1, ..p.clone() };
         assert!(Vocabulary::train(&[vec![[0; 32]]], &bad).is_err());
         let bad = TrainParams { levels: 0, ..p };

@@ -89,7 +89,10 @@ impl Vocabulary {
                 )));
             }
             if !weights[i].is_finite() {
-                return Err(VocabularyError::Malformed(format!("node {i} has weight {}", weights[i])));
+                return Err(VocabularyError::Malformed(format!(
+                    "node {i} has weight {}",
+                    weights[i]
+                )));
             }
             child_count[p + 1] += 1;
         }
@@ -100,10 +103,9 @@ impl Vocabulary {
         let child_start = child_count;
         let mut fill = child_start.clone();
         let mut children = vec![0; n - 1];
-        for i in 1..n {
-            let p = parents[i] as usize;
-            children[fill[p] as usize] = i as NodeId;
-            fill[p] += 1;
+        for (i, &p) in parents.iter().enumerate().skip(1) {
+            children[fill[p as usize] as usize] = i as NodeId;
+            fill[p as usize] += 1;
         }
         let mut word_of_node = vec![NOT_A_WORD; n];
         let mut node_of_word = Vec::new();
@@ -155,7 +157,9 @@ impl Vocabulary {
 
     /// Parent of `node` (`None` for the root or an unknown id).
     pub fn parent(&self, node: NodeId) -> Option<NodeId> {
-        (node != 0).then(|| self.parents.get(node as usize).copied()).flatten()
+        (node != 0)
+            .then(|| self.parents.get(node as usize).copied())
+            .flatten()
     }
 
     /// Children of `node` in increasing id order (empty for a word or an unknown id).
@@ -215,7 +219,11 @@ impl Vocabulary {
     ///
     /// As in DBoW2, features whose word weighs 0 (an IDF word seen in every training image)
     /// are left out of both vectors.
-    pub fn transform(&self, descriptors: &[Descriptor], levels_up: u32) -> (BowVector, FeatureVector) {
+    pub fn transform(
+        &self,
+        descriptors: &[Descriptor],
+        levels_up: u32,
+    ) -> (BowVector, FeatureVector) {
         let group_depth = self.levels.saturating_sub(levels_up);
         let mut pairs = Vec::with_capacity(descriptors.len());
         let mut features = FeatureVector::default();
@@ -254,7 +262,8 @@ impl Vocabulary {
     fn descend(&self, d: &Descriptor, group_depth: u32) -> (WordId, NodeId) {
         let (mut node, mut group) = (0usize, 0);
         loop {
-            let kids = &self.children[self.child_start[node] as usize..self.child_start[node + 1] as usize];
+            let kids = &self.children
+                [self.child_start[node] as usize..self.child_start[node + 1] as usize];
             // from_raw_parts guarantees that every non-root leaf is a word and the root has children.
             let Some(&first) = kids.first() else {
                 return (self.word_of_node[node], group);
@@ -277,7 +286,9 @@ impl Vocabulary {
 /// Validates the recorded branching factor and depth.
 pub(crate) fn check_shape(k: u32, levels: u32) -> Result<()> {
     if k < 2 {
-        return Err(VocabularyError::InvalidParameter(format!("branching factor k = {k} < 2")));
+        return Err(VocabularyError::InvalidParameter(format!(
+            "branching factor k = {k} < 2"
+        )));
     }
     if !(1..=MAX_LEVELS).contains(&levels) {
         return Err(VocabularyError::InvalidParameter(format!(
@@ -298,8 +309,15 @@ mod tests {
         d[2] = [0xFF; 32];
         d[3] = [0x00; 32];
         d[4] = [0x0F; 32];
-        Vocabulary::from_raw_parts(2, 2, Weighting::TfIdf, vec![0, 0, 0, 1, 1], d, vec![0.0, 0.0, 2.0, 1.0, 0.5])
-            .unwrap()
+        Vocabulary::from_raw_parts(
+            2,
+            2,
+            Weighting::TfIdf,
+            vec![0, 0, 0, 1, 1],
+            d,
+            vec![0.0, 0.0, 2.0, 1.0, 0.5],
+        )
+        .unwrap()
     }
 
     #[test]
@@ -334,7 +352,10 @@ mod tests {
             assert!((x - ex).abs() < 1e-12);
         }
         // Grouped at depth 1: node 2 (a shallow word) and node 1.
-        assert_eq!(fv.iter().collect::<Vec<_>>(), vec![(1, &[1, 2, 3][..]), (2, &[0][..])]);
+        assert_eq!(
+            fv.iter().collect::<Vec<_>>(),
+            vec![(1, &[1, 2, 3][..]), (2, &[0][..])]
+        );
         let (_, at_root) = v.transform(&descs, 5);
         assert_eq!(at_root.get(0), Some(&[0, 1, 2, 3][..]));
     }
@@ -343,10 +364,45 @@ mod tests {
     fn rejects_bad_trees() {
         let d = vec![[0u8; 32]; 3];
         let w = vec![0.0; 3];
-        assert!(Vocabulary::from_raw_parts(2, 2, Weighting::Tf, vec![0, 2, 0], d.clone(), w.clone()).is_err());
-        assert!(Vocabulary::from_raw_parts(2, 1, Weighting::Tf, vec![0, 0, 1], d.clone(), w.clone()).is_err());
-        assert!(Vocabulary::from_raw_parts(1, 2, Weighting::Tf, vec![0, 0, 0], d.clone(), w.clone()).is_err());
-        assert!(Vocabulary::from_raw_parts(2, 2, Weighting::Tf, vec![0], vec![[0; 32]], vec![0.0]).is_err());
-        assert!(Vocabulary::from_raw_parts(2, 2, Weighting::Tf, vec![0, 0, 0], d, vec![0.0, f64::NAN, 1.0]).is_err());
+        assert!(Vocabulary::from_raw_parts(
+            2,
+            2,
+            Weighting::Tf,
+            vec![0, 2, 0],
+            d.clone(),
+            w.clone()
+        )
+        .is_err());
+        assert!(Vocabulary::from_raw_parts(
+            2,
+            1,
+            Weighting::Tf,
+            vec![0, 0, 1],
+            d.clone(),
+            w.clone()
+        )
+        .is_err());
+        assert!(Vocabulary::from_raw_parts(
+            1,
+            2,
+            Weighting::Tf,
+            vec![0, 0, 0],
+            d.clone(),
+            w.clone()
+        )
+        .is_err());
+        assert!(
+            Vocabulary::from_raw_parts(2, 2, Weighting::Tf, vec![0], vec![[0; 32]], vec![0.0])
+                .is_err()
+        );
+        assert!(Vocabulary::from_raw_parts(
+            2,
+            2,
+            Weighting::Tf,
+            vec![0, 0, 0],
+            d,
+            vec![0.0, f64::NAN, 1.0]
+        )
+        .is_err());
     }
 }

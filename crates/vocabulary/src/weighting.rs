@@ -40,7 +40,9 @@ impl Weighting {
             1 => Ok(Weighting::Tf),
             2 => Ok(Weighting::Idf),
             3 => Ok(Weighting::Binary),
-            _ => Err(VocabularyError::Malformed(format!("unknown weighting code {code}"))),
+            _ => Err(VocabularyError::Malformed(format!(
+                "unknown weighting code {code}"
+            ))),
         }
     }
 
@@ -56,7 +58,12 @@ mod tests {
 
     #[test]
     fn codes_round_trip_and_reject_unknown() {
-        for w in [Weighting::TfIdf, Weighting::Tf, Weighting::Idf, Weighting::Binary] {
+        for w in [
+            Weighting::TfIdf,
+            Weighting::Tf,
+            Weighting::Idf,
+            Weighting::Binary,
+        ] {
             assert_eq!(Weighting::from_code(w.code()).unwrap(), w);
         }
         assert!(Weighting::from_code(4).is_err());

@@ -27,16 +27,32 @@ fn noisy(d: &Descriptor, flips: usize, rng: &mut ChaCha8Rng) -> Descriptor {
 
 /// `n_images` images of `per_image` noisy observations of their own landmarks (disjoint
 /// between images), plus the landmark table.
-fn scene(n_images: usize, per_image: usize, flips: usize, seed: u64) -> (Vec<Vec<Descriptor>>, Vec<Vec<Descriptor>>) {
+fn scene(
+    n_images: usize,
+    per_image: usize,
+    flips: usize,
+    seed: u64,
+) -> (Vec<Vec<Descriptor>>, Vec<Vec<Descriptor>>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let landmarks: Vec<Vec<Descriptor>> =
-        (0..n_images).map(|_| (0..per_image).map(|_| random_descriptor(&mut rng)).collect()).collect();
-    let images = landmarks.iter().map(|l| l.iter().map(|d| noisy(d, flips, &mut rng)).collect()).collect();
+    let landmarks: Vec<Vec<Descriptor>> = (0..n_images)
+        .map(|_| {
+            (0..per_image)
+                .map(|_| random_descriptor(&mut rng))
+                .collect()
+        })
+        .collect();
+    let images = landmarks
+        .iter()
+        .map(|l| l.iter().map(|d| noisy(d, flips, &mut rng)).collect())
+        .collect();
     (images, landmarks)
 }
 
 fn temp_path(name: &str) -> std::path::PathBuf {
-    std::env::temp_dir().join(format!("ferroslam-vocabulary-{}-{name}", std::process::id()))
+    std::env::temp_dir().join(format!(
+        "ferroslam-vocabulary-{}-{name}",
+        std::process::id()
+    ))
 }
 
 #[test]
@@ -44,23 +60,40 @@ fn words_never_mix_clusters() {
     // 40 centres, 50 samples each at 12 flipped bits (centres are ~128 bits apart).
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let centres: Vec<Descriptor> = (0..40).map(|_| random_descriptor(&mut rng)).collect();
-    let images: Vec<Vec<Descriptor>> =
-        centres.iter().map(|c| (0..50).map(|_| noisy(c, 12, &mut rng)).collect()).collect();
-    let params = TrainParams { k: 10, levels: 2, ..TrainParams::default() };
+    let images: Vec<Vec<Descriptor>> = centres
+        .iter()
+        .map(|c| (0..50).map(|_| noisy(c, 12, &mut rng)).collect())
+        .collect();
+    let params = TrainParams {
+        k: 10,
+        levels: 2,
+        ..TrainParams::default()
+    };
     let voc = Vocabulary::train(&images, &params).unwrap();
-    assert!(voc.word_count() >= 40 && voc.word_count() <= 100, "{} words", voc.word_count());
+    assert!(
+        voc.word_count() >= 40 && voc.word_count() <= 100,
+        "{} words",
+        voc.word_count()
+    );
     let mut owner = vec![None; voc.word_count()];
     for (c, image) in images.iter().enumerate() {
         for d in image {
             let w = voc.quantize(d) as usize;
-            assert!(owner[w].is_none() || owner[w] == Some(c), "word {w} holds clusters {:?} and {c}", owner[w]);
+            assert!(
+                owner[w].is_none() || owner[w] == Some(c),
+                "word {w} holds clusters {:?} and {c}",
+                owner[w]
+            );
             owner[w] = Some(c);
         }
     }
     // Fresh noisy samples land in a word of their own cluster.
     for (c, centre) in centres.iter().enumerate() {
         for _ in 0..10 {
-            assert_eq!(owner[voc.quantize(&noisy(centre, 12, &mut rng)) as usize], Some(c));
+            assert_eq!(
+                owner[voc.quantize(&noisy(centre, 12, &mut rng)) as usize],
+                Some(c)
+            );
         }
     }
     // Each word is seen in exactly one of the 40 images: IDF ln(40).
@@ -72,7 +105,11 @@ fn words_never_mix_clusters() {
 #[test]
 fn noisy_copy_scores_far_higher_against_its_image() {
     let (images, landmarks) = scene(30, 300, 10, 2);
-    let params = TrainParams { k: 10, levels: 3, ..TrainParams::default() };
+    let params = TrainParams {
+        k: 10,
+        levels: 3,
+        ..TrainParams::default()
+    };
     let voc = Vocabulary::train(&images, &params).unwrap();
     let bows: Vec<_> = images.iter().map(|im| voc.transform(im, 1).0).collect();
     let mut db = Database::new();
@@ -100,24 +137,38 @@ fn noisy_copy_scores_far_higher_against_its_image() {
         assert_eq!(top[0].0, i as u32);
         assert!((top[0].1 - own).abs() < 1e-9);
     }
-    assert!(worst_ratio > 1.5, "worst own / best other ratio {worst_ratio}");
+    assert!(
+        worst_ratio > 1.5,
+        "worst own / best other ratio {worst_ratio}"
+    );
 }
 
 #[test]
 fn training_is_deterministic_and_feature_vectors_cover_features() {
     let (images, _) = scene(12, 200, 8, 3);
-    let params = TrainParams { k: 6, levels: 4, seed: 7, ..TrainParams::default() };
+    let params = TrainParams {
+        k: 6,
+        levels: 4,
+        seed: 7,
+        ..TrainParams::default()
+    };
     let a = Vocabulary::train(&images, &params).unwrap();
     let b = Vocabulary::train(&images, &params).unwrap();
     assert_eq!(a, b);
-    assert_eq!((a.branching(), a.levels(), a.weighting()), (6, 4, Weighting::TfIdf));
+    assert_eq!(
+        (a.branching(), a.levels(), a.weighting()),
+        (6, 4, Weighting::TfIdf)
+    );
     let (bow, fv) = a.transform(&images[0], 2);
     assert!((bow.l1_norm() - 1.0).abs() < 1e-12);
     let mut seen: Vec<u32> = Vec::new();
     for (node, features) in fv.iter() {
         // Grouping depth is levels - 2 = 2, shallower only for a word above it.
         let depth = a.depth(node).unwrap();
-        assert!(depth == 2 || (depth < 2 && a.node_word(node).is_some()), "node {node} depth {depth}");
+        assert!(
+            depth == 2 || (depth < 2 && a.node_word(node).is_some()),
+            "node {node} depth {depth}"
+        );
         for &f in features {
             let word_node = a.word_node(a.quantize(&images[0][f as usize])).unwrap();
             let mut n = word_node;
@@ -136,29 +187,55 @@ fn training_is_deterministic_and_feature_vectors_cover_features() {
 #[test]
 fn files_round_trip_and_damaged_files_fail_cleanly() {
     let (images, _) = scene(8, 150, 8, 4);
-    let voc = Vocabulary::train(&images, &TrainParams { k: 5, levels: 3, ..TrainParams::default() }).unwrap();
+    let voc = Vocabulary::train(
+        &images,
+        &TrainParams {
+            k: 5,
+            levels: 3,
+            ..TrainParams::default()
+        },
+    )
+    .unwrap();
     let (bin, txt) = (temp_path("v.bin"), temp_path("v.txt"));
     voc.save(&bin).unwrap();
     let loaded = Vocabulary::load(&bin).unwrap();
     assert_eq!(loaded, voc);
-    assert_eq!(loaded.transform(&images[3], 1), voc.transform(&images[3], 1));
+    assert_eq!(
+        loaded.transform(&images[3], 1),
+        voc.transform(&images[3], 1)
+    );
     voc.save_dbow2_text(&txt).unwrap();
     assert_eq!(Vocabulary::load_dbow2_text(&txt).unwrap(), voc);
 
     let bytes = std::fs::read(&bin).unwrap();
     std::fs::write(&bin, &bytes[..bytes.len() / 2]).unwrap();
-    assert!(matches!(Vocabulary::load(&bin), Err(VocabularyError::Truncated { .. })));
+    assert!(matches!(
+        Vocabulary::load(&bin),
+        Err(VocabularyError::Truncated { .. })
+    ));
     let mut corrupt = bytes.clone();
     corrupt[bytes.len() / 2] ^= 0xFF;
     std::fs::write(&bin, &corrupt).unwrap();
-    assert!(matches!(Vocabulary::load(&bin), Err(VocabularyError::ChecksumMismatch)));
+    assert!(matches!(
+        Vocabulary::load(&bin),
+        Err(VocabularyError::ChecksumMismatch)
+    ));
     let text = std::fs::read_to_string(&txt).unwrap();
     std::fs::write(&txt, &text[..text.len() - 40]).unwrap();
-    assert!(matches!(Vocabulary::load_dbow2_text(&txt), Err(VocabularyError::Parse { .. })));
+    assert!(matches!(
+        Vocabulary::load_dbow2_text(&txt),
+        Err(VocabularyError::Parse { .. })
+    ));
     // A text file is not a binary vocabulary and vice versa.
-    assert!(matches!(Vocabulary::load(&txt), Err(VocabularyError::BadMagic)));
+    assert!(matches!(
+        Vocabulary::load(&txt),
+        Err(VocabularyError::BadMagic)
+    ));
     assert!(Vocabulary::load_dbow2_text(&bin).is_err());
-    assert!(matches!(Vocabulary::load(temp_path("missing")), Err(VocabularyError::Io(_))));
+    assert!(matches!(
+        Vocabulary::load(temp_path("missing")),
+        Err(VocabularyError::Io(_))
+    ));
     let _ = std::fs::remove_file(&bin);
     let _ = std::fs::remove_file(&txt);
 }
