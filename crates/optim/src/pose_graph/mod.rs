@@ -8,15 +8,18 @@
 //! the sparsity once (faer's symbolic Cholesky with its fill-reducing ordering) and
 //! [`optimize_pose_graph`] runs Levenberg-Marquardt with analytic Jacobians on it. Both are
 //! generic over the group through [`PoseGroup`], implemented for `Isometry3<f64>` (6 dof)
-//! and [`ferroslam_geometry::sim3::Sim3`] (7 dof). For ORB-SLAM's `S_i_w` keyframe poses,
+//! and [`ferroslam_geometry::sim3::Sim3`] (7 dof). [`chordal_initialization`] gives SE(3)
+//! graphs a starting point in the global basin when odometry alone would not. For ORB-SLAM's `S_i_w` keyframe poses,
 //! store `X_i = S_i_w^-1` and `Z_ij = S_i_w S_j_w^-1`.
 
+mod chordal;
 mod g2o;
 mod group;
 mod problem;
 mod solve;
 mod symbolic;
 
+pub use chordal::chordal_initialization;
 pub use g2o::{parse_g2o, read_g2o};
 pub use group::{bernoulli_right_jacobian_inverse, PoseGroup};
 pub use problem::{edge_residual, PoseEdge, PoseGraph, Se3PoseGraph, Sim3PoseGraph};

@@ -10,9 +10,11 @@
 use super::group::PoseGroup;
 use super::problem::PoseGraph;
 use crate::error::OptimError;
-use faer::sparse::linalg::solvers::SymbolicLlt;
-use faer::sparse::SymbolicSparseColMat;
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::linalg::LltError;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use faer::Side;
+use nalgebra::SMatrix;
 
 /// Where an edge's blocks land: the free indices of its ends and, if both are free and
 /// distinct, the slot of the off-diagonal block in block column `max(fi, fj)`.
@@ -51,9 +53,19 @@ impl SymbolicPoseGraph {
         graph: &PoseGraph<G, D>,
     ) -> Result<Self, OptimError> {
         graph.validate()?;
+        let incidence: Vec<(usize, usize)> = graph.edges.iter().map(|e| (e.from, e.to)).collect();
+        Self::from_structure(&graph.fixed, &incidence, D)
+    }
+
+    /// The analysis for `dim` unknowns per pose, fixed flags `fixed` and edges `(from, to)`
+    /// (indices already checked against `fixed.len()`).
+    pub(crate) fn from_structure(
+        fixed: &[bool],
+        incidence: &[(usize, usize)],
+        dim: usize,
+    ) -> Result<Self, OptimError> {
         let mut free_poses = Vec::new();
-        let free_index: Vec<Option<usize>> = graph
-            .fixed
+        let free_index: Vec<Option<usize>> = fixed
             .iter()
             .enumerate()
             .map(|(i, &fixed)| {
@@ -64,40 +76,38 @@ impl SymbolicPoseGraph {
             })
             .collect();
         let nfree = free_poses.len();
-        let free_pair =
-            |e: &super::problem::PoseEdge<G, D>| match (free_index[e.from], free_index[e.to]) {
-                (Some(a), Some(b)) if a != b => Some((a.min(b), a.max(b))),
-                _ => None,
-            };
+        let free_pair = |&(i, j): &(usize, usize)| match (free_index[i], free_index[j]) {
+            (Some(a), Some(b)) if a != b => Some((a.min(b), a.max(b))),
+            _ => None,
+        };
         let mut block_rows: Vec<Vec<usize>> = vec![Vec::new(); nfree];
-        for (a, b) in graph.edges.iter().filter_map(free_pair) {
+        for (a, b) in incidence.iter().filter_map(free_pair) {
             block_rows[b].push(a);
         }
         for rows in &mut block_rows {
             rows.sort_unstable();
             rows.dedup();
         }
-        let edge_slots = graph
-            .edges
+        let edge_slots = incidence
             .iter()
             .map(|e| EdgeSlots {
-                free_from: free_index[e.from],
-                free_to: free_index[e.to],
+                free_from: free_index[e.0],
+                free_to: free_index[e.1],
                 // Present by construction of block_rows.
                 cross_slot: free_pair(e).map(|(a, b)| block_rows[b].binary_search(&a).unwrap_or(0)),
             })
             .collect();
 
-        let n = D * nfree;
+        let n = dim * nfree;
         let mut col_ptr = Vec::with_capacity(n + 1);
         let mut row_idx = Vec::new();
         col_ptr.push(0usize);
         for (b, rows) in block_rows.iter().enumerate() {
-            for c in 0..D {
+            for c in 0..dim {
                 for &a in rows {
-                    row_idx.extend(D * a..D * a + D);
+                    row_idx.extend(dim * a..dim * a + dim);
                 }
-                row_idx.extend(D * b..=D * b + c);
+                row_idx.extend(dim * b..=dim * b + c);
                 col_ptr.push(row_idx.len());
             }
         }
@@ -111,11 +121,11 @@ impl SymbolicPoseGraph {
             )
         };
         Ok(Self {
-            fixed: graph.fixed.clone(),
-            incidence: graph.edges.iter().map(|e| (e.from, e.to)).collect(),
+            fixed: fixed.to_vec(),
+            incidence: incidence.to_vec(),
             free_poses,
             edge_slots,
-            dim: D,
+            dim,
             pattern,
             llt,
         })
@@ -153,5 +163,44 @@ impl SymbolicPoseGraph {
             Some(s) => start + self.dim * s + r,
             None => self.pattern.col_ptr()[col + 1] - 1 - (c - r),
         }
+    }
+
+    /// Adds `m` to block `slot` of block column `col` (`None`: the diagonal block, of which
+    /// only the upper triangle is stored). `R` must be the dimension the pattern was built for.
+    pub(crate) fn add_block<const R: usize>(
+        &self,
+        values: &mut [f64],
+        col: usize,
+        slot: Option<usize>,
+        m: &SMatrix<f64, R, R>,
+    ) {
+        debug_assert_eq!(R, self.dim);
+        for c in 0..R {
+            let rows = if slot.is_some() { R } else { c + 1 };
+            for r in 0..rows {
+                values[self.value_index(col, slot, r, c)] += m[(r, c)];
+            }
+        }
+    }
+
+    /// Numeric Cholesky of the matrix with this pattern and `values` (`None` without free
+    /// poses).
+    ///
+    /// # Errors
+    /// [`OptimError::NotPositiveDefinite`] on a non-positive pivot, [`OptimError::Solver`]
+    /// on any other solver failure.
+    pub(crate) fn factorize(&self, values: &[f64]) -> Result<Option<Llt<usize, f64>>, OptimError> {
+        let Some(llt) = &self.llt else {
+            return Ok(None);
+        };
+        let matrix = SparseColMatRef::new(self.pattern.as_ref(), values);
+        Llt::try_new_with_symbolic(llt.clone(), matrix, Side::Upper)
+            .map(Some)
+            .map_err(|e| match e {
+                LltError::Numeric(
+                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
+                ) => OptimError::NotPositiveDefinite { column: index },
+                LltError::Generic(e) => OptimError::Solver(format!("{e:?}")),
+            })
     }
 }
