@@ -2,7 +2,8 @@
 
 use crate::{KeyFrameId, MapPointId};
 
-/// Errors of map mutations on invalid input. Removals (`erase_observation`,
+/// Errors of map mutations on invalid input, and of reading / writing map files
+/// ([`crate::Map::save`], [`crate::Map::load`]). Removals (`erase_observation`,
 /// `set_map_point_bad`, `set_keyframe_bad`) are idempotent and report `false` instead.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MapError {
@@ -63,4 +64,67 @@ pub enum MapError {
         /// Length of the offending array.
         got: usize,
     },
+    /// Reading or writing a map file failed (the `std::io::Error` kind and message).
+    #[error("map file I/O error ({kind:?}): {message}")]
+    MapFileIo {
+        /// Kind of the underlying I/O error.
+        kind: std::io::ErrorKind,
+        /// Its message.
+        message: String,
+    },
+    /// The data does not start with the map-file magic bytes.
+    #[error("not a ferroslam map file: starts with {found:02x?}, expected the magic {expected:?}")]
+    NotAMapFile {
+        /// The first bytes read (up to the magic's length).
+        found: Vec<u8>,
+        /// The expected magic.
+        expected: &'static str,
+    },
+    /// The map file was written in a format version this build cannot read.
+    #[error(
+        "map file format version {found} is not supported (this build reads version \
+         {supported}): load it with the ferroslam version that wrote it"
+    )]
+    UnsupportedMapVersion {
+        /// Version in the file.
+        found: u32,
+        /// The version this build reads and writes.
+        supported: u32,
+    },
+    /// The map file ends early.
+    #[error("map file truncated while reading {what}: needed {needed} bytes, {available} left")]
+    TruncatedMapFile {
+        /// What was being read.
+        what: &'static str,
+        /// Bytes needed.
+        needed: u64,
+        /// Bytes that were left.
+        available: u64,
+    },
+    /// The trailing checksum does not match the content: the file was altered or damaged.
+    #[error(
+        "map file checksum mismatch (stored {stored:#018x}, computed {computed:#018x}): \
+         the file is damaged"
+    )]
+    MapFileChecksum {
+        /// Checksum stored in the file.
+        stored: u64,
+        /// Checksum of the bytes read.
+        computed: u64,
+    },
+    /// The map file has a valid checksum but content that cannot be a map.
+    #[error("corrupt map file: {what}")]
+    CorruptMapFile {
+        /// What is wrong.
+        what: String,
+    },
+}
+
+impl From<std::io::Error> for MapError {
+    fn from(e: std::io::Error) -> Self {
+        MapError::MapFileIo {
+            kind: e.kind(),
+            message: e.to_string(),
+        }
+    }
 }

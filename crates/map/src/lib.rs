@@ -23,6 +23,10 @@
 //! - the spanning tree is acyclic, parents/children agree and reference live keyframes; the
 //!   first keyframe ([`Map::origin`]) is the root and is never culled.
 //!
+//! # Map files
+//! [`Map::save`] / [`Map::load`] (and `save_to_path` / `load_from_path`) write and read the
+//! whole map in a versioned, checksummed binary format, laid out in [`map::persist`].
+//!
 //! Poses follow the workspace convention: `T_c_w` maps world points into the camera.
 //!
 //! # Example

@@ -2,7 +2,7 @@
 //!
 //! The link-changing operations live in the submodules, one concept each: observations
 //! (point <-> keyframe), covisibility, spanning tree (keyframe culling), point geometry and
-//! descriptor, and the consistency check.
+//! descriptor, the consistency check, and map files ([`persist`]).
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -14,6 +14,7 @@ use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId}
 mod consistency;
 mod covisibility;
 mod observations;
+pub mod persist;
 mod point_geometry;
 mod spanning_tree;
 

@@ -1,0 +1,346 @@
+//! Round trips, truncation, corruption, version and magic checks of map files.
+
+use approx::assert_relative_eq;
+use nalgebra::{Isometry3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::{fnv1a64, CHECKSUM_LEN, FORMAT_VERSION, HEADER_LEN};
+use crate::test_support::{map_with_keyframes, observe_all};
+use crate::{KeyFrameId, Map, MapError, MapPointId};
+
+/// Five keyframes with mono and stereo points, connections, refreshed point summaries and
+/// counters, a moved pose, a fused point, a culled keyframe and a point without observations.
+fn sample_map() -> (Map, Vec<KeyFrameId>) {
+    let (mut map, kfs) = map_with_keyframes(5, 60);
+    for i in 0..20 {
+        observe_all(&mut map, &kfs[..3], i);
+    }
+    for i in 20..40 {
+        observe_all(&mut map, &kfs[1..], i);
+    }
+    for i in 40..45 {
+        observe_all(&mut map, &[kfs[0], kfs[4]], i);
+    }
+    for &kf in &kfs {
+        map.update_connections(kf).unwrap();
+    }
+    for (n, mp) in map.map_point_ids().into_iter().enumerate() {
+        map.update_normal_and_depth(mp).unwrap();
+        map.compute_distinctive_descriptor(mp).unwrap();
+        map.increase_visible(mp, 3 + n as u32).unwrap();
+        map.increase_found(mp, n as u32 % 3).unwrap();
+    }
+    let fused = map.keyframe(kfs[0]).unwrap().map_point(41).unwrap();
+    let into = map.keyframe(kfs[0]).unwrap().map_point(43).unwrap();
+    map.replace_map_point(fused, into).unwrap();
+    map.set_keyframe_pose(
+        kfs[3],
+        Isometry3::new(Vector3::new(0.1, -3.0, 0.2), Vector3::new(0.3, 0.2, -0.1)),
+    )
+    .unwrap();
+    assert!(map.set_keyframe_bad(kfs[2]));
+    map.create_map_point(Vector3::new(1.0, 2.0, 3.0), kfs[1])
+        .unwrap();
+    map.check_consistency().unwrap();
+    (map, kfs)
+}
+
+fn to_bytes(map: &Map) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    map.save(&mut bytes).unwrap();
+    bytes
+}
+
+fn load(bytes: &[u8]) -> Result<Map, MapError> {
+    Map::load(&mut &bytes[..])
+}
+
+/// Recomputes the trailing checksum, so that content corruption reaches the decoder.
+fn reseal(bytes: &mut [u8]) {
+    let body = bytes.len() - CHECKSUM_LEN;
+    let checksum = fnv1a64(&[&bytes[..body]]);
+    bytes[body..].copy_from_slice(&checksum.to_le_bytes());
+}
+
+/// Every public observable of the two maps is equal.
+fn assert_same(a: &Map, b: &Map) {
+    assert_eq!(a.pyramid(), b.pyramid());
+    assert_eq!(a.origin(), b.origin());
+    assert_eq!(a.keyframe_ids(), b.keyframe_ids());
+    assert_eq!(a.map_point_ids(), b.map_point_ids());
+    for (x, y) in a.keyframes().zip(b.keyframes()) {
+        assert_eq!(x.id(), y.id());
+        assert_eq!(x.timestamp(), y.timestamp());
+        assert_eq!(x.frame_index(), y.frame_index());
+        assert_eq!(x.T_c_w(), y.T_c_w());
+        let (f, g) = (x.features(), y.features());
+        assert_eq!(f.keypoints, g.keypoints);
+        assert_eq!(f.descriptors, g.descriptors);
+        assert_eq!(f.depth, g.depth);
+        assert_eq!(f.u_right, g.u_right);
+        assert_eq!(f.grid.bounds(), g.grid.bounds());
+        let near = |h: &crate::FrameFeatures| {
+            h.grid
+                .features_in_area(&h.keypoints, 20.0, 10.0, 8.0, None, None)
+        };
+        assert_eq!(near(f), near(g));
+        assert_eq!(x.map_points(), y.map_points());
+        assert_eq!(x.covisibles(), y.covisibles());
+        assert_eq!(a.covisibles(x.id()), b.covisibles(y.id()));
+        assert_eq!(x.parent(), y.parent());
+        assert_eq!(x.children(), y.children());
+    }
+    for (p, q) in a.map_points().zip(b.map_points()) {
+        assert_eq!(p.id(), q.id());
+        assert_eq!(p.position(), q.position());
+        assert_eq!(p.normal(), q.normal());
+        assert_eq!(p.min_distance(), q.min_distance());
+        assert_eq!(p.max_distance(), q.max_distance());
+        assert_eq!(p.descriptor(), q.descriptor());
+        assert_eq!(p.observations(), q.observations());
+        assert_eq!(p.num_observations(), q.num_observations());
+        assert_eq!(p.reference_keyframe(), q.reference_keyframe());
+        assert_eq!(p.first_keyframe(), q.first_keyframe());
+        assert_eq!((p.visible(), p.found()), (q.visible(), q.found()));
+    }
+    // Every id ever allocated (and some never): tombstones resolve alike.
+    for id in 0..64 {
+        let (ka, kb) = (KeyFrameId(id), MapPointId(id));
+        assert_eq!(a.resolve_keyframe_pose(ka), b.resolve_keyframe_pose(ka));
+        assert_eq!(a.resolve_map_point(kb), b.resolve_map_point(kb));
+    }
+}
+
+#[test]
+fn round_trip_restores_every_observable() {
+    let (mut map, kfs) = sample_map();
+    let bytes = to_bytes(&map);
+    let mut loaded = load(&bytes).unwrap();
+    loaded.check_consistency().unwrap();
+    assert_same(&map, &loaded);
+    // Tombstones survive: the culled keyframe's pose and the fused point still resolve.
+    assert!(loaded.keyframe(kfs[2]).is_none());
+    assert!(loaded.resolve_keyframe_pose(kfs[2]).is_some());
+    assert_eq!(
+        to_bytes(&loaded),
+        bytes,
+        "saving a loaded map gives the same bytes"
+    );
+
+    // Both maps keep evolving identically, ids included.
+    for m in [&mut map, &mut loaded] {
+        let kf = m.insert_keyframe(
+            9.0,
+            9,
+            Isometry3::identity(),
+            m.keyframe(kfs[1]).unwrap().features().clone(),
+        );
+        for i in 20..40 {
+            let mp = m.keyframe(kfs[1]).unwrap().map_point(i).unwrap();
+            m.add_observation(mp, kf, i).unwrap();
+        }
+        m.update_connections(kf).unwrap();
+        assert!(m.set_keyframe_bad(kfs[3]));
+    }
+    assert_same(&map, &loaded);
+    loaded.check_consistency().unwrap();
+}
+
+#[test]
+fn empty_and_cleared_maps_round_trip() {
+    let (mut map, _) = sample_map();
+    map.clear();
+    let loaded = load(&to_bytes(&map)).unwrap();
+    assert_same(&map, &loaded);
+    assert_eq!(to_bytes(&loaded), to_bytes(&map));
+    let empty = Map::new(ferroslam_features::ScalePyramid::new(1.5, 3).unwrap());
+    assert_same(&empty, &load(&to_bytes(&empty)).unwrap());
+}
+
+#[test]
+fn path_helpers_round_trip_and_report_missing_files() {
+    let (map, _) = sample_map();
+    let dir = std::env::temp_dir().join(format!("ferroslam-map-persist-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("map.fslam");
+    map.save_to_path(&path).unwrap();
+    assert_same(&map, &Map::load_from_path(&path).unwrap());
+
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes.push(0);
+    std::fs::write(&path, &bytes).unwrap();
+    assert!(matches!(
+        Map::load_from_path(&path),
+        Err(MapError::CorruptMapFile { .. })
+    ));
+
+    let missing = Map::load_from_path(dir.join("missing.fslam"));
+    assert!(matches!(
+        missing,
+        Err(MapError::MapFileIo {
+            kind: std::io::ErrorKind::NotFound,
+            ..
+        })
+    ));
+    let unwritable = map.save_to_path(dir.join("no-such-dir").join("map.fslam"));
+    assert!(matches!(unwritable, Err(MapError::MapFileIo { .. })));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn load_consumes_exactly_one_map() {
+    let (map, _) = sample_map();
+    let mut bytes = to_bytes(&map);
+    let one = bytes.len();
+    bytes.extend_from_slice(b"next");
+    let mut r = &bytes[..];
+    Map::load(&mut r).unwrap();
+    assert_eq!(r, b"next");
+    assert_eq!(bytes.len() - r.len(), one);
+}
+
+#[test]
+fn every_truncation_fails_cleanly() {
+    let (map, kfs) = map_with_keyframes(2, 3);
+    let mut map = map;
+    observe_all(&mut map, &kfs, 1);
+    map.update_connections(kfs[1]).unwrap();
+    let bytes = to_bytes(&map);
+    for len in 0..bytes.len() {
+        match load(&bytes[..len]) {
+            Err(MapError::TruncatedMapFile { .. }) => {}
+            other => panic!("prefix of {len}/{} bytes: {other:?}", bytes.len()),
+        }
+    }
+}
+
+#[test]
+fn every_flipped_byte_is_detected() {
+    let (map, kfs) = map_with_keyframes(2, 3);
+    let mut map = map;
+    observe_all(&mut map, &kfs, 1);
+    let bytes = to_bytes(&map);
+    for i in 0..bytes.len() {
+        let mut bad = bytes.clone();
+        bad[i] ^= 0x10;
+        let err = load(&bad).expect_err(&format!("flipped byte {i} accepted"));
+        let expected = match i {
+            0..8 => matches!(err, MapError::NotAMapFile { .. }),
+            8..12 => matches!(err, MapError::UnsupportedMapVersion { .. }),
+            // Payload length: a longer one runs out of bytes, a shorter one misreads.
+            12..HEADER_LEN => matches!(
+                err,
+                MapError::TruncatedMapFile { .. } | MapError::MapFileChecksum { .. }
+            ),
+            _ => matches!(err, MapError::MapFileChecksum { .. }),
+        };
+        assert!(expected, "flipped byte {i}: {err}");
+    }
+}
+
+#[test]
+fn wrong_magic_and_version_are_named() {
+    let (map, _) = sample_map();
+    let mut bytes = to_bytes(&map);
+    bytes[8..12].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
+    let err = load(&bytes).unwrap_err();
+    assert_eq!(
+        err,
+        MapError::UnsupportedMapVersion {
+            found: FORMAT_VERSION + 1,
+            supported: FORMAT_VERSION
+        }
+    );
+    assert!(err.to_string().contains("version 2"), "{err}");
+
+    let err = load(b"ply\nformat ascii 1.0\n").unwrap_err();
+    assert!(matches!(err, MapError::NotAMapFile { ref found, .. } if found == b"ply\nform"));
+    assert!(
+        err.to_string().contains("not a ferroslam map file"),
+        "{err}"
+    );
+    assert!(matches!(
+        load(b"FSL"),
+        Err(MapError::TruncatedMapFile { .. })
+    ));
+    assert!(matches!(load(b"FSX"), Err(MapError::NotAMapFile { .. })));
+}
+
+#[test]
+fn huge_declared_lengths_do_not_allocate() {
+    let (map, _) = sample_map();
+    let mut bytes = to_bytes(&map);
+    // The payload length field.
+    bytes[12..20].copy_from_slice(&u64::MAX.to_le_bytes());
+    assert!(matches!(
+        load(&bytes),
+        Err(MapError::TruncatedMapFile { .. })
+    ));
+
+    // The keyframe count, 8 bytes after the KEYF tag and its section length, with a valid
+    // checksum so that the decoder sees it.
+    let mut bytes = to_bytes(&map);
+    let at = bytes.windows(4).position(|w| w == b"KEYF").unwrap() + 12;
+    bytes[at..at + 8].copy_from_slice(&(u64::MAX / 2).to_le_bytes());
+    reseal(&mut bytes);
+    let err = load(&bytes).unwrap_err();
+    assert!(
+        matches!(&err, MapError::CorruptMapFile { what } if what.contains("items declared")),
+        "{err}"
+    );
+}
+
+#[test]
+fn resealed_random_corruption_never_panics() {
+    let (map, _) = sample_map();
+    let bytes = to_bytes(&map);
+    let seed = 7;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut rejected = 0;
+    for _ in 0..400 {
+        let mut bad = bytes.clone();
+        for _ in 0..rng.random_range(1..4) {
+            let i = rng.random_range(HEADER_LEN..bytes.len() - CHECKSUM_LEN);
+            bad[i] = rng.random();
+        }
+        reseal(&mut bad);
+        // Either a clean error or a map that passes the consistency check (a changed float).
+        match load(&bad) {
+            Ok(m) => m.check_consistency().unwrap(),
+            Err(e) => {
+                assert!(!e.to_string().is_empty());
+                rejected += 1;
+            }
+        }
+    }
+    assert!(rejected > 0, "seed {seed}: no corruption was rejected");
+}
+
+#[test]
+fn inconsistent_content_is_rejected() {
+    // A point whose observation the keyframe slot does not hold: valid encoding, bad map.
+    let (mut map, kfs) = map_with_keyframes(2, 4);
+    let mp = observe_all(&mut map, &kfs, 2);
+    map.keyframes.get_mut(&kfs[1]).unwrap().map_points[2] = None;
+    let err = load(&to_bytes(&map)).unwrap_err();
+    assert!(
+        matches!(&err, MapError::CorruptMapFile { what } if what.contains(&mp.to_string())),
+        "{err}"
+    );
+}
+
+#[test]
+fn poses_are_bit_exact() {
+    let (mut map, kfs) = map_with_keyframes(1, 2);
+    let pose = Isometry3::new(Vector3::new(1e-17, 3.3, -7.0), Vector3::new(0.1, 1.0, 2.9));
+    map.set_keyframe_pose(kfs[0], pose).unwrap();
+    let loaded = load(&to_bytes(&map)).unwrap();
+    let got = loaded.keyframe(kfs[0]).unwrap().T_c_w();
+    assert_eq!(got.rotation.coords, pose.rotation.coords);
+    assert_relative_eq!(
+        got.translation.vector,
+        pose.translation.vector,
+        epsilon = 0.0
+    );
+}
