@@ -1,17 +1,28 @@
-"""Trajectory plots (matplotlib, Agg backend: works headless)."""
+"""Trajectory and map plots (matplotlib, Agg backend: works headless).
+
+Figures are built with ``matplotlib.figure.Figure`` and an Agg canvas, never through
+``pyplot``, so nothing here needs a display or touches pyplot's global state. Positions are
+camera centres of ``T_w_c`` (camera to world) in metres.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Union
+from typing import Any, Optional, Union
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from ._validate import finite_array
 from .trajectory import Trajectory
 
-__all__ = ["plot_trajectory_top_view", "top_view_axes"]
+__all__ = [
+    "plot_map",
+    "plot_trajectories",
+    "plot_trajectory_top_view",
+    "top_view_axes",
+]
 
 _AXIS_NAMES = "xyz"
 
@@ -37,13 +48,141 @@ def plot_trajectory_top_view(
     Positions are the camera centres of ``T_w_c`` in metres; pass an aligned estimate
     (e.g. ``ate(...).aligned``) to compare it with the reference. Returns the written path.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     shown = [est] + ([ref] if ref is not None else [])
     a, b = top_view_axes(*shown)
-    fig = Figure(figsize=(6.4, 5.4), dpi=120)
-    FigureCanvasAgg(fig)
+    fig = _figure((6.4, 5.4))
     ax = fig.add_subplot(1, 1, 1)
+    _draw_view(ax, est, ref, a, b, title)
+    return _save(fig, path)
+
+
+def plot_trajectories(
+    estimate: Union[Trajectory, np.ndarray],
+    reference: Optional[Union[Trajectory, np.ndarray]] = None,
+    path: Optional[Union[str, Path]] = None,
+) -> Figure:
+    """Top and side views of ``estimate`` (and ``reference``, e.g. ground truth).
+
+    The top view shows the two world axes of widest extent (:func:`top_view_axes`), the side
+    view the wider of those two against the remaining axis, both with equal scaling. Pass an
+    aligned estimate (e.g. ``ate(...).aligned``) to compare it with the reference.
+
+    Args:
+        estimate: :class:`Trajectory` or ``(N, 4, 4)`` poses ``T_w_c``, ``N >= 1``.
+        reference: optional, same kinds.
+        path: if given, the figure is also saved there (PNG by suffix; folders created).
+
+    Returns:
+        The matplotlib ``Figure`` (two axes).
+
+    Raises:
+        ValueError: naming ``estimate`` / ``reference`` for wrong shapes, NaN/inf or an
+            empty estimate.
+    """
+    est = _trajectory(estimate, "estimate")
+    if not len(est):
+        raise ValueError("estimate is empty: nothing to plot")
+    ref = None if reference is None else _trajectory(reference, "reference")
+    a, b = top_view_axes(*([est] + ([ref] if ref is not None else [])))
+    side = 3 - a - b
+    positions = np.concatenate([t.positions for t in (est, ref) if t is not None])
+    extent = np.ptp(positions, axis=0)
+    wide = a if extent[a] >= extent[b] else b
+    fig = _figure((11.0, 5.0))
+    _draw_view(fig.add_subplot(1, 2, 1), est, ref, a, b, "top view")
+    _draw_view(fig.add_subplot(1, 2, 2), est, ref, wide, side, "side view")
+    if path is not None:
+        _save(fig, path)
+    return fig
+
+
+def plot_map(
+    points: np.ndarray,
+    keyframe_poses: np.ndarray,
+    ax: Optional[Any] = None,
+    *,
+    path: Optional[Union[str, Path]] = None,
+    max_points: int = 100_000,
+) -> Any:
+    """3-D scatter of map points with the keyframe camera centres joined as a trajectory.
+
+    Axes are scaled equally (a cube around the data), so distances look right.
+
+    Args:
+        points: ``(N, 3)`` map point positions in the world (metres), ``N`` may be 0.
+        keyframe_poses: ``(K, 4, 4)`` keyframe poses ``T_w_c`` in time order, ``K`` may be 0.
+        ax: a matplotlib 3-D axes (``projection="3d"``) to draw into; ``None`` makes a new
+            figure (Agg canvas).
+        path: if given, the figure is saved there (folders created).
+        max_points: at most this many points are drawn (an even stride over ``points``:
+            deterministic), for speed on large maps.
+
+    Returns:
+        The 3-D axes drawn into (``ax.figure`` is its figure).
+
+    Raises:
+        ValueError: naming ``points`` / ``keyframe_poses`` for wrong shapes or NaN/inf, or
+            ``ax`` if it is not a 3-D axes, or ``max_points < 1``.
+    """
+    xyz = finite_array(points, "points", (None, 3))
+    poses = finite_array(keyframe_poses, "keyframe_poses", (None, 4, 4))
+    if max_points < 1:
+        raise ValueError(f"max_points must be >= 1, got {max_points}")
+    if ax is None:
+        ax = _figure((7.0, 6.0)).add_subplot(1, 1, 1, projection="3d")
+    elif getattr(ax, "name", None) != "3d":
+        raise ValueError("ax must be a 3-D axes (add_subplot(..., projection='3d'))")
+    shown = xyz[:: max(1, -(-len(xyz) // max_points))]  # ceil(N / max_points)
+    centres = poses[:, :3, 3]
+    if len(shown):
+        ax.scatter(*shown.T, s=1.0, c="0.25", alpha=0.6, depthshade=False,
+                   label=f"map points ({len(xyz)})")
+    if len(centres):
+        ax.plot(*centres.T, "-", color="tab:blue", lw=1.2, label=f"keyframes ({len(centres)})")
+        ax.scatter(*centres.T, s=8.0, color="tab:blue", depthshade=False)
+        ax.scatter(*centres[0], s=30.0, color="tab:green", depthshade=False, label="first")
+    everything = np.concatenate([shown, centres])
+    if len(everything):
+        middle = (everything.max(0) + everything.min(0)) / 2.0
+        half = max(np.ptp(everything, axis=0).max() / 2.0, 1e-3)
+        ax.set_xlim(middle[0] - half, middle[0] + half)
+        ax.set_ylim(middle[1] - half, middle[1] + half)
+        ax.set_zlim(middle[2] - half, middle[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    if len(everything):
+        ax.legend(loc="upper left")
+    if path is not None:
+        _save(ax.figure, path)
+    return ax
+
+
+def _trajectory(value: Union[Trajectory, np.ndarray], name: str) -> Trajectory:
+    """``value`` as a Trajectory (poses without time get frame indices)."""
+    if isinstance(value, Trajectory):
+        return value
+    return Trajectory.from_poses(finite_array(value, name, (None, 4, 4)))
+
+
+def _figure(size: tuple[float, float]) -> Figure:
+    fig = Figure(figsize=size, dpi=120)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Union[str, Path]) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def _draw_view(ax: Any, est: Trajectory, ref: Optional[Trajectory], a: int, b: int,
+               title: str) -> None:
+    """Estimate (and reference) projected on world axes ``a`` (horizontal), ``b``."""
     if ref is not None and len(ref):
         ax.plot(ref.positions[:, a], ref.positions[:, b], "--", color="0.4", lw=1.2,
                 label="reference")
@@ -57,6 +196,3 @@ def plot_trajectory_top_view(
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, lw=0.3)
     ax.legend(loc="best")
-    fig.tight_layout()
-    fig.savefig(path)
-    return path

@@ -1,0 +1,28 @@
+"""Argument checks shared by the output helpers (export, plots)."""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+
+
+def finite_array(value: object, name: str, shape: Sequence[Optional[int]]) -> np.ndarray:
+    """``value`` as a float64 array of ``shape`` (``None`` = any length), all finite.
+
+    Raises ``ValueError`` naming ``name`` for a non-numeric value, a wrong shape, NaN or inf.
+    """
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array, got {type(value).__name__}") from None
+    expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+    mismatch = any(s is not None and s != n for s, n in zip(shape, array.shape))
+    if array.ndim != len(shape) or mismatch:
+        raise ValueError(f"{name} must have shape {expected}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = np.argwhere(~np.isfinite(array))[0]
+        raise ValueError(
+            f"{name} contains NaN or infinite values (first at index {tuple(bad.tolist())})"
+        )
+    return array

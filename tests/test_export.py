@@ -1,0 +1,129 @@
+"""PLY point clouds and trajectory files written by ``ferroslam.export``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ferroslam import io
+from ferroslam.export import write_ply, write_trajectory
+from ferroslam.transforms import quat_to_matrix
+
+
+def _read_ply(path):
+    """Minimal PLY reader for what write_ply writes: (header lines, structured vertices)."""
+    data = path.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].decode("ascii").splitlines()
+    n = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
+    types = {"double": "<f8", "uchar": "u1"}
+    fields = [(line.split()[2], types[line.split()[1]])
+              for line in header if line.startswith("property")]
+    if header[1] == "format binary_little_endian 1.0":
+        assert len(data) - end == n * np.dtype(fields).itemsize, "no bytes besides the records"
+        return header, np.frombuffer(data[end:], dtype=fields, count=n)
+    assert header[1] == "format ascii 1.0"
+    rows = [line.split() for line in data[end:].decode("ascii").splitlines()]
+    assert len(rows) == n and all(len(r) == len(fields) for r in rows)
+    out = np.empty(n, dtype=fields)
+    for j, (name, _) in enumerate(fields):
+        out[name] = [float(r[j]) for r in rows]
+    return header, out
+
+
+@pytest.fixture
+def cloud():
+    rng = np.random.default_rng(3)
+    return rng.normal(scale=5.0, size=(200, 3)), rng.integers(0, 256, size=(200, 3))
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_ply_round_trip_is_exact(tmp_path, cloud, binary):
+    points, colors = cloud
+    path = write_ply(tmp_path / "sub" / "map.ply", points, colors, binary=binary)
+    header, v = _read_ply(path)
+    assert header[0] == "ply"
+    assert header[2].startswith("comment ")
+    assert header[3:] == [
+        "element vertex 200",
+        "property double x", "property double y", "property double z",
+        "property uchar red", "property uchar green", "property uchar blue",
+        "end_header",
+    ]
+    np.testing.assert_array_equal(np.column_stack([v["x"], v["y"], v["z"]]), points)
+    np.testing.assert_array_equal(np.column_stack([v["red"], v["green"], v["blue"]]), colors)
+
+
+def test_ply_without_colors_and_float_colors(tmp_path, cloud):
+    points, _ = cloud
+    header, v = _read_ply(write_ply(tmp_path / "a.ply", points))
+    assert not any("uchar" in line for line in header)
+    assert v.dtype.names == ("x", "y", "z")
+    _, v = _read_ply(write_ply(tmp_path / "b.ply", points[:2], [[0.0, 0.5, 1.0], [1, 0, 0.2]]))
+    assert v["red"].tolist() == [0, 255] and v["green"].tolist() == [128, 0]
+    assert v["blue"].tolist() == [255, 51]
+    header, v = _read_ply(write_ply(tmp_path / "empty.ply", np.zeros((0, 3)), binary=True))
+    assert "element vertex 0" in header and len(v) == 0
+
+
+@pytest.mark.parametrize(
+    "points, colors, name",
+    [
+        (np.zeros((4, 2)), None, "points"),
+        (np.zeros(3), None, "points"),
+        ([[0.0, np.nan, 1.0]], None, "points"),
+        ([[0.0, np.inf, 1.0]], None, "points"),
+        ("abc", None, "points"),
+        (np.zeros((2, 3)), np.zeros((3, 3)), "colors"),
+        (np.zeros((1, 3)), [[0.5, 2.0, 0.0]], "colors"),
+        (np.zeros((1, 3)), [[0, 256, 0]], "colors"),
+        (np.zeros((1, 3)), [[0.0, np.nan, 0.0]], "colors"),
+    ],
+)
+def test_ply_bad_input_names_the_argument(tmp_path, points, colors, name):
+    with pytest.raises(ValueError, match=name):
+        write_ply(tmp_path / "bad.ply", points, colors)
+    assert not (tmp_path / "bad.ply").exists()
+
+
+def _poses(n, seed=0):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(n, 4))
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+    T[:, :3, 3] = rng.normal(scale=10.0, size=(n, 3))
+    return T
+
+
+def test_tum_trajectory_re_reads_equal(tmp_path):
+    T = _poses(30)
+    t = 1305031102.175304 + 0.033 * np.arange(30)
+    path = write_trajectory(tmp_path / "kf" / "traj.txt", t, T, format="tum")
+    back = io.read_tum_trajectory(path)
+    np.testing.assert_allclose(back.timestamps, t, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(back.poses, T, rtol=0, atol=1e-8)
+
+
+def test_kitti_trajectory_re_reads_equal(tmp_path):
+    T = _poses(12, seed=1)
+    path = write_trajectory(tmp_path / "poses.txt", np.arange(12.0), T, format="kitti")
+    assert len(path.read_text().splitlines()) == 12
+    back = io.read_kitti_poses(path)
+    np.testing.assert_allclose(back.poses, T, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(back.timestamps, np.arange(12.0))
+
+
+@pytest.mark.parametrize(
+    "timestamps, poses, fmt, match",
+    [
+        (np.arange(3.0), _poses(3), "euroc", "format"),
+        (np.arange(2.0), _poses(3), "tum", "timestamps"),
+        (np.arange(3.0), _poses(3)[:, :3], "kitti", "poses"),
+        (np.array([0.0, 2.0, 1.0]), _poses(3), "tum", "out of order"),
+        (np.arange(3.0), np.full((3, 4, 4), np.nan), "kitti", "NaN"),
+    ],
+)
+def test_trajectory_bad_input(tmp_path, timestamps, poses, fmt, match):
+    with pytest.raises(ValueError, match=match):
+        write_trajectory(tmp_path / "bad.txt", timestamps, poses, format=fmt)
+    assert not (tmp_path / "bad.txt").exists()
