@@ -63,6 +63,9 @@ class FakeSlamSystem:
     def frame_trajectory(self):
         return np.array(self.stamps), np.array(self.poses).reshape(-1, 4, 4)
 
+    def frame_segments(self):
+        return np.zeros(len(self.stamps), dtype=np.uint32)
+
     def keyframe_trajectory(self):
         ids = np.arange(len(self.kf), dtype=np.uint32)
         return ids, np.array(self.stamps)[self.kf], np.array(self.poses)[self.kf]

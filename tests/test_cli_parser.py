@@ -44,13 +44,13 @@ def test_bad_arguments_are_argparse_errors(argv, capsys):
     assert exit_info.value.code == 2
 
 
-def test_other_sensors_not_implemented(tmp_path, capsys):
+def test_unknown_sensor(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        cli.main(["run", str(tmp_path), "--sensor", "mono"])
+        cli.main(["run", str(tmp_path), "--sensor", "lidar"])
     assert exit_info.value.code == 2
-    assert "not implemented yet" in capsys.readouterr().err
-    with pytest.raises(NotImplementedError, match="not implemented yet"):
-        pipeline.run_sequence(None, {}, sensor="mono")
+    assert "invalid choice: 'lidar'" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="unknown sensor 'lidar'"):
+        pipeline.run_sequence(None, {}, sensor="lidar")
 
 
 def test_eval_parser_defaults():

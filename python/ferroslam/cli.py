@@ -85,8 +85,6 @@ def _load_config(path: Optional[Path]) -> dict:
 
 
 def _cmd_run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    if args.sensor == "mono":
-        parser.error("--sensor mono is not implemented yet (available: rgbd, stereo)")
     from .datasets import open_sequence
     from .io import write_tum_trajectory
     from .pipeline import run_sequence
@@ -127,10 +125,17 @@ def _print_summary(summary: dict, out: Path) -> None:
     if frame:
         print(f"time per frame  median {frame['median']:.1f} ms  p95 {frame['p95']:.1f} ms")
     metrics = summary["metrics"]
+    if summary["first_initialised_frame"] is None:
+        print("status          not initialised: the map never started")
+    elif summary["sensor"] == "mono":
+        print(f"initialised at  frame {summary['first_initialised_frame']}; "
+              f"{100 * summary['tracked_after_init']:.1f} % of the later frames tracked, "
+              f"{summary['segments']} map segment(s)")
     for name, label in (("ate_frames", "ATE frames"), ("ate_keyframes", "ATE keyframes")):
         if name in metrics:
             m = metrics[name]
-            print(f"{label:<15} RMSE {m['rmse']:.4f} m  (SE(3), {m['pairs']} poses)")
+            align = "Sim(3), longest segment" if m["align"] == "sim3" else "SE(3)"
+            print(f"{label:<15} RMSE {m['rmse']:.4f} m  ({align}, {m['pairs']} poses)")
     if "path_length" in metrics:
         p = metrics["path_length"]
         print(f"path length     {p['estimate_m']:.3f} m vs {p['reference_m']:.3f} m "

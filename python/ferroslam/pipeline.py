@@ -36,8 +36,11 @@ class RunResult:
     points in metres; ``timings``: per-frame milliseconds (``load_ms``, ``extraction_ms``,
     ``tracking_ms`` and ``mapping_ms`` as reported by the core, ``track_call_ms`` measured
     around the call, ``frame_ms`` = extraction + depth sampling + tracking call);
-    ``states``: tracking state per frame; ATE, RPE and path length (metric scale) when
-    ground truth exists.
+    ``states``: tracking state per frame; ``segments``: map segment of each trajectory pose
+    (a monocular run starts a new map after it stays lost); ``init_reasons``: per frame, why
+    monocular initialisation waited (``None`` otherwise). With ground truth: ATE (SE(3), or
+    Sim(3) over the longest segment for monocular runs), RPE and path length (metric scale;
+    not for monocular runs).
     """
 
     sequence: str
@@ -51,6 +54,8 @@ class RunResult:
     keyframes: Trajectory
     keyframe_ids: np.ndarray
     map_points: np.ndarray
+    segments: Optional[np.ndarray] = None
+    init_reasons: list = field(default_factory=list)
     groundtruth: Optional[Trajectory] = None
     ate_frames: Optional[AteResult] = None
     ate_keyframes: Optional[AteResult] = None
@@ -66,6 +71,24 @@ class RunResult:
     def tracked_frames(self) -> int:
         """Frames whose tracking state is ``"ok"``."""
         return sum(s == "ok" for s in self.states)
+
+    @property
+    def first_initialised_frame(self) -> Optional[int]:
+        """Index of the first frame tracked (the map's start), ``None`` if it never started."""
+        return next((i for i, s in enumerate(self.states) if s == "ok"), None)
+
+    @property
+    def tracked_after_init(self) -> float:
+        """Fraction of the frames from the first initialisation on that were tracked."""
+        first = self.first_initialised_frame
+        if first is None:
+            return 0.0
+        return sum(s == "ok" for s in self.states[first:]) / (len(self.states) - first)
+
+    @property
+    def num_segments(self) -> int:
+        """Map segments in the trajectory (0 when nothing was tracked)."""
+        return 0 if self.segments is None or self.segments.size == 0 else int(self.segments.max()) + 1
 
     def summary(self) -> dict:
         """JSON-serialisable summary (what ``ferroslam run`` writes to results.json)."""
@@ -86,6 +109,9 @@ class RunResult:
             "tracked_frames": self.tracked_frames,
             "states": {s: self.states.count(s) for s in sorted(set(self.states))},
             "trajectory_poses": len(self.trajectory),
+            "first_initialised_frame": self.first_initialised_frame,
+            "tracked_after_init": self.tracked_after_init,
+            "segments": self.num_segments,
             "keyframes": len(self.keyframes),
             "map_points": int(self.map_points.shape[0]),
             "timing_ms": timing,
@@ -95,7 +121,7 @@ class RunResult:
         for name, result in (("ate_frames", self.ate_frames), ("ate_keyframes", self.ate_keyframes)):
             if result is not None:
                 out["metrics"][name] = {
-                    "align": "se3", "pairs": result.pairs, "scale": result.scale, "unit": "m",
+                    "align": "sim3" if self.sensor == "mono" else "se3", "pairs": result.pairs, "scale": result.scale, "unit": "m",
                     **{k: getattr(result, k) for k in ("rmse", "mean", "median", "std", "min", "max")},
                 }
         if self.rpe_frames is not None:
@@ -189,16 +215,52 @@ class _StereoFeed:
         self.pool.shutdown()
 
 
-_FEEDS = {"rgbd": _RgbdFeed, "stereo": _StereoFeed}
+class _MonoFeed:
+    """Loads one grey image per frame and extracts ORB."""
+
+    def __init__(self, seq, extractor: OrbExtractor) -> None:
+        self.seq, self.extractor = seq, extractor
+
+    def system_options(self) -> dict:
+        return {}
+
+    def load(self, i: int):
+        return self.seq.load_gray(i)
+
+    def features(self, gray) -> tuple:
+        return self.extractor.detect(gray)
+
+    @staticmethod
+    def track(system, timestamp: float, features: tuple):
+        return system.track_mono(timestamp, *features)
+
+    def close(self) -> None:
+        pass
+
+
+_FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
+
+
+def _longest_segment(result: RunResult) -> Trajectory:
+    if result.segments is None or result.segments.size == 0:
+        return result.trajectory
+    longest = np.bincount(result.segments).argmax()
+    return result.trajectory.subset(np.flatnonzero(result.segments == longest))
 
 
 def _evaluate(result: RunResult, gt: Trajectory) -> None:
-    cases = (
-        ("ate_frames", lambda: ate(gt, result.trajectory, align="se3")),
-        ("ate_keyframes", lambda: ate(gt, result.keyframes, align="se3")),
-        ("rpe_frames", lambda: rpe(gt, result.trajectory, delta=1, align="none")),
-        ("path_length", lambda: path_length(gt, result.trajectory)),
-    )
+    if result.sensor == "mono":  # scale is arbitrary, per map segment
+        cases = (
+            ("ate_frames", lambda: ate(gt, _longest_segment(result), align="sim3")),
+            ("ate_keyframes", lambda: ate(gt, result.keyframes, align="sim3")),
+        )
+    else:
+        cases = (
+            ("ate_frames", lambda: ate(gt, result.trajectory, align="se3")),
+            ("ate_keyframes", lambda: ate(gt, result.keyframes, align="se3")),
+            ("rpe_frames", lambda: rpe(gt, result.trajectory, delta=1, align="none")),
+            ("path_length", lambda: path_length(gt, result.trajectory)),
+        )
     for name, compute in cases:
         try:
             setattr(result, name, compute())
@@ -224,12 +286,11 @@ def run_sequence(
             core) plus the extractor options ``ini_fast`` and ``min_fast``.
         max_frames: process only the first ``max_frames`` frames.
         progress: show a tqdm progress bar.
-        sensor: ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs ``is_stereo``,
-            ``load_stereo(i)`` giving a rectified pair and ``baseline_m``).
+        sensor: ``"mono"``, ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs
+            ``is_stereo``, ``load_stereo(i)`` giving a rectified pair and ``baseline_m``).
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
 
     Raises:
-        NotImplementedError: ``"mono"`` (not implemented yet).
         ValueError: bad configuration or ``max_frames``.
     """
     if sensor not in SENSORS:
@@ -263,6 +324,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -
 
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
+    init_reasons: list[Optional[str]] = []
     num_tracked = np.zeros(n, dtype=np.int64)
     bar = tqdm(range(n), disable=not progress, desc=getattr(seq, "name", "sequence"), unit="frame")
     for i in bar:
@@ -280,6 +342,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -
         timings["tracking_ms"][i] = float(res.tracking_ms)
         timings["mapping_ms"][i] = float(res.mapping_ms)
         states.append(str(res.state))
+        init_reasons.append(getattr(res, "init_reason", None))
         num_tracked[i] = int(res.num_tracked)
         if progress:
             bar.set_postfix(state=res.state, tracked=res.num_tracked, refresh=False)
@@ -298,6 +361,8 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -
         trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
         keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
         keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
+        segments=np.asarray(system.frame_segments(), dtype=np.int64).reshape(-1),
+        init_reasons=init_reasons,
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
     )
     if getattr(seq, "has_groundtruth", False):

@@ -178,26 +178,32 @@ pub fn views(levels: &[(usize, usize, Vec<u8>)]) -> Result<Vec<GrayImage<'_>>, F
         .collect()
 }
 
-/// `{side}_keypoints (N, 5)` float32 and `{side}_descriptors (N, 32)` uint8 of one image.
+/// `{side}_keypoints (N, 5)` float32 and `{side}_descriptors (N, 32)` uint8 of one image
+/// (`side` is "left", "right" or "" for the plain names).
 pub fn features(
     keypoints: &Bound<'_, PyAny>,
     descriptors: &Bound<'_, PyAny>,
     side: &str,
 ) -> PyResult<(Vec<Keypoint>, Vec<Descriptor>)> {
+    let prefix = if side.is_empty() {
+        String::new()
+    } else {
+        format!("{side}_")
+    };
     let kp: PyReadonlyArray2<'_, f32> = array(
         keypoints,
-        &format!("{side}_keypoints"),
+        &format!("{prefix}keypoints"),
         "a float32 (N, 5) array",
     )?;
     let desc: PyReadonlyArray2<'_, u8> = array(
         descriptors,
-        &format!("{side}_descriptors"),
+        &format!("{prefix}descriptors"),
         "a uint8 (N, 32) array",
     )?;
     let (kps, descs) = (self::keypoints(&kp)?, self::descriptors(&desc)?);
     if kps.len() != descs.len() {
         return Err(PyValueError::new_err(format!(
-            "{side}_keypoints ({}) and {side}_descriptors ({}) must have the same length",
+            "{prefix}keypoints ({}) and {prefix}descriptors ({}) must have the same length",
             kps.len(),
             descs.len()
         )));

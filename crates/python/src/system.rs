@@ -2,7 +2,9 @@
 
 use ferroslam_features::StereoView;
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
-use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, StereoInput, TrackResult, TrackingState};
+use ferroslam_slam::{
+    MonoInput, RgbdInput, Sensor, SlamConfig, SlamSystem, StereoInput, TrackResult, TrackingState,
+};
 use numpy::ndarray::Array2;
 use numpy::{
     PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
@@ -40,21 +42,24 @@ fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(
 }
 
 /// Sensors the core can track.
-const SENSORS: [&str; 2] = ["rgbd", "stereo"];
+const SENSORS: [Sensor; 3] = [Sensor::Monocular, Sensor::Stereo, Sensor::Rgbd];
 
 /// Reads the keyword options into a config; unknown names are an error, not ignored.
 ///
 /// A stereo system needs `baseline` (metres) and derives `bf = fx * baseline` from it; an
 /// RGB-D system takes the virtual baseline as `bf` directly (ORB-SLAM's setting).
 fn parse_config(
-    sensor: &str,
+    sensor: Sensor,
     fx: f64,
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<SlamConfig> {
-    let mut config = SlamConfig::default();
+    let mut config = SlamConfig {
+        sensor,
+        ..SlamConfig::default()
+    };
     let mut baseline: Option<f64> = None;
     let mut bf_given = false;
-    if sensor == "stereo" {
+    if sensor == Sensor::Stereo {
         // Stereo depth has no sensor range: disparity already bounds it.
         config.depth_range = (0.0, f64::INFINITY);
     }
@@ -84,20 +89,21 @@ fn parse_config(
         }
     }
     match (sensor, baseline) {
-        ("stereo", Some(b)) if b.is_finite() && b > 0.0 && !bf_given => config.bf = fx * b,
-        ("stereo", Some(b)) if !bf_given => {
+        (Sensor::Stereo, Some(b)) if b.is_finite() && b > 0.0 && !bf_given => config.bf = fx * b,
+        (Sensor::Stereo, Some(b)) if !bf_given => {
             return Err(PyValueError::new_err(format!(
                 "option baseline: must be a positive number of metres, got {b}"
             )))
         }
-        ("stereo", _) => {
+        (Sensor::Stereo, _) => {
             return Err(PyValueError::new_err(
                 "sensor 'stereo' needs baseline=<metres> (and no bf: it is fx * baseline)",
             ))
         }
         (_, Some(_)) => {
             return Err(PyValueError::new_err(format!(
-                "option baseline applies to sensor 'stereo', not {sensor:?} (RGB-D uses bf)"
+                "option baseline applies to sensor 'stereo', not {:?} (RGB-D uses bf)",
+                sensor.name()
             )))
         }
         _ => {}
@@ -159,6 +165,12 @@ impl PyTrackResult {
         self.inner.mapping_ms
     }
 
+    /// Monocular, before the map exists: why this frame did not initialise it; else None.
+    #[getter]
+    fn init_reason(&self) -> Option<String> {
+        self.inner.init_status.as_ref().map(|s| s.to_string())
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "TrackResult(state={:?}, is_keyframe={}, num_tracked={})",
@@ -173,20 +185,7 @@ impl PyTrackResult {
 #[pyclass(name = "SlamSystem", module = "ferroslam._core")]
 pub struct PySlamSystem {
     inner: SlamSystem,
-    sensor: &'static str,
-}
-
-impl PySlamSystem {
-    fn expect_sensor(&self, sensor: &str, method: &str) -> PyResult<()> {
-        if self.sensor == sensor {
-            return Ok(());
-        }
-        Err(PyValueError::new_err(format!(
-            "{method} needs a system created with sensor={sensor:?}; this one is {:?} \
-             (use track_{})",
-            self.sensor, self.sensor
-        )))
-    }
+    sensor: Sensor,
 }
 
 #[pymethods]
@@ -205,9 +204,10 @@ impl PySlamSystem {
         sensor: &str,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let Some(sensor) = SENSORS.iter().copied().find(|&s| s == sensor) else {
+        let Some(sensor) = SENSORS.iter().copied().find(|s| s.name() == sensor) else {
+            let names: Vec<_> = SENSORS.iter().map(|s| s.name()).collect();
             return Err(PyNotImplementedError::new_err(format!(
-                "sensor {sensor:?} is not implemented yet (available: {SENSORS:?})"
+                "sensor {sensor:?} is not implemented yet (available: {names:?})"
             )));
         };
         let d: [f64; 5] = match dist.len() {
@@ -254,7 +254,6 @@ impl PySlamSystem {
         descriptors: &Bound<'_, PyAny>,
         depth_m: &Bound<'_, PyAny>,
     ) -> PyResult<PyTrackResult> {
-        self.expect_sensor("rgbd", "track_rgbd")?;
         let keypoints: PyReadonlyArray2<'_, f32> =
             convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
         let descriptors: PyReadonlyArray2<'_, u8> =
@@ -301,7 +300,6 @@ impl PySlamSystem {
         right_descriptors: &Bound<'_, PyAny>,
         right_pyramid: &Bound<'_, PyAny>,
     ) -> PyResult<PyTrackResult> {
-        self.expect_sensor("stereo", "track_stereo")?;
         let (lk, ld) = convert::features(left_keypoints, left_descriptors, "left")?;
         let (rk, rd) = convert::features(right_keypoints, right_descriptors, "right")?;
         let lp = convert::pyramid(left_pyramid, "left_pyramid")?;
@@ -331,10 +329,45 @@ impl PySlamSystem {
         result.map(|inner| PyTrackResult { inner }).map_err(to_py)
     }
 
-    /// The sensor this system was created for: "rgbd" or "stereo".
+    /// Tracks one monocular frame.
+    ///
+    /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
+    /// descriptors: (N, 32) uint8.
+    fn track_mono(
+        &mut self,
+        py: Python<'_>,
+        timestamp: f64,
+        keypoints: &Bound<'_, PyAny>,
+        descriptors: &Bound<'_, PyAny>,
+    ) -> PyResult<PyTrackResult> {
+        let (kps, descs) = convert::features(keypoints, descriptors, "")?;
+        let inner = &mut self.inner;
+        let result = py.detach(move || {
+            inner.track_mono(&MonoInput {
+                timestamp,
+                keypoints: &kps,
+                descriptors: &descs,
+            })
+        });
+        result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+    }
+
+    /// The sensor this system was created for: "mono", "stereo" or "rgbd".
     #[getter]
     fn sensor(&self) -> &'static str {
-        self.sensor
+        self.sensor.name()
+    }
+
+    /// Map segment of each frame of frame_trajectory(), (N,) uint32: a monocular system
+    /// starts a new segment (own frame and scale) after it stays lost.
+    fn frame_segments<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u32>> {
+        let ids: Vec<u32> = self
+            .inner
+            .frame_segments()
+            .into_iter()
+            .map(|s| s as u32)
+            .collect();
+        PyArray1::from_vec(py, ids)
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.

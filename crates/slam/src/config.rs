@@ -2,12 +2,42 @@
 
 use crate::error::SlamError;
 
+/// The camera setup a system tracks; decides which `track_*` call it accepts and the
+/// sensor-specific rules of ORB-SLAM (keyframe ratio, triangulation, culling).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sensor {
+    /// One camera: the map starts from two views and has no metric scale.
+    Monocular,
+    /// A rectified stereo pair: depth from disparity.
+    Stereo,
+    /// A depth camera registered to the colour image.
+    Rgbd,
+}
+
+impl Sensor {
+    /// Lower-case name as the Python API spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Sensor::Monocular => "mono",
+            Sensor::Stereo => "stereo",
+            Sensor::Rgbd => "rgbd",
+        }
+    }
+
+    /// Whether frames carry measured depth (stereo or RGB-D).
+    pub fn has_depth(self) -> bool {
+        self != Sensor::Monocular
+    }
+}
+
 /// Configuration of a [`crate::SlamSystem`].
 ///
 /// Names mirror MATLAB's `rgbdvslam` where a knob exists there (`track_feature_range`,
 /// `skip_max_frames`, `depth_range`) and ORB-SLAM's settings otherwise.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SlamConfig {
+    /// Camera setup.
+    pub sensor: Sensor,
     /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`).
     pub scale_factor: f64,
     /// Number of ORB pyramid levels.
@@ -32,6 +62,7 @@ pub struct SlamConfig {
 impl Default for SlamConfig {
     fn default() -> Self {
         Self {
+            sensor: Sensor::Rgbd,
             scale_factor: 1.2,
             n_levels: 8,
             track_feature_range: (30, 100),

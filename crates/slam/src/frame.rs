@@ -61,6 +61,23 @@ impl RgbdInput<'_> {
     }
 }
 
+/// Raw per-frame input of a monocular camera: distorted keypoints and their descriptors.
+pub struct MonoInput<'a> {
+    /// Capture time, seconds.
+    pub timestamp: f64,
+    /// Keypoints in raw (distorted) pixel coordinates.
+    pub keypoints: &'a [Keypoint],
+    /// 256-bit ORB descriptors, one per keypoint.
+    pub descriptors: &'a [Descriptor],
+}
+
+impl MonoInput<'_> {
+    /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
+    pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
+        validate_features(self.timestamp, self.keypoints, self.descriptors, n_levels)
+    }
+}
+
 /// Raw per-frame input of a rectified stereo camera: features and image pyramids of both
 /// images (keypoints in rectified pixels; the left image is the tracked frame).
 pub struct StereoInput<'a> {
@@ -173,6 +190,25 @@ impl Frame {
             input.descriptors,
             depth,
             u_right,
+            ctx.bounds,
+        )
+    }
+
+    /// Undistorts the keypoints; no feature has depth.
+    pub fn from_mono(
+        index: usize,
+        input: &MonoInput<'_>,
+        ctx: &Context,
+    ) -> Result<Self, SlamError> {
+        let keypoints = undistort(input.keypoints, &ctx.camera);
+        let n = keypoints.len();
+        Self::new(
+            index,
+            input.timestamp,
+            keypoints,
+            input.descriptors,
+            vec![-1.0; n],
+            vec![-1.0; n],
             ctx.bounds,
         )
     }
@@ -299,6 +335,21 @@ impl Frame {
             depth_agrees,
         )
     }
+}
+
+/// Keypoints moved from raw (distorted) to ideal pinhole pixel coordinates.
+fn undistort(keypoints: &[Keypoint], camera: &PinholeCamera) -> Vec<Keypoint> {
+    keypoints
+        .iter()
+        .map(|kp| {
+            let uv = camera.undistort_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
+            Keypoint {
+                x: uv.x as f32,
+                y: uv.y as f32,
+                ..*kp
+            }
+        })
+        .collect()
 }
 
 /// Back-projects keypoint `i` of `features` with its depth, returning the world point.

@@ -12,12 +12,13 @@ pub mod error;
 pub mod frame;
 pub mod frustum;
 pub mod local_mapping;
+pub mod mono_init;
 pub mod system;
 pub mod tracking;
 pub mod trajectory;
 
-pub use config::SlamConfig;
+pub use config::{Sensor, SlamConfig};
 pub use error::SlamError;
-pub use frame::{RgbdInput, StereoInput};
+pub use frame::{MonoInput, RgbdInput, StereoInput};
 pub use system::{SlamSystem, TrackResult};
 pub use tracking::TrackingState;

@@ -12,19 +12,43 @@ use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
 use ferroslam_optim::{local_bundle_adjust, BaProblem, Observation};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector2, Vector3};
 
+use crate::config::Sensor;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
 use crate::frustum::visible_point;
 
-/// Covisible keyframes searched for new points and fusion (ORB-SLAM, stereo/RGB-D).
-const TRIANGULATION_NEIGHBOURS: usize = 10;
-/// Least ray parallax for triangulating a feature without measured depth, degrees. ORB-SLAM
-/// uses 1.15 deg; points that poorly conditioned drifted the scale of depth-sensor maps
-/// (KITTI 01 stereo: ATE 0.70 m at 1.15 deg, 0.59 m at 5 deg).
-const MIN_RAY_PARALLAX_DEG: f64 = 5.0;
-/// Observations a point needs to survive its first keyframes (stereo/RGB-D count 2 each).
-const MIN_POINT_OBSERVATIONS: usize = 3;
+/// Covisible keyframes searched for new points and fusion (ORB-SLAM: 10 with depth, 20
+/// monocular, where triangulation is the only source of points).
+fn triangulation_neighbours(sensor: Sensor) -> usize {
+    if sensor.has_depth() {
+        10
+    } else {
+        20
+    }
+}
+/// Least ray parallax for triangulating a feature without close depth, degrees. Monocular
+/// maps use ORB-SLAM's 1.15 deg (nothing else makes points); with a depth sensor, points
+/// that poorly conditioned drifted the metric scale (KITTI 01 stereo: ATE 0.70 m at 1.15 deg,
+/// 0.59 m at 5 deg).
+fn min_ray_parallax_deg(sensor: Sensor) -> f64 {
+    if sensor.has_depth() {
+        5.0
+    } else {
+        1.15
+    }
+}
+/// Observations a point needs to survive its first keyframes (stereo/RGB-D count 2 each, so
+/// ORB-SLAM asks for more than 3 with depth and more than 2 monocular).
+fn min_point_observations(sensor: Sensor) -> usize {
+    if sensor.has_depth() {
+        3
+    } else {
+        2
+    }
+}
+/// Observations that make a keyframe's point redundant (ORB-SLAM `KeyFrameCulling`).
+const REDUNDANT_OBSERVATIONS: usize = 3;
 
 /// What one keyframe's local mapping did, for logs and tests.
 #[derive(Clone, Debug, Default)]
@@ -54,6 +78,11 @@ impl LocalMapper {
     /// Forgets everything (after a map reset).
     pub fn reset(&mut self) {
         *self = Self::default();
+    }
+
+    /// Registers a point created outside local mapping (monocular initialisation) for culling.
+    pub(crate) fn add_recent_point(&mut self, m: MapPointId) {
+        self.recent_points.push(m);
     }
 
     /// Turns a tracked frame into a keyframe: links its matched points, and creates points
@@ -118,7 +147,7 @@ impl LocalMapper {
         ctx: &Context,
         report: &mut MappingReport,
     ) -> Result<(), SlamError> {
-        report.culled_points += self.cull_recent_points(kf, map);
+        report.culled_points += self.cull_recent_points(kf, map, ctx);
         report.triangulated_points += self.create_new_points(kf, map, ctx)?;
         report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
         report.ba_outliers += self.local_bundle_adjust(kf, map, ctx)?;
@@ -129,15 +158,14 @@ impl LocalMapper {
     /// ORB-SLAM `MapPointCulling`: a recent point dies if found in less than a quarter of the
     /// frames that should have seen it, or if two keyframes later it has too few observations;
     /// after three keyframes it is proven.
-    fn cull_recent_points(&mut self, current: KeyFrameId, map: &mut Map) -> usize {
+    fn cull_recent_points(&mut self, current: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
+        let min_obs = min_point_observations(ctx.config.sensor);
         let mut culled = 0;
         let mut kept = Vec::with_capacity(self.recent_points.len());
         for &m in &self.recent_points {
             let Some(p) = map.map_point(m) else { continue };
             let age = current.0.saturating_sub(p.first_keyframe().0);
-            if p.found_ratio() < 0.25
-                || (age >= 2 && p.num_observations() <= MIN_POINT_OBSERVATIONS)
-            {
+            if p.found_ratio() < 0.25 || (age >= 2 && p.num_observations() <= min_obs) {
                 map.set_map_point_bad(m);
                 culled += 1;
             } else if age < 3 {
@@ -158,7 +186,8 @@ impl LocalMapper {
         map: &mut Map,
         ctx: &Context,
     ) -> Result<usize, SlamError> {
-        let neighbours = map.best_covisibles(kf, TRIANGULATION_NEIGHBOURS);
+        let neighbours = map.best_covisibles(kf, triangulation_neighbours(ctx.config.sensor));
+        let median_depth = scene_median_depth(map, kf);
         let pyramid = map.pyramid().clone();
         let ratio_factor = 1.5 * pyramid.scale_factor;
         let mut created = 0;
@@ -168,7 +197,14 @@ impl LocalMapper {
             };
             let (T_c1_w, T_c2_w) = (*k1.T_c_w(), *k2.T_c_w());
             let (o1, o2) = (k1.camera_center(), k2.camera_center());
-            if (o2 - o1).norm() < ctx.baseline_m {
+            let baseline = (o2 - o1).norm();
+            let too_short = if ctx.config.sensor.has_depth() {
+                baseline < ctx.baseline_m
+            } else {
+                // ORB-SLAM: a baseline under 1 % of the scene depth triangulates nothing.
+                median_depth.is_none_or(|d| baseline / d < 0.01)
+            };
+            if too_short {
                 continue;
             }
             let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, ctx);
@@ -238,7 +274,7 @@ impl LocalMapper {
 
     /// Local BA over `kf` and its covisible keyframes, with the other keyframes that see
     /// their points held fixed; rejected observations are erased from the map.
-    fn local_bundle_adjust(
+    pub(crate) fn local_bundle_adjust(
         &self,
         kf: KeyFrameId,
         map: &mut Map,
@@ -356,11 +392,11 @@ impl LocalMapper {
                     continue;
                 };
                 let z = f.depth[i] as f64;
-                if z < 0.0 || z > ctx.close_depth_m {
+                if ctx.config.sensor.has_depth() && (z < 0.0 || z > ctx.close_depth_m) {
                     continue;
                 }
                 n_points += 1;
-                if p.num_observations() <= MIN_POINT_OBSERVATIONS {
+                if p.num_observations() <= REDUNDANT_OBSERVATIONS {
                     continue;
                 }
                 let level = f.keypoints[i].octave;
@@ -372,9 +408,9 @@ impl LocalMapper {
                         map.keyframe(**k2)
                             .is_some_and(|k2| k2.features().keypoints[**i2].octave <= level + 1)
                     })
-                    .take(MIN_POINT_OBSERVATIONS)
+                    .take(REDUNDANT_OBSERVATIONS)
                     .count();
-                if n_finer >= MIN_POINT_OBSERVATIONS {
+                if n_finer >= REDUNDANT_OBSERVATIONS {
                     n_redundant += 1;
                 }
             }
@@ -387,6 +423,25 @@ impl LocalMapper {
         }
         culled
     }
+}
+
+/// Median depth of `kf`'s map points in its camera, metres (ORB-SLAM
+/// `ComputeSceneMedianDepth`); `None` without points in front of it.
+pub(crate) fn scene_median_depth(map: &Map, kf: KeyFrameId) -> Option<f64> {
+    let k = map.keyframe(kf)?;
+    let mut z: Vec<f64> = k
+        .map_points()
+        .iter()
+        .flatten()
+        .filter_map(|m| map.map_point(*m))
+        .map(|p| (k.T_c_w() * Point3::from(p.position())).z)
+        .filter(|z| *z > 0.0)
+        .collect();
+    if z.is_empty() {
+        return None;
+    }
+    let mid = z.len() / 2;
+    Some(*z.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
 /// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two cameras.
@@ -463,8 +518,9 @@ impl<'a> View<'a> {
 /// A feature with close depth (below `close_depth_m`) in either view is mapped from that depth
 /// (the closer view wins). Far depth is unreliable from one view (the ORB-SLAM2 paper's
 /// close/far rule), so far and depthless features are triangulated from the two rays, and only
-/// with at least [`MIN_RAY_PARALLAX_DEG`] of parallax; the reprojection check that follows
-/// still holds a triangulated point to any disparity measured for it.
+/// with enough parallax; the reprojection check that follows
+/// still holds a triangulated point to any disparity measured for it. See
+/// [`min_ray_parallax_deg`].
 ///
 /// ORB-SLAM2's code also back-projects far depth here and ray-triangulates from 1.15 deg of
 /// parallax; on KITTI 01 (stereo, 51 frames) that inflated the path by 6.7 %, against 4.6 %
@@ -480,7 +536,7 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
     let xn = [0, 1].map(|k| ctx.camera.unproject(&views[k].pixel(idx[k])));
     let rays = [0, 1].map(|k| views[k].T_w_c.rotation * xn[k]);
     let cos_rays = rays[0].dot(&rays[1]) / (rays[0].norm() * rays[1].norm());
-    if cos_rays > MIN_RAY_PARALLAX_DEG.to_radians().cos() {
+    if cos_rays > min_ray_parallax_deg(ctx.config.sensor).to_radians().cos() {
         return None;
     }
     triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &xn[0], &xn[1])
@@ -491,7 +547,7 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
 fn fuse_with_neighbours(kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
     let mut targets = Vec::new();
     let mut seen: HashSet<KeyFrameId> = HashSet::from([kf]);
-    for n in map.best_covisibles(kf, TRIANGULATION_NEIGHBOURS) {
+    for n in map.best_covisibles(kf, triangulation_neighbours(ctx.config.sensor)) {
         if seen.insert(n) {
             targets.push(n);
         }

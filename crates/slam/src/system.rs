@@ -7,11 +7,12 @@ use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{KeyFrameId, Map};
 use nalgebra::{Isometry3, Vector3};
 
-use crate::config::SlamConfig;
+use crate::config::{Sensor, SlamConfig};
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::{Frame, RgbdInput, StereoInput};
+use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::local_mapping::{LocalMapper, MappingReport};
+use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
 use crate::tracking::{Tracker, TrackingState, MIN_INIT_FEATURES};
 use crate::trajectory::Trajectory;
 
@@ -32,15 +33,31 @@ pub struct TrackResult {
     pub mapping_ms: f64,
     /// What local mapping did, when a keyframe was inserted.
     pub mapping: Option<MappingReport>,
+    /// Monocular only: why this frame did not start the map (`None` once initialised).
+    pub init_status: Option<InitStatus>,
 }
 
+/// How long a lost monocular map keeps trying to relocalise before a new map segment
+/// starts, seconds. ORB-SLAM3 waits up to 3 s; a second loses fewer frames to the wait.
+const RELOCALISATION_WINDOW_S: f64 = 1.0;
+/// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM).
+const MIN_KEYFRAMES_TO_KEEP: usize = 5;
+
 /// The SLAM system: tracking and local mapping run inline, in call order (deterministic).
+///
+/// A monocular system that stays lost for [`RELOCALISATION_WINDOW_S`] closes the current map
+/// as a *segment* (its frame poses are kept, in that segment's own frame and scale) and
+/// initialises a new map from the following frames.
 pub struct SlamSystem {
     ctx: Context,
     map: Map,
     tracker: Tracker,
     mapper: LocalMapper,
+    initializer: MonoInitializer,
     trajectory: Trajectory,
+    /// Frame poses `(timestamp, T_w_c)` of the closed map segments, oldest first.
+    segments: Vec<Vec<(f64, Isometry3<f64>)>>,
+    lost_since: Option<f64>,
     frames_seen: usize,
     last_timestamp: Option<f64>,
     resets: usize,
@@ -57,7 +74,10 @@ impl SlamSystem {
             map: Map::new(pyramid),
             tracker: Tracker::default(),
             mapper: LocalMapper::default(),
+            initializer: MonoInitializer::default(),
             trajectory: Trajectory::default(),
+            segments: Vec::new(),
+            lost_since: None,
             frames_seen: 0,
             last_timestamp: None,
             resets: 0,
@@ -71,6 +91,7 @@ impl SlamSystem {
     /// a timestamp not after the previous one; the system state is unchanged then.
     pub fn track_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<TrackResult, SlamError> {
         let start = Instant::now();
+        self.expect_sensor(Sensor::Rgbd, "track_rgbd")?;
         input.validate(self.ctx.config.n_levels)?;
         self.check_timestamp(input.timestamp)?;
         let frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx)?;
@@ -85,6 +106,7 @@ impl SlamSystem {
     /// between the images, and when the camera has distortion (stereo input must be rectified).
     pub fn track_stereo(&mut self, input: &StereoInput<'_>) -> Result<TrackResult, SlamError> {
         let start = Instant::now();
+        self.expect_sensor(Sensor::Stereo, "track_stereo")?;
         if self.ctx.camera.is_distorted() {
             return Err(SlamError::InvalidInput(
                 "stereo input must come from rectified images, but the camera has distortion \
@@ -98,6 +120,34 @@ impl SlamSystem {
         self.track_frame(frame, start)
     }
 
+    /// Tracks one monocular frame; keypoints are raw (distorted) pixels. Until the map exists
+    /// each frame is offered to two-view initialisation (`init_status` says why it waits).
+    ///
+    /// # Errors
+    /// `InvalidInput` as [`Self::track_rgbd`].
+    pub fn track_mono(&mut self, input: &MonoInput<'_>) -> Result<TrackResult, SlamError> {
+        let start = Instant::now();
+        self.expect_sensor(Sensor::Monocular, "track_mono")?;
+        input.validate(self.ctx.config.n_levels)?;
+        self.check_timestamp(input.timestamp)?;
+        let frame = Frame::from_mono(self.frames_seen, input, &self.ctx)?;
+        self.track_frame(frame, start)
+    }
+
+    fn expect_sensor(&self, sensor: Sensor, method: &str) -> Result<(), SlamError> {
+        let own = self.ctx.config.sensor;
+        if own == sensor {
+            return Ok(());
+        }
+        Err(SlamError::InvalidInput(format!(
+            "{method} needs a system created with sensor=\"{}\"; this one is \"{}\" \
+             (use track_{})",
+            sensor.name(),
+            own.name(),
+            own.name()
+        )))
+    }
+
     fn check_timestamp(&mut self, timestamp: f64) -> Result<(), SlamError> {
         if let Some(t) = self.last_timestamp.filter(|&t| timestamp <= t) {
             return Err(SlamError::InvalidInput(format!(
@@ -108,19 +158,31 @@ impl SlamSystem {
         Ok(())
     }
 
-    /// Initialises or tracks a frame with depth, then inserts a keyframe when needed.
+    /// Initialises or tracks a frame, then inserts a keyframe when needed.
     fn track_frame(&mut self, mut frame: Frame, start: Instant) -> Result<TrackResult, SlamError> {
         self.frames_seen += 1;
         if self.tracker.state == TrackingState::NotInitialized {
-            let initialised = self.initialise(frame)?;
+            let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
+                (self.initialise(frame)?, None)
+            } else {
+                match self.initialise_monocular(frame)? {
+                    Ok(T_w_c) => (Some(T_w_c), None),
+                    Err(status) => (None, Some(status)),
+                }
+            };
             return Ok(TrackResult {
                 state: self.tracker.state,
-                T_w_c: initialised.then(Isometry3::identity),
-                is_keyframe: initialised,
-                num_tracked: self.tracker.matches_inliers,
+                T_w_c,
+                is_keyframe: T_w_c.is_some(),
+                num_tracked: if T_w_c.is_some() {
+                    self.tracker.matches_inliers
+                } else {
+                    0
+                },
                 tracking_ms: start.elapsed().as_secs_f64() * 1e3,
                 mapping_ms: 0.0,
                 mapping: None,
+                init_status,
             });
         }
         let tracked = self.tracker.track(&mut frame, &mut self.map, &self.ctx)?;
@@ -137,13 +199,13 @@ impl SlamSystem {
             tracking_ms,
             mapping_ms: 0.0,
             mapping: None,
+            init_status: None,
         };
         if !tracked {
-            if self.tracker.state == TrackingState::Lost && self.map.num_keyframes() <= 5 {
-                self.reset();
-            }
+            self.handle_lost(frame.timestamp);
             return Ok(result);
         }
+        self.lost_since = None;
         let start = Instant::now();
         let new_keyframe = self.tracker.state == TrackingState::Ok
             && self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx);
@@ -172,12 +234,63 @@ impl SlamSystem {
         Ok(result)
     }
 
+    /// A lost map with few keyframes is discarded (ORB-SLAM); a lost monocular map that does
+    /// not relocalise within [`RELOCALISATION_WINDOW_S`] is closed as a segment. Maps with
+    /// depth wait for relocalisation.
+    fn handle_lost(&mut self, timestamp: f64) {
+        if self.tracker.state != TrackingState::Lost {
+            return;
+        }
+        if self.map.num_keyframes() <= MIN_KEYFRAMES_TO_KEEP {
+            self.reset();
+            return;
+        }
+        let since = *self.lost_since.get_or_insert(timestamp);
+        if !self.ctx.config.sensor.has_depth() && timestamp - since >= RELOCALISATION_WINDOW_S {
+            self.segments.push(self.trajectory.poses(&self.map));
+            self.clear_map();
+        }
+    }
+
+    /// Starts the map from a two-view pair (see [`crate::mono_init`]); `Ok(T_w_c)` of the
+    /// frame when the map was created.
+    fn initialise_monocular(
+        &mut self,
+        mut frame: Frame,
+    ) -> Result<Result<Isometry3<f64>, InitStatus>, SlamError> {
+        let pair = match self.initializer.add_frame(&frame, &self.ctx) {
+            Ok(pair) => pair,
+            Err(status) => return Ok(Err(status)),
+        };
+        let (ref_timestamp, ref_T_c_w) = (pair.reference.timestamp, Isometry3::identity());
+        let (kf1, kf2) =
+            match create_initial_map(pair, &mut frame, &mut self.map, &mut self.mapper, &self.ctx)?
+            {
+                Ok(kfs) => kfs,
+                Err(status) => {
+                    self.initializer.reset();
+                    return Ok(Err(status));
+                }
+            };
+        self.tracker.on_keyframe(frame.index, kf2);
+        self.tracker.state = TrackingState::Ok;
+        self.tracker.matches_inliers = frame.map_points.iter().flatten().count();
+        self.trajectory
+            .push(ref_timestamp, &ref_T_c_w, kf1, &self.map);
+        self.trajectory
+            .push(frame.timestamp, &frame.T_c_w, kf2, &self.map);
+        let T_w_c = frame.T_c_w.inverse();
+        self.tracker
+            .set_last_frame(frame, &self.map, &self.ctx, true);
+        Ok(Ok(T_w_c))
+    }
+
     /// Creates the map from the first frame with enough depth (ORB-SLAM `StereoInitialization`):
     /// the camera is the world origin and every feature with depth becomes a map point.
-    fn initialise(&mut self, mut frame: Frame) -> Result<bool, SlamError> {
+    fn initialise(&mut self, mut frame: Frame) -> Result<Option<Isometry3<f64>>, SlamError> {
         let with_depth = frame.features.depth.iter().filter(|&&z| z > 0.0).count();
         if with_depth < MIN_INIT_FEATURES {
-            return Ok(false);
+            return Ok(None);
         }
         frame.T_c_w = Isometry3::identity();
         let mut report = MappingReport::default();
@@ -196,16 +309,23 @@ impl SlamSystem {
             .push(frame.timestamp, &frame.T_c_w, kf, &self.map);
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, true);
-        Ok(true)
+        Ok(Some(Isometry3::identity()))
     }
 
-    /// Clears the map and starts again from the next frame.
+    /// Discards the current map and its trajectory (closed segments stay) and starts again
+    /// from the next frame; counted in [`Self::resets`].
     pub fn reset(&mut self) {
+        self.clear_map();
+        self.resets += 1;
+    }
+
+    fn clear_map(&mut self) {
         self.map.clear();
         self.tracker.reset();
         self.mapper.reset();
+        self.initializer.reset();
         self.trajectory.clear();
-        self.resets += 1;
+        self.lost_since = None;
     }
 
     /// Current tracking state.
@@ -223,9 +343,25 @@ impl SlamSystem {
         self.resets
     }
 
-    /// `(timestamp, T_w_c)` of every tracked frame, with all map corrections applied.
+    /// `(timestamp, T_w_c)` of every tracked frame, with all map corrections applied: the
+    /// closed segments' frames first, then the current map's (see [`Self::frame_segments`]).
     pub fn frame_trajectory(&self) -> Vec<(f64, Isometry3<f64>)> {
-        self.trajectory.poses(&self.map)
+        let mut poses: Vec<_> = self.segments.iter().flatten().copied().collect();
+        poses.extend(self.trajectory.poses(&self.map));
+        poses
+    }
+
+    /// Map segment of each entry of [`Self::frame_trajectory`]: 0 for the first map, one more
+    /// for each map started after a monocular map was lost. Poses of different segments live
+    /// in different frames (and, monocular, scales).
+    pub fn frame_segments(&self) -> Vec<usize> {
+        let current = self.trajectory.poses(&self.map).len();
+        self.segments
+            .iter()
+            .enumerate()
+            .flat_map(|(s, poses)| std::iter::repeat_n(s, poses.len()))
+            .chain(std::iter::repeat_n(self.segments.len(), current))
+            .collect()
     }
 
     /// `(id, timestamp, T_w_c)` of every live keyframe, in id order.

@@ -438,7 +438,7 @@ impl Tracker {
         Ok(())
     }
 
-    /// ORB-SLAM's keyframe decision for RGB-D, with MATLAB's `TrackFeatureRange` upper limit
+    /// ORB-SLAM's keyframe decision (reference ratio 0.75 with depth, 0.9 monocular), with MATLAB's `TrackFeatureRange` upper limit
     /// and `SkipMaxFrames`: a frame tracking more than `upper` points is not a keyframe unless
     /// `skip_max_frames` frames passed since the last one.
     pub fn need_new_keyframe(&self, frame: &Frame, map: &Map, ctx: &Context) -> bool {
@@ -470,7 +470,11 @@ impl Tracker {
         let need_close = tracked_close < 100 && untracked_close > 70;
         let inliers = self.matches_inliers;
         let since_kf = frame.index.saturating_sub(self.last_keyframe_frame);
-        let ratio = if n_kfs < 2 { 0.4 } else { 0.75 };
+        let ratio = match (n_kfs < 2, ctx.config.sensor.has_depth()) {
+            (true, _) => 0.4,
+            (false, true) => 0.75,
+            (false, false) => 0.9,
+        };
         // MATLAB's rule (fewer tracked points than the upper limit, or SkipMaxFrames reached)
         // or ORB-SLAM's (tracking much less than the reference keyframe, or close structure
         // left untracked); local mapping runs inline, so it is always idle here.
@@ -527,9 +531,12 @@ fn search_last_frame(
 ) -> usize {
     let pyramid = map.pyramid();
     let n_levels = pyramid.n_levels as u8;
+    // With depth, a camera moving forward sees last frame's points at coarser levels (and
+    // finer moving back); a monocular map has no metric baseline to tell (ORB-SLAM).
     let center_in_last = last.T_c_w * Point3::from(frame.camera_center());
-    let forward = center_in_last.z > ctx.baseline_m;
-    let backward = -center_in_last.z > ctx.baseline_m;
+    let has_depth = ctx.config.sensor.has_depth();
+    let forward = has_depth && center_in_last.z > ctx.baseline_m;
+    let backward = has_depth && -center_in_last.z > ctx.baseline_m;
     let mut queries = Vec::new();
     let mut u_right = Vec::new();
     let mut sources = Vec::new();

@@ -42,7 +42,7 @@ use from_homography::poses_from_homography;
 use fundamental::fit_fundamental;
 use homography::fit_homography;
 use normalization::normalize;
-use pose_check::{select_pose, Acceptance};
+use pose_check::{check_pose, select_pose, Acceptance};
 use ransac::{best_model, draw_samples, SAMPLE_SIZE};
 use scoring::{score_fundamental, score_homography};
 
@@ -116,7 +116,7 @@ pub struct TwoViewReconstruction {
     /// baseline) when it is an inlier that triangulates in front of both cameras with
     /// reprojection error below `2 sigma` and parallax above about 0.36 degrees.
     pub points_c1: Vec<Option<Vector3<f64>>>,
-    /// Per match: inlier of the chosen model.
+    /// Per match: inlier of the chosen model, or consistent with the accepted pose.
     pub inliers: Vec<bool>,
     /// The model the pose came from.
     pub model: TwoViewModel,
@@ -262,12 +262,14 @@ pub fn reconstruct_two_view(
         min_parallax_deg: options.min_parallax_deg,
     };
     let (pose, check) = select_pose(&poses, &c, &score.inliers, camera, sigma, &acceptance)?;
-
+    // The model's inliers come from the RANSAC estimate; the accepted (refined) pose explains
+    // more matches, so every match is re-checked against it for the returned points.
+    let final_check = check_pose(&c, &vec![true; c.len()], camera, &pose, sigma);
     let mut points_c1 = vec![None; matches.len()];
     let mut inliers = vec![false; matches.len()];
     for (i, &k) in c.match_index.iter().enumerate() {
-        points_c1[k] = check.points_c1[i];
-        inliers[k] = score.inliers[i];
+        points_c1[k] = final_check.points_c1[i];
+        inliers[k] = final_check.points_c1[i].is_some() || score.inliers[i];
     }
     Ok(TwoViewReconstruction {
         T_c2_c1: pose,

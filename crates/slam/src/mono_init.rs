@@ -1,0 +1,237 @@
+//! Monocular map initialisation (ORB-SLAM `MonocularInitialization`): a reference frame is
+//! matched against each later frame until a pair gives a trustworthy two-view reconstruction;
+//! the map then starts with both frames as keyframes and the triangulated points, bundle
+//! adjusted and scaled so the median scene depth of the first keyframe is 1.
+
+use ferroslam_features::matcher::TH_LOW;
+use ferroslam_features::{search_by_projection, MatchOptions, ProjectionQuery};
+use ferroslam_geometry::two_view::{reconstruct_two_view, TwoViewOptions, TwoViewReconstruction};
+use ferroslam_map::{KeyFrameId, Map};
+use nalgebra::{Isometry3, Vector2};
+
+use crate::context::Context;
+use crate::error::SlamError;
+use crate::frame::Frame;
+use crate::local_mapping::{scene_median_depth, LocalMapper};
+
+/// Keypoints a frame needs to serve in an initialisation pair (ORB-SLAM).
+const MIN_KEYPOINTS: usize = 100;
+/// Matches a pair needs; with fewer the reference is replaced (ORB-SLAM).
+const MIN_MATCHES: usize = 100;
+/// Half-side of the window around a feature's last match where it is searched, pixels.
+const WINDOW_PX: f64 = 100.0;
+/// Map points the second keyframe must keep after bundle adjustment (ORB-SLAM).
+const MIN_INITIAL_POINTS: usize = 100;
+
+/// Why the last frame did not start the map; for status reports.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum InitStatus {
+    /// No reference frame yet (or it was just replaced by this frame).
+    #[error("waiting for a reference frame with more than {MIN_KEYPOINTS} keypoints")]
+    WaitingForReference,
+    /// Too few matches with the reference: this frame became the new reference.
+    #[error("{0} matches with the reference frame (need {MIN_MATCHES}): new reference")]
+    TooFewMatches(usize),
+    /// The two-view reconstruction refused the pair (degenerate motion): the reason.
+    #[error("two-view reconstruction refused: {0}")]
+    Refused(String),
+    /// A reconstruction was found but the map failed its checks after bundle adjustment.
+    #[error("initial map rejected: {0}")]
+    RejectedAfterBa(String),
+}
+
+/// The matching state between the reference frame and later frames.
+#[derive(Debug, Default)]
+pub struct MonoInitializer {
+    reference: Option<Frame>,
+    /// Where each reference keypoint was last matched; the search window follows it.
+    prev_matched: Vec<Vector2<f64>>,
+}
+
+/// A pair that passed the two-view checks: the reference frame, the matches and the
+/// reconstruction (points in the reference camera, unit baseline).
+pub struct TwoViewPair {
+    /// The first view (becomes the map's origin keyframe).
+    pub reference: Frame,
+    /// `(reference keypoint, current keypoint)` per match.
+    pub matches: Vec<(usize, usize)>,
+    /// Pose and points from [`reconstruct_two_view`].
+    pub reconstruction: TwoViewReconstruction,
+}
+
+impl MonoInitializer {
+    /// Forgets the reference frame.
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+
+    /// Offers `frame` (undistorted features) as the second view; `Ok` with the pair when it
+    /// initialises, `Err` with the reason otherwise.
+    pub fn add_frame(&mut self, frame: &Frame, ctx: &Context) -> Result<TwoViewPair, InitStatus> {
+        let Some(reference) = self
+            .reference
+            .as_ref()
+            .filter(|_| frame.len() > MIN_KEYPOINTS)
+        else {
+            self.set_reference(frame);
+            return Err(InitStatus::WaitingForReference);
+        };
+        let matches = self.search(reference, frame);
+        if matches.len() < MIN_MATCHES {
+            let n = matches.len();
+            self.set_reference(frame);
+            return Err(InitStatus::TooFewMatches(n));
+        }
+        for &(i, j) in &matches {
+            let kp = &frame.features.keypoints[j];
+            self.prev_matched[i] = Vector2::new(kp.x as f64, kp.y as f64);
+        }
+        let pixels = |f: &Frame| -> Vec<Vector2<f64>> {
+            f.features
+                .keypoints
+                .iter()
+                .map(|k| Vector2::new(k.x as f64, k.y as f64))
+                .collect()
+        };
+        let options = TwoViewOptions {
+            seed: ctx.config.seed ^ frame.index as u64,
+            ..TwoViewOptions::default()
+        };
+        match reconstruct_two_view(
+            &pixels(reference),
+            &pixels(frame),
+            &matches,
+            &ctx.camera,
+            &options,
+        ) {
+            Ok(reconstruction) => Ok(TwoViewPair {
+                reference: self.reference.take().expect("checked above"),
+                matches,
+                reconstruction,
+            }),
+            Err(refusal) => Err(InitStatus::Refused(refusal.to_string())),
+        }
+    }
+
+    fn set_reference(&mut self, frame: &Frame) {
+        if frame.len() > MIN_KEYPOINTS {
+            self.prev_matched = frame
+                .features
+                .keypoints
+                .iter()
+                .map(|k| Vector2::new(k.x as f64, k.y as f64))
+                .collect();
+            self.reference = Some(frame.clone());
+        } else {
+            self.reset();
+        }
+    }
+
+    /// ORB-SLAM `SearchForInitialization`: reference keypoints searched in a window around
+    /// their last match among the current keypoints of the same octave (ratio 0.9, rotation
+    /// consistency, one-to-one). ORB-SLAM searches the finest level only; on KITTI's forward
+    /// motion that found 103 matches (73 triangulated) between frames 0 and 1, too few to start.
+    fn search(&self, reference: &Frame, frame: &Frame) -> Vec<(usize, usize)> {
+        let mut ids = Vec::new();
+        let mut queries = Vec::new();
+        for (i, kp) in reference.features.keypoints.iter().enumerate() {
+            queries.push(ProjectionQuery {
+                u: self.prev_matched[i].x,
+                v: self.prev_matched[i].y,
+                radius: WINDOW_PX,
+                min_level: kp.octave,
+                max_level: kp.octave,
+                descriptor: reference.features.descriptors[i],
+                angle_deg: Some(kp.angle_deg),
+            });
+            ids.push(i);
+        }
+        let opts = MatchOptions {
+            max_distance: TH_LOW,
+            nn_ratio: Some(0.9),
+            check_orientation: true,
+        };
+        let f = &frame.features;
+        search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &[], &opts)
+            .into_iter()
+            .enumerate()
+            .filter_map(|(q, hit)| hit.map(|(j, _)| (ids[q], j)))
+            .collect()
+    }
+}
+
+/// Builds the initial map from a pair (ORB-SLAM `CreateInitialMapMonocular`): two keyframes,
+/// one point per triangulated match, bundle adjustment with the first keyframe fixed, then
+/// the scale that puts the first keyframe's median scene depth at 1.
+///
+/// On success `current` carries its pose and point associations and the keyframe ids are
+/// returned; on failure the map is cleared and the reason returned.
+pub fn create_initial_map(
+    pair: TwoViewPair,
+    current: &mut Frame,
+    map: &mut Map,
+    mapper: &mut LocalMapper,
+    ctx: &Context,
+) -> Result<Result<(KeyFrameId, KeyFrameId), InitStatus>, SlamError> {
+    let TwoViewPair {
+        mut reference,
+        matches,
+        reconstruction,
+    } = pair;
+    reference.T_c_w = Isometry3::identity();
+    current.T_c_w = reconstruction.T_c2_c1;
+    let kf1 = map.insert_keyframe(
+        reference.timestamp,
+        reference.index,
+        reference.T_c_w,
+        reference.features.clone(),
+    );
+    let kf2 = map.insert_keyframe(
+        current.timestamp,
+        current.index,
+        current.T_c_w,
+        current.features.clone(),
+    );
+    current.clear_associations();
+    for (&(i, j), p) in matches.iter().zip(&reconstruction.points_c1) {
+        let Some(p) = p else { continue };
+        let m = map.create_map_point(*p, kf1)?;
+        map.add_observation(m, kf1, i)?;
+        map.add_observation(m, kf2, j)?;
+        map.compute_distinctive_descriptor(m)?;
+        map.update_normal_and_depth(m)?;
+        mapper.add_recent_point(m);
+        current.map_points[j] = Some(m);
+    }
+    map.update_connections(kf1)?;
+    map.update_connections(kf2)?;
+    mapper.local_bundle_adjust(kf2, map, ctx)?;
+
+    let median_depth = scene_median_depth(map, kf1);
+    let tracked = map.tracked_points(kf2, 1);
+    let (Some(depth), true) = (median_depth, tracked >= MIN_INITIAL_POINTS) else {
+        map.clear();
+        mapper.reset();
+        return Ok(Err(InitStatus::RejectedAfterBa(format!(
+            "{tracked} points left after bundle adjustment (need {MIN_INITIAL_POINTS})"
+        ))));
+    };
+    let inv = 1.0 / depth;
+    let mut T_c2_w = *map.keyframe(kf2).expect("just inserted").T_c_w();
+    T_c2_w.translation.vector *= inv;
+    map.set_keyframe_pose(kf2, T_c2_w)?;
+    for m in map.map_point_ids() {
+        let p = map.map_point(m).expect("live id").position();
+        map.set_map_point_position(m, p * inv)?;
+    }
+    for m in map.map_point_ids() {
+        map.update_normal_and_depth(m)?;
+    }
+    current.T_c_w = T_c2_w;
+    for slot in current.map_points.iter_mut() {
+        if slot.is_some_and(|m| map.map_point(m).is_none()) {
+            *slot = None;
+        }
+    }
+    Ok(Ok((kf1, kf2)))
+}
