@@ -48,3 +48,8 @@ def kitti_stereo() -> Path:
 @pytest.fixture(scope="session")
 def euroc_micro() -> Path:
     return require_data("euroc", "V1_01_easy_micro")
+
+
+@pytest.fixture(scope="session")
+def kitti_mono() -> Path:
+    return require_data("kitti", "odometry_06_first51")

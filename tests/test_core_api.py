@@ -308,7 +308,30 @@ def test_bad_camera(camera_args, message):
         SlamSystem(*camera_args)
 
 
-@pytest.mark.parametrize("sensor", ["mono", "lidar"])
+@pytest.mark.parametrize("sensor", ["lidar", "RGBD"])
 def test_unimplemented_sensors(camera, sensor):
     with pytest.raises(NotImplementedError, match=f'sensor "{sensor}" is not implemented yet'):
         make_system(camera, sensor=sensor)
+
+
+def test_mono_input_errors(camera, frames):
+    t, kp, desc, depth = frames[0]
+    mono = make_system(camera, sensor="mono")
+    assert mono.sensor == "mono"
+    with pytest.raises(ValueError, match=re.escape(
+            'track_rgbd needs a system created with sensor="rgbd"; this one is "mono"')):
+        mono.track_rgbd(t, kp, desc, depth)
+    with pytest.raises(ValueError, match=re.escape(
+            f"keypoints ({len(kp)}) and descriptors ({len(kp) - 1}) must have the same length")):
+        mono.track_mono(t, kp, desc[:-1])
+    with pytest.raises(TypeError, match="descriptors must be a uint8 .N, 32. array"):
+        mono.track_mono(t, kp, desc.astype(np.int16))
+    first = mono.track_mono(t, kp, desc)
+    assert first.state == "not_initialized"
+    assert first.init_reason.startswith("waiting for a reference frame")
+    with pytest.raises(ValueError, match="is not after the previous frame's"):
+        mono.track_mono(t, kp, desc)
+    rgbd = make_system(camera)
+    with pytest.raises(ValueError, match=re.escape('track_mono needs a system created with '
+                                                   'sensor="mono"; this one is "rgbd"')):
+        rgbd.track_mono(t, kp, desc)

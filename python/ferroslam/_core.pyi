@@ -23,7 +23,7 @@ __version__: str
 """Version of the Rust crate the module was built from."""
 
 _State = Literal["not_initialized", "ok", "lost"]
-_Sensor = Literal["rgbd", "stereo"]
+_Sensor = Literal["mono", "stereo", "rgbd"]
 _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 
 class _SlamOptions(TypedDict, total=False):
@@ -80,6 +80,10 @@ class TrackResult:
     @property
     def mapping_ms(self) -> float:
         """Local mapping wall time, milliseconds (0 unless a keyframe was inserted)."""
+    @property
+    def init_reason(self) -> str | None:
+        """Monocular, before the map exists: why this frame did not start it (too few
+        matches, degenerate pair refused by the two-view reconstruction, ...); else None."""
 
 @final
 class SlamSystem:
@@ -104,14 +108,14 @@ class SlamSystem:
             fx, fy, cx, cy: intrinsics in pixels (fx, fy > 0).
             dist: 0, 4 or 5 coefficients ``k1 k2 p1 p2 [k3]``.
             width, height: image size in pixels (> 0).
-            sensor: ``"rgbd"`` or ``"stereo"`` (rectified pair: ``dist`` must be zeros and
-                ``baseline`` is required); others raise ``NotImplementedError``.
+            sensor: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (rectified pair: ``dist`` must be
+                zeros and ``baseline`` is required); others raise ``NotImplementedError``.
             options: see ``_SlamOptions``.
 
         Raises:
             ValueError: invalid camera or option value, unknown option name.
             TypeError: option of the wrong type.
-            NotImplementedError: an unknown sensor (``"mono"`` is not implemented yet).
+            NotImplementedError: an unknown sensor.
         """
     def track_rgbd(
         self,
@@ -167,14 +171,40 @@ class SlamSystem:
                 a camera with distortion, missing pyramid levels, left/right sizes differ.
             SlamError: internal failure.
         """
+    def track_mono(
+        self,
+        timestamp: float,
+        keypoints: NDArray[np.float32],
+        descriptors: NDArray[np.uint8],
+    ) -> TrackResult:
+        """Tracks one monocular frame (the GIL is released while it runs). Until the map
+        exists every frame is offered to two-view initialisation (see
+        ``TrackResult.init_reason``); a map that stays lost for a second is closed as a
+        segment and a new one starts (see ``frame_segments``).
+
+        Args:
+            timestamp: seconds, finite, strictly after the previous accepted frame's.
+            keypoints: (N, 5) float32 ``[x, y, octave, angle_deg, response]``, raw pixels.
+            descriptors: (N, 32) uint8.
+
+        Raises:
+            TypeError / ValueError: as ``track_rgbd``; a system not created with
+                ``sensor="mono"``.
+            SlamError: internal failure.
+        """
+    def frame_segments(self) -> NDArray[np.uint32]:
+        """Map segment of each pose of ``frame_trajectory`` (N,): 0 for the first map, one
+        more per map started after a monocular map was lost. Segments have their own world
+        frame (and, monocular, scale)."""
     def frame_trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(timestamps (N,) float64, T_w_c (N, 4, 4) float64)`` of every tracked frame,
-        relative to its reference keyframe, so later map corrections are included."""
+        relative to its reference keyframe, so later map corrections are included; closed map
+        segments first (see ``frame_segments``)."""
     def keyframe_trajectory(
         self,
     ) -> tuple[NDArray[np.uint32], NDArray[np.float64], NDArray[np.float64]]:
         """``(ids (K,) uint32, timestamps (K,) float64, T_w_c (K, 4, 4) float64)`` of the
-        live keyframes."""
+        live keyframes of the current map."""
     def map_points(self) -> NDArray[np.float64]:
         """World positions of the live map points, (M, 3) float64 metres."""
     def reset(self) -> None:
