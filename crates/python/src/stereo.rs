@@ -7,6 +7,9 @@ use pyo3::prelude::*;
 
 use crate::convert;
 
+/// `(u_right (N,), depth_m (N,))` float32 arrays.
+type StereoArrays<'py> = (Bound<'py, PyArray1<f32>>, Bound<'py, PyArray1<f32>>);
+
 /// Matches left keypoints into the right image of a rectified pair (ORB-SLAM2's stereo
 /// matching: row band, octave, Hamming distance, SAD refinement on the pyramid level).
 ///
@@ -26,7 +29,7 @@ pub fn match_stereo<'py>(
     fx: f64,
     baseline: f64,
     scale_factor: f64,
-) -> PyResult<(Bound<'py, PyArray1<f32>>, Bound<'py, PyArray1<f32>>)> {
+) -> PyResult<StereoArrays<'py>> {
     if !(fx.is_finite() && fx > 0.0 && baseline.is_finite() && baseline > 0.0) {
         return Err(PyValueError::new_err(format!(
             "fx and baseline must be positive, got fx = {fx}, baseline = {baseline}"
