@@ -8,6 +8,7 @@ mod convert;
 mod errors;
 mod stereo;
 mod system;
+mod vocabulary;
 
 use pyo3::prelude::*;
 
@@ -17,6 +18,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<system::PySlamSystem>()?;
     m.add_class::<system::PyTrackResult>()?;
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
+    m.add_class::<vocabulary::PyVocabulary>()?;
+    m.add_class::<vocabulary::PyKeyframeDatabase>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
