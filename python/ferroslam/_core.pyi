@@ -6,8 +6,9 @@ float64 homogeneous matrices; metres, pixels, seconds. Bad input raises ``TypeEr
 values, configuration), always naming the problem; ``SlamError`` is an internal failure.
 """
 
+import os
 import sys
-from typing import Any, Literal, Sequence, TypedDict, Union, final
+from typing import Any, Iterable, Literal, Optional, Sequence, TypedDict, Union, final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,7 +18,10 @@ if sys.version_info >= (3, 11):
 else:
     from typing_extensions import Unpack
 
-__all__ = ["SlamError", "SlamSystem", "TrackResult", "__version__", "match_stereo"]
+__all__ = [
+    "KeyframeDatabase", "SlamError", "SlamSystem", "TrackResult", "Vocabulary", "__version__",
+    "match_stereo",
+]
 
 __version__: str
 """Version of the Rust crate the module was built from."""
@@ -245,3 +249,75 @@ def match_stereo(
     Raises:
         TypeError / ValueError: as ``SlamSystem.track_stereo``; non-positive fx or baseline.
     """
+
+# --- Place recognition: Vocabulary and KeyframeDatabase (crates/python/src/vocabulary.rs) ---
+
+_PathLike = Union[str, "os.PathLike[str]"]
+
+@final
+class Vocabulary:
+    """ORB vocabulary tree (hierarchical k-majority clustering, TF-IDF word weights), as
+    DBoW2's. BoW vectors are ``dict[int, float]``: word id -> weight, L1-normalised.
+
+    File errors name the file: ``FileNotFoundError`` / ``OSError`` when it cannot be read or
+    written, ``ValueError`` when its content is corrupt or malformed.
+    """
+
+    @staticmethod
+    def train(
+        descriptor_list: Sequence[NDArray[np.uint8]], k: int = 10, levels: int = 5, seed: int = 0
+    ) -> Vocabulary:
+        """Trains on one ``(N, 32)`` uint8 descriptor array per image (IDF counts images);
+        deterministic for a given seed.
+
+        Raises:
+            TypeError: not a list of uint8 arrays (the message names ``descriptor_list[i]``).
+            ValueError: a shape other than (N, 32); k < 2; levels outside 1..16; no descriptor.
+        """
+    @staticmethod
+    def load(path: _PathLike) -> Vocabulary:
+        """Reads the compact checksummed binary format written by ``save``."""
+    @staticmethod
+    def load_dbow2_text(path: _PathLike) -> Vocabulary:
+        """Reads DBoW2's text format (ORB-SLAM's ``ORBvoc.txt``)."""
+    def save(self, path: _PathLike) -> None:
+        """Writes the compact binary format."""
+    def save_dbow2_text(self, path: _PathLike) -> None:
+        """Writes DBoW2's text format, readable by ORB-SLAM2/3."""
+    def transform(self, descriptors: NDArray[np.uint8]) -> dict[int, float]:
+        """BoW vector of one image's ``(N, 32)`` uint8 descriptors (empty for N = 0)."""
+    @staticmethod
+    def score(a: dict[int, float], b: dict[int, float]) -> float:
+        """DBoW2's L1 similarity ``1 - 0.5 |a/|a| - b/|b||_1`` in [0, 1] (0 if either is
+        empty). Raises ``TypeError`` for non-dict input, ``ValueError`` for negative or
+        non-finite weights."""
+    @property
+    def k(self) -> int:
+        """Branching factor."""
+    @property
+    def levels(self) -> int:
+        """Tree depth."""
+    @property
+    def num_words(self) -> int:
+        """Number of words (leaves)."""
+
+@final
+class KeyframeDatabase:
+    """Inverted-index keyframe database over a ``Vocabulary``, scored with the L1 score."""
+
+    def __init__(self, vocabulary: Vocabulary) -> None: ...
+    def add(self, id: int, descriptors: NDArray[np.uint8]) -> bool:
+        """Adds keyframe ``id`` (0..2**32-1) from its ``(N, 32)`` uint8 descriptors; True when
+        it replaced an entry with the same id."""
+    def remove(self, id: int) -> bool:
+        """Removes keyframe ``id``; whether it was present."""
+    def query(
+        self,
+        descriptors: NDArray[np.uint8],
+        max_results: int = 10,
+        exclude: Optional[Iterable[int]] = None,
+    ) -> list[tuple[int, float]]:
+        """The ``max_results`` best ``(id, score)`` pairs, best first (ties by id); keyframes
+        sharing no word with the query and those in ``exclude`` are left out."""
+    def __len__(self) -> int: ...
+    def __contains__(self, id: int) -> bool: ...
