@@ -65,7 +65,31 @@ def build_parser() -> argparse.ArgumentParser:
     rpe_p = ev_sub.add_parser("rpe", help="relative pose error over --delta frames")
     _add_eval_inputs(rpe_p, "none")
     rpe_p.add_argument("--delta", type=_positive_int, default=1, help="frames (default: 1)")
+    _add_vocab_parser(sub)
     return parser
+
+
+def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
+    """``vocab train`` and ``vocab export-dbow2`` (place-recognition vocabularies)."""
+    voc = sub.add_parser("vocab", help="train or export an ORB vocabulary")
+    voc_sub = voc.add_subparsers(dest="vocab_command", metavar="ACTION", required=True)
+    train = voc_sub.add_parser("train", help="train a vocabulary on images")
+    train.add_argument("images", nargs="+", type=Path,
+                       help="image files or folders (every .png/.jpg/... inside, sorted)")
+    train.add_argument("--k", type=_positive_int, default=10, help="branching factor (default: 10)")
+    train.add_argument("--levels", type=_positive_int, default=5, help="tree depth (default: 5)")
+    train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    train.add_argument("--step", type=_positive_int, default=1,
+                       help="keep every N-th image of each folder (default: 1)")
+    train.add_argument("--features", type=_positive_int, default=1000,
+                       help="ORB features per image (default: 1000)")
+    train.add_argument("--out", type=Path, required=True, help="binary vocabulary to write")
+    train.add_argument("--text", type=Path, help="also write DBoW2 text (ORBvoc.txt format)")
+    export = voc_sub.add_parser("export-dbow2",
+                                help="write a vocabulary as DBoW2 text for ORB-SLAM2/3")
+    export.add_argument("out", type=Path, help="text file to write")
+    export.add_argument("--vocabulary", type=Path,
+                        help="binary vocabulary to export (default: the shipped one)")
 
 
 def _load_config(path: Optional[Path]) -> dict:
@@ -167,6 +191,28 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_vocab(args: argparse.Namespace) -> int:
+    from . import vocabulary
+
+    if args.vocab_command == "train":
+        images = vocabulary.image_paths(args.images, step=args.step)
+        descriptors = vocabulary.extract_descriptors(images, n_features=args.features)
+        print(f"extracted {sum(map(len, descriptors))} descriptors from {len(images)} images")
+        voc = vocabulary.Vocabulary.train(descriptors, k=args.k, levels=args.levels,
+                                          seed=args.seed)
+        voc.save(args.out)
+        print(f"wrote {args.out}: {voc!r}, {args.out.stat().st_size} bytes")
+        if args.text is not None:
+            voc.save_dbow2_text(args.text)
+            print(f"wrote DBoW2 text {args.text}")
+        return 0
+    voc = (vocabulary.default_vocabulary() if args.vocabulary is None
+           else vocabulary.Vocabulary.load(args.vocabulary))
+    voc.save_dbow2_text(args.out)
+    print(f"wrote DBoW2 text {args.out}: {voc!r}")
+    return 0
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``ferroslam`` command; returns the exit status."""
     parser = build_parser()
@@ -182,6 +228,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         if args.command == "run":
             return _cmd_run(args, parser)
+        if args.command == "vocab":
+            return _cmd_vocab(args)
         return _cmd_eval(args)
     except (FileNotFoundError, ImportError, ValueError, NotImplementedError) as err:
         print(f"ferroslam: error: {err}", file=sys.stderr)
