@@ -305,7 +305,8 @@ class Vocabulary:
 class KeyframeDatabase:
     """Inverted-index keyframe database over a ``Vocabulary``, scored with the L1 score."""
 
-    def __init__(self, vocabulary: Vocabulary) -> None: ...
+    def __new__(cls, vocabulary: Vocabulary) -> KeyframeDatabase:
+        """An empty database; raises ``TypeError`` if ``vocabulary`` is not a ``Vocabulary``."""
     def add(self, id: int, descriptors: NDArray[np.uint8]) -> bool:
         """Adds keyframe ``id`` (0..2**32-1) from its ``(N, 32)`` uint8 descriptors; True when
         it replaced an entry with the same id."""
@@ -320,4 +321,4 @@ class KeyframeDatabase:
         """The ``max_results`` best ``(id, score)`` pairs, best first (ties by id); keyframes
         sharing no word with the query and those in ``exclude`` are left out."""
     def __len__(self) -> int: ...
-    def __contains__(self, id: int) -> bool: ...
+    def __contains__(self, id: int, /) -> bool: ...
