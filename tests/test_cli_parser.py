@@ -152,3 +152,27 @@ def test_cli_run_reports_bad_config(tum_desk, tmp_path, monkeypatch, capsys):
     assert "JSON object" in capsys.readouterr().err
     assert cli.main(["run", str(tmp_path / "nowhere"), "--sensor", "rgbd", "--silent"]) == 1
     assert "nowhere" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [[], ["demo"], ["run"], ["eval"], ["eval", "ate"],
+                                  ["eval", "rpe"], ["download"]])
+def test_every_help_is_complete(argv, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv + ["--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: ferroslam") and "show this help message" in text
+    for sub in ("demo", "run", "eval", "download") if not argv else ():
+        assert sub in text
+    if argv == ["run"]:
+        assert "dataset layouts" in text and "calib.txt" in text and "map.ply" in text
+    if argv == ["download"]:
+        assert "V1_01_easy" in text and "freiburg1_xyz" in text and "--to DIR" in text
+
+
+def test_wrong_path_says_what_was_expected(tmp_path, capsys):
+    assert cli.main(["run", str(tmp_path / "nowhere"), "--sensor", "rgbd"]) == 1
+    err = capsys.readouterr().err
+    assert "nowhere" in err and "rgb.txt (TUM)" in err
+    assert cli.main(["run", str(tmp_path), "--sensor", "rgbd"]) == 1
+    assert "cannot detect the dataset layout" in capsys.readouterr().err

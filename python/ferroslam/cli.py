@@ -1,4 +1,5 @@
-"""Command line: ``ferroslam run`` (track a sequence) and ``ferroslam eval ate|rpe``.
+"""Command line: ``ferroslam demo`` (the bundled sample), ``ferroslam run`` (track a sequence),
+``ferroslam eval ate|rpe`` and ``ferroslam download`` (public datasets).
 
 ``build_parser()`` is separate from ``main()`` so the parser is testable without a process.
 """
@@ -35,61 +36,127 @@ def _add_eval_inputs(p: argparse.ArgumentParser, default_align: str) -> None:
                    help="timestamp association tolerance in seconds (default: 0.01)")
 
 
+_EPILOG = """\
+examples:
+  ferroslam demo                                  RGB-D SLAM on the bundled TUM sample
+  ferroslam download tum freiburg1_xyz --to data  fetch a full TUM sequence (~0.5 GB)
+  ferroslam run data/rgbd_dataset_freiburg1_xyz --sensor rgbd
+  ferroslam eval ate groundtruth.txt out/rgbd_dataset_freiburg1_xyz/trajectory.txt
+
+Every command has its own help: ferroslam COMMAND --help"""
+
+_OUTPUTS = """\
+outputs (in --out):
+  trajectory.txt      every tracked frame, TUM format (timestamp tx ty tz qx qy qz qw, T_w_c)
+  keyframes.txt       keyframe poses, TUM format
+  map.ply             map points (world frame = first camera, metres), PLY
+  plot.png            top and side views against the ground truth, map points
+  trajectory_top.png  top view only
+  results.json        settings, tracking states, timings, ATE/RPE"""
+
+_LAYOUTS = """\
+dataset layouts (--format auto detects them):
+  tum    PATH/rgb.txt, depth.txt, groundtruth.txt (optional); the camera from the folder name
+         (freiburg1/2/3 or fr1/2/3) or PATH/camera.yaml
+  kitti  PATH/image_0/ (and image_1/ for stereo), calib.txt, times.txt; ground truth
+         poses.txt or ../../poses/NN.txt (optional)
+  euroc  PATH/mav0/cam0/ (and cam1/): data.csv, data/, sensor.yaml; ground truth
+         mav0/state_groundtruth_estimate0/data.csv (optional)"""
+
+
+def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
+    output = p.add_argument_group("output")
+    output.add_argument("--out", type=Path, help=f"output folder (default: {default_out})")
+    output.add_argument("--silent", action="store_true", help="no progress bar, no summary")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The ``ferroslam`` argument parser (subcommands ``run`` and ``eval {ate,rpe}``)."""
+    """The ``ferroslam`` argument parser (``demo``, ``run``, ``eval {ate,rpe}``, ``download``)."""
+    from .demo import DEMO_CONFIGS
+    from .download import DATASETS
+
     parser = argparse.ArgumentParser(
-        prog="ferroslam", description="Visual SLAM (ORB-SLAM pipeline) with a Rust core."
+        prog="ferroslam", description="Visual SLAM (ORB-SLAM pipeline) with a Rust core.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="store_true", help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    run = sub.add_parser("run", help="track a dataset sequence and evaluate it")
+    demo = sub.add_parser(
+        "demo", help="run SLAM on the bundled TUM sample (no download needed)",
+        description="Track the 90 RGB-D frames of TUM fr1/rpy shipped with ferroslam\n"
+                    "(3 s of hand-held rotation; CC BY 4.0, Sturm et al., IROS 2012), print\n"
+                    "ATE and time per frame, and write the results to --out.",
+        epilog=_OUTPUTS, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    demo.add_argument("--sensor", choices=tuple(DEMO_CONFIGS), default="rgbd",
+                      help="rgbd (default) or mono (same frames, colour only; scale-free, "
+                           "so ATE after Sim(3) alignment). The sample has no stereo pair.")
+    demo.add_argument("--max-frames", type=_positive_int,
+                      help="process only the first N of the 90 frames")
+    demo.add_argument("--seed", type=int, help="random seed")
+    _add_output_options(demo, "./ferroslam-demo")
+
+    run = sub.add_parser(
+        "run", help="track a dataset sequence and evaluate it",
+        description="Track a sequence folder frame by frame; with ground truth, print\n"
+                    "ATE/RPE, and write the results to --out.",
+        epilog=_LAYOUTS + "\n\n" + _OUTPUTS, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     run.add_argument("path", type=Path,
                      help="sequence folder: TUM RGB-D, KITTI odometry or EuRoC (ASL) layout")
     algo = run.add_argument_group("algorithm")
-    algo.add_argument("--sensor", choices=SENSORS, required=True, help="camera setup")
+    algo.add_argument("--sensor", choices=SENSORS, required=True,
+                      help="camera setup: mono (any layout), rgbd (TUM), stereo (KITTI, EuRoC)")
     algo.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
                       help="dataset layout (default: detect)")
-    algo.add_argument("--config", type=Path, help="JSON file of SlamSystem/extractor options")
+    algo.add_argument("--config", type=Path,
+                      help="JSON file of SlamSystem/extractor options, e.g. "
+                           '{"n_features": 2000, "depth_threshold": 35}')
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
     algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
-    output = run.add_argument_group("output")
-    output.add_argument("--out", type=Path,
-                        help="output folder (default: out/<sequence name>)")
-    output.add_argument("--silent", action="store_true", help="no progress bar, no summary")
+    _add_output_options(run, "out/<sequence name>")
 
-    ev = sub.add_parser("eval", help="evaluate trajectory files")
+    ev = sub.add_parser("eval", help="evaluate trajectory files",
+                        description="Compare an estimated trajectory file with a reference.")
     ev_sub = ev.add_subparsers(dest="metric", metavar="METRIC", required=True)
-    ate_p = ev_sub.add_parser("ate", help="absolute trajectory error (translation, metres)")
+    ate_p = ev_sub.add_parser("ate", help="absolute trajectory error (translation, metres)",
+                              description="Absolute trajectory error after alignment "
+                                          "(translation RMSE etc., metres).")
     _add_eval_inputs(ate_p, "se3")
-    rpe_p = ev_sub.add_parser("rpe", help="relative pose error over --delta frames")
+    rpe_p = ev_sub.add_parser("rpe", help="relative pose error over --delta frames",
+                              description="Relative pose error over --delta frames "
+                                          "(translation metres, rotation degrees).")
     _add_eval_inputs(rpe_p, "none")
     rpe_p.add_argument("--delta", type=_positive_int, default=1, help="frames (default: 1)")
-    _add_vocab_parser(sub)
+
+    dl = sub.add_parser(
+        "download", help="download and extract a public dataset sequence",
+        description="Fetch a sequence from its official server (TUM .tgz, EuRoC ASL .zip)\n"
+                    "with a progress bar, resume of an interrupted download (HTTP Range), a\n"
+                    "size check (and sha256 if given), and extract it into --to. KITTI needs\n"
+                    "a login: the command prints the steps and exits with status 3.",
+        epilog="names:\n"
+               "  tum    freiburg1_xyz, fr2_desk, rgbd_dataset_freiburg3_long_office_household, ...\n"
+               "         (https://cvg.cit.tum.de/data/datasets/rgbd-dataset/download)\n"
+               "  euroc  MH_01_easy ... MH_05_difficult, V1_01_easy ... V2_03_difficult\n"
+               "         (a prefix such as V1_01 is enough)\n"
+               "  kitti  00 ... 21 (odometry; instructions only)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    dl.add_argument("dataset", choices=DATASETS, help="which benchmark")
+    dl.add_argument("name", help="sequence name (see below)")
+    dl.add_argument("--to", type=Path, required=True, metavar="DIR",
+                    help="destination folder (created); the archive is kept there while "
+                         "downloading so an interrupted run resumes")
+    dl.add_argument("--url", help="download from this address instead (a mirror)")
+    dl.add_argument("--sha256", metavar="HEX", help="expected SHA-256 of the archive")
+    dl.add_argument("--keep-archive", action="store_true",
+                    help="keep the archive after extraction")
+    dl.add_argument("--timeout", type=float, default=30.0,
+                    help="network timeout in seconds (default: 30)")
+    dl.add_argument("--silent", action="store_true", help="no progress bar")
     return parser
-
-
-def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
-    """``vocab train`` and ``vocab export-dbow2`` (place-recognition vocabularies)."""
-    voc = sub.add_parser("vocab", help="train or export an ORB vocabulary")
-    voc_sub = voc.add_subparsers(dest="vocab_command", metavar="ACTION", required=True)
-    train = voc_sub.add_parser("train", help="train a vocabulary on images")
-    train.add_argument("images", nargs="+", type=Path,
-                       help="image files or folders (every .png/.jpg/... inside, sorted)")
-    train.add_argument("--k", type=_positive_int, default=10, help="branching factor (default: 10)")
-    train.add_argument("--levels", type=_positive_int, default=5, help="tree depth (default: 5)")
-    train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    train.add_argument("--step", type=_positive_int, default=1,
-                       help="keep every N-th image of each folder (default: 1)")
-    train.add_argument("--features", type=_positive_int, default=1000,
-                       help="ORB features per image (default: 1000)")
-    train.add_argument("--out", type=Path, required=True, help="binary vocabulary to write")
-    train.add_argument("--text", type=Path, help="also write DBoW2 text (ORBvoc.txt format)")
-    export = voc_sub.add_parser("export-dbow2",
-                                help="write a vocabulary as DBoW2 text for ORB-SLAM2/3")
-    export.add_argument("out", type=Path, help="text file to write")
-    export.add_argument("--vocabulary", type=Path,
-                        help="binary vocabulary to export (default: the shipped one)")
 
 
 def _load_config(path: Optional[Path]) -> dict:
@@ -108,37 +175,74 @@ def _load_config(path: Optional[Path]) -> dict:
     return config
 
 
-def _cmd_run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+def _cmd_run(args: argparse.Namespace) -> int:
     from .datasets import open_sequence
-    from .io import write_tum_trajectory
-    from .pipeline import run_sequence
-    from .plot import plot_trajectory_top_view
 
     config = _load_config(args.config)
     if args.seed is not None:
         config["seed"] = args.seed
     seq = open_sequence(args.path, args.format)
     out = args.out if args.out is not None else Path("out") / seq.name
-    out.mkdir(parents=True, exist_ok=True)
-    result = run_sequence(seq, config, max_frames=args.max_frames, progress=not args.silent,
-                          sensor=args.sensor)
+    return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent)
 
-    write_tum_trajectory(out / "trajectory.txt", result.trajectory.timestamps,
-                         result.trajectory.poses)
-    write_tum_trajectory(out / "keyframes.txt", result.keyframes.timestamps,
-                         result.keyframes.poses)
-    if result.ate_frames is not None:
-        plot_trajectory_top_view(result.ate_frames.aligned, result.ate_frames.reference,
-                                 out / "trajectory_top.png",
-                                 title=f"{seq.name} (SE(3)-aligned to ground truth)")
-    else:
-        plot_trajectory_top_view(result.trajectory, None, out / "trajectory_top.png",
-                                 title=seq.name)
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import DEMO_CONFIGS, sample_sequence
+
+    config = dict(DEMO_CONFIGS[args.sensor])
+    if args.seed is not None:
+        config["seed"] = args.seed
+    out = args.out if args.out is not None else Path("ferroslam-demo")
+    if not args.silent:
+        print(f"ferroslam demo: {args.sensor} SLAM on the bundled TUM fr1/rpy sample "
+              "(CC BY 4.0, Sturm et al., IROS 2012)")
+    with sample_sequence() as seq:
+        return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent)
+
+
+def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
+                      silent: bool) -> int:
+    """Run ``seq``, write every output file into ``out`` and print the summary."""
+    from .pipeline import run_sequence
+
+    out.mkdir(parents=True, exist_ok=True)
+    result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
+                          sensor=sensor)
+    _write_outputs(result, out, seq.name)
     summary = result.summary()
     (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    if not args.silent:
+    if not silent:
         _print_summary(summary, out)
     return 0
+
+
+def _write_outputs(result, out: Path, name: str) -> None:
+    """Trajectories (TUM), map points (PLY) and plots; the plots show the estimate and map
+    aligned to the ground truth when ATE could be computed."""
+    import numpy as np
+
+    from .export import write_ply, write_trajectory
+    from .plot import plot_overview, plot_trajectory_top_view
+
+    write_trajectory(out / "trajectory.txt", result.trajectory.timestamps,
+                     result.trajectory.poses)
+    write_trajectory(out / "keyframes.txt", result.keyframes.timestamps, result.keyframes.poses)
+    write_ply(out / "map.ply", result.map_points)
+    if not len(result.trajectory):
+        return  # nothing tracked: nothing to draw
+    ate = result.ate_frames
+    if ate is not None and ate.alignment is not None:
+        s = ate.alignment
+        align = "Sim(3)" if result.sensor == "mono" else "SE(3)"
+        est, ref, title = ate.aligned, ate.reference, f"{name} ({align}-aligned to ground truth)"
+        points = result.map_points @ s[:3, :3].T + s[:3, 3]
+        keyframes = s @ result.keyframes.poses
+    else:
+        est, ref, title = result.trajectory, None, name
+        points, keyframes = result.map_points, result.keyframes.poses
+    plot_trajectory_top_view(est, ref, out / "trajectory_top.png", title=title)
+    plot_overview(est, ref, points, np.asarray(keyframes).reshape(-1, 4, 4), out / "plot.png",
+                  title=f"{title}, ATE {ate.rmse * 100:.2f} cm" if ate is not None else title)
 
 
 def _print_summary(summary: dict, out: Path) -> None:
@@ -169,7 +273,8 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"RPE (1 frame)   {r['trans_rmse_m']:.4f} m  {r['rot_rmse_deg']:.3f} deg RMSE")
     for err in summary["metric_errors"]:
         print(f"note: {err}")
-    print(f"results in      {out}")
+    print(f"results in      {out}/ (trajectory.txt, keyframes.txt, map.ply, plot.png, "
+          "results.json)")
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
@@ -213,8 +318,25 @@ def _cmd_vocab(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_download(args: argparse.Namespace) -> int:
+    from .download import fetch_dataset, kitti_instructions
+
+    if args.dataset == "kitti":
+        print(kitti_instructions(args.name, args.to), file=sys.stderr)
+        return 3
+    folder = fetch_dataset(args.dataset, args.name, args.to, url=args.url, sha256=args.sha256,
+                           keep_archive=args.keep_archive, progress=not args.silent,
+                           timeout=args.timeout)
+    sensor = "rgbd" if args.dataset == "tum" else "stereo"
+    print(f"extracted to {folder}\nrun it:  ferroslam run {folder} --sensor {sensor}")
+    return 0
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Entry point of the ``ferroslam`` command; returns the exit status."""
+    """Entry point of the ``ferroslam`` command; returns the exit status (0 success, 1 error,
+    2 usage error, 3 ``download kitti``: manual steps needed)."""
+    from .download import DownloadError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.version:
@@ -225,15 +347,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
+                "download": _cmd_download}
     try:
-        if args.command == "run":
-            return _cmd_run(args, parser)
-        if args.command == "vocab":
-            return _cmd_vocab(args)
-        return _cmd_eval(args)
-    except (FileNotFoundError, ImportError, ValueError, NotImplementedError) as err:
+        return commands[args.command](args)
+    except (FileNotFoundError, ImportError, ValueError, NotImplementedError,
+            DownloadError) as err:
         print(f"ferroslam: error: {err}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("ferroslam: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -19,6 +19,7 @@ from .trajectory import Trajectory
 
 __all__ = [
     "plot_map",
+    "plot_overview",
     "plot_trajectories",
     "plot_trajectory_top_view",
     "top_view_axes",
@@ -79,21 +80,61 @@ def plot_trajectories(
         ValueError: naming ``estimate`` / ``reference`` for wrong shapes, NaN/inf or an
             empty estimate.
     """
+    est, ref = _checked_pair(estimate, reference)
+    fig = _figure((11.0, 5.0))
+    _draw_top_and_side(fig, 1, 2, est, ref)
+    if path is not None:
+        _save(fig, path)
+    return fig
+
+
+def plot_overview(
+    estimate: Union[Trajectory, np.ndarray],
+    reference: Optional[Union[Trajectory, np.ndarray]],
+    points: np.ndarray,
+    keyframe_poses: np.ndarray,
+    path: Optional[Union[str, Path]] = None,
+    title: Optional[str] = None,
+) -> Figure:
+    """One figure of a run: top and side views (as :func:`plot_trajectories`) and the map
+    (as :func:`plot_map`), side by side.
+
+    All inputs must be in the same world frame: to compare with ground truth, pass the
+    aligned estimate and map (apply ``ate(...).alignment`` to points and poses).
+
+    Raises:
+        ValueError: as :func:`plot_trajectories` and :func:`plot_map`.
+    """
+    est, ref = _checked_pair(estimate, reference)
+    fig = _figure((16.5, 5.2))
+    _draw_top_and_side(fig, 1, 3, est, ref)
+    plot_map(points, keyframe_poses, fig.add_subplot(1, 3, 3, projection="3d"))
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        _save(fig, path)
+    return fig
+
+
+def _checked_pair(
+    estimate: Union[Trajectory, np.ndarray], reference: Optional[Union[Trajectory, np.ndarray]]
+) -> tuple[Trajectory, Optional[Trajectory]]:
     est = _trajectory(estimate, "estimate")
     if not len(est):
         raise ValueError("estimate is empty: nothing to plot")
-    ref = None if reference is None else _trajectory(reference, "reference")
+    return est, None if reference is None else _trajectory(reference, "reference")
+
+
+def _draw_top_and_side(fig: Figure, rows: int, cols: int, est: Trajectory,
+                       ref: Optional[Trajectory]) -> None:
+    """Top view in subplot 1, side view in subplot 2 of a ``rows x cols`` grid."""
     a, b = top_view_axes(*([est] + ([ref] if ref is not None else [])))
     side = 3 - a - b
     positions = np.concatenate([t.positions for t in (est, ref) if t is not None])
     extent = np.ptp(positions, axis=0)
     wide = a if extent[a] >= extent[b] else b
-    fig = _figure((11.0, 5.0))
-    _draw_view(fig.add_subplot(1, 2, 1), est, ref, a, b, "top view")
-    _draw_view(fig.add_subplot(1, 2, 2), est, ref, wide, side, "side view")
-    if path is not None:
-        _save(fig, path)
-    return fig
+    _draw_view(fig.add_subplot(rows, cols, 1), est, ref, a, b, "top view")
+    _draw_view(fig.add_subplot(rows, cols, 2), est, ref, wide, side, "side view")
 
 
 def plot_map(

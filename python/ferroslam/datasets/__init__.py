@@ -71,7 +71,8 @@ def open_sequence(path: Union[str, Path], format: str = "auto", **kwargs) -> Seq
     """
     path = Path(path).expanduser()
     if not path.is_dir():
-        raise FileNotFoundError(f"sequence folder not found: {path}")
+        raise FileNotFoundError(f"sequence folder not found: {path} (expected a folder with "
+                                f"{_EXPECTED})")
     if format == "auto":
         format = detect_format(path)
     if format not in _LOADERS:
