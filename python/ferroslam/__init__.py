@@ -27,6 +27,10 @@ except ImportError:  # native module not built (or older than SlamError)
 
 __all__ = [
     "Camera",
+    "MonoVSlam",
+    "RGBDVSlam",
+    "StereoVSlam",
+    "TrackingStatus",
     "SlamError",
     "SlamSystem",
     "Trajectory",
@@ -37,9 +41,16 @@ __all__ = [
 ]
 
 
+_VSLAM = ("MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus")
+
+
 def __getattr__(name: str):
     if name == "SlamSystem":  # native; imported on first use so the rest works without it
         from ._core import SlamSystem
 
         return SlamSystem
+    if name in _VSLAM:
+        from . import vslam
+
+        return getattr(vslam, name)
     raise AttributeError(f"module 'ferroslam' has no attribute {name!r}")

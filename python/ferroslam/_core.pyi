@@ -211,6 +211,26 @@ class SlamSystem:
         live keyframes of the current map."""
     def map_points(self) -> NDArray[np.float64]:
         """World positions of the live map points, (M, 3) float64 metres."""
+    def save_map(self, path: str | os.PathLike[str]) -> None:
+        """Writes the map to ``path`` (versioned binary format with a checksum).
+
+        Raises:
+            FileNotFoundError: the folder does not exist; ValueError: not writable.
+        """
+    def load_map(self, path: str | os.PathLike[str]) -> None:
+        """Replaces the map with the one saved at ``path``; the next frames relocalise in it
+        (state ``"lost"`` until they do). The current trajectory is closed as a segment.
+
+        Raises:
+            FileNotFoundError: no such file.
+            ValueError: truncated, corrupt (checksum), another format version, or built with
+                another ORB pyramid; the system is unchanged.
+        """
+    @property
+    def localization_only(self) -> bool:
+        """Track against the map without adding keyframes (e.g. in a loaded map)."""
+    @localization_only.setter
+    def localization_only(self, on: bool) -> None: ...
     def reset(self) -> None:
         """Clears the map and the trajectory and counts a reset; tracking initialises again
         with the next frame, whose timestamp must still follow the last accepted one."""

@@ -2,7 +2,7 @@
 
 use ferroslam_slam::SlamError as CoreError;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::exceptions::{PyException, PyFileNotFoundError, PyValueError};
 use pyo3::PyErr;
 
 create_exception!(
@@ -19,6 +19,10 @@ pub fn to_py(err: CoreError) -> PyErr {
         CoreError::InvalidConfig(_) | CoreError::InvalidInput(_) => {
             PyValueError::new_err(err.to_string())
         }
+        CoreError::MapFile {
+            not_found: true, ..
+        } => PyFileNotFoundError::new_err(err.to_string()),
+        CoreError::MapFile { .. } => PyValueError::new_err(err.to_string()),
         CoreError::Map(_) | CoreError::Optim(_) => SlamError::new_err(err.to_string()),
     }
 }

@@ -406,6 +406,29 @@ impl PySlamSystem {
         )
     }
 
+    /// Writes the map to `path` (versioned binary file with a checksum).
+    fn save_map(&self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
+        let inner = &self.inner;
+        py.detach(|| inner.save_map(&path)).map_err(to_py)
+    }
+
+    /// Replaces the map with the one saved at `path`; the next frames relocalise in it.
+    fn load_map(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
+        let inner = &mut self.inner;
+        py.detach(|| inner.load_map(&path)).map_err(to_py)
+    }
+
+    /// Localisation-only mode: track against the map without adding keyframes.
+    #[getter]
+    fn get_localization_only(&self) -> bool {
+        self.inner.localization_only()
+    }
+
+    #[setter]
+    fn set_localization_only(&mut self, on: bool) {
+        self.inner.set_localization_only(on);
+    }
+
     /// Clears the map; tracking restarts with the next frame.
     fn reset(&mut self) {
         self.inner.reset();

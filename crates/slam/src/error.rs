@@ -13,6 +13,17 @@ pub enum SlamError {
     /// The input frame is malformed (lengths, non-finite values, timestamps).
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// A map file could not be written or read (missing, truncated, corrupt, wrong version,
+    /// or made with another pyramid).
+    #[error("map file {path}: {reason}")]
+    MapFile {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        reason: String,
+        /// Whether the file does not exist.
+        not_found: bool,
+    },
     /// A map update was refused: an internal inconsistency, reported instead of hidden.
     #[error("internal map error (please report): {0}")]
     Map(#[from] MapError),

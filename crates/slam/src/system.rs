@@ -58,6 +58,8 @@ pub struct SlamSystem {
     /// Frame poses `(timestamp, T_w_c)` of the closed map segments, oldest first.
     segments: Vec<Vec<(f64, Isometry3<f64>)>>,
     lost_since: Option<f64>,
+    /// Track against the map without changing it (no keyframes, no mapping).
+    localization_only: bool,
     frames_seen: usize,
     last_timestamp: Option<f64>,
     resets: usize,
@@ -78,6 +80,7 @@ impl SlamSystem {
             trajectory: Trajectory::default(),
             segments: Vec::new(),
             lost_since: None,
+            localization_only: false,
             frames_seen: 0,
             last_timestamp: None,
             resets: 0,
@@ -207,7 +210,8 @@ impl SlamSystem {
         }
         self.lost_since = None;
         let start = Instant::now();
-        let new_keyframe = self.tracker.state == TrackingState::Ok
+        let new_keyframe = !self.localization_only
+            && self.tracker.state == TrackingState::Ok
             && self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx);
         if new_keyframe {
             let mut report = MappingReport::default();
@@ -236,9 +240,10 @@ impl SlamSystem {
 
     /// A lost map with few keyframes is discarded (ORB-SLAM); a lost monocular map that does
     /// not relocalise within [`RELOCALISATION_WINDOW_S`] is closed as a segment. Maps with
-    /// depth wait for relocalisation.
+    /// depth, and any map in localisation-only mode, wait for relocalisation.
     fn handle_lost(&mut self, timestamp: f64) {
-        if self.tracker.state != TrackingState::Lost {
+        // A map being localised in is never discarded or closed.
+        if self.tracker.state != TrackingState::Lost || self.localization_only {
             return;
         }
         if self.map.num_keyframes() <= MIN_KEYFRAMES_TO_KEEP {
@@ -328,6 +333,61 @@ impl SlamSystem {
         self.lost_since = None;
     }
 
+    /// Localisation-only mode: frames are tracked (and relocalised) against the map but never
+    /// become keyframes, so the map stays as it is (e.g. a loaded map).
+    pub fn set_localization_only(&mut self, on: bool) {
+        self.localization_only = on;
+    }
+
+    /// Whether localisation-only mode is on.
+    pub fn localization_only(&self) -> bool {
+        self.localization_only
+    }
+
+    /// Writes the map to `path` (versioned binary format, see `ferroslam_map::map::persist`).
+    ///
+    /// # Errors
+    /// [`SlamError::MapFile`] when the file cannot be written.
+    pub fn save_map(&self, path: &std::path::Path) -> Result<(), SlamError> {
+        self.map
+            .save_to_path(path)
+            .map_err(|e| map_file_error(path, e))
+    }
+
+    /// Replaces the map with the one in `path`; tracking then relocalises in it with the next
+    /// frame (state `Lost` until it does). The current trajectory is closed as a segment.
+    ///
+    /// # Errors
+    /// [`SlamError::MapFile`] for a missing, truncated or corrupt file, another format version,
+    /// or a map built with another ORB pyramid than this system's; the system is unchanged.
+    pub fn load_map(&mut self, path: &std::path::Path) -> Result<(), SlamError> {
+        let map = Map::load_from_path(path).map_err(|e| map_file_error(path, e))?;
+        let (theirs, ours) = (map.pyramid(), self.map.pyramid());
+        if theirs.n_levels != ours.n_levels
+            || (theirs.scale_factor - ours.scale_factor).abs() > 1e-9
+        {
+            return Err(SlamError::MapFile {
+                path: path.display().to_string(),
+                reason: format!(
+                    "built with {} pyramid levels of scale {}, this system uses {} of {}",
+                    theirs.n_levels, theirs.scale_factor, ours.n_levels, ours.scale_factor
+                ),
+                not_found: false,
+            });
+        }
+        if !self.trajectory.is_empty() {
+            self.segments.push(self.trajectory.poses(&self.map));
+        }
+        self.clear_map();
+        self.map = map;
+        self.tracker.state = if self.map.num_keyframes() > 0 {
+            TrackingState::Lost
+        } else {
+            TrackingState::NotInitialized
+        };
+        Ok(())
+    }
+
     /// Current tracking state.
     pub fn state(&self) -> TrackingState {
         self.tracker.state
@@ -384,5 +444,17 @@ impl SlamSystem {
             .into_iter()
             .filter_map(|m| self.map.map_point(m).map(|p| p.position()))
             .collect()
+    }
+}
+
+fn map_file_error(path: &std::path::Path, e: ferroslam_map::MapError) -> SlamError {
+    let not_found = matches!(
+        &e,
+        ferroslam_map::MapError::MapFileIo { kind, .. } if *kind == std::io::ErrorKind::NotFound
+    );
+    SlamError::MapFile {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+        not_found,
     }
 }

@@ -231,11 +231,14 @@ impl Tracker {
         map: &mut Map,
         ctx: &Context,
     ) -> Result<usize, SlamError> {
-        let Some(r) = self.reference_kf.filter(|&r| map.keyframe(r).is_some()) else {
-            return Ok(0);
+        // Without a reference (a freshly loaded map) every keyframe is a candidate, oldest
+        // first; place recognition will narrow this down once the vocabulary is wired in.
+        let candidates = match self.reference_kf.filter(|&r| map.keyframe(r).is_some()) {
+            Some(r) => std::iter::once(r)
+                .chain(map.best_covisibles(r, 10))
+                .collect(),
+            None => map.keyframe_ids(),
         };
-        let mut candidates = vec![r];
-        candidates.extend(map.best_covisibles(r, 10));
         for kf in candidates {
             frame.clear_associations();
             if match_keyframe(frame, kf, map, 0.75) < MIN_REFERENCE_MATCHES {

@@ -1,0 +1,335 @@
+"""Visual SLAM objects with MATLAB's ``monovslam`` / ``stereovslam`` / ``rgbdvslam`` workflow.
+
+Create one per camera, feed it images with ``add_frame``, look at the map when
+``has_new_keyframe()`` says so, and stop when ``check_status()`` reports tracking lost::
+
+    with RGBDVSlam(camera, depth_scale_factor=5000) as vslam:
+        for color, depth in frames:
+            vslam.add_frame(color, depth)
+            if vslam.has_new_keyframe():
+                vslam.plot(path="map.png")
+            if vslam.check_status() is TrackingStatus.LOST:
+                break
+        ids, poses = vslam.poses()
+
+ORB features are extracted in Python (OpenCV); everything after that runs in the Rust core
+with the GIL released. This version processes each frame completely inside ``add_frame``
+(tracking and local mapping in call order, deterministic), so ``is_done()`` is always true
+once ``add_frame`` returns.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Optional, Sequence, TextIO, Union
+
+import numpy as np
+
+from .camera import Camera
+from .features import OrbExtractor, sample_depth
+
+__all__ = ["MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
+
+
+class TrackingStatus(enum.Enum):
+    """What ``check_status()`` reports about the last frame (MATLAB ``checkStatus``)."""
+
+    NOT_INITIALIZED = "not_initialized"
+    """No map yet (monocular: waiting for two views with enough parallax)."""
+    LOST = "lost"
+    """Fewer tracked points than the lower ``track_feature_range`` limit (``TrackingLost``)."""
+    SUCCESSFUL = "successful"
+    """Tracked points within ``track_feature_range`` (``TrackingSuccessful``)."""
+    FREQUENT_KEYFRAMES = "frequent_keyframes"
+    """More tracked points than the upper limit: keyframes come too often for so slow a
+    camera; raise ``skip_max_frames`` (``FrequentKeyFrames``)."""
+
+
+def _positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or int(value) != value or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+class _VSlam:
+    """Shared workflow of the three sensor objects (use one of them)."""
+
+    _sensor = ""
+
+    def __init__(
+        self,
+        intrinsics: Camera,
+        *,
+        scale_factor: float = 1.2,
+        num_levels: int = 8,
+        max_num_points: int = 1000,
+        track_feature_range: Sequence[int] = (30, 100),
+        skip_max_frames: int = 20,
+        frame_rate_hz: float = 30.0,
+        verbose: int = 0,
+        seed: int = 0,
+        core_options: Optional[dict] = None,
+    ) -> None:
+        if not isinstance(intrinsics, Camera):
+            raise TypeError(f"intrinsics must be a ferroslam.Camera, got {type(intrinsics).__name__}")
+        if verbose not in (0, 1, 2, 3):
+            raise ValueError(f"verbose must be 0, 1, 2 or 3, got {verbose!r}")
+        if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
+            raise ValueError(f"frame_rate_hz must be positive, got {frame_rate_hz!r}")
+        lower, upper = (int(v) for v in track_feature_range)
+        self.intrinsics = intrinsics
+        self.scale_factor = float(scale_factor)
+        self.num_levels = _positive_int("num_levels", num_levels)
+        self.max_num_points = _positive_int("max_num_points", max_num_points)
+        self.track_feature_range = (lower, upper)
+        self.skip_max_frames = _positive_int("skip_max_frames", skip_max_frames)
+        self.frame_rate_hz = float(frame_rate_hz)
+        self.verbose = verbose
+        # The extractor and the core validate the rest and name what is wrong.
+        self._extractor = OrbExtractor(n_features=self.max_num_points,
+                                       scale_factor=self.scale_factor, n_levels=self.num_levels)
+        from ._core import SlamSystem
+
+        c = intrinsics
+        self._system = SlamSystem(
+            c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=self._sensor,
+            scale_factor=self.scale_factor, n_levels=self.num_levels,
+            track_feature_range=self.track_feature_range, skip_max_frames=self.skip_max_frames,
+            seed=seed, **(core_options or {}),
+        )
+        self._frames = 0
+        self._last_timestamp: Optional[float] = None
+        self._last = None
+        self._new_keyframe = False
+        self._closed = False
+        self._log: Optional[TextIO] = None
+        self.log_path: Optional[Path] = None
+        if verbose >= 2:
+            handle = tempfile.NamedTemporaryFile(
+                "w", prefix=f"ferroslam-{self._sensor}-", suffix=".log", delete=False,
+                encoding="utf-8")
+            self._log, self.log_path = handle, Path(handle.name)
+            print(f"ferroslam: log file {self.log_path}")
+
+    # -- feeding frames -------------------------------------------------------------------
+    def _timestamp(self, timestamp: Optional[float]) -> float:
+        if timestamp is None:
+            timestamp = self._frames / self.frame_rate_hz
+            if self._last_timestamp is not None and timestamp <= self._last_timestamp:
+                timestamp = self._last_timestamp + 1.0 / self.frame_rate_hz
+        return float(timestamp)
+
+    def _track(self, timestamp: Optional[float], method: str, *args: Any) -> None:
+        if self._closed:
+            raise RuntimeError(f"this {type(self).__name__} is closed")
+        t = self._timestamp(timestamp)
+        start = time.perf_counter()
+        result = getattr(self._system, method)(t, *args)
+        previous = self._last.state if self._last is not None else "not_initialized"
+        self._last = result
+        self._last_timestamp = t
+        self._frames += 1
+        self._new_keyframe |= bool(result.is_keyframe)
+        self._report(previous, result, (time.perf_counter() - start) * 1e3)
+
+    def _report(self, previous: str, result: Any, ms: float) -> None:
+        if self.verbose == 0:
+            return
+        frame = self._frames - 1
+        events = []
+        if previous == "not_initialized" and result.state == "ok":
+            events.append("map initialised")
+        elif previous == "ok" and result.state == "lost":
+            events.append("tracking lost")
+        elif previous == "lost" and result.state == "ok":
+            events.append("relocalised")
+        if result.is_keyframe:
+            events.append(f"new keyframe ({self._system.num_keyframes} in the map)")
+        for event in events:
+            print(f"ferroslam: frame {frame}: {event}")
+        if self._log is None:
+            return
+        reason = getattr(result, "init_reason", None)
+        self._log.write(f"frame {frame} t={self._last_timestamp:.6f} state={result.state} "
+                        f"tracked={result.num_tracked} keyframe={result.is_keyframe} "
+                        f"ms={ms:.2f}" + (f" init: {reason}" if reason else "") + "\n")
+        if self.verbose >= 3 and result.is_keyframe:
+            ids, poses = self.poses()
+            for i, T in zip(ids.tolist(), poses):
+                self._log.write(f"  keyframe {i} T_w_c after local BA "
+                                f"{np.array2string(T[:3].ravel(), precision=6, max_line_width=400)}\n")
+        self._log.flush()
+
+    # -- what MATLAB users call -----------------------------------------------------------
+    def has_new_keyframe(self) -> bool:
+        """Whether a keyframe was added since the previous call (MATLAB ``hasNewKeyFrame``)."""
+        new, self._new_keyframe = self._new_keyframe, False
+        return new
+
+    def check_status(self) -> TrackingStatus:
+        """Tracking outcome of the last frame (MATLAB ``checkStatus``)."""
+        if self._last is None or self._last.state == "not_initialized":
+            return TrackingStatus.NOT_INITIALIZED
+        if self._last.state == "lost":
+            return TrackingStatus.LOST
+        if self._last.num_tracked > self.track_feature_range[1]:
+            return TrackingStatus.FREQUENT_KEYFRAMES
+        return TrackingStatus.SUCCESSFUL
+
+    def is_done(self) -> bool:
+        """Whether every added frame has been processed (always, in this synchronous version)."""
+        return True
+
+    @property
+    def num_frames(self) -> int:
+        """Frames added so far."""
+        return self._frames
+
+    def map_points(self) -> np.ndarray:
+        """World positions of the map points, ``(M, 3)`` float64 (metres, or map units
+        monocular)."""
+        return np.asarray(self._system.map_points(), dtype=np.float64).reshape(-1, 3)
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(keyframe ids (K,), T_w_c (K, 4, 4))`` of the current map's keyframes (MATLAB
+        ``poses``)."""
+        ids, _, poses = self._system.keyframe_trajectory()
+        return np.asarray(ids), np.asarray(poses).reshape(-1, 4, 4)
+
+    def frame_trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(timestamps (N,), T_w_c (N, 4, 4), segment (N,))`` of every tracked frame."""
+        stamps, poses = self._system.frame_trajectory()
+        return (np.asarray(stamps), np.asarray(poses).reshape(-1, 4, 4),
+                np.asarray(self._system.frame_segments()))
+
+    def plot(self, ax: Any = None, *, path: Optional[Union[str, Path]] = None) -> Any:
+        """3-D plot of the map points and the keyframe trajectory (MATLAB ``plot``); returns
+        the matplotlib 3-D axes, saving the figure to ``path`` if given."""
+        from .plot import plot_map
+
+        return plot_map(self.map_points(), self.poses()[1], ax, path=path)
+
+    def reset(self) -> None:
+        """Discards the map and the trajectory; the next frame starts a new one."""
+        self._system.reset()
+        self._last = None
+        self._new_keyframe = False
+
+    # -- maps -----------------------------------------------------------------------------
+    def save_map(self, path: Union[str, Path]) -> None:
+        """Writes the map (versioned binary file with a checksum)."""
+        self._system.save_map(Path(path))
+
+    def load_map(self, path: Union[str, Path], *, localization_only: bool = True) -> None:
+        """Replaces the map with a saved one; the next frames relocalise in it. With
+        ``localization_only`` (default) the map is used as it is, never extended.
+
+        Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for a corrupt,
+        truncated or incompatible one (the object is unchanged then).
+        """
+        self._system.load_map(Path(path))
+        self._system.localization_only = localization_only
+        self._last = None
+
+    @property
+    def localization_only(self) -> bool:
+        """Track against the map without adding keyframes."""
+        return bool(self._system.localization_only)
+
+    @localization_only.setter
+    def localization_only(self, on: bool) -> None:
+        self._system.localization_only = bool(on)
+
+    # -- lifetime -------------------------------------------------------------------------
+    def close(self) -> None:
+        """Releases the log file; ``add_frame`` raises afterwards. Idempotent."""
+        self._closed = True
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = self._last.state if self._last is not None else "not_initialized"
+        return (f"{type(self).__name__}(frames={self._frames}, state={state!r}, "
+                f"keyframes={self._system.num_keyframes}, points={self._system.num_map_points})")
+
+
+class MonoVSlam(_VSlam):
+    """Monocular visual SLAM (MATLAB ``monovslam``): the map starts from two views and its
+    scale is arbitrary. Keyword options as :class:`_VSlam`'s ``__init__``."""
+
+    _sensor = "mono"
+
+    def add_frame(self, image: np.ndarray, timestamp: Optional[float] = None) -> None:
+        """Adds a grey ``(H, W)`` or BGR ``(H, W, 3)`` uint8 image (raw, distorted: the
+        intrinsics' distortion is applied to the keypoints). ``timestamp`` in seconds defaults
+        to the frame count divided by ``frame_rate_hz``."""
+        keypoints, descriptors = self._extractor.detect(image)
+        self._track(timestamp, "track_mono", keypoints, descriptors)
+
+
+class StereoVSlam(_VSlam):
+    """Stereo visual SLAM (MATLAB ``stereovslam``) on RECTIFIED pairs: ``intrinsics`` is the
+    rectified left camera (no distortion) and ``baseline`` the distance between the cameras in
+    metres."""
+
+    _sensor = "stereo"
+
+    def __init__(self, intrinsics: Camera, baseline: float, **options: Any) -> None:
+        if not (math.isfinite(baseline) and baseline > 0):
+            raise ValueError(f"baseline must be a positive number of metres, got {baseline!r}")
+        if np.any(intrinsics.dist != 0):
+            raise ValueError("StereoVSlam needs rectified images: intrinsics must have no "
+                             "distortion (rectify with ferroslam.stereo.StereoRectifier)")
+        self.baseline = float(baseline)
+        core = {"baseline": self.baseline, **options.pop("core_options", {})}
+        super().__init__(intrinsics, core_options=core, **options)
+
+    def add_frame(self, left: np.ndarray, right: np.ndarray,
+                  timestamp: Optional[float] = None) -> None:
+        """Adds a rectified pair of uint8 images of equal size."""
+        if np.shape(left)[:2] != np.shape(right)[:2]:
+            raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
+                             f"{np.shape(right)}")
+        kl, dl, pl = self._extractor.detect_with_pyramid(left)
+        kr, dr, pr = self._extractor.detect_with_pyramid(right)
+        self._track(timestamp, "track_stereo", kl, dl, pl, kr, dr, pr)
+
+
+class RGBDVSlam(_VSlam):
+    """RGB-D visual SLAM (MATLAB ``rgbdvslam``). A depth pixel ``P`` means ``P /
+    depth_scale_factor`` metres (5000 for TUM, 1000 for millimetre sensors); depths outside
+    ``depth_range`` (metres) count as missing."""
+
+    _sensor = "rgbd"
+
+    def __init__(self, intrinsics: Camera, depth_scale_factor: float = 1.0, *,
+                 depth_range: Sequence[float] = (0.1, 8.0), **options: Any) -> None:
+        if not (math.isfinite(depth_scale_factor) and depth_scale_factor > 0):
+            raise ValueError(f"depth_scale_factor must be positive, got {depth_scale_factor!r}")
+        self.depth_scale_factor = float(depth_scale_factor)
+        self.depth_range = tuple(float(v) for v in depth_range)
+        core = {"depth_range": self.depth_range, **options.pop("core_options", {})}
+        super().__init__(intrinsics, core_options=core, **options)
+
+    def add_frame(self, color: np.ndarray, depth: np.ndarray,
+                  timestamp: Optional[float] = None) -> None:
+        """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
+        dtype; divided by ``depth_scale_factor``)."""
+        depth = np.asarray(depth)
+        if depth.shape[:2] != np.shape(color)[:2]:
+            raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
+                             f"{depth.shape}")
+        keypoints, descriptors = self._extractor.detect(color)
+        depth_m = sample_depth(depth.astype(np.float64) / self.depth_scale_factor, keypoints)
+        self._track(timestamp, "track_rgbd", keypoints, descriptors, depth_m)
