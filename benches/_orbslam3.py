@@ -1,0 +1,229 @@
+"""Helpers shared by the benchmark scripts: ORB-SLAM3 (``pyorbslam3``) settings, vocabulary,
+per-frame driver, and process memory readings.
+
+ORB-SLAM3 is fed the same images ferroslam reads through ``ferroslam.datasets`` (rectified
+pairs for stereo, hence zero distortion; TUM keeps its radial-tangential distortion).
+Settings files are written from the loader's calibration in the ORB-SLAM2-style format that
+ORB-SLAM3 still parses (``Camera.fx``, ``Camera.bf``, ``ThDepth``, ``DepthMapFactor``), with
+the ORB / depth parameters of ORB-SLAM3's example files (TUM1.yaml, KITTI00-02.yaml,
+EuRoC.yaml). Not the v1.0 format: its ``Camera.type: "Rectified"`` stereo path segfaults in
+the wheel's ORB-SLAM3 (the settings printer dereferences the absent second camera). The vocabulary is
+ferroslam's shipped one exported as DBoW2 text (``Vocabulary.save_dbow2_text``), because
+ORB-SLAM3's ``ORBvoc.txt`` is a separate 139 MB download.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from ferroslam.trajectory import Trajectory
+
+# Per dataset family: ORB features, FAST thresholds, fps and (stereo/RGB-D) ThDepth, as in
+# ORB-SLAM3's example settings; TUM RGB-D also uses bf = 40 and DepthMapFactor 5000.
+PRESETS = {
+    "tum": {"n_features": 1000, "ini_fast": 20, "min_fast": 7, "th_depth": 40.0,
+            "bf": 40.0, "depth_factor": 5000.0},
+    "kitti": {"n_features": 2000, "ini_fast": 20, "min_fast": 7, "th_depth": 35.0},
+    "euroc": {"n_features": 1200, "ini_fast": 20, "min_fast": 7, "th_depth": 35.0},
+}
+
+
+def family(seq) -> str:
+    """``"tum"``, ``"kitti"`` or ``"euroc"`` from the loader class."""
+    name = type(seq).__name__.lower()
+    for key in PRESETS:
+        if key in name:
+            return key
+    raise ValueError(f"no ORB-SLAM3 preset for {type(seq).__name__}")
+
+
+def ferroslam_config(seq, sensor: str) -> dict:
+    """ferroslam run options matching the ORB-SLAM3 settings (features, ThDepth, bf)."""
+    p = PRESETS[family(seq)]
+    config = {"n_features": p["n_features"], "ini_fast": p["ini_fast"], "min_fast": p["min_fast"]}
+    if sensor in ("rgbd", "stereo"):
+        config["depth_threshold"] = p["th_depth"]
+    if sensor == "rgbd":
+        config["bf"] = p["bf"]
+    return config
+
+
+def _f(x: float) -> str:
+    """A YAML real that OpenCV's FileStorage reads as real (always with a decimal point)."""
+    return repr(float(x))
+
+
+def write_settings(seq, sensor: str, out_dir: Path) -> Path:
+    """Write an ORB-SLAM3 v1.0 settings file for ``seq`` and ``sensor`` into ``out_dir``.
+
+    ``sensor``: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (the loader's rectified pair).
+    """
+    fam = family(seq)
+    p = PRESETS[fam]
+    cam = seq.camera
+    dist = np.asarray(cam.dist, dtype=np.float64).reshape(-1)
+    fps = int(round(1.0 / float(np.median(np.diff(seq.timestamps)))))
+    lines = ["%YAML:1.0", 'Camera.type: "PinHole"']
+    lines += [f"Camera.{k}: {_f(v)}" for k, v in
+              (("fx", cam.fx), ("fy", cam.fy), ("cx", cam.cx), ("cy", cam.cy))]
+    # Stereo pairs come rectified (zero distortion); k1..p2 are required keys anyway.
+    coeffs = np.zeros(5) if sensor == "stereo" else np.pad(dist, (0, max(0, 5 - dist.size)))
+    lines += [f"Camera.{k}: {_f(v)}" for k, v in zip(("k1", "k2", "p1", "p2", "k3"), coeffs)]
+    lines += [f"Camera.width: {int(cam.width)}", f"Camera.height: {int(cam.height)}",
+              f"Camera.fps: {_f(fps)}", "Camera.RGB: 1"]
+    if sensor == "stereo":
+        lines += [f"Camera.bf: {_f(seq.baseline_m * cam.fx)}", f"ThDepth: {_f(p['th_depth'])}"]
+    if sensor == "rgbd":
+        lines += [f"Camera.bf: {_f(p['bf'])}", f"ThDepth: {_f(p['th_depth'])}",
+                  f"DepthMapFactor: {_f(p['depth_factor'])}"]
+    lines += [f"ORBextractor.nFeatures: {p['n_features']}", "ORBextractor.scaleFactor: 1.2",
+              "ORBextractor.nLevels: 8", f"ORBextractor.iniThFAST: {p['ini_fast']}",
+              f"ORBextractor.minThFAST: {p['min_fast']}"]
+    # The viewer is off, but ORB-SLAM3 still parses these.
+    lines += ["Viewer.KeyFrameSize: 0.05", "Viewer.KeyFrameLineWidth: 1.0",
+              "Viewer.GraphLineWidth: 0.9", "Viewer.PointSize: 2.0", "Viewer.CameraSize: 0.08",
+              "Viewer.CameraLineWidth: 3.0", "Viewer.ViewpointX: 0.0", "Viewer.ViewpointY: -0.7",
+              "Viewer.ViewpointZ: -1.8", "Viewer.ViewpointF: 500.0"]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"orbslam3_{fam}_{sensor}.yaml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def export_vocabulary(out_dir: Path) -> Path:
+    """ferroslam's shipped vocabulary as DBoW2 text in ``out_dir`` (written once)."""
+    from ferroslam.vocabulary import default_vocabulary
+
+    path = Path(out_dir) / "ferroslam_dbow2.txt"
+    if not path.is_file():
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        default_vocabulary().save_dbow2_text(str(path))
+    return path
+
+
+def read_euroc_trajectory(path: Path) -> Trajectory:
+    """ORB-SLAM3's ``SaveTrajectoryEuRoC`` file (``ns tx ty tz qx qy qz qw``) as T_w_c."""
+    rows = np.loadtxt(path, ndmin=2)
+    if rows.size == 0:
+        return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+    order = np.argsort(rows[:, 0], kind="stable")
+    rows = rows[order]
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    x, y, z, w = rows[:, 4], rows[:, 5], rows[:, 6], rows[:, 7]
+    n = np.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / n, y / n, z / n, w / n
+    poses[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    poses[:, 0, 1] = 2 * (x * y - z * w)
+    poses[:, 0, 2] = 2 * (x * z + y * w)
+    poses[:, 1, 0] = 2 * (x * y + z * w)
+    poses[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    poses[:, 1, 2] = 2 * (y * z - x * w)
+    poses[:, 2, 0] = 2 * (x * z - y * w)
+    poses[:, 2, 1] = 2 * (y * z + x * w)
+    poses[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    poses[:, :3, 3] = rows[:, 1:4]
+    return Trajectory(rows[:, 0] * 1e-9, poses)
+
+
+@dataclass
+class OrbSlam3Run:
+    """Outcome of :func:`run_orbslam3`: per-call milliseconds, states, trajectories."""
+
+    call_ms: np.ndarray
+    states: list
+    load_s: float
+    shutdown_s: float
+    trajectory: Trajectory            # final (after shutdown), biggest map, lost frames skipped
+    online: Trajectory                # poses returned by each call (pose_valid frames)
+    errors: list = field(default_factory=list)
+
+    @property
+    def tracked_frames(self) -> int:
+        return sum(s == "OK" for s in self.states)
+
+
+def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path) -> OrbSlam3Run:
+    """Feed frames ``0..n`` of ``seq`` to ORB-SLAM3 one by one, timing only the track call.
+
+    Image loading (and TUM depth scaling to raw units) happens outside the timed region, as
+    ferroslam's ``frame_ms`` excludes loading. ORB-SLAM3's local mapping and loop closing
+    run in their own threads, so a call's time is extraction + tracking only.
+    """
+    import pyorbslam3 as pos
+
+    kind = {"mono": pos.Sensor.MONOCULAR, "rgbd": pos.Sensor.RGBD,
+            "stereo": pos.Sensor.STEREO}[sensor]
+    t0 = time.perf_counter()
+    slam = pos.Slam(vocab_file=str(vocab), settings_file=str(settings), sensor=kind,
+                    use_viewer=False)
+    load_s = time.perf_counter() - t0
+    factor = PRESETS["tum"]["depth_factor"]
+    call_ms = np.full(n, np.nan)
+    states, stamps, poses = [], [], []
+    for i in range(n):
+        t = float(seq.timestamps[i])
+        if sensor == "rgbd":
+            args = (seq.load_gray(i), (seq.load_depth(i) * factor).astype(np.float32))
+            fn = slam.track_rgbd
+        elif sensor == "stereo":
+            args = seq.load_stereo(i)
+            fn = slam.track_stereo
+        else:
+            args = (seq.load_gray(i),)
+            fn = slam.track_monocular
+        start = time.perf_counter()
+        res = fn(*args, t)
+        call_ms[i] = (time.perf_counter() - start) * 1e3
+        states.append(res.state.name)
+        if res.pose_valid and res.pose_wc is not None:
+            stamps.append(t)
+            poses.append(np.asarray(res.pose_wc, dtype=np.float64))
+    t0 = time.perf_counter()
+    slam.shutdown()
+    shutdown_s = time.perf_counter() - t0
+    online = Trajectory(np.asarray(stamps), np.asarray(poses).reshape(-1, 4, 4))
+    errors = []
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "orbslam3_traj.txt"
+        try:
+            slam.save_trajectory_euroc(str(out))
+            final = read_euroc_trajectory(out)
+        except (RuntimeError, OSError, ValueError) as err:
+            errors.append(f"save_trajectory_euroc: {err}; using the per-call poses")
+            final = online
+    return OrbSlam3Run(call_ms, states, load_s, shutdown_s, final, online, errors)
+
+
+def memory_kb() -> dict:
+    """Current ``VmRSS`` and peak ``VmHWM`` of this process, kB (Linux ``/proc``)."""
+    out = {}
+    with open("/proc/self/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith(("VmRSS:", "VmHWM:")):
+                out[line.split(":")[0]] = int(line.split()[1])
+    return out
+
+
+def reset_peak_memory() -> bool:
+    """Reset ``VmHWM`` to the current RSS (``/proc/self/clear_refs`` = 5); False if refused."""
+    try:
+        with open("/proc/self/clear_refs", "w", encoding="ascii") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def load_average() -> Optional[tuple]:
+    try:
+        return os.getloadavg()
+    except OSError:
+        return None

@@ -1,0 +1,220 @@
+#!/usr/bin/env python3
+"""Head-to-head: ferroslam against ORB-SLAM3 (the ``pyorbslam3`` wheel) on the same frames.
+
+For each sequence one worker process runs ferroslam (``ferroslam.pipeline.run_sequence``)
+and then ORB-SLAM3, fed frame by frame with every call timed, and evaluates both
+trajectories with ``ferroslam.metrics.ate`` against the same ground truth (SE(3) alignment
+for stereo / RGB-D, Sim(3) for monocular). One process per sequence because ORB-SLAM3 keeps
+per-camera statics (``Frame::mbInitialComputations``) that a second camera in the same
+process would inherit; both systems of a sequence share that process.
+
+    python benches/compare.py [--sequences tum_rgbd tum_mono kitti_stereo euroc_stereo]
+                              [--max-frames N] [--json OUT] [--workdir DIR]
+
+Needs ``pip install -e .[bench]`` (pyorbslam3) and the native module built in release mode.
+ORB-SLAM3 uses ferroslam's shipped vocabulary exported as DBoW2 text and settings files
+written from the loaders' calibration (``benches/_orbslam3.py``), both in a temporary folder
+(``--workdir`` to keep them); ORB-SLAM3's console output goes to ``<workdir>/<seq>.log``.
+
+Times: ours = ``frame_ms`` (ORB extraction + depth sampling / stereo matching + tracking +
+local mapping, which runs inside the call); ORB-SLAM3 = the track call (extraction +
+tracking; its local mapping and loop closing run in background threads that compete for
+the same cores). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
+each system (``/proc/self/clear_refs``), minus the RSS at its start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import _orbslam3 as orb  # noqa: E402
+
+# name: (folder under the data dir, sensor, default frame limit)
+SEQUENCES = {
+    "tum_rgbd": ("tum/rgbd_dataset_freiburg1_rpy", "rgbd", 300),
+    "tum_mono": ("tum/rgbd_dataset_freiburg1_rpy", "mono", 300),
+    "kitti_stereo": ("kitti/stereo_51_frames", "stereo", 51),
+    "euroc_stereo": ("euroc/V1_01_easy_micro", "stereo", None),
+}
+STAGES = ("extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")
+
+
+def _stats(values) -> dict:
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"median": float("nan"), "p95": float("nan"), "mean": float("nan")}
+    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)),
+            "mean": float(np.mean(v))}
+
+
+def _ate(gt, traj, align: str) -> dict:
+    from ferroslam.metrics import ate
+
+    try:
+        a = ate(gt, traj, align=align)
+    except ValueError as err:
+        return {"rmse_m": None, "pairs": 0, "error": str(err)}
+    return {"rmse_m": float(a.rmse), "pairs": int(a.pairs), "scale": float(a.scale)}
+
+
+def worker(name: str, max_frames, out: Path, workdir: Path) -> None:
+    """Run both systems on one sequence and write the measurements as JSON to ``out``."""
+    from ferroslam._data import data_dir
+    from ferroslam.datasets import open_sequence
+    from ferroslam.pipeline import run_sequence
+    from ferroslam.trajectory import Trajectory
+
+    folder, sensor, default_n = SEQUENCES[name]
+    seq = open_sequence(data_dir() / folder)
+    n = min(len(seq), max_frames or default_n or len(seq))
+    align = "sim3" if sensor == "mono" else "se3"
+    gt = Trajectory(*seq.groundtruth())
+    vocab = orb.export_vocabulary(workdir)
+    settings = orb.write_settings(seq, sensor, workdir)
+    config = orb.ferroslam_config(seq, sensor)
+    rec = {"sequence": name, "path": folder, "sensor": sensor, "frames": n, "align": align,
+           "config": config, "settings": str(settings), "load_start": orb.load_average()}
+
+    # ferroslam
+    base = orb.memory_kb()["VmRSS"]
+    orb.reset_peak_memory()
+    t0 = time.perf_counter()
+    res = run_sequence(seq, config, max_frames=n, progress=False, sensor=sensor)
+    wall = time.perf_counter() - t0
+    peak = orb.memory_kb()["VmHWM"]
+    traj = res.trajectory
+    if sensor == "mono" and res.segments is not None and res.segments.size:
+        longest = np.bincount(res.segments).argmax()  # as the pipeline's Sim(3) ATE
+        traj = traj.subset(np.flatnonzero(res.segments == longest))
+    rec["ours"] = {
+        "tracked": res.tracked_frames, "poses": len(res.trajectory), "keyframes": len(res.keyframes),
+        "map_points": int(res.map_points.shape[0]), "wall_s": wall,
+        "frame_ms": _stats(res.timings["frame_ms"]),
+        "stages_ms": {k: _stats(res.timings[k]) for k in STAGES},
+        "ate": _ate(gt, traj, align), "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024,
+    }
+    del res, traj
+
+    # ORB-SLAM3
+    base = orb.memory_kb()["VmRSS"]
+    orb.reset_peak_memory()
+    t0 = time.perf_counter()
+    run = orb.run_orbslam3(seq, sensor, n, vocab, settings)
+    wall = time.perf_counter() - t0
+    peak = orb.memory_kb()["VmHWM"]
+    rec["orbslam3"] = {
+        "tracked": run.tracked_frames, "poses": len(run.trajectory), "wall_s": wall,
+        "vocab_and_setup_s": run.load_s, "shutdown_s": run.shutdown_s,
+        "frame_ms": _stats(run.call_ms), "ate": _ate(gt, run.trajectory, align),
+        "ate_online": _ate(gt, run.online, align), "states": {s: run.states.count(s) for s in set(run.states)},
+        "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024, "errors": run.errors,
+    }
+    rec["load_end"] = orb.load_average()
+    out.write_text(json.dumps(rec, indent=2) + "\n", encoding="utf-8")
+
+
+def _ratio(a, b) -> str:
+    if a is None or b is None or not np.isfinite(a) or not np.isfinite(b) or b == 0:
+        return "-"
+    return f"{a / b:.2f}"
+
+
+def _cm(a: dict) -> str:
+    return "fail" if a.get("rmse_m") is None else f"{a['rmse_m'] * 100:.2f}"
+
+
+def print_table(records: list) -> None:
+    head = (f"{'sequence':<13} {'frames':>6} {'tracked o/t':>11} {'ATE cm ours':>11} "
+            f"{'ATE cm orb3':>11} {'ATE o/t':>7} {'ms med ours':>11} {'ms med orb3':>11} "
+            f"{'p95 ours':>8} {'p95 orb3':>8} {'t o/t':>6} {'peak MB o/t':>12}")
+    print(head)
+    print("-" * len(head))
+    for r in records:
+        o, t = r["ours"], r["orbslam3"]
+        print(f"{r['sequence']:<13} {r['frames']:>6} {o['tracked']:>5}/{t['tracked']:<5} "
+              f"{_cm(o['ate']):>11} {_cm(t['ate']):>11} "
+              f"{_ratio(o['ate'].get('rmse_m'), t['ate'].get('rmse_m')):>7} "
+              f"{o['frame_ms']['median']:>11.1f} {t['frame_ms']['median']:>11.1f} "
+              f"{o['frame_ms']['p95']:>8.1f} {t['frame_ms']['p95']:>8.1f} "
+              f"{_ratio(o['frame_ms']['median'], t['frame_ms']['median']):>6} "
+              f"{o['peak_delta_mb']:>5.0f}/{t['peak_delta_mb']:<5.0f}")
+    print("\nours: per-stage median (p95) ms; ORB-SLAM3 extras")
+    for r in records:
+        o, t = r["ours"], r["orbslam3"]
+        stages = "  ".join(f"{k[:-3]} {v['median']:.1f} ({v['p95']:.1f})"
+                           for k, v in o["stages_ms"].items())
+        print(f"{r['sequence']:<13} {stages}")
+        print(f"{'':<13} ours: {o['keyframes']} KFs, {o['map_points']} points, wall {o['wall_s']:.1f} s, "
+              f"peak RSS {o['peak_rss_mb']:.0f} MB | ORB-SLAM3: setup+vocab {t['vocab_and_setup_s']:.1f} s, "
+              f"wall {t['wall_s']:.1f} s, online-pose ATE {_cm(t['ate_online'])} cm, states {t['states']}, "
+              f"peak RSS {t['peak_rss_mb']:.0f} MB {' '.join(t['errors'])}")
+        print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
+    print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
+          "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map). o/t = ours / ORB-SLAM3 "
+          "(< 1: ours better/faster). ms: ours frame_ms, ORB-SLAM3 track call; peak MB: "
+          "VmHWM rise during each system's run.")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--sequences", nargs="+", choices=sorted(SEQUENCES),
+                        default=list(SEQUENCES))
+    parser.add_argument("--max-frames", type=int, help="frames per sequence (default: all, TUM 300)")
+    parser.add_argument("--json", type=Path, metavar="OUT", help="write all records as JSON")
+    parser.add_argument("--workdir", type=Path, help="keep settings, vocabulary and logs here")
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+
+    if args.worker:
+        worker(args.worker, args.max_frames, args.worker_out, args.workdir)
+        return 0
+
+    tmp = None
+    if args.workdir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="ferroslam_compare_")
+        args.workdir = Path(tmp.name)
+    args.workdir.mkdir(parents=True, exist_ok=True)
+    records, failures = [], []
+    for name in args.sequences:
+        out = args.workdir / f"{name}.json"
+        log = args.workdir / f"{name}.log"
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", name,
+               "--worker-out", str(out), "--workdir", str(args.workdir)]
+        if args.max_frames:
+            cmd += ["--max-frames", str(args.max_frames)]
+        print(f"running {name} ... (log {log})", flush=True)
+        with open(log, "w", encoding="utf-8") as f:
+            rc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, env=os.environ).returncode
+        if rc != 0 or not out.is_file():
+            tail = log.read_text(encoding="utf-8", errors="replace").splitlines()[-5:]
+            failures.append((name, rc, tail))
+            continue
+        records.append(json.loads(out.read_text(encoding="utf-8")))
+    print()
+    if records:
+        print_table(records)
+    for name, rc, tail in failures:
+        print(f"\n{name}: worker failed (exit {rc}); last log lines:\n  " + "\n  ".join(tail))
+    if args.json is not None:
+        args.json.write_text(json.dumps(records, indent=2) + "\n", encoding="utf-8")
+    if tmp is not None:
+        tmp.cleanup()
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,164 @@
+#!/usr/bin/env python3
+"""Long-run scaling: are time and memory per frame flat when a sequence is replayed?
+
+Replays the TUM fr1/rpy frames forwards, backwards, forwards, ... (``--passes`` times)
+through one ferroslam RGB-D ``SlamSystem``; timestamps keep increasing (each replayed frame
+is stamped one median frame interval after the previous one), so the core sees one long
+sequence that revisits the same place. Frames are extracted once and cached, so the loop
+times only what the system does per frame (``track_rgbd``: tracking + local mapping) plus,
+from the first pass, ORB extraction for reference. Every ``--every`` frames it logs the
+median / p95 call time over the window, the process RSS (``/proc/self/status``) and the
+map size; at the end it prints the curve, a least-squares slope of time and RSS against the
+frame index, and with ``--plot PNG`` saves the curve with matplotlib.
+
+    python benches/long_run.py [--sequence DIR] [--max-frames N] [--passes P]
+                               [--every K] [--plot OUT.png] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import _orbslam3 as orb  # noqa: E402  (memory helpers)
+
+
+def replay_order(n: int, passes: int) -> np.ndarray:
+    """Frame indices forwards, backwards, forwards, ...; no frame repeated at a turn."""
+    order = [np.arange(n)]
+    for p in range(1, passes):
+        step = np.arange(n - 2, -1, -1) if p % 2 else np.arange(1, n)
+        order.append(step)
+    return np.concatenate(order)
+
+
+def main(argv=None) -> int:
+    from ferroslam._core import SlamSystem
+    from ferroslam._data import data_dir
+    from ferroslam.datasets import open_sequence
+    from ferroslam.features import sample_depth
+    from ferroslam.pipeline import make_extractor
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--sequence", type=Path,
+                        default=data_dir() / "tum" / "rgbd_dataset_freiburg1_rpy")
+    parser.add_argument("--max-frames", type=int, help="frames of the sequence to replay")
+    parser.add_argument("--passes", type=int, default=6, help="forward/backward passes")
+    parser.add_argument("--every", type=int, default=50, help="log window, frames")
+    parser.add_argument("--plot", type=Path, metavar="PNG", help="save the curve (matplotlib)")
+    parser.add_argument("--json", type=Path, metavar="OUT")
+    args = parser.parse_args(argv)
+
+    seq = open_sequence(args.sequence)
+    n = min(len(seq), args.max_frames or len(seq))
+    extractor = make_extractor({})
+    features, extraction_ms = [], []
+    for i in range(n):
+        gray, depth = seq.load_gray(i), seq.load_depth(i)
+        t0 = time.perf_counter()
+        kps, desc = extractor.detect(gray)
+        features.append((kps, desc, sample_depth(depth, kps)))
+        extraction_ms.append((time.perf_counter() - t0) * 1e3)
+    dt = float(np.median(np.diff(seq.timestamps[:n])))
+    order = replay_order(n, args.passes)
+    cam = seq.camera
+    system = SlamSystem(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
+                        sensor="rgbd")
+    rss0 = orb.memory_kb()["VmRSS"]
+    call_ms = np.zeros(len(order))
+    states, rows = [], []
+    t_start = float(seq.timestamps[0])
+    print(f"{seq.name}: {n} frames x {args.passes} passes = {len(order)} frames, "
+          f"ORB extraction (cached) median {np.median(extraction_ms):.1f} ms, "
+          f"load average {orb.load_average()}")
+    head = (f"{'frames':>7} {'pass':>4} {'median ms':>9} {'p95 ms':>7} {'max ms':>7} "
+            f"{'RSS MB':>7} {'ok %':>5} {'KFs':>5} {'points':>7}")
+    print(head)
+    print("-" * len(head))
+    for k, i in enumerate(order):
+        t0 = time.perf_counter()
+        res = system.track_rgbd(t_start + k * dt, *features[i])
+        call_ms[k] = (time.perf_counter() - t0) * 1e3
+        states.append(str(res.state))
+        if (k + 1) % args.every == 0 or k + 1 == len(order):
+            w = call_ms[k + 1 - ((k % args.every) + 1): k + 1]
+            ok = states[-len(w):].count("ok") / len(w)
+            kf_ids, _, _ = system.keyframe_trajectory()
+            row = {"frame": k + 1, "pass": int(np.searchsorted(
+                       np.cumsum([n] + [n - 1] * (args.passes - 1)), k, side="right")) + 1,
+                   "median_ms": float(np.median(w)), "p95_ms": float(np.percentile(w, 95)),
+                   "max_ms": float(w.max()), "rss_mb": orb.memory_kb()["VmRSS"] / 1024,
+                   "ok": ok, "keyframes": int(np.asarray(kf_ids).size),
+                   "map_points": int(np.asarray(system.map_points()).reshape(-1, 3).shape[0])}
+            rows.append(row)
+            print(f"{row['frame']:>7} {row['pass']:>4} {row['median_ms']:>9.1f} "
+                  f"{row['p95_ms']:>7.1f} {row['max_ms']:>7.1f} {row['rss_mb']:>7.1f} "
+                  f"{100 * ok:>5.0f} {row['keyframes']:>5} {row['map_points']:>7}", flush=True)
+
+    frames = np.array([r["frame"] for r in rows], float)
+    med = np.array([r["median_ms"] for r in rows])
+    rss = np.array([r["rss_mb"] for r in rows])
+    half = len(rows) // 2
+    slope_t = np.polyfit(frames, med, 1)[0] * 1000 if len(rows) > 1 else float("nan")
+    slope_m = np.polyfit(frames, rss, 1)[0] * 1000 if len(rows) > 1 else float("nan")
+    summary = {
+        "frames": len(order), "passes": args.passes, "sequence_frames": n,
+        "rss_start_mb": rss0 / 1024, "rss_end_mb": float(rss[-1]), "rss_max_mb": float(rss.max()),
+        "median_ms_first_half": float(np.median(call_ms[: len(order) // 2])),
+        "median_ms_second_half": float(np.median(call_ms[len(order) // 2:])),
+        "window_median_ms_first": float(med[0]), "window_median_ms_last": float(med[-1]),
+        "slope_ms_per_1000_frames": float(slope_t), "slope_rss_mb_per_1000_frames": float(slope_m),
+        "rss_second_half_growth_mb": float(rss[-1] - rss[half]) if half else float("nan"),
+        "ok_fraction": states.count("ok") / len(states), "load_end": orb.load_average(),
+    }
+    print(f"\ncall time median: first half {summary['median_ms_first_half']:.1f} ms, second half "
+          f"{summary['median_ms_second_half']:.1f} ms; trend {slope_t:+.2f} ms per 1000 frames")
+    print(f"RSS: {summary['rss_start_mb']:.0f} MB before the first frame, max "
+          f"{summary['rss_max_mb']:.0f} MB, end {summary['rss_end_mb']:.0f} MB; trend "
+          f"{slope_m:+.2f} MB per 1000 frames, growth over the second half "
+          f"{summary['rss_second_half_growth_mb']:+.1f} MB")
+    print(f"tracked {100 * summary['ok_fraction']:.1f} % of frames; final map "
+          f"{rows[-1]['keyframes']} keyframes, {rows[-1]['map_points']} points; load average at "
+          f"end {summary['load_end']}")
+
+    if args.plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, (a1, a2, a3) = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+        a1.plot(np.arange(1, len(order) + 1), call_ms, lw=0.3, color="0.7", label="per frame")
+        a1.plot(frames, med, "o-", label=f"median / {args.every}")
+        a1.plot(frames, [r["p95_ms"] for r in rows], "s--", label="p95")
+        a1.set_ylabel("track_rgbd ms")
+        a1.legend(loc="upper right")
+        a2.plot(frames, rss, "o-")
+        a2.set_ylabel("RSS MB")
+        a3.plot(frames, [r["keyframes"] for r in rows], "o-", label="keyframes")
+        a3.plot(frames, [r["map_points"] / 100 for r in rows], "s-", label="map points / 100")
+        a3.set_xlabel("frame (replayed)")
+        a3.legend(loc="upper left")
+        for x in np.cumsum([n] + [n - 1] * (args.passes - 1))[:-1]:
+            for a in (a1, a2, a3):
+                a.axvline(x, color="0.85", lw=0.8)
+        fig.suptitle(f"ferroslam RGB-D, {seq.name} replayed {args.passes}x")
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=110)
+        print(f"plot saved to {args.plot}")
+    if args.json is not None:
+        args.json.write_text(json.dumps({"summary": summary, "curve": rows}, indent=2) + "\n",
+                             encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
