@@ -1,5 +1,5 @@
 """Command line: ``ferroslam demo`` (the bundled sample), ``ferroslam run`` (track a sequence),
-``ferroslam eval ate|rpe`` and ``ferroslam download`` (public datasets).
+``ferroslam eval ate|rpe``, ``ferroslam download`` (public datasets) and ``ferroslam vocab``.
 
 ``build_parser()`` is separate from ``main()`` so the parser is testable without a process.
 """
@@ -71,7 +71,8 @@ def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``ferroslam`` argument parser (``demo``, ``run``, ``eval {ate,rpe}``, ``download``)."""
+    """The ``ferroslam`` argument parser (``demo``, ``run``, ``eval {ate,rpe}``, ``download``,
+    ``vocab {train,export-dbow2}``)."""
     from .demo import DEMO_CONFIGS
     from .download import DATASETS
 
@@ -137,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "size check (and sha256 if given), and extract it into --to. KITTI needs\n"
                     "a login: the command prints the steps and exits with status 3.",
         epilog="names:\n"
-               "  tum    freiburg1_xyz, fr2_desk, rgbd_dataset_freiburg3_long_office_household, ...\n"
+               "  tum    freiburg1_xyz, fr2_desk, rgbd_dataset_freiburg3_long_office_household\n"
                "         (https://cvg.cit.tum.de/data/datasets/rgbd-dataset/download)\n"
                "  euroc  MH_01_easy ... MH_05_difficult, V1_01_easy ... V2_03_difficult\n"
                "         (a prefix such as V1_01 is enough)\n"
@@ -156,7 +157,31 @@ def build_parser() -> argparse.ArgumentParser:
     dl.add_argument("--timeout", type=float, default=30.0,
                     help="network timeout in seconds (default: 30)")
     dl.add_argument("--silent", action="store_true", help="no progress bar")
+    _add_vocab_parser(sub)
     return parser
+
+
+def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
+    """``vocab train`` and ``vocab export-dbow2`` (place-recognition vocabularies)."""
+    voc = sub.add_parser("vocab", help="train or export an ORB vocabulary")
+    voc_sub = voc.add_subparsers(dest="vocab_command", metavar="ACTION", required=True)
+    train = voc_sub.add_parser("train", help="train a vocabulary on images")
+    train.add_argument("images", nargs="+", type=Path,
+                       help="image files or folders (every .png/.jpg/... inside, sorted)")
+    train.add_argument("--k", type=_positive_int, default=10, help="branching factor (default: 10)")
+    train.add_argument("--levels", type=_positive_int, default=5, help="tree depth (default: 5)")
+    train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    train.add_argument("--step", type=_positive_int, default=1,
+                       help="keep every N-th image of each folder (default: 1)")
+    train.add_argument("--features", type=_positive_int, default=1000,
+                       help="ORB features per image (default: 1000)")
+    train.add_argument("--out", type=Path, required=True, help="binary vocabulary to write")
+    train.add_argument("--text", type=Path, help="also write DBoW2 text (ORBvoc.txt format)")
+    export = voc_sub.add_parser("export-dbow2",
+                                help="write a vocabulary as DBoW2 text for ORB-SLAM2/3")
+    export.add_argument("out", type=Path, help="text file to write")
+    export.add_argument("--vocabulary", type=Path,
+                        help="binary vocabulary to export (default: the shipped one)")
 
 
 def _load_config(path: Optional[Path]) -> dict:
@@ -348,7 +373,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         parser.print_help()
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
-                "download": _cmd_download}
+                "download": _cmd_download, "vocab": _cmd_vocab}
     try:
         return commands[args.command](args)
     except (FileNotFoundError, ImportError, ValueError, NotImplementedError,

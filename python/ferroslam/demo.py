@@ -1,8 +1,9 @@
 """The real sample shipped in the package, for ``ferroslam demo`` and quick experiments.
 
 ``sample/tum_fr1_rpy.tar.bz2`` holds 90 consecutive RGB-D frames (3 s at 30 Hz, frames
-210-299) of TUM fr1/rpy with their ground truth, in the standard TUM layout (CC BY 4.0, cite Sturm et al., IROS
-2012; see the README inside the archive). Built by ``scripts/make_sample.py``.
+210-299) of TUM fr1/rpy with their ground truth, in the standard TUM layout (CC BY 4.0,
+cite Sturm et al., IROS 2012; see the README inside the archive). Built by
+``scripts/make_sample.py``.
 
 Example::
 
