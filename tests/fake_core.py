@@ -63,6 +63,9 @@ class FakeSlamSystem:
     def frame_trajectory(self):
         return np.array(self.stamps), np.array(self.poses).reshape(-1, 4, 4)
 
+    def set_vocabulary(self, vocabulary):
+        self.vocabulary = vocabulary
+
     def frame_segments(self):
         return np.zeros(len(self.stamps), dtype=np.uint32)
 

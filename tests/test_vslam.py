@@ -82,6 +82,16 @@ def test_saved_map_relocalises_and_stays_unchanged(tum, rgbd_run, tmp_path):
         assert np.abs(poses[:, :3, 3] - ref_poses[20:40, :3, 3]).max() < 0.02
 
 
+def test_relocalises_without_a_vocabulary_too(tum, rgbd_run, tmp_path):
+    """Without place recognition a loaded map is searched keyframe by keyframe."""
+    vslam, _, _ = rgbd_run
+    vslam.save_map(tmp_path / "rpy.map")
+    other = RGBDVSlam(tum.camera, depth_scale_factor=5000, vocabulary=None)
+    other.load_map(tmp_path / "rpy.map")
+    other.add_frame(tum.load_gray(45), raw_depth(tum, 45), timestamp=tum.timestamps[45])
+    assert other.check_status() is not TrackingStatus.LOST
+
+
 def test_map_file_errors(tum, rgbd_run, tmp_path):
     vslam, _, _ = rgbd_run
     good = tmp_path / "good.map"

@@ -226,6 +226,10 @@ class SlamSystem:
             ValueError: truncated, corrupt (checksum), another format version, or built with
                 another ORB pyramid; the system is unchanged.
         """
+    def set_vocabulary(self, vocabulary: Vocabulary) -> None:
+        """Sets the ORB vocabulary (shared, not copied): keyframes are indexed by bag of words
+        and a lost frame is relocalised against the keyframes it resembles (ORB-SLAM's
+        relocalisation), instead of the last reference keyframe's neighbourhood."""
     @property
     def localization_only(self) -> bool:
         """Track against the map without adding keyframes (e.g. in a loaded map)."""

@@ -18,12 +18,14 @@ from .features import OrbExtractor, sample_depth
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .trajectory import Trajectory
 
-__all__ = ["EXTRACTOR_KEYS", "RunResult", "make_extractor", "run_sequence"]
+__all__ = ["EXTRACTOR_KEYS", "RunResult", "load_vocabulary", "make_extractor", "run_sequence"]
 
 SENSORS = ("mono", "stereo", "rgbd")
 # Extractor options; the pyramid shape (scale_factor, n_levels) is passed to the core too.
 EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
 _EXTRACTOR_ONLY = ("n_features", "ini_fast", "min_fast")
+# Pipeline options that are not SlamSystem keywords.
+_PIPELINE_ONLY = ("vocabulary",)
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")
 
 
@@ -248,6 +250,20 @@ def _longest_segment(result: RunResult) -> Trajectory:
     return result.trajectory.subset(np.flatnonzero(result.segments == longest))
 
 
+def load_vocabulary(spec):
+    """A ``Vocabulary``: ``"default"`` (the one shipped in the package), a vocabulary file's
+    path, or a ``Vocabulary`` itself (returned as is)."""
+    from ._core import Vocabulary
+
+    if isinstance(spec, Vocabulary):
+        return spec
+    if spec == "default" or spec is True:
+        from .vocabulary import default_vocabulary
+
+        return default_vocabulary()
+    return Vocabulary.load(str(spec))
+
+
 def _evaluate(result: RunResult, gt: Trajectory) -> None:
     if result.sensor == "mono":  # scale is arbitrary, per map segment
         cases = (
@@ -283,7 +299,9 @@ def run_sequence(
         seq: a dataset sequence (``len``, ``load_gray(i)``, ``load_depth(i)``, ``timestamps``,
             ``camera``, ``has_groundtruth``, ``groundtruth()``), e.g. ``TumSequence``.
         config: keyword options for ``SlamSystem`` (unknown keys: ``ValueError`` from the
-            core) plus the extractor options ``ini_fast`` and ``min_fast``.
+            core) plus the extractor options (``n_features``, ``ini_fast``, ``min_fast``) and
+            ``vocabulary`` (``"default"``: the shipped one; a vocabulary file; ``None`` for
+            none): lost frames relocalise against the keyframes they resemble.
         max_frames: process only the first ``max_frames`` frames.
         progress: show a tqdm progress bar.
         sensor: ``"mono"``, ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs
@@ -308,12 +326,16 @@ def run_sequence(
             raise ValueError(f"max_frames must be a positive integer, got {max_frames}")
         n = min(n, int(max_frames))
     extractor = make_extractor(config)
-    core_config = {k: v for k, v in config.items() if k not in _EXTRACTOR_ONLY}
+    core_config = {k: v for k, v in config.items()
+                   if k not in _EXTRACTOR_ONLY and k not in _PIPELINE_ONLY}
     feed = _FEEDS[sensor](seq, extractor)
     cam = seq.camera
     factory = system_factory or _default_system_factory
     system = factory(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
                      sensor=sensor, **{**feed.system_options(), **core_config})
+    vocabulary = config.get("vocabulary", "default")
+    if vocabulary:
+        system.set_vocabulary(load_vocabulary(vocabulary))
     try:
         return _run(seq, system, feed, n, sensor, config, progress)
     finally:

@@ -56,7 +56,17 @@ def _positive_int(name: str, value: Any) -> int:
 
 
 class _VSlam:
-    """Shared workflow of the three sensor objects (use one of them)."""
+    """Shared workflow of the three sensor objects (use one of them).
+
+    Keyword options (MATLAB property names in brackets): ``scale_factor`` (ScaleFactor),
+    ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints), ``track_feature_range``
+    (TrackFeatureRange), ``skip_max_frames`` (SkipMaxFrames), ``vocabulary`` (the bag of
+    words used to relocalise: ``"default"`` ships with the package; a file path or a
+    ``ferroslam._core.Vocabulary``; ``None`` for none; CustomBagOfFeatures), ``verbose``
+    (Verbose: 1 prints stages, 2 also logs every frame to a file in the temporary folder, 3
+    adds keyframe poses after each local BA), ``frame_rate_hz`` (timestamps when none are
+    given), ``seed``.
+    """
 
     _sensor = ""
 
@@ -70,6 +80,7 @@ class _VSlam:
         track_feature_range: Sequence[int] = (30, 100),
         skip_max_frames: int = 20,
         frame_rate_hz: float = 30.0,
+        vocabulary: Any = "default",
         verbose: int = 0,
         seed: int = 0,
         core_options: Optional[dict] = None,
@@ -101,6 +112,10 @@ class _VSlam:
             track_feature_range=self.track_feature_range, skip_max_frames=self.skip_max_frames,
             seed=seed, **(core_options or {}),
         )
+        if vocabulary is not None:
+            from .pipeline import load_vocabulary
+
+            self._system.set_vocabulary(load_vocabulary(vocabulary))
         self._frames = 0
         self._last_timestamp: Optional[float] = None
         self._last = None

@@ -15,6 +15,7 @@ use pyo3::types::PyDict;
 
 use crate::convert;
 use crate::errors::to_py;
+use crate::vocabulary::PyVocabulary;
 
 fn state_name(state: TrackingState) -> &'static str {
     match state {
@@ -416,6 +417,12 @@ impl PySlamSystem {
     fn load_map(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
         let inner = &mut self.inner;
         py.detach(|| inner.load_map(&path)).map_err(to_py)
+    }
+
+    /// Sets the ORB vocabulary: keyframes are indexed by bag of words and lost frames are
+    /// relocalised against the keyframes they resemble.
+    fn set_vocabulary(&mut self, vocabulary: PyRef<'_, PyVocabulary>) {
+        self.inner.set_vocabulary(vocabulary.shared());
     }
 
     /// Localisation-only mode: track against the map without adding keyframes.

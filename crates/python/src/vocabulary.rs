@@ -109,6 +109,13 @@ impl PyVocabulary {
     }
 }
 
+impl PyVocabulary {
+    /// The vocabulary, shared (no copy) with a SLAM system.
+    pub(crate) fn shared(&self) -> Arc<Vocabulary> {
+        Arc::clone(&self.inner)
+    }
+}
+
 #[pymethods]
 impl PyVocabulary {
     /// Trains a vocabulary on the descriptors of a set of images (one `(N, 32)` uint8 array

@@ -13,6 +13,7 @@ pub mod frame;
 pub mod frustum;
 pub mod local_mapping;
 pub mod mono_init;
+pub mod place_recognition;
 pub mod system;
 pub mod tracking;
 pub mod trajectory;

@@ -13,8 +13,11 @@ use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::local_mapping::{LocalMapper, MappingReport};
 use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
+use crate::place_recognition::PlaceRecognition;
 use crate::tracking::{Tracker, TrackingState, MIN_INIT_FEATURES};
 use crate::trajectory::Trajectory;
+use ferroslam_vocabulary::Vocabulary;
+use std::sync::Arc;
 
 /// Outcome of tracking one frame.
 #[derive(Clone, Debug)]
@@ -60,6 +63,8 @@ pub struct SlamSystem {
     lost_since: Option<f64>,
     /// Track against the map without changing it (no keyframes, no mapping).
     localization_only: bool,
+    /// Bag-of-words index of the keyframes, once a vocabulary is set.
+    place: Option<PlaceRecognition>,
     frames_seen: usize,
     last_timestamp: Option<f64>,
     resets: usize,
@@ -81,6 +86,7 @@ impl SlamSystem {
             segments: Vec::new(),
             lost_since: None,
             localization_only: false,
+            place: None,
             frames_seen: 0,
             last_timestamp: None,
             resets: 0,
@@ -188,7 +194,9 @@ impl SlamSystem {
                 init_status,
             });
         }
-        let tracked = self.tracker.track(&mut frame, &mut self.map, &self.ctx)?;
+        let tracked =
+            self.tracker
+                .track(&mut frame, &mut self.map, &self.ctx, self.place.as_ref())?;
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         let mut result = TrackResult {
             state: self.tracker.state,
@@ -227,6 +235,7 @@ impl SlamSystem {
                 .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
             result.is_keyframe = true;
             result.mapping = Some(report);
+            self.index_keyframes();
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(r) = self.tracker.reference_kf {
@@ -287,6 +296,7 @@ impl SlamSystem {
         let T_w_c = frame.T_c_w.inverse();
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, true);
+        self.index_keyframes();
         Ok(Ok(T_w_c))
     }
 
@@ -314,6 +324,7 @@ impl SlamSystem {
             .push(frame.timestamp, &frame.T_c_w, kf, &self.map);
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, true);
+        self.index_keyframes();
         Ok(Some(Isometry3::identity()))
     }
 
@@ -326,11 +337,29 @@ impl SlamSystem {
 
     fn clear_map(&mut self) {
         self.map.clear();
+        if let Some(place) = self.place.as_mut() {
+            place.clear();
+        }
         self.tracker.reset();
         self.mapper.reset();
         self.initializer.reset();
         self.trajectory.clear();
         self.lost_since = None;
+    }
+
+    /// Sets the ORB vocabulary: keyframes are indexed by their bag of words and a lost frame
+    /// is relocalised against the keyframes it recognises (ORB-SLAM), instead of the last
+    /// reference keyframe's neighbourhood (or, in a loaded map, every keyframe).
+    pub fn set_vocabulary(&mut self, vocabulary: Arc<Vocabulary>) {
+        self.place = Some(PlaceRecognition::new(vocabulary));
+        self.index_keyframes();
+    }
+
+    /// Brings the keyframe index up to date with the map (new and culled keyframes).
+    fn index_keyframes(&mut self) {
+        if let Some(place) = self.place.as_mut() {
+            place.sync(&self.map);
+        }
     }
 
     /// Localisation-only mode: frames are tracked (and relocalised) against the map but never
@@ -380,6 +409,7 @@ impl SlamSystem {
         }
         self.clear_map();
         self.map = map;
+        self.index_keyframes();
         self.tracker.state = if self.map.num_keyframes() > 0 {
             TrackingState::Lost
         } else {

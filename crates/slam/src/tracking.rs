@@ -17,6 +17,7 @@ use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
 use crate::frustum::visible_point;
+use crate::place_recognition::PlaceRecognition;
 
 /// Tracking state exposed to users.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -85,11 +86,15 @@ impl Default for Tracker {
 impl Tracker {
     /// Estimates `frame.T_c_w` against the map. Returns whether tracking succeeded; on success
     /// `frame.map_points` holds the inlier associations.
+    ///
+    /// A lost frame is relocalised against the keyframes `place` recognises (when a
+    /// vocabulary is set), else against the last reference keyframe's neighbourhood.
     pub fn track(
         &mut self,
         frame: &mut Frame,
         map: &mut Map,
         ctx: &Context,
+        place: Option<&PlaceRecognition>,
     ) -> Result<bool, SlamError> {
         self.refresh_last_frame_pose(map);
         let recovered = match self.state {
@@ -105,7 +110,8 @@ impl Tracker {
                     // A weak motion-model pose under fast rotation is often wrong: let
                     // PnP against the reference keyframe compete and keep the better one.
                     let motion_guess = (by_motion >= MIN_POSE_INLIERS).then(|| frame.clone());
-                    let by_pnp = self.relocalise(frame, map, ctx)?;
+                    let candidates = self.reference_neighbourhood(map);
+                    let by_pnp = self.relocalise(frame, map, ctx, candidates)?;
                     match motion_guess {
                         Some(guess) if by_motion >= by_pnp => {
                             *frame = guess;
@@ -116,7 +122,11 @@ impl Tracker {
                 }
             }
             _ => {
-                let found = self.relocalise(frame, map, ctx)? >= MIN_POSE_INLIERS;
+                let candidates = match place {
+                    Some(p) => p.relocalisation_candidates(&frame.features.descriptors, map),
+                    None => self.reference_neighbourhood(map),
+                };
+                let found = self.relocalise(frame, map, ctx, candidates)? >= MIN_POSE_INLIERS;
                 if found {
                     self.last_relocalisation_frame = Some(frame.index);
                 }
@@ -218,9 +228,10 @@ impl Tracker {
         })
     }
 
-    /// Reference keyframe tracking and relocalisation in one: descriptor matches against the
-    /// reference keyframe, then its best covisible keyframes, each solved by PnP-RANSAC
-    /// before motion-only BA. Used when the motion model fails or tracking was lost; RANSAC
+    /// Reference keyframe tracking and relocalisation in one: descriptor matches against each
+    /// candidate keyframe in turn (the reference keyframe and its best covisible keyframes,
+    /// or the keyframes place recognition found), each solved by PnP-RANSAC before
+    /// motion-only BA. Used when the motion model fails or tracking was lost; RANSAC
     /// keeps brute-force mismatches from dragging the pose (ORB-SLAM starts BA from the last
     /// pose, which diverges under fast rotation).
     /// Returns the number of map point inliers of the first keyframe that localises the
@@ -230,15 +241,8 @@ impl Tracker {
         frame: &mut Frame,
         map: &mut Map,
         ctx: &Context,
+        candidates: Vec<KeyFrameId>,
     ) -> Result<usize, SlamError> {
-        // Without a reference (a freshly loaded map) every keyframe is a candidate, oldest
-        // first; place recognition will narrow this down once the vocabulary is wired in.
-        let candidates = match self.reference_kf.filter(|&r| map.keyframe(r).is_some()) {
-            Some(r) => std::iter::once(r)
-                .chain(map.best_covisibles(r, 10))
-                .collect(),
-            None => map.keyframe_ids(),
-        };
         for kf in candidates {
             frame.clear_associations();
             if match_keyframe(frame, kf, map, 0.75) < MIN_REFERENCE_MATCHES {
@@ -289,6 +293,17 @@ impl Tracker {
         }
         frame.clear_associations();
         Ok(0)
+    }
+
+    /// The reference keyframe and its 10 best covisible keyframes; without a reference (a
+    /// freshly loaded map and no vocabulary) every keyframe, oldest first.
+    fn reference_neighbourhood(&self, map: &Map) -> Vec<KeyFrameId> {
+        match self.reference_kf.filter(|&r| map.keyframe(r).is_some()) {
+            Some(r) => std::iter::once(r)
+                .chain(map.best_covisibles(r, 10))
+                .collect(),
+            None => map.keyframe_ids(),
+        }
     }
 
     /// Refines the pose against every map point of the local keyframes (ORB-SLAM

@@ -1,0 +1,139 @@
+//! Place recognition over the map's keyframes (ORB-SLAM `KeyFrameDatabase`): each keyframe's
+//! bag of words lives in an inverted-index database, queried to find the keyframes a lost
+//! frame may be relocalised against.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use ferroslam_features::Descriptor;
+use ferroslam_map::{KeyFrameId, Map};
+use ferroslam_vocabulary::{BowVector, Database, Vocabulary};
+
+/// Levels above the leaves at which feature vectors group features (ORB-SLAM: 4).
+const FEATURE_LEVELS_UP: u32 = 4;
+/// Covisible keyframes whose scores a candidate accumulates (ORB-SLAM: 10).
+const GROUP_SIZE: usize = 10;
+/// Keyframes retrieved from the database before grouping.
+const MAX_RETRIEVED: usize = 50;
+
+/// Bag-of-words index of the live keyframes.
+pub struct PlaceRecognition {
+    vocabulary: Arc<Vocabulary>,
+    database: Database,
+    bows: HashMap<KeyFrameId, BowVector>,
+}
+
+impl std::fmt::Debug for PlaceRecognition {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PlaceRecognition")
+            .field("keyframes", &self.bows.len())
+            .finish()
+    }
+}
+
+impl PlaceRecognition {
+    /// An empty index over `vocabulary`.
+    pub fn new(vocabulary: Arc<Vocabulary>) -> Self {
+        Self {
+            vocabulary,
+            database: Database::new(),
+            bows: HashMap::new(),
+        }
+    }
+
+    /// Bag of words of a set of descriptors.
+    pub fn bow(&self, descriptors: &[Descriptor]) -> BowVector {
+        self.vocabulary.transform(descriptors, FEATURE_LEVELS_UP).0
+    }
+
+    /// Indexes keyframe `kf` of `map` (no-op if it is gone or already indexed).
+    pub fn add_keyframe(&mut self, kf: KeyFrameId, map: &Map) {
+        if self.bows.contains_key(&kf) {
+            return;
+        }
+        if let Some(k) = map.keyframe(kf) {
+            let bow = self.bow(&k.features().descriptors);
+            self.database.add(kf.0, &bow);
+            self.bows.insert(kf, bow);
+        }
+    }
+
+    /// Forgets the keyframes no longer live in `map` (culled) and indexes the new ones.
+    pub fn sync(&mut self, map: &Map) {
+        let gone: Vec<KeyFrameId> = self
+            .bows
+            .keys()
+            .filter(|k| map.keyframe(**k).is_none())
+            .copied()
+            .collect();
+        for kf in gone {
+            self.database.remove(kf.0);
+            self.bows.remove(&kf);
+        }
+        for kf in map.keyframe_ids() {
+            self.add_keyframe(kf, map);
+        }
+    }
+
+    /// Forgets every keyframe.
+    pub fn clear(&mut self) {
+        self.database = Database::new();
+        self.bows.clear();
+    }
+
+    /// Number of indexed keyframes.
+    pub fn len(&self) -> usize {
+        self.bows.len()
+    }
+
+    /// Whether no keyframe is indexed.
+    pub fn is_empty(&self) -> bool {
+        self.bows.is_empty()
+    }
+
+    /// Keyframes a frame with `descriptors` may be relocalised against, best first (ORB-SLAM
+    /// `DetectRelocalizationCandidates`): keyframes sharing words, each scored with its best
+    /// covisible keyframes' scores added; the best of every group scoring above 0.75 of the
+    /// best group is kept.
+    pub fn relocalisation_candidates(
+        &self,
+        descriptors: &[Descriptor],
+        map: &Map,
+    ) -> Vec<KeyFrameId> {
+        let bow = self.bow(descriptors);
+        let scores: HashMap<KeyFrameId, f64> = self
+            .database
+            .query(&bow, MAX_RETRIEVED, |id| {
+                map.keyframe(KeyFrameId(id)).is_some()
+            })
+            .into_iter()
+            .map(|(id, s)| (KeyFrameId(id), s))
+            .collect();
+        let mut groups: Vec<(f64, KeyFrameId)> = scores
+            .iter()
+            .map(|(&kf, &score)| {
+                let (mut total, mut best) = (score, (score, kf));
+                for n in map.best_covisibles(kf, GROUP_SIZE) {
+                    if let Some(&s) = scores.get(&n) {
+                        total += s;
+                        if s > best.0 {
+                            best = (s, n);
+                        }
+                    }
+                }
+                (total, best.1)
+            })
+            .collect();
+        groups.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let Some(&(top, _)) = groups.first() else {
+            return Vec::new();
+        };
+        let mut out: Vec<KeyFrameId> = Vec::new();
+        for (total, kf) in groups {
+            if total >= 0.75 * top && !out.contains(&kf) {
+                out.push(kf);
+            }
+        }
+        out
+    }
+}
