@@ -158,7 +158,7 @@ def ba_scene(spec: dict = SPEC) -> dict:
 
 
 def gtsam_local_ba(scene: dict) -> dict:
-    """ORB-SLAM-style two-stage local BA with gtsam; times exclude building the graph."""
+    """ORB-SLAM-style two-stage local BA with gtsam; times cover the two LM runs only."""
     import gtsam
 
     cal = gtsam.Cal3_S2(K["fx"], K["fy"], 0.0, K["cx"], K["cy"])
@@ -200,9 +200,9 @@ def gtsam_local_ba(scene: dict) -> dict:
             keep[k] = float(e @ e) / SPEC["pixel_sigma"] ** 2 <= CHI2_MONO
         except RuntimeError:  # cheirality
             keep[k] = False
-    t2 = time.perf_counter()
     params.setMaxIterations(10)
     graph = build(sigma, keep)
+    t2 = time.perf_counter()
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     values = opt.optimize()
     t3 = time.perf_counter()
@@ -212,7 +212,8 @@ def gtsam_local_ba(scene: dict) -> dict:
                 if not scene["fixed"][i]]
     priors = int(scene["fixed"].sum())  # added first: factors 0..priors-1
     cost = graph.error(values) - sum(graph.at(k).error(values) for k in range(priors))
-    return {"time_s": t3 - t0, "robust_s": t1 - t0, "plain_s": t3 - t2,
+    # Solver time only: the Python outlier check and graph rebuild in between are left out.
+    return {"time_s": (t1 - t0) + (t3 - t2), "robust_s": t1 - t0, "plain_s": t3 - t2,
             "iterations": it1 + it2, "final_cost": cost,
             "inliers": int(keep.sum()), "observations": len(keep),
             "max_pose_error_m": float(max(pose_err))}
