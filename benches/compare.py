@@ -174,6 +174,10 @@ def print_table(records: list) -> None:
         spread = ", ".join("fail" if a is None else f"{100 * a:.2f}" for a in t["ate_all_m"])
         meds = ", ".join(f"{m:.1f}" for m in t["frame_ms_median_all"])
         print(f"{'':<13} ORB-SLAM3 over {t['runs']} runs: ATE cm [{spread}], median ms [{meds}]")
+        print(f"{'':<13} ATE pairs ours/ORB-SLAM3 {o['ate'].get('pairs')}/{t['ate'].get('pairs')}; "
+              f"wall per frame incl. image loading and (ORB-SLAM3) its mapping threads and "
+              f"shutdown: {1e3 * o['wall_s'] / r['frames']:.1f} / "
+              f"{1e3 * (t['wall_s'] - t['vocab_and_setup_s']) / r['frames']:.1f} ms")
         print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map, the run with the median "
