@@ -104,6 +104,7 @@ class SlamSystem:
         height: int,
         *,
         sensor: _Sensor = "rgbd",
+        threaded: bool = False,
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
         """Creates a system for a pinhole + radial-tangential camera.
@@ -114,6 +115,10 @@ class SlamSystem:
             width, height: image size in pixels (> 0).
             sensor: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (rectified pair: ``dist`` must be
                 zeros and ``baseline`` is required); others raise ``NotImplementedError``.
+            threaded: process frames in a background thread fed through a bounded queue
+                (8 frames; ``track_*`` block when it is full): ``track_*`` check the input,
+                queue the frame and return None; ``take_results`` gives the results in order.
+                Frames are processed in call order, so results equal the synchronous mode's.
             options: see ``_SlamOptions``.
 
         Raises:
@@ -127,7 +132,7 @@ class SlamSystem:
         keypoints: NDArray[np.float32],
         descriptors: NDArray[np.uint8],
         depth_m: NDArray[np.float32],
-    ) -> TrackResult:
+    ) -> TrackResult | None:
         """Tracks one RGB-D frame (the GIL is released while it runs); the system must have
         been created with ``sensor="rgbd"``.
 
@@ -154,7 +159,7 @@ class SlamSystem:
         right_keypoints: NDArray[np.float32],
         right_descriptors: NDArray[np.uint8],
         right_pyramid: Sequence[NDArray[np.uint8]],
-    ) -> TrackResult:
+    ) -> TrackResult | None:
         """Tracks one rectified stereo pair (the GIL is released while it runs).
 
         Left keypoints are matched into the right image (row band, octave, Hamming distance,
@@ -180,7 +185,7 @@ class SlamSystem:
         timestamp: float,
         keypoints: NDArray[np.float32],
         descriptors: NDArray[np.uint8],
-    ) -> TrackResult:
+    ) -> TrackResult | None:
         """Tracks one monocular frame (the GIL is released while it runs). Until the map
         exists every frame is offered to two-view initialisation (see
         ``TrackResult.init_reason``); a map that stays lost for a second is closed as a
@@ -196,6 +201,16 @@ class SlamSystem:
                 ``sensor="mono"``.
             SlamError: internal failure.
         """
+    def take_results(self) -> list[TrackResult]:
+        """Threaded mode: the results of the frames processed since the last call, in order
+        (a frame the core rejected raises here). Synchronous mode: always empty."""
+    def is_done(self) -> bool:
+        """Whether every submitted frame has been processed (always true synchronously)."""
+    def wait(self) -> None:
+        """Blocks (without the GIL) until every submitted frame has been processed."""
+    @property
+    def threaded(self) -> bool:
+        """Whether frames are processed in a background thread."""
     def frame_segments(self) -> NDArray[np.uint32]:
         """Map segment of each pose of ``frame_trajectory`` (N,): 0 for the first map, one
         more per map started after a monocular map was lost. Segments have their own world

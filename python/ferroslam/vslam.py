@@ -12,10 +12,13 @@ Create one per camera, feed it images with ``add_frame``, look at the map when
                 break
         ids, poses = vslam.poses()
 
-ORB features are extracted in Python (OpenCV); everything after that runs in the Rust core
-with the GIL released. This version processes each frame completely inside ``add_frame``
-(tracking and local mapping in call order, deterministic), so ``is_done()`` is always true
-once ``add_frame`` returns.
+ORB features are extracted in Python (OpenCV) in the caller's thread; by default tracking
+and local mapping run in a Rust background thread fed through a bounded queue, so
+``add_frame`` returns as soon as the frame is queued and the next image's features are
+extracted while the core works (the GIL is released). Frames are processed in order, so the
+results equal the synchronous mode's (``threaded=False``: each ``add_frame`` finishes its
+frame). ``check_status``, ``has_new_keyframe`` and the map reflect the frames processed so
+far; ``is_done()`` says whether all added frames are.
 """
 
 from __future__ import annotations
@@ -23,7 +26,6 @@ from __future__ import annotations
 import enum
 import math
 import tempfile
-import time
 from pathlib import Path
 from typing import Any, Optional, Sequence, TextIO, Union
 
@@ -58,6 +60,9 @@ def _positive_int(name: str, value: Any) -> int:
 class _VSlam:
     """Shared workflow of the three sensor objects (use one of them).
 
+    ``threaded`` (default True): tracking and mapping in a background thread; False processes
+    each frame inside ``add_frame``.
+
     Keyword options (MATLAB property names in brackets): ``scale_factor`` (ScaleFactor),
     ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints), ``track_feature_range``
     (TrackFeatureRange), ``skip_max_frames`` (SkipMaxFrames), ``vocabulary`` (the bag of
@@ -80,6 +85,7 @@ class _VSlam:
         track_feature_range: Sequence[int] = (30, 100),
         skip_max_frames: int = 20,
         frame_rate_hz: float = 30.0,
+        threaded: bool = True,
         vocabulary: Any = "default",
         verbose: int = 0,
         seed: int = 0,
@@ -108,6 +114,7 @@ class _VSlam:
         c = intrinsics
         self._system = SlamSystem(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=self._sensor,
+            threaded=bool(threaded),
             scale_factor=self.scale_factor, n_levels=self.num_levels,
             track_feature_range=self.track_feature_range, skip_max_frames=self.skip_max_frames,
             seed=seed, **(core_options or {}),
@@ -117,6 +124,7 @@ class _VSlam:
 
             self._system.set_vocabulary(load_vocabulary(vocabulary))
         self._frames = 0
+        self._processed = 0
         self._last_timestamp: Optional[float] = None
         self._last = None
         self._new_keyframe = False
@@ -142,19 +150,29 @@ class _VSlam:
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
-        start = time.perf_counter()
-        result = getattr(self._system, method)(t, *args)
-        previous = self._last.state if self._last is not None else "not_initialized"
-        self._last = result
+        result = getattr(self._system, method)(t, *args)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
-        self._new_keyframe |= bool(result.is_keyframe)
-        self._report(previous, result, (time.perf_counter() - start) * 1e3)
+        if result is not None:
+            self._absorb(result)
+        self._drain()
 
-    def _report(self, previous: str, result: Any, ms: float) -> None:
+    def _drain(self) -> None:
+        """Takes in the results of the frames the background thread has processed."""
+        for result in self._system.take_results():
+            self._absorb(result)
+
+    def _absorb(self, result: Any) -> None:
+        previous = self._last.state if self._last is not None else "not_initialized"
+        self._last = result
+        self._processed += 1
+        self._new_keyframe |= bool(result.is_keyframe)
+        self._report(previous, result)
+
+    def _report(self, previous: str, result: Any) -> None:
         if self.verbose == 0:
             return
-        frame = self._frames - 1
+        frame = self._processed - 1
         events = []
         if previous == "not_initialized" and result.state == "ok":
             events.append("map initialised")
@@ -169,9 +187,10 @@ class _VSlam:
         if self._log is None:
             return
         reason = getattr(result, "init_reason", None)
-        self._log.write(f"frame {frame} t={self._last_timestamp:.6f} state={result.state} "
-                        f"tracked={result.num_tracked} keyframe={result.is_keyframe} "
-                        f"ms={ms:.2f}" + (f" init: {reason}" if reason else "") + "\n")
+        ms = result.tracking_ms + result.mapping_ms
+        self._log.write(f"frame {frame} state={result.state} tracked={result.num_tracked} "
+                        f"keyframe={result.is_keyframe} core_ms={ms:.2f}"
+                        + (f" init: {reason}" if reason else "") + "\n")
         if self.verbose >= 3 and result.is_keyframe:
             ids, poses = self.poses()
             for i, T in zip(ids.tolist(), poses):
@@ -182,11 +201,13 @@ class _VSlam:
     # -- what MATLAB users call -----------------------------------------------------------
     def has_new_keyframe(self) -> bool:
         """Whether a keyframe was added since the previous call (MATLAB ``hasNewKeyFrame``)."""
+        self._drain()
         new, self._new_keyframe = self._new_keyframe, False
         return new
 
     def check_status(self) -> TrackingStatus:
-        """Tracking outcome of the last frame (MATLAB ``checkStatus``)."""
+        """Tracking outcome of the last processed frame (MATLAB ``checkStatus``)."""
+        self._drain()
         if self._last is None or self._last.state == "not_initialized":
             return TrackingStatus.NOT_INITIALIZED
         if self._last.state == "lost":
@@ -196,13 +217,24 @@ class _VSlam:
         return TrackingStatus.SUCCESSFUL
 
     def is_done(self) -> bool:
-        """Whether every added frame has been processed (always, in this synchronous version)."""
-        return True
+        """Whether every added frame has been processed (MATLAB ``isDone``)."""
+        return bool(self._system.is_done())
+
+    def wait(self) -> None:
+        """Blocks until every added frame has been processed."""
+        self._system.wait()
+        self._drain()
 
     @property
     def num_frames(self) -> int:
         """Frames added so far."""
         return self._frames
+
+    @property
+    def num_processed(self) -> int:
+        """Frames the core has processed so far."""
+        self._drain()
+        return self._processed
 
     def map_points(self) -> np.ndarray:
         """World positions of the map points, ``(M, 3)`` float64 (metres, or map units
@@ -229,8 +261,10 @@ class _VSlam:
         return plot_map(self.map_points(), self.poses()[1], ax, path=path)
 
     def reset(self) -> None:
-        """Discards the map and the trajectory; the next frame starts a new one."""
+        """Discards the map and the trajectory (after the queued frames); the next frame
+        starts a new one."""
         self._system.reset()
+        self._system.take_results()
         self._last = None
         self._new_keyframe = False
 
@@ -261,7 +295,10 @@ class _VSlam:
 
     # -- lifetime -------------------------------------------------------------------------
     def close(self) -> None:
-        """Releases the log file; ``add_frame`` raises afterwards. Idempotent."""
+        """Finishes the queued frames, releases the log file; ``add_frame`` raises afterwards.
+        Idempotent."""
+        if not self._closed:
+            self.wait()
         self._closed = True
         if self._log is not None:
             self._log.close()

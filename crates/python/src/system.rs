@@ -1,14 +1,12 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
-use ferroslam_features::StereoView;
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
 use ferroslam_slam::{
-    MonoInput, RgbdInput, Sensor, SlamConfig, SlamSystem, StereoInput, TrackResult, TrackingState,
+    BackgroundSlam, InputGuard, OwnedFrame, Sensor, SlamConfig, SlamSystem, TrackResult,
+    TrackingState,
 };
 use numpy::ndarray::Array2;
-use numpy::{
-    PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
-};
+use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyNotImplementedError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -185,14 +183,14 @@ impl PyTrackResult {
 /// The SLAM system (synchronous: tracking and local mapping run inside each call).
 #[pyclass(name = "SlamSystem", module = "ferroslam._core")]
 pub struct PySlamSystem {
-    inner: SlamSystem,
+    engine: Engine,
     sensor: Sensor,
 }
 
 #[pymethods]
 impl PySlamSystem {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", **options))]
+    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", threaded = false, **options))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         fx: f64,
@@ -203,6 +201,7 @@ impl PySlamSystem {
         width: i64,
         height: i64,
         sensor: &str,
+        threaded: bool,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let Some(sensor) = SENSORS.iter().copied().find(|s| s.name() == sensor) else {
@@ -239,11 +238,20 @@ impl PySlamSystem {
         let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
             .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
         let config = parse_config(sensor, fx, options)?;
-        let inner = SlamSystem::new(camera, config).map_err(to_py)?;
-        Ok(Self { inner, sensor })
+        let system = SlamSystem::new(camera, config).map_err(to_py)?;
+        let engine = if threaded {
+            let guard = system.input_guard();
+            Engine::Background {
+                slam: BackgroundSlam::spawn(system),
+                guard,
+            }
+        } else {
+            Engine::Inline(system)
+        };
+        Ok(Self { engine, sensor })
     }
 
-    /// Tracks one RGB-D frame.
+    /// Tracks one RGB-D frame (queues it in threaded mode and returns None).
     ///
     /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
     /// descriptors: (N, 32) uint8; depth_m: (N,) float32 metres (0 = none).
@@ -254,16 +262,11 @@ impl PySlamSystem {
         keypoints: &Bound<'_, PyAny>,
         descriptors: &Bound<'_, PyAny>,
         depth_m: &Bound<'_, PyAny>,
-    ) -> PyResult<PyTrackResult> {
-        let keypoints: PyReadonlyArray2<'_, f32> =
-            convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
-        let descriptors: PyReadonlyArray2<'_, u8> =
-            convert::array(descriptors, "descriptors", "a uint8 (N, 32) array")?;
+    ) -> PyResult<Option<PyTrackResult>> {
+        let (kps, descs) = convert::features(keypoints, descriptors, "")?;
         let depth_m: PyReadonlyArray1<'_, f32> =
             convert::array(depth_m, "depth_m", "a float32 (N,) array")?;
-        let kps = convert::keypoints(&keypoints)?;
-        let descs = convert::descriptors(&descriptors)?;
-        if depth_m.len() != kps.len() || descs.len() != kps.len() {
+        if depth_m.len() != kps.len() {
             return Err(PyValueError::new_err(format!(
                 "keypoints ({}), descriptors ({}) and depth_m ({}) must have the same length",
                 kps.len(),
@@ -271,20 +274,16 @@ impl PySlamSystem {
                 depth_m.len()
             )));
         }
-        let depth = convert::floats(&depth_m);
-        let inner = &mut self.inner;
-        let result = py.detach(move || {
-            inner.track_rgbd(&RgbdInput {
-                timestamp,
-                keypoints: &kps,
-                descriptors: &descs,
-                depth_m: &depth,
-            })
-        });
-        result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+        let frame = OwnedFrame::Rgbd {
+            timestamp,
+            keypoints: kps,
+            descriptors: descs,
+            depth_m: convert::floats(&depth_m),
+        };
+        self.engine.track(py, frame)
     }
 
-    /// Tracks one rectified stereo pair.
+    /// Tracks one rectified stereo pair (queues it in threaded mode and returns None).
     ///
     /// left/right keypoints: (N, 5) float32 [x, y, octave, angle_deg, response] in rectified
     /// pixels; descriptors: (N, 32) uint8; pyramids: lists of 2-D uint8 arrays (level l is the
@@ -300,37 +299,18 @@ impl PySlamSystem {
         right_keypoints: &Bound<'_, PyAny>,
         right_descriptors: &Bound<'_, PyAny>,
         right_pyramid: &Bound<'_, PyAny>,
-    ) -> PyResult<PyTrackResult> {
+    ) -> PyResult<Option<PyTrackResult>> {
         let (lk, ld) = convert::features(left_keypoints, left_descriptors, "left")?;
         let (rk, rd) = convert::features(right_keypoints, right_descriptors, "right")?;
-        let lp = convert::pyramid(left_pyramid, "left_pyramid")?;
-        let rp = convert::pyramid(right_pyramid, "right_pyramid")?;
-        let inner = &mut self.inner;
-        let result = py.detach(move || {
-            let (li, ri) = match (convert::views(&lp), convert::views(&rp)) {
-                (Ok(l), Ok(r)) => (l, r),
-                (Err(e), _) | (_, Err(e)) => {
-                    return Err(ferroslam_slam::SlamError::InvalidInput(e.to_string()))
-                }
-            };
-            inner.track_stereo(&StereoInput {
-                timestamp,
-                left: StereoView {
-                    keypoints: &lk,
-                    descriptors: &ld,
-                    levels: &li,
-                },
-                right: StereoView {
-                    keypoints: &rk,
-                    descriptors: &rd,
-                    levels: &ri,
-                },
-            })
-        });
-        result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+        let frame = OwnedFrame::Stereo {
+            timestamp,
+            left: (lk, ld, convert::pyramid(left_pyramid, "left_pyramid")?),
+            right: (rk, rd, convert::pyramid(right_pyramid, "right_pyramid")?),
+        };
+        self.engine.track(py, frame)
     }
 
-    /// Tracks one monocular frame.
+    /// Tracks one monocular frame (queues it in threaded mode and returns None).
     ///
     /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
     /// descriptors: (N, 32) uint8.
@@ -340,17 +320,45 @@ impl PySlamSystem {
         timestamp: f64,
         keypoints: &Bound<'_, PyAny>,
         descriptors: &Bound<'_, PyAny>,
-    ) -> PyResult<PyTrackResult> {
+    ) -> PyResult<Option<PyTrackResult>> {
         let (kps, descs) = convert::features(keypoints, descriptors, "")?;
-        let inner = &mut self.inner;
-        let result = py.detach(move || {
-            inner.track_mono(&MonoInput {
-                timestamp,
-                keypoints: &kps,
-                descriptors: &descs,
-            })
-        });
-        result.map(|inner| PyTrackResult { inner }).map_err(to_py)
+        let frame = OwnedFrame::Mono {
+            timestamp,
+            keypoints: kps,
+            descriptors: descs,
+        };
+        self.engine.track(py, frame)
+    }
+
+    /// Threaded mode: results of the frames processed since the last call, in order (frames
+    /// the core rejected raise here). Synchronous mode: always empty (track_* returns them).
+    fn take_results(&mut self) -> PyResult<Vec<PyTrackResult>> {
+        let Engine::Background { slam, .. } = &self.engine else {
+            return Ok(Vec::new());
+        };
+        slam.take_results()
+            .into_iter()
+            .map(|r| r.map(|inner| PyTrackResult { inner }).map_err(to_py))
+            .collect()
+    }
+
+    /// Whether every submitted frame has been processed (always true when synchronous).
+    fn is_done(&self) -> bool {
+        match &self.engine {
+            Engine::Inline(_) => true,
+            Engine::Background { slam, .. } => slam.pending() == 0,
+        }
+    }
+
+    /// Blocks (without the GIL) until every submitted frame has been processed.
+    fn wait(&mut self, py: Python<'_>) -> PyResult<()> {
+        self.engine.run(py, |_| ())
+    }
+
+    /// Whether frames are processed in a background thread.
+    #[getter]
+    fn threaded(&self) -> bool {
+        matches!(self.engine, Engine::Background { .. })
     }
 
     /// The sensor this system was created for: "mono", "stereo" or "rgbd".
@@ -361,107 +369,150 @@ impl PySlamSystem {
 
     /// Map segment of each frame of frame_trajectory(), (N,) uint32: a monocular system
     /// starts a new segment (own frame and scale) after it stays lost.
-    fn frame_segments<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u32>> {
-        let ids: Vec<u32> = self
-            .inner
-            .frame_segments()
-            .into_iter()
-            .map(|s| s as u32)
-            .collect();
-        PyArray1::from_vec(py, ids)
+    fn frame_segments<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        let ids: Vec<u32> = self.engine.run(py, |s| {
+            s.frame_segments().into_iter().map(|s| s as u32).collect()
+        })?;
+        Ok(PyArray1::from_vec(py, ids))
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.
     fn frame_trajectory<'py>(
-        &self,
+        &mut self,
         py: Python<'py>,
-    ) -> (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>) {
-        let traj = self.inner.frame_trajectory();
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
+        let traj = self.engine.run(py, |s| s.frame_trajectory())?;
         let stamps = traj.iter().map(|(t, _)| *t).collect();
         let poses: Vec<_> = traj.into_iter().map(|(_, T)| T).collect();
-        (
+        Ok((
             convert::f64_array(py, stamps),
             convert::pose_stack(py, &poses),
-        )
+        ))
     }
 
     /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes.
-    fn keyframe_trajectory<'py>(&self, py: Python<'py>) -> KeyFrameArrays<'py> {
-        let kfs = self.inner.keyframe_trajectory();
+    fn keyframe_trajectory<'py>(&mut self, py: Python<'py>) -> PyResult<KeyFrameArrays<'py>> {
+        let kfs = self.engine.run(py, |s| s.keyframe_trajectory())?;
         let ids: Vec<u32> = kfs.iter().map(|(id, _, _)| id.0).collect();
         let stamps = kfs.iter().map(|(_, t, _)| *t).collect();
         let poses: Vec<_> = kfs.into_iter().map(|(_, _, T)| T).collect();
-        (
+        Ok((
             PyArray1::from_vec(py, ids),
             convert::f64_array(py, stamps),
             convert::pose_stack(py, &poses),
-        )
+        ))
     }
 
     /// World positions of the map points, (M, 3) float64 metres.
-    fn map_points<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        let pts = self.inner.map_points();
-        PyArray2::from_owned_array(
+    fn map_points<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = self.engine.run(py, |s| s.map_points())?;
+        Ok(PyArray2::from_owned_array(
             py,
             Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]),
-        )
+        ))
     }
 
     /// Writes the map to `path` (versioned binary file with a checksum).
-    fn save_map(&self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
-        let inner = &self.inner;
-        py.detach(|| inner.save_map(&path)).map_err(to_py)
+    fn save_map(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
+        self.engine
+            .run(py, move |s| s.save_map(&path))?
+            .map_err(to_py)
     }
 
     /// Replaces the map with the one saved at `path`; the next frames relocalise in it.
     fn load_map(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
-        let inner = &mut self.inner;
-        py.detach(|| inner.load_map(&path)).map_err(to_py)
+        self.engine
+            .run(py, move |s| s.load_map(&path))?
+            .map_err(to_py)
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by bag of words and lost frames are
     /// relocalised against the keyframes they resemble.
-    fn set_vocabulary(&mut self, vocabulary: PyRef<'_, PyVocabulary>) {
-        self.inner.set_vocabulary(vocabulary.shared());
+    fn set_vocabulary(
+        &mut self,
+        py: Python<'_>,
+        vocabulary: PyRef<'_, PyVocabulary>,
+    ) -> PyResult<()> {
+        let shared = vocabulary.shared();
+        self.engine.run(py, move |s| s.set_vocabulary(shared))
     }
 
     /// Localisation-only mode: track against the map without adding keyframes.
     #[getter]
-    fn get_localization_only(&self) -> bool {
-        self.inner.localization_only()
+    fn get_localization_only(&mut self, py: Python<'_>) -> PyResult<bool> {
+        self.engine.run(py, |s| s.localization_only())
     }
 
     #[setter]
-    fn set_localization_only(&mut self, on: bool) {
-        self.inner.set_localization_only(on);
+    fn set_localization_only(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.engine.run(py, move |s| s.set_localization_only(on))
     }
 
     /// Clears the map; tracking restarts with the next frame.
-    fn reset(&mut self) {
-        self.inner.reset();
+    fn reset(&mut self, py: Python<'_>) -> PyResult<()> {
+        self.engine.run(py, |s| s.reset())
     }
 
     /// "not_initialized", "ok" or "lost".
     #[getter]
-    fn state(&self) -> &'static str {
-        state_name(self.inner.state())
+    fn state(&mut self, py: Python<'_>) -> PyResult<&'static str> {
+        self.engine.run(py, |s| state_name(s.state()))
     }
 
     /// Live keyframes in the map.
     #[getter]
-    fn num_keyframes(&self) -> usize {
-        self.inner.map().num_keyframes()
+    fn num_keyframes(&mut self, py: Python<'_>) -> PyResult<usize> {
+        self.engine.run(py, |s| s.map().num_keyframes())
     }
 
     /// Live map points.
     #[getter]
-    fn num_map_points(&self) -> usize {
-        self.inner.map().num_map_points()
+    fn num_map_points(&mut self, py: Python<'_>) -> PyResult<usize> {
+        self.engine.run(py, |s| s.map().num_map_points())
     }
 
     /// Map resets so far (tracking lost right after initialisation).
     #[getter]
-    fn num_resets(&self) -> usize {
-        self.inner.resets()
+    fn num_resets(&mut self, py: Python<'_>) -> PyResult<usize> {
+        self.engine.run(py, |s| s.resets())
+    }
+}
+
+/// Where frames are processed: in the calling thread, or in a background thread fed through
+/// a bounded queue (input checked here first, so bad frames raise at once).
+enum Engine {
+    Inline(SlamSystem),
+    Background {
+        slam: BackgroundSlam,
+        guard: InputGuard,
+    },
+}
+
+impl Engine {
+    /// Runs `job` on the system (after the frames queued before it), without the GIL.
+    fn run<R: Send + 'static>(
+        &mut self,
+        py: Python<'_>,
+        job: impl FnOnce(&mut SlamSystem) -> R + Send + 'static,
+    ) -> PyResult<R> {
+        match self {
+            Engine::Inline(system) => Ok(py.detach(|| job(system))),
+            Engine::Background { slam, .. } => py.detach(|| slam.run(job)).map_err(to_py),
+        }
+    }
+
+    /// Tracks `frame` now (synchronous: its result) or queues it (threaded: None).
+    fn track(&mut self, py: Python<'_>, frame: OwnedFrame) -> PyResult<Option<PyTrackResult>> {
+        match self {
+            Engine::Inline(system) => py
+                .detach(|| frame.track(system))
+                .map(|inner| Some(PyTrackResult { inner }))
+                .map_err(to_py),
+            Engine::Background { slam, guard } => {
+                frame.check(guard).map_err(to_py)?;
+                py.detach(|| slam.submit(frame)).map_err(to_py)?;
+                Ok(None)
+            }
+        }
     }
 }

@@ -6,11 +6,13 @@
 //! (distorted) and are undistorted once, in [`frame::Frame`].
 #![allow(non_snake_case)]
 
+pub mod background;
 pub mod config;
 pub mod context;
 pub mod error;
 pub mod frame;
 pub mod frustum;
+pub mod input_guard;
 pub mod local_mapping;
 pub mod mono_init;
 pub mod place_recognition;
@@ -18,8 +20,10 @@ pub mod system;
 pub mod tracking;
 pub mod trajectory;
 
+pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{Sensor, SlamConfig};
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
+pub use input_guard::InputGuard;
 pub use system::{SlamSystem, TrackResult};
 pub use tracking::TrackingState;

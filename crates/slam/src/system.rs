@@ -7,10 +7,11 @@ use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{KeyFrameId, Map};
 use nalgebra::{Isometry3, Vector3};
 
-use crate::config::{Sensor, SlamConfig};
+use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::input_guard::InputGuard;
 use crate::local_mapping::{LocalMapper, MappingReport};
 use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
@@ -66,7 +67,7 @@ pub struct SlamSystem {
     /// Bag-of-words index of the keyframes, once a vocabulary is set.
     place: Option<PlaceRecognition>,
     frames_seen: usize,
-    last_timestamp: Option<f64>,
+    guard: InputGuard,
     resets: usize,
 }
 
@@ -74,6 +75,7 @@ impl SlamSystem {
     /// Creates a system for `camera` (the calibration of the raw keypoints) and `config`.
     pub fn new(camera: PinholeCamera, config: SlamConfig) -> Result<Self, SlamError> {
         config.validate()?;
+        let guard = InputGuard::new(config.sensor, config.n_levels, camera.is_distorted());
         let pyramid = ScalePyramid::new(config.scale_factor, config.n_levels)
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
         Ok(Self {
@@ -88,7 +90,7 @@ impl SlamSystem {
             localization_only: false,
             place: None,
             frames_seen: 0,
-            last_timestamp: None,
+            guard,
             resets: 0,
         })
     }
@@ -100,9 +102,7 @@ impl SlamSystem {
     /// a timestamp not after the previous one; the system state is unchanged then.
     pub fn track_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<TrackResult, SlamError> {
         let start = Instant::now();
-        self.expect_sensor(Sensor::Rgbd, "track_rgbd")?;
-        input.validate(self.ctx.config.n_levels)?;
-        self.check_timestamp(input.timestamp)?;
+        self.guard.accept_rgbd(input)?;
         let frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx)?;
         self.track_frame(frame, start)
     }
@@ -115,16 +115,7 @@ impl SlamSystem {
     /// between the images, and when the camera has distortion (stereo input must be rectified).
     pub fn track_stereo(&mut self, input: &StereoInput<'_>) -> Result<TrackResult, SlamError> {
         let start = Instant::now();
-        self.expect_sensor(Sensor::Stereo, "track_stereo")?;
-        if self.ctx.camera.is_distorted() {
-            return Err(SlamError::InvalidInput(
-                "stereo input must come from rectified images, but the camera has distortion \
-                 coefficients: rectify the pair and pass the rectified pinhole intrinsics"
-                    .into(),
-            ));
-        }
-        input.validate(self.ctx.config.n_levels)?;
-        self.check_timestamp(input.timestamp)?;
+        self.guard.accept_stereo(input)?;
         let frame = Frame::from_stereo(self.frames_seen, input, self.map.pyramid(), &self.ctx)?;
         self.track_frame(frame, start)
     }
@@ -136,35 +127,15 @@ impl SlamSystem {
     /// `InvalidInput` as [`Self::track_rgbd`].
     pub fn track_mono(&mut self, input: &MonoInput<'_>) -> Result<TrackResult, SlamError> {
         let start = Instant::now();
-        self.expect_sensor(Sensor::Monocular, "track_mono")?;
-        input.validate(self.ctx.config.n_levels)?;
-        self.check_timestamp(input.timestamp)?;
+        self.guard.accept_mono(input)?;
         let frame = Frame::from_mono(self.frames_seen, input, &self.ctx)?;
         self.track_frame(frame, start)
     }
 
-    fn expect_sensor(&self, sensor: Sensor, method: &str) -> Result<(), SlamError> {
-        let own = self.ctx.config.sensor;
-        if own == sensor {
-            return Ok(());
-        }
-        Err(SlamError::InvalidInput(format!(
-            "{method} needs a system created with sensor=\"{}\"; this one is \"{}\" \
-             (use track_{})",
-            sensor.name(),
-            own.name(),
-            own.name()
-        )))
-    }
-
-    fn check_timestamp(&mut self, timestamp: f64) -> Result<(), SlamError> {
-        if let Some(t) = self.last_timestamp.filter(|&t| timestamp <= t) {
-            return Err(SlamError::InvalidInput(format!(
-                "timestamp {timestamp} is not after the previous frame's {t}"
-            )));
-        }
-        self.last_timestamp = Some(timestamp);
-        Ok(())
+    /// A fresh guard with this system's input rules (for a background submitter).
+    pub fn input_guard(&self) -> InputGuard {
+        let c = &self.ctx;
+        InputGuard::new(c.config.sensor, c.config.n_levels, c.camera.is_distorted())
     }
 
     /// Initialises or tracks a frame, then inserts a keyframe when needed.

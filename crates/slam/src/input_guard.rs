@@ -1,0 +1,80 @@
+//! The checks every frame passes before it may change a system: the right `track_*` call for
+//! the sensor, well-formed features, rectified stereo, increasing timestamps. Kept apart from
+//! [`crate::SlamSystem`] so a background submitter can reject bad input at once, in the
+//! caller's thread, with the same messages.
+
+use crate::config::Sensor;
+use crate::error::SlamError;
+use crate::frame::{MonoInput, RgbdInput, StereoInput};
+
+/// Input rules of one system and the last accepted timestamp.
+#[derive(Clone, Debug)]
+pub struct InputGuard {
+    sensor: Sensor,
+    n_levels: usize,
+    distorted: bool,
+    last_timestamp: Option<f64>,
+}
+
+impl InputGuard {
+    /// Rules for a `sensor` system with `n_levels` pyramid levels and a camera that is
+    /// `distorted` (stereo input must be rectified).
+    pub fn new(sensor: Sensor, n_levels: usize, distorted: bool) -> Self {
+        Self {
+            sensor,
+            n_levels,
+            distorted,
+            last_timestamp: None,
+        }
+    }
+
+    /// Checks an RGB-D frame and, if it passes, accepts its timestamp.
+    pub fn accept_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<(), SlamError> {
+        self.expect(Sensor::Rgbd, "track_rgbd")?;
+        input.validate(self.n_levels)?;
+        self.advance(input.timestamp)
+    }
+
+    /// Checks a stereo pair and, if it passes, accepts its timestamp.
+    pub fn accept_stereo(&mut self, input: &StereoInput<'_>) -> Result<(), SlamError> {
+        self.expect(Sensor::Stereo, "track_stereo")?;
+        if self.distorted {
+            return Err(SlamError::InvalidInput(
+                "stereo input must come from rectified images, but the camera has distortion \
+                 coefficients: rectify the pair and pass the rectified pinhole intrinsics"
+                    .into(),
+            ));
+        }
+        input.validate(self.n_levels)?;
+        self.advance(input.timestamp)
+    }
+
+    /// Checks a monocular frame and, if it passes, accepts its timestamp.
+    pub fn accept_mono(&mut self, input: &MonoInput<'_>) -> Result<(), SlamError> {
+        self.expect(Sensor::Monocular, "track_mono")?;
+        input.validate(self.n_levels)?;
+        self.advance(input.timestamp)
+    }
+
+    fn expect(&self, sensor: Sensor, method: &str) -> Result<(), SlamError> {
+        if self.sensor == sensor {
+            return Ok(());
+        }
+        let own = self.sensor.name();
+        Err(SlamError::InvalidInput(format!(
+            "{method} needs a system created with sensor=\"{}\"; this one is \"{own}\" \
+             (use track_{own})",
+            sensor.name()
+        )))
+    }
+
+    fn advance(&mut self, timestamp: f64) -> Result<(), SlamError> {
+        if let Some(t) = self.last_timestamp.filter(|&t| timestamp <= t) {
+            return Err(SlamError::InvalidInput(format!(
+                "timestamp {timestamp} is not after the previous frame's {t}"
+            )));
+        }
+        self.last_timestamp = Some(timestamp);
+        Ok(())
+    }
+}
