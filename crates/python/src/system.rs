@@ -110,6 +110,9 @@ fn parse_config(
     Ok(config)
 }
 
+/// `(timestamps (N,), T_w_c (N, 4, 4))` of tracked frames, as numpy arrays.
+type FrameArrays<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>);
+
 /// `(ids (K,), timestamps (K,), T_w_c (K, 4, 4))` of keyframes, as numpy arrays.
 type KeyFrameArrays<'py> = (
     Bound<'py, PyArray1<u32>>,
@@ -246,7 +249,7 @@ impl PySlamSystem {
                 guard,
             }
         } else {
-            Engine::Inline(system)
+            Engine::Inline(Box::new(system))
         };
         Ok(Self { engine, sensor })
     }
@@ -377,10 +380,7 @@ impl PySlamSystem {
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.
-    fn frame_trajectory<'py>(
-        &mut self,
-        py: Python<'py>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>)> {
+    fn frame_trajectory<'py>(&mut self, py: Python<'py>) -> PyResult<FrameArrays<'py>> {
         let traj = self.engine.run(py, |s| s.frame_trajectory())?;
         let stamps = traj.iter().map(|(t, _)| *t).collect();
         let poses: Vec<_> = traj.into_iter().map(|(_, T)| T).collect();
@@ -481,7 +481,7 @@ impl PySlamSystem {
 /// Where frames are processed: in the calling thread, or in a background thread fed through
 /// a bounded queue (input checked here first, so bad frames raise at once).
 enum Engine {
-    Inline(SlamSystem),
+    Inline(Box<SlamSystem>),
     Background {
         slam: BackgroundSlam,
         guard: InputGuard,
