@@ -23,6 +23,7 @@
 
 #![warn(missing_docs)]
 
+pub mod alignment;
 pub mod bias;
 pub mod error;
 pub mod measurement;
