@@ -4,6 +4,8 @@
 //! `[MIN_DIAGONAL, MAX_DIAGONAL]` (Marquardt's scale-invariant damping, clamped as in
 //! Ceres so that directions with no information still get a positive pivot).
 
+use crate::error::OptimError;
+
 /// Smallest diagonal used for damping.
 pub(crate) const MIN_DIAGONAL: f64 = 1e-6;
 /// Largest diagonal used for damping.
@@ -51,6 +53,48 @@ impl Damping {
     pub(crate) fn reject(&mut self) {
         self.lambda *= self.nu;
         self.nu *= 2.0;
+    }
+}
+
+impl Damping {
+    /// The inner loop of one LM iteration: damped steps are solved (`solve(lambda)`) and
+    /// tried (`try_step(&step)` returns `(actual decrease, predicted decrease, new cost)`)
+    /// with growing damping until one lowers the cost.
+    ///
+    /// Returns the accepted step's new cost, or `None` when no damping can lower it any more
+    /// (converged). A damping level whose factorisation fails is skipped; if every one
+    /// failed the system is indefinite, not converged, and that error is returned.
+    pub(crate) fn find_step<S>(
+        &mut self,
+        mut solve: impl FnMut(f64) -> Result<S, OptimError>,
+        mut try_step: impl FnMut(&S) -> (f64, f64, f64),
+    ) -> Result<Option<f64>, OptimError> {
+        let mut last_failure = None;
+        let mut factorised = false;
+        while !self.exhausted() {
+            let step = match solve(self.lambda) {
+                Ok(step) => {
+                    factorised = true;
+                    step
+                }
+                Err(OptimError::NotPositiveDefinite { column }) => {
+                    last_failure = Some(column);
+                    self.reject();
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            let (actual, predicted, new_cost) = try_step(&step);
+            if actual > 0.0 && predicted > 0.0 {
+                self.accept(actual / predicted);
+                return Ok(Some(new_cost));
+            }
+            self.reject();
+        }
+        match (last_failure, factorised) {
+            (Some(column), false) => Err(OptimError::NotPositiveDefinite { column }),
+            _ => Ok(None),
+        }
     }
 }
 

@@ -128,42 +128,20 @@ pub(crate) fn bundle_adjust_masked(
     while iterations < options.max_iterations {
         iterations += 1;
         ctx.linearize(problem, &mut lin);
-        let mut last_failure = None;
-        let mut factorised = false;
-        let mut accepted = None;
-        while !damping.exhausted() {
-            let step = match ctx.step(&lin, llt, damping.lambda(), &mut y_scratch) {
-                Ok(step) => {
-                    factorised = true;
-                    step
+        let accepted = damping.find_step(
+            |lambda| ctx.step(&lin, llt, lambda, &mut y_scratch),
+            |step| {
+                for (f, &pose) in symbolic.free_poses.iter().enumerate() {
+                    trial_poses[pose] = se3::retract(&step.d_pose[f], &problem.poses[pose]);
                 }
-                Err(OptimError::NotPositiveDefinite { column }) => {
-                    last_failure = Some(column);
-                    damping.reject();
-                    continue;
+                for (p, &point) in symbolic.opt_points.iter().enumerate() {
+                    trial_points[point] = problem.points[point] + step.d_point[p];
                 }
-                Err(e) => return Err(e),
-            };
-            for (f, &pose) in symbolic.free_poses.iter().enumerate() {
-                trial_poses[pose] = se3::retract(&step.d_pose[f], &problem.poses[pose]);
-            }
-            for (p, &point) in symbolic.opt_points.iter().enumerate() {
-                trial_points[point] = problem.points[point] + step.d_point[p];
-            }
-            let new_cost = ctx.cost(problem, &trial_poses, &trial_points);
-            let actual = cost - new_cost;
-            if actual > 0.0 && step.predicted_decrease > 0.0 {
-                damping.accept(actual / step.predicted_decrease);
-                accepted = Some(new_cost);
-                break;
-            }
-            damping.reject();
-        }
+                let new_cost = ctx.cost(problem, &trial_poses, &trial_points);
+                (cost - new_cost, step.predicted_decrease, new_cost)
+            },
+        )?;
         let Some(new_cost) = accepted else {
-            // Every factorisation failed: the system is indefinite, not merely converged.
-            if let (Some(column), false) = (last_failure, factorised) {
-                return Err(OptimError::NotPositiveDefinite { column });
-            }
             break;
         };
         std::mem::swap(&mut problem.poses, &mut trial_poses);

@@ -93,40 +93,18 @@ pub fn optimize_pose_graph<G: PoseGroup<D>, const D: usize>(
     while iterations < options.max_iterations {
         iterations += 1;
         let lin = linearize(graph, symbolic);
-        let mut last_failure = None;
-        let mut factorised = false;
-        let mut accepted = None;
-        while !damping.exhausted() {
-            let step = match solve_damped::<D>(symbolic, &lin, damping.lambda()) {
-                Ok(step) => {
-                    factorised = true;
-                    step
+        let accepted = damping.find_step(
+            |lambda| solve_damped::<D>(symbolic, &lin, lambda),
+            |step| {
+                for (f, &pose) in symbolic.free_poses.iter().enumerate() {
+                    trial[pose] = graph.poses[pose].retract(&step.dx[f]);
                 }
-                Err(OptimError::NotPositiveDefinite { column }) => {
-                    last_failure = Some(column);
-                    damping.reject();
-                    continue;
-                }
-                Err(e) => return Err(e),
-            };
-            for (f, &pose) in symbolic.free_poses.iter().enumerate() {
-                trial[pose] = graph.poses[pose].retract(&step.dx[f]);
-            }
-            let new_cost = cost_at(&graph.edges, &trial);
-            // The LM model is for F = 2 * cost (lm::predicted_decrease).
-            let actual = 2.0 * (cost - new_cost);
-            if actual > 0.0 && step.predicted_decrease > 0.0 {
-                damping.accept(actual / step.predicted_decrease);
-                accepted = Some(new_cost);
-                break;
-            }
-            damping.reject();
-        }
+                let new_cost = cost_at(&graph.edges, &trial);
+                // The LM model is for F = 2 * cost (lm::predicted_decrease).
+                (2.0 * (cost - new_cost), step.predicted_decrease, new_cost)
+            },
+        )?;
         let Some(new_cost) = accepted else {
-            // Every factorisation failed: the system is indefinite, not merely converged.
-            if let (Some(column), false) = (last_failure, factorised) {
-                return Err(OptimError::NotPositiveDefinite { column });
-            }
             converged = true;
             break;
         };
