@@ -22,6 +22,7 @@
 #![warn(missing_docs)]
 
 pub mod ba;
+mod block_pattern;
 pub mod error;
 pub mod intrinsics;
 mod lm;

@@ -10,10 +10,10 @@
 
 use super::csr::Csr;
 use super::problem::BaProblem;
+use crate::block_pattern::block_upper_pattern;
 use crate::error::OptimError;
 use faer::sparse::linalg::solvers::SymbolicLlt;
 use faer::sparse::SymbolicSparseColMat;
-use faer::Side;
 
 /// One term `-Y_a W_b^T` of the Schur complement, added to block `slot` of its block
 /// column: `obs_a` and `obs_b` see the same point from free poses `a <= b`.
@@ -142,28 +142,9 @@ impl SymbolicBa {
         }
         let schur_terms = Csr::from_pairs(nfree, terms);
 
-        let n = 6 * nfree;
-        let mut col_ptr = Vec::with_capacity(n + 1);
-        let mut row_idx = Vec::new();
-        col_ptr.push(0usize);
-        for (b, rows) in block_rows.iter().enumerate() {
-            for c in 0..6 {
-                for &a in &rows[..rows.len() - 1] {
-                    row_idx.extend(6 * a..6 * a + 6);
-                }
-                row_idx.extend(6 * b..=6 * b + c);
-                col_ptr.push(row_idx.len());
-            }
-        }
-        let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
-        let llt = if nfree == 0 {
-            None
-        } else {
-            Some(
-                SymbolicLlt::try_new(pattern.as_ref(), Side::Upper)
-                    .map_err(|e| OptimError::Solver(format!("{e:?}")))?,
-            )
-        };
+        // block_rows[b] ends with b itself: the diagonal block.
+        let above: Vec<&[usize]> = block_rows.iter().map(|r| &r[..r.len() - 1]).collect();
+        let (pattern, llt) = block_upper_pattern(6, &above)?;
         Ok(Self {
             pose_fixed: problem.pose_fixed.clone(),
             num_points: problem.points.len(),

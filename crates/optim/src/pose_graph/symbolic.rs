@@ -9,6 +9,7 @@
 
 use super::group::PoseGroup;
 use super::problem::PoseGraph;
+use crate::block_pattern::block_upper_pattern;
 use crate::error::OptimError;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::linalg::LltError;
@@ -98,28 +99,8 @@ impl SymbolicPoseGraph {
             })
             .collect();
 
-        let n = dim * nfree;
-        let mut col_ptr = Vec::with_capacity(n + 1);
-        let mut row_idx = Vec::new();
-        col_ptr.push(0usize);
-        for (b, rows) in block_rows.iter().enumerate() {
-            for c in 0..dim {
-                for &a in rows {
-                    row_idx.extend(dim * a..dim * a + dim);
-                }
-                row_idx.extend(dim * b..=dim * b + c);
-                col_ptr.push(row_idx.len());
-            }
-        }
-        let pattern = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
-        let llt = if nfree == 0 {
-            None
-        } else {
-            Some(
-                SymbolicLlt::try_new(pattern.as_ref(), Side::Upper)
-                    .map_err(|e| OptimError::Solver(format!("{e:?}")))?,
-            )
-        };
+        let above: Vec<&[usize]> = block_rows.iter().map(Vec::as_slice).collect();
+        let (pattern, llt) = block_upper_pattern(dim, &above)?;
         Ok(Self {
             fixed: fixed.to_vec(),
             incidence: incidence.to_vec(),
