@@ -33,25 +33,7 @@ import cv2
 import numpy as np
 
 from ferroslam.features import OrbExtractor
-
-_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".pgm", ".bmp"}
-
-
-def list_images(paths: list[str], step: int) -> list[Path]:
-    """Image files named directly, plus every `step`-th image of each directory (sorted)."""
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            files = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
-            out.extend(files[::step])
-        elif p.is_file():
-            out.append(p)
-        else:
-            raise FileNotFoundError(p)
-    if not out:
-        raise ValueError(f"no images found in {paths}")
-    return out
-
+from ferroslam.vocabulary import image_paths
 
 def write_pack(images: list[Path], extractor: OrbExtractor, path: Path) -> int:
     """Write the descriptor pack of `images`; returns the number of descriptors."""
@@ -86,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     extractor = OrbExtractor(n_features=args.features)
     repo = Path(__file__).resolve().parent.parent
     with tempfile.TemporaryDirectory() as tmp:
-        train_images = list_images(args.images, args.step)
+        train_images = image_paths(args.images, args.step)
         pack = Path(tmp) / "train.desc"
         n = write_pack(train_images, extractor, pack)
         print(f"extracted {n} descriptors from {len(train_images)} images")
@@ -96,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
             cmd += ["--text", args.text]
         if args.eval:
             eval_pack = Path(tmp) / "eval.desc"
-            write_pack(list_images([args.eval], 1), extractor, eval_pack)
+            write_pack(image_paths([args.eval]), extractor, eval_pack)
             cmd += ["--eval", str(eval_pack)]
         result = subprocess.run(cmd, cwd=repo, capture_output=True, text=True)
         sys.stdout.write(result.stdout)
