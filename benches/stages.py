@@ -4,7 +4,7 @@ Runs ``ferroslam.pipeline.run_sequence`` (progress bar off) and prints median / 
 milliseconds of each stage, the tracking outcome, ATE, scale error and frame time / budget
 (the median interval between the sequence's timestamps: 33.3 ms for TUM, ~100 ms for KITTI).
 
-    python benches/stages.py [--sequence DIR] [--sensor rgbd|stereo] [--max-frames N]
+    python benches/stages.py [--sequence DIR] [--sensor rgbd|stereo|mono] [--max-frames N]
                              [--config JSON] [--json OUT]
 
 ``--config`` is an inline JSON object (``'{"seed": 3}'``) or a JSON file, as ``ferroslam run
@@ -83,6 +83,9 @@ class KeyframeRecorder:
     def track_stereo(self, *args):
         return self._track("track_stereo", *args)
 
+    def track_mono(self, *args):
+        return self._track("track_mono", *args)
+
     def __getattr__(self, name):
         return getattr(self.system, name)
 
@@ -145,11 +148,12 @@ def print_report(rep: dict) -> None:
     ratio = rep["realtime_ratio"]
     print(f"\nwhole frame / {rep['budget_ms']:.1f} ms budget: median {ratio['median']:.2f}, "
           f"p95 {ratio['p95']:.2f}, mean {ratio['mean']:.2f}  (< 1 = real time)")
+    align = "Sim(3)" if rep["sensor"] == "mono" else "SE(3)"
     for name in ("ate_frames", "ate_keyframes"):
         a = rep[name]
         if a is not None:
             print(f"{name:<14} rmse {a['rmse_m'] * 100:6.2f} cm  mean {a['mean_m'] * 100:6.2f} cm  "
-                  f"max {a['max_m'] * 100:6.2f} cm  ({a['pairs']} poses, SE(3) alignment)")
+                  f"max {a['max_m'] * 100:6.2f} cm  ({a['pairs']} poses, {align} alignment)")
     if rep["scale_error"] is not None:
         print(f"scale error    {100 * rep['scale_error']:+.2f} % (path length against the truth)")
     for err in rep["metric_errors"]:
@@ -161,7 +165,7 @@ def main(argv=None) -> int:
     parser.add_argument("--sequence", type=Path,
                         default=data_dir() / "tum" / "rgbd_dataset_freiburg1_rpy",
                         help="sequence folder (default: TUM fr1/rpy in the shared data)")
-    parser.add_argument("--sensor", choices=("rgbd", "stereo"), default="rgbd")
+    parser.add_argument("--sensor", choices=("rgbd", "stereo", "mono"), default="rgbd")
     parser.add_argument("--max-frames", type=int, help="process only the first N frames")
     parser.add_argument("--config", help="JSON object or JSON file of SlamSystem/extractor options")
     parser.add_argument("--json", type=Path, metavar="OUT", help="also write the report as JSON")
