@@ -1,5 +1,5 @@
 //! Geometry for ferroslam: Lie groups (SO(3), SE(3), Sim(3)), camera models, triangulation,
-//! PnP and point-set alignment.
+//! PnP, point-set alignment and the loop-closing Sim(3) RANSAC ([`sim3_ransac`]).
 //!
 //! This crate is where the project-wide conventions are written down. Every other crate
 //! follows them; change them here or nowhere.
@@ -46,6 +46,7 @@ pub mod error;
 pub mod pnp;
 pub mod se3;
 pub mod sim3;
+pub mod sim3_ransac;
 pub mod so3;
 pub mod testing;
 pub mod triangulation;

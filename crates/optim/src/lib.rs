@@ -19,6 +19,9 @@
 //! robust-then-plain schedule with outlier classification). [`pose_graph`] holds the SE(3) /
 //! Sim(3) pose-graph optimiser ([`SymbolicPoseGraph`] + [`optimize_pose_graph`], same
 //! Levenberg-Marquardt and sparse Cholesky pattern) and a g2o reader ([`read_g2o`]).
+//! [`optimize_sim3`] refines the loop-closing similarity `S_12` between two keyframes from
+//! matched map points (ORB-SLAM's `OptimizeSim3`: both reprojection errors, Huber, outlier
+//! removal between two rounds), after `ferroslam_geometry::sim3_ransac` found it.
 #![warn(missing_docs)]
 
 pub mod ba;
@@ -30,6 +33,7 @@ pub mod pose;
 pub mod pose_graph;
 pub mod residual;
 pub mod robust;
+pub mod sim3_align;
 
 pub use ba::{
     bundle_adjust, local_bundle_adjust, BaOptions, BaProblem, BaReport, LocalBaResult, Observation,
@@ -42,3 +46,4 @@ pub use pose_graph::{
     optimize_pose_graph, read_g2o, PoseEdge, PoseGraph, PoseGraphOptions, PoseGraphReport,
     Se3PoseGraph, Sim3PoseGraph, SymbolicPoseGraph,
 };
+pub use sim3_align::{optimize_sim3, Sim3AlignResult, Sim3Match, SIM3_TH2_MONO};

@@ -23,7 +23,7 @@ pub struct Linearization {
 
 /// Camera-frame point and the prediction it makes, or `None` if it is not strictly in front
 /// of the camera or anything is non-finite.
-fn predict(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+pub(crate) fn predict(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, Matrix3<f64>)> {
     let (x, y, z) = (p_c.x, p_c.y, p_c.z);
     // Cameras see along +z; z <= 0 is ORB-SLAM's "depth not positive" outlier.
     if !p_c.iter().all(|v| v.is_finite()) || z <= 0.0 {
