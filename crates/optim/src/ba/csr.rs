@@ -34,6 +34,21 @@ impl<T> Csr<T> {
     }
 
     pub(crate) fn row(&self, r: usize) -> &[T] {
-        &self.items[self.offsets[r]..self.offsets[r + 1]]
+        &self.items[self.range(r)]
+    }
+
+    /// Positions of row `r`'s items in the flat item list.
+    pub(crate) fn range(&self, r: usize) -> std::ops::Range<usize> {
+        self.offsets[r]..self.offsets[r + 1]
+    }
+
+    /// Total number of items.
+    pub(crate) fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// All items, row after row.
+    pub(crate) fn items(&self) -> &[T] {
+        &self.items
     }
 }

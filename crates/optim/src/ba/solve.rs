@@ -1,12 +1,16 @@
 //! Levenberg-Marquardt bundle adjustment with the points eliminated by a Schur complement.
 //!
-//! Each iteration linearises every active observation (in parallel), then for each damping
-//! value tried: inverts the damped 3x3 point blocks, assembles the reduced camera system
-//! `S = U - W V^-1 W^T` and its right-hand side block column by block column (in parallel),
-//! factorises `S` numerically on the reused symbolic Cholesky, back-substitutes the point
-//! steps and accepts the step iff the cost decreases (Nielsen's lambda update).
+//! Work is split into fixed chunks of points, processed in parallel, with per-observation
+//! data stored point by point so each point's data is contiguous. Each iteration linearises
+//! every active observation (accumulating the point blocks directly and per-chunk partial
+//! pose blocks), then for each damping value tried: inverts the damped 3x3 point blocks and
+//! accumulates each chunk's partial reduced camera system `S = U - W V^-1 W^T` and
+//! right-hand side, sums the partials in chunk order (deterministic whatever the thread
+//! count), factorises `S` numerically on the reused symbolic Cholesky, back-substitutes the
+//! point steps and accepts the step iff the cost decreases (Nielsen's lambda update). A
+//! rejected step reuses the linearisation; only the damped parts are recomputed.
 
-use super::problem::{BaProblem, Observation};
+use super::problem::BaProblem;
 use super::symbolic::SymbolicBa;
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
@@ -19,7 +23,7 @@ use faer::sparse::linalg::LltError;
 use faer::sparse::SparseColMatRef;
 use faer::{Mat, Side};
 use ferroslam_geometry::se3;
-use nalgebra::{Isometry3, Matrix3, Matrix3x6, Matrix6, Matrix6x3, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
 use rayon::prelude::*;
 
 /// Options of [`bundle_adjust`].
@@ -124,12 +128,12 @@ pub(crate) fn bundle_adjust_masked(
     let mut trial_poses = problem.poses.clone();
     let mut trial_points = problem.points.clone();
     let mut lin = Linearization::default();
-    let mut y_scratch = Vec::new();
+    let mut v_inv = Vec::new();
     while iterations < options.max_iterations {
         iterations += 1;
         ctx.linearize(problem, &mut lin);
         let accepted = damping.find_step(
-            |lambda| ctx.step(&lin, llt, lambda, &mut y_scratch),
+            |lambda| ctx.step(&lin, llt, lambda, &mut v_inv),
             |step| {
                 for (f, &pose) in symbolic.free_poses.iter().enumerate() {
                     trial_poses[pose] = se3::retract(&step.d_pose[f], &problem.poses[pose]);
@@ -184,39 +188,14 @@ fn subtract_outer(
     }
 }
 
-/// Per-observation linearisation (weights include `inv_sigma2` and the kernel's IRLS factor;
-/// zero weight for inactive observations).
-#[derive(Clone, Copy)]
-struct ObsLin {
-    w: f64,
-    e: Vector3<f64>,
-    d_e_d_xi: Matrix3x6<f64>,
-    d_e_d_p_w: Matrix3<f64>,
-    /// `W = w J_xi^T J_p`, the pose-point coupling block.
-    w_cp: Matrix6x3<f64>,
-}
-
-impl ObsLin {
-    const INACTIVE: Self = Self {
-        w: 0.0,
-        e: Vector3::new(0.0, 0.0, 0.0),
-        d_e_d_xi: Matrix3x6::new(
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-            0.0,
-        ),
-        d_e_d_p_w: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-        w_cp: Matrix6x3::new(
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-            0.0,
-        ),
-    };
-}
-
 /// Gauss-Newton blocks at the current estimate: `H = [U W; W^T V]`, gradient `[b_c; b_p]`
-/// (half the cost gradient).
+/// (half the cost gradient). Storage is reused across iterations (the per-observation
+/// buffer is megabytes: reallocating it every iteration costs page faults).
 #[derive(Default)]
 struct Linearization {
-    obs: Vec<ObsLin>,
+    /// Per entry of [`SymbolicBa::point_obs`]: `W = w J_xi^T J_p`, the pose-point coupling
+    /// block (zero for inactive observations and those of fixed poses).
+    w_cp: Vec<Matrix6x3<f64>>,
     u: Vec<Matrix6<f64>>,
     b_c: Vec<Vector6<f64>>,
     v: Vec<Matrix3<f64>>,
@@ -228,6 +207,19 @@ struct Step {
     d_point: Vec<Vector3<f64>>,
     predicted_decrease: f64,
 }
+
+/// Splits `items` into consecutive mutable parts of the given lengths.
+fn split_parts<T>(mut items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+    lens.map(|len| {
+        let (head, tail) = std::mem::take(&mut items).split_at_mut(len);
+        items = tail;
+        head
+    })
+    .collect()
+}
+
+/// Observations per chunk of the cost sum (fixed, so the sum's order is too).
+const COST_CHUNK: usize = 1024;
 
 struct Context<'a> {
     k: Intrinsics,
@@ -242,21 +234,26 @@ impl Context<'_> {
     fn cost(&self, problem: &BaProblem, poses: &[Isometry3<f64>], points: &[Vector3<f64>]) -> f64 {
         problem
             .observations
-            .par_iter()
-            .zip(self.active.par_iter())
-            .filter(|(_, &a)| a)
-            .map(|(o, _)| {
-                residual::chi2(
-                    &self.k,
-                    &poses[o.pose],
-                    &points[o.point],
-                    &o.uv,
-                    o.u_right,
-                    o.inv_sigma2,
-                )
-                .map_or(f64::INFINITY, |c| {
-                    cost_and_weight(c, o.is_stereo(), self.robust).0
-                })
+            .par_chunks(COST_CHUNK)
+            .zip(self.active.par_chunks(COST_CHUNK))
+            .map(|(obs, active)| {
+                obs.iter()
+                    .zip(active)
+                    .filter(|(_, &a)| a)
+                    .map(|(o, _)| {
+                        residual::chi2(
+                            &self.k,
+                            &poses[o.pose],
+                            &points[o.point],
+                            &o.uv,
+                            o.u_right,
+                            o.inv_sigma2,
+                        )
+                        .map_or(f64::INFINITY, |c| {
+                            cost_and_weight(c, o.is_stereo(), self.robust).0
+                        })
+                    })
+                    .sum::<f64>()
             })
             .collect::<Vec<f64>>()
             // Summed in a fixed order: a parallel float sum varies run to run, and LM's
@@ -265,147 +262,181 @@ impl Context<'_> {
             .sum()
     }
 
-    /// Linearises at the current estimate into `lin`, reusing its storage (the per-observation
-    /// buffer is megabytes: reallocating it every iteration costs page faults).
-    fn linearize(&self, problem: &BaProblem, lin: &mut Linearization) {
+    /// Point chunks of the numeric phase and the number of entries in each.
+    fn chunks(&self) -> impl Iterator<Item = (std::ops::Range<usize>, usize)> + '_ {
         let sym = self.symbolic;
-        lin.obs.resize(problem.observations.len(), ObsLin::INACTIVE);
-        lin.obs
-            .par_iter_mut()
-            .zip(problem.observations.par_iter().zip(self.active.par_iter()))
-            .for_each(|(out, (o, &active))| *out = self.linearize_one(problem, o, active));
-        let obs = &lin.obs;
-        let (u, b_c) = (0..sym.free_poses.len())
-            .into_par_iter()
-            .map(|f| {
-                let mut u = Matrix6::zeros();
-                let mut b = Vector6::zeros();
-                for &i in sym.pose_obs.row(f) {
-                    let l = &obs[i];
-                    let jt = l.d_e_d_xi.transpose();
-                    u += l.w * jt * l.d_e_d_xi;
-                    b += l.w * jt * l.e;
-                }
-                (u, b)
-            })
-            .unzip();
-        let (v, b_p) = (0..sym.opt_points.len())
-            .into_par_iter()
-            .map(|p| {
-                let mut v = Matrix3::zeros();
-                let mut b = Vector3::zeros();
-                for &i in sym.point_obs.row(p) {
-                    let l = &obs[i];
-                    let jt = l.d_e_d_p_w.transpose();
-                    v += l.w * jt * l.d_e_d_p_w;
-                    b += l.w * jt * l.e;
-                }
-                (v, b)
-            })
-            .unzip();
-        (lin.u, lin.b_c, lin.v, lin.b_p) = (u, b_c, v, b_p);
+        let n = sym.opt_points.len();
+        (0..n).step_by(sym.chunk_points).map(move |p0| {
+            let p1 = (p0 + sym.chunk_points).min(n);
+            let entries = sym.point_obs.range(p1 - 1).end - sym.point_obs.range(p0).start;
+            (p0..p1, entries)
+        })
     }
 
-    fn linearize_one(&self, problem: &BaProblem, o: &Observation, active: bool) -> ObsLin {
-        if !active {
-            return ObsLin::INACTIVE;
+    /// Linearises at the current estimate into `lin`, point by point: each chunk of points
+    /// fills its points' `V`, `b_p`, `W` and its own partial `U`, `b_c`, which are then
+    /// summed in chunk order.
+    fn linearize(&self, problem: &BaProblem, lin: &mut Linearization) {
+        let sym = self.symbolic;
+        let nfree = sym.free_poses.len();
+        lin.w_cp.resize(sym.point_obs.len(), Matrix6x3::zeros());
+        lin.v.resize(sym.opt_points.len(), Matrix3::zeros());
+        lin.b_p.resize(sym.opt_points.len(), Vector3::zeros());
+        let chunks: Vec<_> = self.chunks().collect();
+        let w_parts = split_parts(&mut lin.w_cp, chunks.iter().map(|(_, e)| *e));
+        let v_parts = split_parts(&mut lin.v, chunks.iter().map(|(c, _)| c.len()));
+        let b_parts = split_parts(&mut lin.b_p, chunks.iter().map(|(c, _)| c.len()));
+        let partial: Vec<(Vec<Matrix6<f64>>, Vec<Vector6<f64>>)> = chunks
+            .into_par_iter()
+            .zip(w_parts)
+            .zip(v_parts)
+            .zip(b_parts)
+            .map(|((((points, _), w_out), v_out), b_out)| {
+                let mut u = vec![Matrix6::zeros(); nfree];
+                let mut b_c = vec![Vector6::zeros(); nfree];
+                let first_entry = sym.point_obs.range(points.start).start;
+                for (j, p) in points.enumerate() {
+                    let mut v = Matrix3::zeros();
+                    let mut b = Vector3::zeros();
+                    for e in sym.point_obs.range(p) {
+                        let w_cp = &mut w_out[e - first_entry];
+                        *w_cp = Matrix6x3::zeros();
+                        let i = sym.point_obs.items()[e];
+                        let Some((w, l)) = self.linearize_one(problem, i) else {
+                            continue;
+                        };
+                        let jpt = w * l.d_e_d_p_w.transpose();
+                        v += jpt * l.d_e_d_p_w;
+                        b += jpt * l.e;
+                        if let Some(f) = sym.entry_free[e] {
+                            let jxt = w * l.d_e_d_xi.transpose();
+                            u[f] += jxt * l.d_e_d_xi;
+                            b_c[f] += jxt * l.e;
+                            *w_cp = jxt * l.d_e_d_p_w;
+                        }
+                    }
+                    (v_out[j], b_out[j]) = (v, b);
+                }
+                (u, b_c)
+            })
+            .collect();
+        lin.u = vec![Matrix6::zeros(); nfree];
+        lin.b_c = vec![Vector6::zeros(); nfree];
+        for (u, b_c) in partial {
+            for f in 0..nfree {
+                lin.u[f] += u[f];
+                lin.b_c[f] += b_c[f];
+            }
         }
-        let pose = &problem.poses[o.pose];
-        let Some(l) =
-            residual::linearize(&self.k, pose, &problem.points[o.point], &o.uv, o.u_right)
-        else {
-            // Unreachable for an accepted estimate (its cost is finite).
-            return ObsLin::INACTIVE;
-        };
+    }
+
+    /// Weight (`inv_sigma2` times the kernel's IRLS factor) and linearisation of observation
+    /// `i`, `None` if it is inactive.
+    fn linearize_one(
+        &self,
+        problem: &BaProblem,
+        i: usize,
+    ) -> Option<(f64, residual::Linearization)> {
+        if !self.active[i] {
+            return None;
+        }
+        let o = &problem.observations[i];
+        // None is unreachable for an accepted estimate (its cost is finite).
+        let l = residual::linearize(
+            &self.k,
+            &problem.poses[o.pose],
+            &problem.points[o.point],
+            &o.uv,
+            o.u_right,
+        )?;
         let chi2 = o.inv_sigma2 * l.e.norm_squared();
         let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
-        ObsLin {
-            w,
-            e: l.e,
-            d_e_d_xi: l.d_e_d_xi,
-            d_e_d_p_w: l.d_e_d_p_w,
-            w_cp: w * l.d_e_d_xi.transpose() * l.d_e_d_p_w,
-        }
+        Some((w, l))
     }
 
     /// Solves the damped normal equations `(H + lambda D) dx = -b` by eliminating points.
+    /// `v_inv` is scratch for the inverted damped point blocks.
     fn step(
         &self,
         lin: &Linearization,
         llt: &SymbolicLlt<usize>,
         lambda: f64,
-        y: &mut Vec<Matrix6x3<f64>>,
+        v_inv: &mut Vec<Matrix3<f64>>,
     ) -> Result<Step, OptimError> {
         let sym = self.symbolic;
+        let nfree = sym.free_poses.len();
         let damp3 = |m: &Matrix3<f64>| m.diagonal().map(damping_diagonal);
         let damp6 = |m: &Matrix6<f64>| m.diagonal().map(damping_diagonal);
-        // Damped point blocks are positive definite: V is PSD and the damping diagonal > 0.
-        let v_inv: Vec<Matrix3<f64>> = lin
-            .v
-            .par_iter()
-            .map(|v| {
-                let vd = v + Matrix3::from_diagonal(&(lambda * damp3(v)));
-                vd.cholesky().map_or(Matrix3::zeros(), |c| c.inverse())
-            })
-            .collect();
-        let problem_obs_point = |i: usize| sym.point_index[self.observation_point(i)];
-        // Y = W V^-1 per observation of a free pose and an optimised point.
-        y.resize(lin.obs.len(), Matrix6x3::zeros());
-        y.par_iter_mut().enumerate().for_each(|(i, y)| {
-            *y = match problem_obs_point(i) {
-                Some(p) if lin.obs[i].w > 0.0 => lin.obs[i].w_cp * v_inv[p],
-                _ => Matrix6x3::zeros(),
-            }
-        });
-        let y = &*y;
-
-        // Assemble the upper triangle of S and r = -b_c + W V^-1 b_p per block column.
         let col_ptr = sym.pattern.col_ptr();
-        let mut values = vec![0.0; sym.pattern.row_idx().len()];
-        let mut columns: Vec<&mut [f64]> = Vec::with_capacity(sym.free_poses.len());
-        let mut rest = values.as_mut_slice();
-        for b in 0..sym.free_poses.len() {
-            let (head, tail) = rest.split_at_mut(col_ptr[6 * b + 6] - col_ptr[6 * b]);
-            columns.push(head);
-            rest = tail;
-        }
-        let rhs: Vec<Vector6<f64>> = columns
+        let col_start: Vec<[usize; 6]> = (0..nfree)
+            .map(|b| std::array::from_fn(|c| col_ptr[6 * b + c]))
+            .collect();
+        let nnz = sym.pattern.row_idx().len();
+
+        // Per chunk of points: invert the damped point blocks, then accumulate the upper
+        // triangle of -W V^-1 W^T and W V^-1 b_p into the chunk's own partial system.
+        v_inv.resize(sym.opt_points.len(), Matrix3::zeros());
+        let chunks: Vec<_> = self.chunks().collect();
+        let v_parts = split_parts(v_inv, chunks.iter().map(|(c, _)| c.len()));
+        let partial: Vec<(Vec<f64>, Vec<Vector6<f64>>)> = chunks
             .into_par_iter()
-            .enumerate()
-            .map(|(b, column)| {
-                let start: [usize; 6] =
-                    std::array::from_fn(|c| col_ptr[6 * b + c] - col_ptr[6 * b]);
-                let diag_slot = sym.blocks_in_column[b] - 1;
-                // Upper triangle of the damped diagonal block U_b + lambda D.
-                let u = &lin.u[b];
-                for c in 0..6 {
-                    let s = start[c] + 6 * diag_slot;
-                    for r in 0..=c {
-                        column[s + r] += u[(r, c)];
+            .zip(v_parts)
+            .map(|((points, _), v_out)| {
+                let mut values = vec![0.0; nnz];
+                let mut r = vec![Vector6::zeros(); nfree];
+                let mut y: Vec<Matrix6x3<f64>> = Vec::new();
+                for (j, p) in points.enumerate() {
+                    let v = &lin.v[p];
+                    // Damped point blocks are positive definite: V is PSD and the damping
+                    // diagonal > 0.
+                    let vd = v + Matrix3::from_diagonal(&(lambda * damp3(v)));
+                    let vi = vd.cholesky().map_or(Matrix3::zeros(), |c| c.inverse());
+                    v_out[j] = vi;
+                    let entries = sym.point_obs.range(p);
+                    let w = &lin.w_cp[entries.clone()];
+                    // Y = W V^-1 per observation (zero for fixed poses: W is).
+                    y.clear();
+                    y.extend(w.iter().map(|w| w * vi));
+                    for (k, e) in entries.enumerate() {
+                        if let Some(f) = sym.entry_free[e] {
+                            r[f] += y[k] * lin.b_p[p];
+                        }
                     }
-                    column[s + c] += lambda * damping_diagonal(u[(c, c)]);
-                }
-                // -Y_a W_b^T, written column by column straight into the CSC values (the
-                // hot loop of the whole solver: no temporaries, rows contiguous).
-                for t in sym.schur_terms.row(b) {
-                    subtract_outer(
-                        column,
-                        &start,
-                        6 * t.slot,
-                        t.slot == diag_slot,
-                        &y[t.obs_a],
-                        &lin.obs[t.obs_b].w_cp,
-                    );
-                }
-                let mut r = -lin.b_c[b];
-                for &i in sym.pose_obs.row(b) {
-                    if let Some(p) = problem_obs_point(i) {
-                        r += y[i] * lin.b_p[p];
+                    for t in sym.point_terms.row(p) {
+                        subtract_outer(
+                            &mut values,
+                            &col_start[t.column],
+                            6 * t.slot,
+                            t.diagonal,
+                            &y[t.a],
+                            &w[t.b],
+                        );
                     }
                 }
-                r
+                (values, r)
             })
             .collect();
+        let mut values = vec![0.0; nnz];
+        let mut rhs: Vec<Vector6<f64>> = lin.b_c.iter().map(|b| -b).collect();
+        for (part_values, part_r) in &partial {
+            for (v, p) in values.iter_mut().zip(part_values) {
+                *v += p;
+            }
+            for (r, p) in rhs.iter_mut().zip(part_r) {
+                *r += p;
+            }
+        }
+        // Upper triangle of the damped diagonal blocks U_b + lambda D.
+        for (b, u) in lin.u.iter().enumerate() {
+            let diag_slot = sym.blocks_in_column[b] - 1;
+            for c in 0..6 {
+                let s = col_start[b][c] + 6 * diag_slot;
+                for r in 0..=c {
+                    values[s + r] += u[(r, c)];
+                }
+                values[s + c] += lambda * damping_diagonal(u[(c, c)]);
+            }
+        }
 
         let matrix = SparseColMatRef::new(sym.pattern.as_ref(), &values);
         let factor =
@@ -415,10 +446,9 @@ impl Context<'_> {
                 ) => OptimError::NotPositiveDefinite { column: index },
                 LltError::Generic(e) => OptimError::Solver(format!("{e:?}")),
             })?;
-        let n = 6 * sym.free_poses.len();
-        let mut x = Mat::<f64>::from_fn(n, 1, |i, _| rhs[i / 6][i % 6]);
+        let mut x = Mat::<f64>::from_fn(6 * nfree, 1, |i, _| rhs[i / 6][i % 6]);
         factor.solve_in_place(x.as_mut());
-        let d_pose: Vec<Vector6<f64>> = (0..sym.free_poses.len())
+        let d_pose: Vec<Vector6<f64>> = (0..nfree)
             .map(|b| Vector6::from_fn(|r, _| x[(6 * b + r, 0)]))
             .collect();
         if d_pose.iter().any(|d| !d.iter().all(|v| v.is_finite())) {
@@ -426,13 +456,15 @@ impl Context<'_> {
         }
 
         // Back-substitution: dp = V^-1 (-b_p - W^T dc).
+        let v_inv = &*v_inv;
         let d_point: Vec<Vector3<f64>> = (0..sym.opt_points.len())
             .into_par_iter()
+            .with_min_len(MIN_BACK_SUBSTITUTION_POINTS)
             .map(|p| {
                 let mut r = -lin.b_p[p];
-                for &i in sym.point_obs.row(p) {
-                    if let Some(f) = sym.free_index[self.observation_pose(i)] {
-                        r -= lin.obs[i].w_cp.transpose() * d_pose[f];
+                for e in sym.point_obs.range(p) {
+                    if let Some(f) = sym.entry_free[e] {
+                        r -= lin.w_cp[e].transpose() * d_pose[f];
                     }
                 }
                 v_inv[p] * r
@@ -455,12 +487,7 @@ impl Context<'_> {
             predicted_decrease: predicted_decrease(g_dot_dx, lambda, dx_d_dx),
         })
     }
-
-    fn observation_point(&self, i: usize) -> usize {
-        self.symbolic.incidence[i].1
-    }
-
-    fn observation_pose(&self, i: usize) -> usize {
-        self.symbolic.incidence[i].0
-    }
 }
+
+/// Points per parallel task of the back-substitution (a few hundred flops each).
+const MIN_BACK_SUBSTITUTION_POINTS: usize = 256;

@@ -15,14 +15,25 @@ use crate::error::OptimError;
 use faer::sparse::linalg::solvers::SymbolicLlt;
 use faer::sparse::SymbolicSparseColMat;
 
-/// One term `-Y_a W_b^T` of the Schur complement, added to block `slot` of its block
-/// column: `obs_a` and `obs_b` see the same point from free poses `a <= b`.
+/// One term `-Y_a W_b^T` of the Schur complement of a point: its observations at positions
+/// `a` and `b` of its [`SymbolicBa::point_obs`] row come from free poses `fa <= fb`; the
+/// term lands in block `slot` of block column `column = fb` (`diagonal` iff `fa == fb`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SchurTerm {
+    pub(crate) column: usize,
     pub(crate) slot: usize,
-    pub(crate) obs_a: usize,
-    pub(crate) obs_b: usize,
+    pub(crate) diagonal: bool,
+    pub(crate) a: usize,
+    pub(crate) b: usize,
 }
+
+/// Most point chunks the numeric phase splits the points into (each chunk accumulates its
+/// own copy of the pose blocks, summed in chunk order so results do not depend on threads).
+const MAX_CHUNKS: usize = 16;
+/// Fewest points per chunk (smaller chunks cost more in partial sums than they gain).
+const MIN_CHUNK_POINTS: usize = 64;
+/// Most `f64`s all chunks' partial reduced systems may take together (32 MiB).
+const PARTIAL_BUDGET: usize = 1 << 22;
 
 /// Pattern, ordering and symbolic Cholesky of a problem's reduced camera system, plus the
 /// incidence lists the numeric phase walks. Build it once per structure (same poses, fixed
@@ -33,20 +44,20 @@ pub struct SymbolicBa {
     pub(crate) pose_fixed: Vec<bool>,
     pub(crate) num_points: usize,
     pub(crate) incidence: Vec<(usize, usize)>,
-    /// Per pose: its index among the free poses.
-    pub(crate) free_index: Vec<Option<usize>>,
     /// Per free pose: the pose index.
     pub(crate) free_poses: Vec<usize>,
-    /// Per point: its index among the optimised points.
-    pub(crate) point_index: Vec<Option<usize>>,
     /// Per optimised point: the point index.
     pub(crate) opt_points: Vec<usize>,
-    /// Per optimised point: all its observations.
+    /// Per optimised point: all its observations. Per-observation numeric data is stored
+    /// in this order ("entries"), so a point's data is contiguous.
     pub(crate) point_obs: Csr<usize>,
-    /// Per free pose: all its observations.
-    pub(crate) pose_obs: Csr<usize>,
-    /// Per free pose (block column): Schur terms landing in it.
-    pub(crate) schur_terms: Csr<SchurTerm>,
+    /// Per entry of `point_obs`: the free index of the observing pose.
+    pub(crate) entry_free: Vec<Option<usize>>,
+    /// Per optimised point: its Schur terms.
+    pub(crate) point_terms: Csr<SchurTerm>,
+    /// Points per chunk of the numeric phase (the last chunk may be shorter); depends on
+    /// the structure only, never on the thread count.
+    pub(crate) chunk_points: usize,
     /// Per block column: number of blocks (off-diagonal ones + the diagonal).
     pub(crate) blocks_in_column: Vec<usize>,
     /// Upper-triangular CSC pattern of the reduced camera system (`6 * free` square).
@@ -99,25 +110,27 @@ impl SymbolicBa {
                 .enumerate()
                 .filter_map(|(i, o)| point_index[o.point].map(|p| (p, i))),
         );
-        let pose_obs = Csr::from_pairs(
-            free_poses.len(),
-            obs.iter()
-                .enumerate()
-                .filter_map(|(i, o)| free_index[o.pose].map(|f| (f, i))),
-        );
+        let entry_free: Vec<Option<usize>> = point_obs
+            .items()
+            .iter()
+            .map(|&i| free_index[obs[i].pose])
+            .collect();
 
         // Block pattern: per block column b, the sorted block rows a <= b.
         let nfree = free_poses.len();
         let mut block_rows: Vec<Vec<usize>> = (0..nfree).map(|b| vec![b]).collect();
-        let free_obs_of_point = |p: usize| {
+        // Per point: (position in its row, free index) of its observations by free poses.
+        let (point_obs_ref, entry_free_ref) = (&point_obs, &entry_free);
+        let free_entries = |p: usize| {
+            let (point_obs, entry_free) = (point_obs_ref, entry_free_ref);
+            let start = point_obs.range(p).start;
             point_obs
-                .row(p)
-                .iter()
-                .filter_map(|&i| free_index[obs[i].pose].map(|f| (f, i)))
+                .range(p)
+                .filter_map(move |e| entry_free[e].map(|f| (e - start, f)))
         };
         for p in 0..opt_points.len() {
-            for (fa, _) in free_obs_of_point(p) {
-                for (fb, _) in free_obs_of_point(p) {
+            for (_, fa) in free_entries(p) {
+                for (_, fb) in free_entries(p) {
                     if fa < fb {
                         block_rows[fb].push(fa);
                     }
@@ -130,32 +143,43 @@ impl SymbolicBa {
         }
         let mut terms = Vec::new();
         for p in 0..opt_points.len() {
-            for (fa, obs_a) in free_obs_of_point(p) {
-                for (fb, obs_b) in free_obs_of_point(p) {
+            for (a, fa) in free_entries(p) {
+                for (b, fb) in free_entries(p) {
                     if fa <= fb {
                         // Present by construction of block_rows.
                         let slot = block_rows[fb].binary_search(&fa).unwrap_or(0);
-                        terms.push((fb, SchurTerm { slot, obs_a, obs_b }));
+                        let term = SchurTerm {
+                            column: fb,
+                            slot,
+                            diagonal: fa == fb,
+                            a,
+                            b,
+                        };
+                        terms.push((p, term));
                     }
                 }
             }
         }
-        let schur_terms = Csr::from_pairs(nfree, terms);
+        let point_terms = Csr::from_pairs(opt_points.len(), terms);
 
         // block_rows[b] ends with b itself: the diagonal block.
         let above: Vec<&[usize]> = block_rows.iter().map(|r| &r[..r.len() - 1]).collect();
         let (pattern, llt) = block_upper_pattern(6, &above)?;
+        let partial_len = pattern.row_idx().len() + 6 * nfree;
+        let chunks = (opt_points.len() / MIN_CHUNK_POINTS)
+            .clamp(1, MAX_CHUNKS)
+            .min((PARTIAL_BUDGET / partial_len.max(1)).max(1));
+        let chunk_points = opt_points.len().div_ceil(chunks).max(1);
         Ok(Self {
             pose_fixed: problem.pose_fixed.clone(),
             num_points: problem.points.len(),
             incidence: obs.iter().map(|o| (o.pose, o.point)).collect(),
-            free_index,
             free_poses,
-            point_index,
             opt_points,
             point_obs,
-            pose_obs,
-            schur_terms,
+            entry_free,
+            point_terms,
+            chunk_points,
             blocks_in_column: block_rows.iter().map(Vec::len).collect(),
             pattern,
             llt,
