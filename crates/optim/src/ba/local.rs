@@ -10,6 +10,11 @@ pub const LOCAL_BA_ROBUST_ITERATIONS: usize = 5;
 /// Iterations of the second stage, plain least squares over the inliers of the first.
 pub const LOCAL_BA_PLAIN_ITERATIONS: usize = 10;
 
+/// Relative cost decrease below which a stage stops early (g2o stops once no iteration
+/// improves; ORB-SLAM's fixed counts otherwise spend half the plain stage sliding
+/// low-parallax points along their rays, shifting poses by a fraction of a millimetre).
+const LOCAL_BA_FUNCTION_TOLERANCE: f64 = 1e-5;
+
 /// Result of [`local_bundle_adjust`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct LocalBaResult {
@@ -24,7 +29,8 @@ pub struct LocalBaResult {
 /// Local BA in place: [`LOCAL_BA_ROBUST_ITERATIONS`] Huber iterations over all observations,
 /// then observations with `chi2` above threshold or behind their camera are dropped and
 /// [`LOCAL_BA_PLAIN_ITERATIONS`] iterations run without kernel; finally every observation is
-/// classified. The symbolic analysis is built once and shared by both stages.
+/// classified. Either stage stops early once an iteration lowers the cost by less than a
+/// relative `1e-5`. The symbolic analysis is built once and shared by both stages.
 ///
 /// With zero free poses or zero observations nothing moves (the classification is still
 /// returned). Points with no observation by a free pose are not optimised.
@@ -36,6 +42,7 @@ pub fn local_bundle_adjust(problem: &mut BaProblem) -> Result<LocalBaResult, Opt
     let robust = BaOptions {
         max_iterations: LOCAL_BA_ROBUST_ITERATIONS,
         robust: true,
+        function_tolerance: LOCAL_BA_FUNCTION_TOLERANCE,
         ..BaOptions::default()
     };
     let all = vec![true; problem.observations.len()];
@@ -44,6 +51,7 @@ pub fn local_bundle_adjust(problem: &mut BaProblem) -> Result<LocalBaResult, Opt
     let plain = BaOptions {
         max_iterations: LOCAL_BA_PLAIN_ITERATIONS,
         robust: false,
+        function_tolerance: LOCAL_BA_FUNCTION_TOLERANCE,
         ..BaOptions::default()
     };
     let second = bundle_adjust_masked(problem, &symbolic, &plain, &inlier)?;

@@ -5,6 +5,7 @@ use crate::intrinsics::Intrinsics;
 use crate::residual;
 use crate::robust::chi2_threshold;
 use nalgebra::{Isometry3, Vector2, Vector3};
+use rayon::prelude::*;
 
 /// One keypoint of a map point in a keyframe.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -120,6 +121,7 @@ impl BaProblem {
     /// is not in front of the camera. Requires a valid problem (see [`Self::validate`]).
     pub fn classify_outliers(&self) -> Vec<bool> {
         (0..self.observations.len())
+            .into_par_iter()
             .map(|i| {
                 let stereo = self.observations[i].is_stereo();
                 self.chi2(i).is_none_or(|c| c > chi2_threshold(stereo))
