@@ -40,7 +40,8 @@ class RunResult:
     around the call, ``frame_ms`` = extraction + depth sampling + tracking call);
     ``states``: tracking state per frame; ``segments``: map segment of each trajectory pose
     (a monocular run starts a new map after it stays lost); ``init_reasons``: per frame, why
-    monocular initialisation waited (``None`` otherwise). With ground truth: ATE (SE(3), or
+    monocular initialisation waited (``None`` otherwise); ``loops``: the loops closed (see
+    ``SlamSystem.loops``) and ``loop_stats`` what loop detection did. With ground truth: ATE (SE(3), or
     Sim(3) over the longest segment for monocular runs), RPE and path length (metric scale;
     not for monocular runs).
     """
@@ -58,6 +59,8 @@ class RunResult:
     map_points: np.ndarray
     segments: Optional[np.ndarray] = None
     init_reasons: list = field(default_factory=list)
+    loops: list = field(default_factory=list)
+    loop_stats: dict = field(default_factory=dict)
     groundtruth: Optional[Trajectory] = None
     ate_frames: Optional[AteResult] = None
     ate_keyframes: Optional[AteResult] = None
@@ -114,6 +117,7 @@ class RunResult:
             "first_initialised_frame": self.first_initialised_frame,
             "tracked_after_init": self.tracked_after_init,
             "segments": self.num_segments,
+            "loops": len(self.loops),
             "keyframes": len(self.keyframes),
             "map_points": int(self.map_points.shape[0]),
             "timing_ms": timing,
@@ -385,6 +389,8 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -
         keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
         segments=np.asarray(system.frame_segments(), dtype=np.int64).reshape(-1),
         init_reasons=init_reasons,
+        loops=system.loops(),
+        loop_stats=system.loop_stats(),
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
     )
     if getattr(seq, "has_groundtruth", False):

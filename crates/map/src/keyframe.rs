@@ -28,6 +28,8 @@ pub struct KeyFrame {
     pub(crate) chosen: BTreeSet<KeyFrameId>,
     pub(crate) parent: Option<KeyFrameId>,
     pub(crate) children: BTreeSet<KeyFrameId>,
+    /// Keyframes this one closed a loop with (symmetric); such keyframes are never culled.
+    pub(crate) loop_edges: BTreeSet<KeyFrameId>,
 }
 
 #[allow(non_snake_case)]
@@ -50,6 +52,7 @@ impl KeyFrame {
             chosen: BTreeSet::new(),
             parent: None,
             children: BTreeSet::new(),
+            loop_edges: BTreeSet::new(),
         }
     }
 
@@ -108,6 +111,11 @@ impl KeyFrame {
     /// Children in the spanning tree.
     pub fn children(&self) -> &BTreeSet<KeyFrameId> {
         &self.children
+    }
+
+    /// Keyframes this one closed a loop with (ORB-SLAM `GetLoopEdges`).
+    pub fn loop_edges(&self) -> &BTreeSet<KeyFrameId> {
+        &self.loop_edges
     }
 
     /// Always `false`: bad keyframes are removed from the map, so a reference obtained from

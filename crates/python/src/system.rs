@@ -78,11 +78,15 @@ fn parse_config(
             "depth_threshold" => config.depth_threshold = value.extract().map_err(wrong)?,
             "depth_range" => config.depth_range = pair(&key, &value)?,
             "seed" => config.seed = value.extract().map_err(wrong)?,
+            "loop_closure" => config.loop_closure = value.extract().map_err(wrong)?,
+            "loop_closure_threshold" => {
+                config.loop_closure_threshold = value.extract().map_err(wrong)?
+            }
             _ => {
                 return Err(PyValueError::new_err(format!(
                     "unknown option {key:?}; known: scale_factor, n_levels, track_feature_range, \
                      skip_max_frames, bf, baseline, depth_threshold, \
-                     depth_range, seed"
+                     depth_range, seed, loop_closure, loop_closure_threshold"
                 )))
             }
         }
@@ -377,6 +381,40 @@ impl PySlamSystem {
             s.frame_segments().into_iter().map(|s| s as u32).collect()
         })?;
         Ok(PyArray1::from_vec(py, ids))
+    }
+
+    /// Loops closed so far, oldest first: dicts with the two keyframe ids ("current",
+    /// "matched"), their "timestamps", "num_matches", Sim(3) "scale", "correction_m" (how far
+    /// the current keyframe moved) and the essential graph's "graph_cost" (before, after).
+    fn loops<'py>(&mut self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let loops = self.engine.run(py, |s| s.loops().to_vec())?;
+        loops
+            .into_iter()
+            .map(|l| {
+                let d = PyDict::new(py);
+                d.set_item("current", l.current.0)?;
+                d.set_item("matched", l.matched.0)?;
+                d.set_item("timestamps", l.timestamps)?;
+                d.set_item("num_matches", l.num_matches)?;
+                d.set_item("scale", l.scale)?;
+                d.set_item("correction_m", l.correction_m)?;
+                d.set_item("graph_cost", l.graph_cost)?;
+                Ok(d)
+            })
+            .collect()
+    }
+
+    /// Loop-detection counters: "keyframes_checked", "with_candidates" (bag-of-words
+    /// candidates found), "verified" (consistent candidates checked geometrically),
+    /// "rejected" (refused by the Sim(3) or the match count).
+    fn loop_stats<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let st = self.engine.run(py, |s| s.loop_stats())?;
+        let d = PyDict::new(py);
+        d.set_item("keyframes_checked", st.keyframes_checked)?;
+        d.set_item("with_candidates", st.with_candidates)?;
+        d.set_item("verified", st.verified)?;
+        d.set_item("rejected", st.rejected)?;
+        Ok(d)
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.

@@ -57,6 +57,11 @@ pub struct SlamConfig {
     pub depth_range: (f64, f64),
     /// Seed of every random choice (RANSAC).
     pub seed: u64,
+    /// Detect and close loops (needs a vocabulary, see `SlamSystem::set_vocabulary`).
+    pub loop_closure: bool,
+    /// Minimum matched map points between a keyframe and a loop candidate for the loop to be
+    /// accepted after Sim(3) verification (MATLAB `LoopClosureThreshold`; ORB-SLAM: 40).
+    pub loop_closure_threshold: usize,
 }
 
 impl Default for SlamConfig {
@@ -71,6 +76,8 @@ impl Default for SlamConfig {
             depth_threshold: 40.0,
             depth_range: (0.1, 8.0),
             seed: 0,
+            loop_closure: true,
+            loop_closure_threshold: 40,
         }
     }
 }
@@ -97,6 +104,10 @@ impl SlamConfig {
         }
         if !(self.depth_threshold.is_finite() && self.depth_threshold > 0.0) {
             return bad("depth_threshold must be positive");
+        }
+        if self.loop_closure_threshold < 20 {
+            // Sim(3) verification alone needs 20 inliers; a lower bound would never apply.
+            return bad("loop_closure_threshold must be >= 20");
         }
         let (dmin, dmax) = self.depth_range;
         if !(dmin.is_finite() && !dmax.is_nan() && 0.0 <= dmin && dmin < dmax) {

@@ -282,96 +282,7 @@ impl LocalMapper {
     ) -> Result<usize, SlamError> {
         let mut local: Vec<KeyFrameId> = vec![kf];
         local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
-        let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
-        let mut points = Vec::new();
-        let mut seen = HashSet::new();
-        for &k in &local {
-            for m in map
-                .keyframe(k)
-                .into_iter()
-                .flat_map(|k| k.map_points().iter().flatten())
-            {
-                if map.map_point(*m).is_some() && seen.insert(*m) {
-                    points.push(*m);
-                }
-            }
-        }
-        let mut fixed = Vec::new();
-        let mut fixed_set = HashSet::new();
-        for &m in &points {
-            for k in map.map_point(m).unwrap().observations().keys() {
-                if !local_set.contains(k) && fixed_set.insert(*k) {
-                    fixed.push(*k);
-                }
-            }
-        }
-        let pose_ids: Vec<KeyFrameId> = local.iter().chain(fixed.iter()).copied().collect();
-        let pose_index: HashMap<KeyFrameId, usize> =
-            pose_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
-        let pyramid = map.pyramid();
-        let mut observations = Vec::new();
-        let mut obs_keys = Vec::new();
-        for (pi, &m) in points.iter().enumerate() {
-            for (&k, &i) in map.map_point(m).unwrap().observations() {
-                let Some(&pose) = pose_index.get(&k) else {
-                    continue;
-                };
-                let f = map.keyframe(k).unwrap().features();
-                let kp = &f.keypoints[i];
-                let ur = f.u_right[i];
-                observations.push(Observation {
-                    pose,
-                    point: pi,
-                    uv: Vector2::new(kp.x as f64, kp.y as f64),
-                    u_right: (ur >= 0.0).then_some(ur as f64),
-                    inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
-                });
-                obs_keys.push((m, k));
-            }
-        }
-        // The map's first keyframe fixes the gauge.
-        let origin = map.origin();
-        let mut problem = BaProblem {
-            intrinsics: ctx.intrinsics,
-            poses: pose_ids
-                .iter()
-                .map(|k| *map.keyframe(*k).unwrap().T_c_w())
-                .collect(),
-            pose_fixed: pose_ids
-                .iter()
-                .map(|k| !local_set.contains(k) || Some(*k) == origin)
-                .collect(),
-            points: points
-                .iter()
-                .map(|m| map.map_point(*m).unwrap().position())
-                .collect(),
-            observations,
-        };
-        let Ok(result) = local_bundle_adjust(&mut problem) else {
-            // A numerically failed BA leaves the map as it was; the next keyframe retries.
-            return Ok(0);
-        };
-        for (pi, &k) in pose_ids.iter().enumerate() {
-            if !problem.pose_fixed[pi] {
-                map.set_keyframe_pose(k, problem.poses[pi])?;
-            }
-        }
-        for (pi, &m) in points.iter().enumerate() {
-            map.set_map_point_position(m, problem.points[pi])?;
-        }
-        let mut n_outliers = 0;
-        for (o, &(m, k)) in obs_keys.iter().enumerate() {
-            if result.outlier[o] && map.map_point(m).is_some() {
-                map.erase_observation(m, k);
-                n_outliers += 1;
-            }
-        }
-        for &m in &points {
-            if map.map_point(m).is_some() {
-                map.update_normal_and_depth(m)?;
-            }
-        }
-        Ok(n_outliers)
+        adjust_keyframes(&local, map, ctx)
     }
 
     /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close
@@ -423,6 +334,107 @@ impl LocalMapper {
         }
         culled
     }
+}
+
+/// Bundle adjustment of the keyframes `local` (the map's origin stays fixed) and every point
+/// they see, with the other keyframes observing those points held fixed; ORB-SLAM's robust
+/// then plain schedule. Rejected observations are erased from the map; returns their number.
+/// Local BA passes a keyframe and its covisible keyframes, global BA every keyframe.
+pub(crate) fn adjust_keyframes(
+    local: &[KeyFrameId],
+    map: &mut Map,
+    ctx: &Context,
+) -> Result<usize, SlamError> {
+    let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
+    let mut points = Vec::new();
+    let mut seen = HashSet::new();
+    for &k in local {
+        for m in map
+            .keyframe(k)
+            .into_iter()
+            .flat_map(|k| k.map_points().iter().flatten())
+        {
+            if map.map_point(*m).is_some() && seen.insert(*m) {
+                points.push(*m);
+            }
+        }
+    }
+    let mut fixed = Vec::new();
+    let mut fixed_set = HashSet::new();
+    for &m in &points {
+        for k in map.map_point(m).unwrap().observations().keys() {
+            if !local_set.contains(k) && fixed_set.insert(*k) {
+                fixed.push(*k);
+            }
+        }
+    }
+    let pose_ids: Vec<KeyFrameId> = local.iter().chain(fixed.iter()).copied().collect();
+    let pose_index: HashMap<KeyFrameId, usize> =
+        pose_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+    let pyramid = map.pyramid();
+    let mut observations = Vec::new();
+    let mut obs_keys = Vec::new();
+    for (pi, &m) in points.iter().enumerate() {
+        for (&k, &i) in map.map_point(m).unwrap().observations() {
+            let Some(&pose) = pose_index.get(&k) else {
+                continue;
+            };
+            let f = map.keyframe(k).unwrap().features();
+            let kp = &f.keypoints[i];
+            let ur = f.u_right[i];
+            observations.push(Observation {
+                pose,
+                point: pi,
+                uv: Vector2::new(kp.x as f64, kp.y as f64),
+                u_right: (ur >= 0.0).then_some(ur as f64),
+                inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
+            });
+            obs_keys.push((m, k));
+        }
+    }
+    // The map's first keyframe fixes the gauge.
+    let origin = map.origin();
+    let mut problem = BaProblem {
+        intrinsics: ctx.intrinsics,
+        poses: pose_ids
+            .iter()
+            .map(|k| *map.keyframe(*k).unwrap().T_c_w())
+            .collect(),
+        pose_fixed: pose_ids
+            .iter()
+            .map(|k| !local_set.contains(k) || Some(*k) == origin)
+            .collect(),
+        points: points
+            .iter()
+            .map(|m| map.map_point(*m).unwrap().position())
+            .collect(),
+        observations,
+    };
+    let Ok(result) = local_bundle_adjust(&mut problem) else {
+        // A numerically failed BA leaves the map as it was; the next keyframe retries.
+        return Ok(0);
+    };
+    for (pi, &k) in pose_ids.iter().enumerate() {
+        if !problem.pose_fixed[pi] {
+            map.set_keyframe_pose(k, problem.poses[pi])?;
+        }
+    }
+    for (pi, &m) in points.iter().enumerate() {
+        map.set_map_point_position(m, problem.points[pi])?;
+    }
+    let mut n_outliers = 0;
+    for (o, &(m, k)) in obs_keys.iter().enumerate() {
+        if result.outlier[o] && map.map_point(m).is_some() {
+            map.erase_observation(m, k);
+            n_outliers += 1;
+        }
+    }
+    for &m in &points {
+        if map.map_point(m).is_some() {
+            map.update_normal_and_depth(m)?;
+        }
+    }
+    Ok(n_outliers)
 }
 
 /// Median depth of `kf`'s map points in its camera, metres (ORB-SLAM
@@ -596,7 +608,7 @@ fn fuse_with_neighbours(kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<
 /// Projects `points` into keyframe `kf` and, for the best keypoint passing the reprojection
 /// test within `th * scale` pixels, either merges duplicates (the point with more
 /// observations survives) or adds the observation (ORB-SLAM `ORBmatcher::Fuse`).
-fn fuse_points_into(
+pub(crate) fn fuse_points_into(
     map: &mut Map,
     kf: KeyFrameId,
     points: &[MapPointId],

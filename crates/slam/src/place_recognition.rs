@@ -1,13 +1,15 @@
 //! Place recognition over the map's keyframes (ORB-SLAM `KeyFrameDatabase`): each keyframe's
 //! bag of words lives in an inverted-index database, queried to find the keyframes a lost
-//! frame may be relocalised against.
+//! frame may be relocalised against and the keyframes a new keyframe may close a loop with.
+//! Each keyframe's feature vector (features grouped by vocabulary node) is kept too, for
+//! bag-of-words matching.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::Arc;
 
 use ferroslam_features::Descriptor;
 use ferroslam_map::{KeyFrameId, Map};
-use ferroslam_vocabulary::{BowVector, Database, Vocabulary};
+use ferroslam_vocabulary::{BowVector, Database, FeatureVector, Vocabulary};
 
 /// Levels above the leaves at which feature vectors group features (ORB-SLAM: 4).
 const FEATURE_LEVELS_UP: u32 = 4;
@@ -20,7 +22,7 @@ const MAX_RETRIEVED: usize = 50;
 pub struct PlaceRecognition {
     vocabulary: Arc<Vocabulary>,
     database: Database,
-    bows: HashMap<KeyFrameId, BowVector>,
+    bows: HashMap<KeyFrameId, (BowVector, FeatureVector)>,
 }
 
 impl std::fmt::Debug for PlaceRecognition {
@@ -52,9 +54,11 @@ impl PlaceRecognition {
             return;
         }
         if let Some(k) = map.keyframe(kf) {
-            let bow = self.bow(&k.features().descriptors);
+            let (bow, features) = self
+                .vocabulary
+                .transform(&k.features().descriptors, FEATURE_LEVELS_UP);
             self.database.add(kf.0, &bow);
-            self.bows.insert(kf, bow);
+            self.bows.insert(kf, (bow, features));
         }
     }
 
@@ -91,6 +95,16 @@ impl PlaceRecognition {
         self.bows.is_empty()
     }
 
+    /// The bag-of-words feature vector of an indexed keyframe.
+    pub fn feature_vector(&self, kf: KeyFrameId) -> Option<&FeatureVector> {
+        self.bows.get(&kf).map(|(_, f)| f)
+    }
+
+    /// DBoW2 L1 similarity of two indexed keyframes, in `[0, 1]`.
+    pub fn score(&self, a: KeyFrameId, b: KeyFrameId) -> Option<f64> {
+        Some(self.bows.get(&a)?.0.l1_score(&self.bows.get(&b)?.0))
+    }
+
     /// Keyframes a frame with `descriptors` may be relocalised against, best first (ORB-SLAM
     /// `DetectRelocalizationCandidates`): keyframes sharing words, each scored with its best
     /// covisible keyframes' scores added; the best of every group scoring above 0.75 of the
@@ -109,31 +123,70 @@ impl PlaceRecognition {
             .into_iter()
             .map(|(id, s)| (KeyFrameId(id), s))
             .collect();
-        let mut groups: Vec<(f64, KeyFrameId)> = scores
-            .iter()
-            .map(|(&kf, &score)| {
-                let (mut total, mut best) = (score, (score, kf));
-                for n in map.best_covisibles(kf, GROUP_SIZE) {
-                    if let Some(&s) = scores.get(&n) {
-                        total += s;
-                        if s > best.0 {
-                            best = (s, n);
-                        }
-                    }
-                }
-                (total, best.1)
-            })
-            .collect();
-        groups.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        let Some(&(top, _)) = groups.first() else {
+        best_of_groups(&scores, map)
+    }
+
+    /// Keyframes indexed keyframe `kf` may close a loop with (ORB-SLAM
+    /// `DetectLoopCandidates`): keyframes not connected to `kf` in the covisibility graph
+    /// that share at least 80 % of the largest number of words any of them shares with `kf`
+    /// and score at least `min_score` against it, grouped with their covisible keyframes as
+    /// in [`Self::relocalisation_candidates`].
+    pub fn loop_candidates(&self, kf: KeyFrameId, map: &Map, min_score: f64) -> Vec<KeyFrameId> {
+        let Some((bow, _)) = self.bows.get(&kf) else {
             return Vec::new();
         };
-        let mut out: Vec<KeyFrameId> = Vec::new();
-        for (total, kf) in groups {
-            if total >= 0.75 * top && !out.contains(&kf) {
-                out.push(kf);
-            }
-        }
-        out
+        let mut excluded: HashSet<KeyFrameId> =
+            map.covisibles(kf).into_iter().map(|(k, _)| k).collect();
+        excluded.insert(kf);
+        let common = self.database.common_words(bow, |id| {
+            let id = KeyFrameId(id);
+            !excluded.contains(&id) && map.keyframe(id).is_some()
+        });
+        let Some(max_common) = common.iter().map(|&(_, n)| n).max() else {
+            return Vec::new();
+        };
+        let min_common = 0.8 * max_common as f64;
+        let scores: HashMap<KeyFrameId, f64> = common
+            .into_iter()
+            .filter(|&(_, n)| n as f64 > min_common)
+            .filter_map(|(id, _)| {
+                let id = KeyFrameId(id);
+                let score = self.score(kf, id)?;
+                (score >= min_score).then_some((id, score))
+            })
+            .collect();
+        best_of_groups(&scores, map)
     }
+}
+
+/// ORB-SLAM's covisibility grouping of retrieved keyframes: each keyframe's score plus its
+/// [`GROUP_SIZE`] best covisible keyframes' scores; the best-scoring keyframe of every group
+/// totalling at least 0.75 of the best total is kept, best group first.
+fn best_of_groups(scores: &HashMap<KeyFrameId, f64>, map: &Map) -> Vec<KeyFrameId> {
+    let mut groups: Vec<(f64, KeyFrameId)> = scores
+        .iter()
+        .map(|(&kf, &score)| {
+            let (mut total, mut best) = (score, (score, kf));
+            for n in map.best_covisibles(kf, GROUP_SIZE) {
+                if let Some(&s) = scores.get(&n) {
+                    total += s;
+                    if s > best.0 {
+                        best = (s, n);
+                    }
+                }
+            }
+            (total, best.1)
+        })
+        .collect();
+    groups.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let Some(&(top, _)) = groups.first() else {
+        return Vec::new();
+    };
+    let mut out: Vec<KeyFrameId> = Vec::new();
+    for (total, kf) in groups {
+        if total >= 0.75 * top && !out.contains(&kf) {
+            out.push(kf);
+        }
+    }
+    out
 }

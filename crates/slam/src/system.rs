@@ -13,6 +13,7 @@ use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::input_guard::InputGuard;
 use crate::local_mapping::{LocalMapper, MappingReport};
+use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
 use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
 use crate::tracking::{Tracker, TrackingState, MIN_INIT_FEATURES};
@@ -39,6 +40,8 @@ pub struct TrackResult {
     pub mapping: Option<MappingReport>,
     /// Monocular only: why this frame did not start the map (`None` once initialised).
     pub init_status: Option<InitStatus>,
+    /// The loop this frame's keyframe closed, if any.
+    pub loop_closure: Option<LoopClosure>,
 }
 
 /// How long a lost monocular map keeps trying to relocalise before a new map segment
@@ -66,6 +69,8 @@ pub struct SlamSystem {
     localization_only: bool,
     /// Bag-of-words index of the keyframes, once a vocabulary is set.
     place: Option<PlaceRecognition>,
+    /// Loop detection and correction (with a vocabulary and `config.loop_closure`).
+    closer: LoopCloser,
     frames_seen: usize,
     guard: InputGuard,
     resets: usize,
@@ -89,6 +94,7 @@ impl SlamSystem {
             lost_since: None,
             localization_only: false,
             place: None,
+            closer: LoopCloser::default(),
             frames_seen: 0,
             guard,
             resets: 0,
@@ -163,6 +169,7 @@ impl SlamSystem {
                 mapping_ms: 0.0,
                 mapping: None,
                 init_status,
+                loop_closure: None,
             });
         }
         let tracked =
@@ -182,6 +189,7 @@ impl SlamSystem {
             mapping_ms: 0.0,
             mapping: None,
             init_status: None,
+            loop_closure: None,
         };
         if !tracked {
             self.handle_lost(frame.timestamp);
@@ -207,6 +215,13 @@ impl SlamSystem {
             result.is_keyframe = true;
             result.mapping = Some(report);
             self.index_keyframes();
+            if let Some(place) = self.place.as_ref().filter(|_| self.ctx.config.loop_closure) {
+                if self.map.keyframe(kf).is_some() {
+                    result.loop_closure =
+                        self.closer
+                            .process_keyframe(kf, &mut self.map, &self.ctx, place)?;
+                }
+            }
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(r) = self.tracker.reference_kf {
@@ -314,6 +329,7 @@ impl SlamSystem {
         self.tracker.reset();
         self.mapper.reset();
         self.initializer.reset();
+        self.closer.reset_map();
         self.trajectory.clear();
         self.lost_since = None;
     }
@@ -331,6 +347,16 @@ impl SlamSystem {
         if let Some(place) = self.place.as_mut() {
             place.sync(&self.map);
         }
+    }
+
+    /// Loops closed so far, oldest first (kept across map resets).
+    pub fn loops(&self) -> &[LoopClosure] {
+        self.closer.loops()
+    }
+
+    /// What loop detection has done so far.
+    pub fn loop_stats(&self) -> LoopStats {
+        self.closer.stats()
     }
 
     /// Localisation-only mode: frames are tracked (and relocalised) against the map but never

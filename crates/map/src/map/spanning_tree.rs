@@ -3,9 +3,21 @@
 use std::collections::BTreeSet;
 
 use super::{CulledKeyFrame, Map};
-use crate::KeyFrameId;
+use crate::{KeyFrameId, MapError};
 
 impl Map {
+    /// Records that `a` and `b` closed a loop (ORB-SLAM `AddLoopEdge`, both ways). Both keep
+    /// the edge for the essential graph and are never culled afterwards.
+    ///
+    /// # Errors
+    /// [`MapError::UnknownKeyFrame`] if either is not in the map.
+    pub fn add_loop_edge(&mut self, a: KeyFrameId, b: KeyFrameId) -> Result<(), MapError> {
+        self.keyframe_mut(b)?;
+        self.keyframe_mut(a)?.loop_edges.insert(b);
+        self.keyframe_mut(b)?.loop_edges.insert(a);
+        Ok(())
+    }
+
     /// Culls a keyframe (ORB-SLAM `KeyFrame::SetBadFlag`): erases its observations (points
     /// whose `nObs` falls to 2 or less are culled too), removes its covisibility edges, and
     /// re-parents its children in the spanning tree. Children are adopted greedily, one at a
@@ -14,8 +26,9 @@ impl Map {
     /// candidate go to the culled keyframe's parent (the origin if it had none).
     ///
     /// The keyframe's pose relative to its adopter stays available through
-    /// [`Map::resolve_keyframe_pose`]. Returns `false`, doing nothing, for an unknown keyframe
-    /// and for the origin, which is never culled.
+    /// [`Map::resolve_keyframe_pose`]. Returns `false`, doing nothing, for an unknown keyframe,
+    /// for the origin and for keyframes with loop edges, which are never culled (ORB-SLAM
+    /// `mbNotErase`: the essential graph needs both ends of every loop).
     pub fn set_keyframe_bad(&mut self, kf: KeyFrameId) -> bool {
         if self.origin == Some(kf) {
             return false;
@@ -23,6 +36,9 @@ impl Map {
         let Some(frame) = self.keyframes.get(&kf) else {
             return false;
         };
+        if !frame.loop_edges.is_empty() {
+            return false;
+        }
         let points: Vec<_> = frame.map_points.iter().flatten().copied().collect();
         for mp in points {
             self.erase_observation(mp, kf);

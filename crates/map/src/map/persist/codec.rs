@@ -363,9 +363,9 @@ impl Codec for FrameFeatures {
 }
 
 /// id, timestamp, frame index, T_c_w, features, map-point slots, covisibility (neighbour ->
-/// weight), selected neighbours, spanning-tree parent and children.
+/// weight), selected neighbours, spanning-tree parent and children, loop edges.
 impl Codec for KeyFrame {
-    const MIN_SIZE: usize = 4 + 8 + 8 + 56 + FrameFeatures::MIN_SIZE + 8 + 8 + 8 + 1 + 8;
+    const MIN_SIZE: usize = 4 + 8 + 8 + 56 + FrameFeatures::MIN_SIZE + 8 + 8 + 8 + 1 + 8 + 8;
     fn encode(&self, e: &mut Encoder) {
         e.put(&self.id);
         e.put(&self.timestamp);
@@ -377,6 +377,7 @@ impl Codec for KeyFrame {
         e.put(&self.chosen);
         e.put(&self.parent);
         e.put(&self.children);
+        e.put(&self.loop_edges);
     }
     #[allow(non_snake_case)]
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
@@ -401,6 +402,7 @@ impl Codec for KeyFrame {
             chosen: d.get()?,
             parent: d.get()?,
             children: d.get()?,
+            loop_edges: d.get()?,
         })
     }
 }

@@ -71,7 +71,7 @@ pub const MAGIC_TEXT: &str = "FSLAMMAP";
 /// The magic bytes starting every map file.
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
 /// The map-file format version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;

@@ -1,0 +1,198 @@
+//! Geometric verification of a loop candidate (ORB-SLAM `LoopClosing::ComputeSim3`):
+//! bag-of-words matches, Sim(3) RANSAC (scale fixed to 1 with depth sensors), Sim(3)-guided
+//! matching, Sim(3) refinement, then the loop's map points projected into the current
+//! keyframe; accepted with at least `loop_closure_threshold` matched points.
+
+use std::collections::HashSet;
+
+use ferroslam_geometry::sim3::Sim3;
+use ferroslam_geometry::sim3_ransac::{sim3_ransac, Sim3Correspondence, Sim3RansacParams};
+use ferroslam_map::{KeyFrameId, Map, MapPointId};
+use ferroslam_optim::sim3_align::{optimize_sim3, Sim3Match};
+use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_LOW};
+use ferroslam_features::MatchOptions;
+use nalgebra::{Isometry3, Point3, Translation3, Vector2};
+use rand_chacha::ChaCha8Rng;
+
+use super::keyframe_matching::{match_by_bow, match_by_sim3};
+use crate::context::Context;
+use crate::frustum::visible_point;
+use crate::place_recognition::PlaceRecognition;
+
+/// Matches needed at each verification stage before the final count (ORB-SLAM: 20).
+const MIN_STAGE_MATCHES: usize = 20;
+/// chi2 threshold of a reprojection at 2 degrees of freedom, 99 % (RANSAC inliers).
+const CHI2_2DOF: f64 = 9.21;
+/// Huber threshold of the Sim(3) refinement (ORB-SLAM `OptimizeSim3`: 10).
+const REFINE_CHI2: f64 = 10.0;
+/// Window of the Sim(3)-guided search, pixels at level 0 (ORB-SLAM: 7.5).
+const GUIDED_RADIUS_PX: f64 = 7.5;
+/// Window of the final projection of the loop's points, pixels at level 0 (ORB-SLAM: 10).
+const PROJECTION_RADIUS_PX: f64 = 10.0;
+
+/// A verified loop between the current keyframe and `loop_kf`.
+#[derive(Clone, Debug)]
+pub(crate) struct LoopMatch {
+    /// The matched earlier keyframe.
+    pub loop_kf: KeyFrameId,
+    /// Corrected pose of the current keyframe, world to camera (scale 1 with depth sensors).
+    pub S_cw: Sim3,
+    /// Per keypoint of the current keyframe, the loop map point it matched.
+    pub matched: Vec<Option<MapPointId>>,
+    /// The map points of the loop keyframe and its covisible keyframes.
+    pub loop_points: Vec<MapPointId>,
+    /// Number of `Some` in `matched`.
+    pub num_matches: usize,
+}
+
+/// A rigid pose from a world-to-camera similarity: the same projections, depth divided by
+/// the scale (ORB-SLAM converts corrected Sim(3) poses to SE(3) this way).
+pub(crate) fn pose_of(S_cw: &Sim3) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::from(S_cw.translation / S_cw.scale),
+        S_cw.rotation,
+    )
+}
+
+/// Verifies `candidate` as a loop for `current`; `None` when any stage falls short.
+pub(crate) fn verify_loop(
+    current: KeyFrameId,
+    candidate: KeyFrameId,
+    map: &Map,
+    ctx: &Context,
+    place: &PlaceRecognition,
+    rng: &mut ChaCha8Rng,
+) -> Option<LoopMatch> {
+    let fv1 = place.feature_vector(current)?;
+    let fv2 = place.feature_vector(candidate)?;
+    let mut matches = match_by_bow(map, (current, fv1), (candidate, fv2), 0.75);
+    if matches.iter().flatten().count() < MIN_STAGE_MATCHES {
+        return None;
+    }
+    let fix_scale = ctx.config.sensor.has_depth();
+    let (_, pairs) = correspondences(map, current, candidate, &matches);
+    let params = Sim3RansacParams {
+        probability: 0.99,
+        min_inliers: MIN_STAGE_MATCHES,
+        max_iterations: 300,
+        fix_scale,
+    };
+    let corr: Vec<Sim3Correspondence> = pairs
+        .iter()
+        .map(|p| Sim3Correspondence {
+            p1: p.p1,
+            p2: p.p2,
+            uv1: p.uv1,
+            uv2: p.uv2,
+            max_err2_1: CHI2_2DOF / p.inv_sigma2_1,
+            max_err2_2: CHI2_2DOF / p.inv_sigma2_2,
+        })
+        .collect();
+    let ransac = sim3_ransac(&corr, |p| ctx.camera.project(p), &params, rng)?;
+    match_by_sim3(map, ctx, current, candidate, &ransac.S_12, GUIDED_RADIUS_PX, &mut matches);
+    let (ids, pairs) = correspondences(map, current, candidate, &matches);
+    let refined = optimize_sim3(&ransac.S_12, &pairs, &ctx.intrinsics, REFINE_CHI2, fix_scale).ok()?;
+    if refined.num_inliers < MIN_STAGE_MATCHES {
+        return None;
+    }
+    let S_12 = refined.S_12;
+    let T_2w = *map.keyframe(candidate)?.T_c_w();
+    let S_cw = S_12 * Sim3::from_isometry(&T_2w);
+
+    // The loop's neighbourhood, projected into the current keyframe.
+    let mut matched: Vec<Option<MapPointId>> = vec![None; matches.len()];
+    let k1 = map.keyframe(current)?;
+    for (&(i1, m2), inlier) in ids.iter().zip(&refined.inliers) {
+        if *inlier {
+            matched[i1] = Some(m2);
+        }
+    }
+    let mut loop_points = Vec::new();
+    let mut seen = HashSet::new();
+    for kf in std::iter::once(candidate).chain(map.covisibles(candidate).into_iter().map(|(k, _)| k)) {
+        for m in map.keyframe(kf).into_iter().flat_map(|k| k.map_points().iter().flatten()) {
+            if map.map_point(*m).is_some() && seen.insert(*m) {
+                loop_points.push(*m);
+            }
+        }
+    }
+    let already: HashSet<MapPointId> = matched.iter().flatten().copied().collect();
+    let T_cw = pose_of(&S_cw);
+    let center = T_cw.inverse().translation.vector;
+    let mut queries = Vec::new();
+    let mut sources = Vec::new();
+    for &m in loop_points.iter().filter(|m| !already.contains(m)) {
+        let Some(vis) = visible_point(map, m, &T_cw, &center, &ctx.camera, &ctx.bounds, 0.5) else {
+            continue;
+        };
+        queries.push(ProjectionQuery {
+            u: vis.u,
+            v: vis.v,
+            radius: PROJECTION_RADIUS_PX * map.pyramid().scale[vis.level as usize],
+            min_level: vis.level.saturating_sub(1),
+            max_level: vis.level,
+            descriptor: *map.map_point(m)?.descriptor(),
+            angle_deg: None,
+        });
+        sources.push(m);
+    }
+    let f = k1.features();
+    let taken: Vec<bool> = matched.iter().map(Option::is_some).collect();
+    let opts = MatchOptions {
+        max_distance: TH_LOW,
+        nn_ratio: None,
+        check_orientation: false,
+    };
+    let found = search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &taken, &opts);
+    for (q, hit) in found.into_iter().enumerate() {
+        if let Some((i, _)) = hit {
+            matched[i] = Some(sources[q]);
+        }
+    }
+    let num_matches = matched.iter().flatten().count();
+    (num_matches >= ctx.config.loop_closure_threshold).then_some(LoopMatch {
+        loop_kf: candidate,
+        S_cw,
+        matched,
+        loop_points,
+        num_matches,
+    })
+}
+
+/// The matches whose two map points both exist, as `(keypoint of kf1, map point of kf2)` and
+/// as Sim(3) correspondences (points in each keyframe's camera frame, keypoint pixels and
+/// octave weights).
+fn correspondences(
+    map: &Map,
+    kf1: KeyFrameId,
+    kf2: KeyFrameId,
+    matches: &[Option<MapPointId>],
+) -> (Vec<(usize, MapPointId)>, Vec<Sim3Match>) {
+    let (Some(k1), Some(k2)) = (map.keyframe(kf1), map.keyframe(kf2)) else {
+        return (Vec::new(), Vec::new());
+    };
+    let inv_sigma2 = &map.pyramid().inv_sigma2;
+    let mut ids = Vec::new();
+    let mut out = Vec::new();
+    for (i1, m2) in matches.iter().enumerate() {
+        let Some(m2) = *m2 else { continue };
+        let Some(m1) = k1.map_point(i1) else { continue };
+        let (Some(p1), Some(p2)) = (map.map_point(m1), map.map_point(m2)) else {
+            continue;
+        };
+        let Some(i2) = p2.observation(kf2) else {
+            continue;
+        };
+        let (kp1, kp2) = (&k1.features().keypoints[i1], &k2.features().keypoints[i2]);
+        ids.push((i1, m2));
+        out.push(Sim3Match {
+            p1: (k1.T_c_w() * Point3::from(p1.position())).coords,
+            p2: (k2.T_c_w() * Point3::from(p2.position())).coords,
+            uv1: Vector2::new(kp1.x as f64, kp1.y as f64),
+            uv2: Vector2::new(kp2.x as f64, kp2.y as f64),
+            inv_sigma2_1: inv_sigma2[kp1.octave as usize],
+            inv_sigma2_2: inv_sigma2[kp2.octave as usize],
+        });
+    }
+    (ids, out)
+}
