@@ -218,6 +218,9 @@ fn split_parts<T>(mut items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec
     .collect()
 }
 
+/// One chunk's partial `U` and `b_c`, per free pose.
+type PoseBlocks = (Vec<Matrix6<f64>>, Vec<Vector6<f64>>);
+
 /// Observations per chunk of the cost sum (fixed, so the sum's order is too).
 const COST_CHUNK: usize = 1024;
 
@@ -286,7 +289,7 @@ impl Context<'_> {
         let w_parts = split_parts(&mut lin.w_cp, chunks.iter().map(|(_, e)| *e));
         let v_parts = split_parts(&mut lin.v, chunks.iter().map(|(c, _)| c.len()));
         let b_parts = split_parts(&mut lin.b_p, chunks.iter().map(|(c, _)| c.len()));
-        let partial: Vec<(Vec<Matrix6<f64>>, Vec<Vector6<f64>>)> = chunks
+        let partial: Vec<PoseBlocks> = chunks
             .into_par_iter()
             .zip(w_parts)
             .zip(v_parts)
