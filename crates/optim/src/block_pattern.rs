@@ -1,8 +1,9 @@
 //! Sparsity pattern of a symmetric block matrix (the reduced camera system of bundle
 //! adjustment, the pose-graph Hessian), stored as faer wants it for a sparse Cholesky.
 
-use faer::sparse::linalg::solvers::SymbolicLlt;
-use faer::sparse::SymbolicSparseColMat;
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::linalg::LltError;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
 use faer::Side;
 
 use crate::error::OptimError;
@@ -40,4 +41,24 @@ pub(crate) fn block_upper_pattern(
         )
     };
     Ok((pattern, llt))
+}
+
+/// Numeric Cholesky of the symmetric matrix whose upper triangle has `pattern` and `values`,
+/// reusing the symbolic factorisation `llt` of that pattern.
+///
+/// # Errors
+/// [`OptimError::NotPositiveDefinite`] on a non-positive pivot, [`OptimError::Solver`] on any
+/// other solver failure.
+pub(crate) fn factorize_upper(
+    pattern: &SymbolicSparseColMat<usize>,
+    llt: &SymbolicLlt<usize>,
+    values: &[f64],
+) -> Result<Llt<usize, f64>, OptimError> {
+    let matrix = SparseColMatRef::new(pattern.as_ref(), values);
+    Llt::try_new_with_symbolic(llt.clone(), matrix, Side::Upper).map_err(|e| match e {
+        LltError::Numeric(faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot {
+            index,
+        }) => OptimError::NotPositiveDefinite { column: index },
+        LltError::Generic(e) => OptimError::Solver(format!("{e:?}")),
+    })
 }

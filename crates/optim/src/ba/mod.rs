@@ -8,7 +8,7 @@
 mod csr;
 mod local;
 mod problem;
-mod solve;
+pub(crate) mod solve;
 mod symbolic;
 
 pub use local::{

@@ -12,18 +12,17 @@
 
 use super::problem::BaProblem;
 use super::symbolic::SymbolicBa;
+use crate::block_pattern::factorize_upper;
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
 use crate::lm::{damping_diagonal, predicted_decrease, Damping};
 use crate::residual;
 use crate::robust::cost_and_weight;
 use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
-use faer::sparse::linalg::LltError;
-use faer::sparse::SparseColMatRef;
-use faer::{Mat, Side};
+use faer::sparse::linalg::solvers::SymbolicLlt;
+use faer::Mat;
 use ferroslam_geometry::se3;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Matrix6x3, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Matrix6x3, SMatrix, Vector3, Vector6};
 use rayon::prelude::*;
 
 /// Options of [`bundle_adjust`].
@@ -163,24 +162,24 @@ pub(crate) fn bundle_adjust_masked(
     })
 }
 
-/// `block -= y w^T` for one 6x6 block of a block column of the CSC values; `start[c]` is where
+/// `block -= y w^T` for one DxD block of a block column of the CSC values; `start[c]` is where
 /// column `c` begins, `offset` the block's first row within it; only the upper triangle of a
 /// diagonal block is stored. This is the solver's hot loop: fixed-size rows so it vectorises.
-fn subtract_outer(
+pub(crate) fn subtract_outer<const D: usize>(
     column: &mut [f64],
-    start: &[usize; 6],
+    start: &[usize; D],
     offset: usize,
     diagonal: bool,
-    y: &Matrix6x3<f64>,
-    w: &Matrix6x3<f64>,
+    y: &SMatrix<f64, D, 3>,
+    w: &SMatrix<f64, D, 3>,
 ) {
-    // Column-major: y's three columns are contiguous runs of 6.
-    let (y0, rest) = y.as_slice().split_at(6);
-    let (y1, y2) = rest.split_at(6);
-    for c in 0..6 {
+    // Column-major: y's three columns are contiguous runs of D.
+    let (y0, rest) = y.as_slice().split_at(D);
+    let (y1, y2) = rest.split_at(D);
+    for c in 0..D {
         let (w0, w1, w2) = (w[(c, 0)], w[(c, 1)], w[(c, 2)]);
         let s = start[c] + offset;
-        let rows = if diagonal { c + 1 } else { 6 };
+        let rows = if diagonal { c + 1 } else { D };
         let dst = &mut column[s..s + rows];
         for (r, v) in dst.iter_mut().enumerate() {
             *v -= y0[r] * w0 + y1[r] * w1 + y2[r] * w2;
@@ -209,7 +208,7 @@ struct Step {
 }
 
 /// Splits `items` into consecutive mutable parts of the given lengths.
-fn split_parts<T>(mut items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+pub(crate) fn split_parts<T>(mut items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
     lens.map(|len| {
         let (head, tail) = std::mem::take(&mut items).split_at_mut(len);
         items = tail;
@@ -267,13 +266,7 @@ impl Context<'_> {
 
     /// Point chunks of the numeric phase and the number of entries in each.
     fn chunks(&self) -> impl Iterator<Item = (std::ops::Range<usize>, usize)> + '_ {
-        let sym = self.symbolic;
-        let n = sym.opt_points.len();
-        (0..n).step_by(sym.chunk_points).map(move |p0| {
-            let p1 = (p0 + sym.chunk_points).min(n);
-            let entries = sym.point_obs.range(p1 - 1).end - sym.point_obs.range(p0).start;
-            (p0..p1, entries)
-        })
+        self.symbolic.point_chunks()
     }
 
     /// Linearises at the current estimate into `lin`, point by point: each chunk of points
@@ -441,14 +434,7 @@ impl Context<'_> {
             }
         }
 
-        let matrix = SparseColMatRef::new(sym.pattern.as_ref(), &values);
-        let factor =
-            Llt::try_new_with_symbolic(llt.clone(), matrix, Side::Upper).map_err(|e| match e {
-                LltError::Numeric(
-                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
-                ) => OptimError::NotPositiveDefinite { column: index },
-                LltError::Generic(e) => OptimError::Solver(format!("{e:?}")),
-            })?;
+        let factor = factorize_upper(&sym.pattern, llt, &values)?;
         let mut x = Mat::<f64>::from_fn(6 * nfree, 1, |i, _| rhs[i / 6][i % 6]);
         factor.solve_in_place(x.as_mut());
         let d_pose: Vec<Vector6<f64>> = (0..nfree)

@@ -74,10 +74,21 @@ impl SymbolicBa {
     /// fails (out of memory).
     pub fn new(problem: &BaProblem) -> Result<Self, OptimError> {
         problem.validate()?;
-        let obs = &problem.observations;
+        let incidence = problem.observations.iter().map(|o| (o.pose, o.point));
+        Self::from_incidence(&problem.pose_fixed, problem.points.len(), incidence.collect(), 6)
+    }
+
+    /// The analysis for `dim`-parameter camera blocks from the structure alone: fixed flags
+    /// per camera, the number of points and each observation's `(camera, point)`, all
+    /// indices in range (the caller validated them).
+    pub(crate) fn from_incidence(
+        pose_fixed: &[bool],
+        num_points: usize,
+        incidence: Vec<(usize, usize)>,
+        dim: usize,
+    ) -> Result<Self, OptimError> {
         let mut free_poses = Vec::new();
-        let free_index: Vec<Option<usize>> = problem
-            .pose_fixed
+        let free_index: Vec<Option<usize>> = pose_fixed
             .iter()
             .enumerate()
             .map(|(i, &fixed)| {
@@ -87,10 +98,10 @@ impl SymbolicBa {
                 })
             })
             .collect();
-        let mut seen_by_free = vec![false; problem.points.len()];
-        for o in obs {
-            if free_index[o.pose].is_some() {
-                seen_by_free[o.point] = true;
+        let mut seen_by_free = vec![false; num_points];
+        for &(pose, point) in &incidence {
+            if free_index[pose].is_some() {
+                seen_by_free[point] = true;
             }
         }
         let mut opt_points = Vec::new();
@@ -106,14 +117,15 @@ impl SymbolicBa {
             .collect();
         let point_obs = Csr::from_pairs(
             opt_points.len(),
-            obs.iter()
+            incidence
+                .iter()
                 .enumerate()
-                .filter_map(|(i, o)| point_index[o.point].map(|p| (p, i))),
+                .filter_map(|(i, &(_, point))| point_index[point].map(|p| (p, i))),
         );
         let entry_free: Vec<Option<usize>> = point_obs
             .items()
             .iter()
-            .map(|&i| free_index[obs[i].pose])
+            .map(|&i| free_index[incidence[i].0])
             .collect();
 
         // Block pattern: per block column b, the sorted block rows a <= b.
@@ -164,16 +176,16 @@ impl SymbolicBa {
 
         // block_rows[b] ends with b itself: the diagonal block.
         let above: Vec<&[usize]> = block_rows.iter().map(|r| &r[..r.len() - 1]).collect();
-        let (pattern, llt) = block_upper_pattern(6, &above)?;
-        let partial_len = pattern.row_idx().len() + 6 * nfree;
+        let (pattern, llt) = block_upper_pattern(dim, &above)?;
+        let partial_len = pattern.row_idx().len() + dim * nfree;
         let chunks = (opt_points.len() / MIN_CHUNK_POINTS)
             .clamp(1, MAX_CHUNKS)
             .min((PARTIAL_BUDGET / partial_len.max(1)).max(1));
         let chunk_points = opt_points.len().div_ceil(chunks).max(1);
         Ok(Self {
-            pose_fixed: problem.pose_fixed.clone(),
-            num_points: problem.points.len(),
-            incidence: obs.iter().map(|o| (o.pose, o.point)).collect(),
+            pose_fixed: pose_fixed.to_vec(),
+            num_points,
+            incidence,
             free_poses,
             opt_points,
             point_obs,
@@ -183,6 +195,18 @@ impl SymbolicBa {
             blocks_in_column: block_rows.iter().map(Vec::len).collect(),
             pattern,
             llt,
+        })
+    }
+
+    /// Point chunks of the numeric phase and the number of `point_obs` entries in each.
+    pub(crate) fn point_chunks(
+        &self,
+    ) -> impl Iterator<Item = (std::ops::Range<usize>, usize)> + '_ {
+        let n = self.opt_points.len();
+        (0..n).step_by(self.chunk_points).map(move |p0| {
+            let p1 = (p0 + self.chunk_points).min(n);
+            let entries = self.point_obs.range(p1 - 1).end - self.point_obs.range(p0).start;
+            (p0..p1, entries)
         })
     }
 

@@ -9,12 +9,10 @@
 
 use super::group::PoseGroup;
 use super::problem::PoseGraph;
-use crate::block_pattern::block_upper_pattern;
+use crate::block_pattern::{block_upper_pattern, factorize_upper};
 use crate::error::OptimError;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
-use faer::sparse::linalg::LltError;
-use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
-use faer::Side;
+use faer::sparse::SymbolicSparseColMat;
 use nalgebra::SMatrix;
 
 /// Where an edge's blocks land: the free indices of its ends and, if both are free and
@@ -174,14 +172,6 @@ impl SymbolicPoseGraph {
         let Some(llt) = &self.llt else {
             return Ok(None);
         };
-        let matrix = SparseColMatRef::new(self.pattern.as_ref(), values);
-        Llt::try_new_with_symbolic(llt.clone(), matrix, Side::Upper)
-            .map(Some)
-            .map_err(|e| match e {
-                LltError::Numeric(
-                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
-                ) => OptimError::NotPositiveDefinite { column: index },
-                LltError::Generic(e) => OptimError::Solver(format!("{e:?}")),
-            })
+        factorize_upper(&self.pattern, llt, values).map(Some)
     }
 }
