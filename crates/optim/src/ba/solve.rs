@@ -22,7 +22,7 @@ use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::SymbolicLlt;
 use faer::Mat;
 use ferroslam_geometry::se3;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Matrix6x3, SMatrix, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, SMatrix, SVector, Vector3};
 use rayon::prelude::*;
 
 /// Options of [`bundle_adjust`].
@@ -102,7 +102,6 @@ pub(crate) fn bundle_adjust_masked(
         .collect();
     let ctx = Context {
         k: problem.intrinsics,
-        symbolic,
         active: &active,
         robust: options.robust,
     };
@@ -130,9 +129,9 @@ pub(crate) fn bundle_adjust_masked(
     let mut v_inv = Vec::new();
     while iterations < options.max_iterations {
         iterations += 1;
-        ctx.linearize(problem, &mut lin);
+        linearize(symbolic, &mut lin, |i| ctx.linearize_one(problem, i));
         let accepted = damping.find_step(
-            |lambda| ctx.step(&lin, llt, lambda, &mut v_inv),
+            |lambda| solve_damped(symbolic, &lin, llt, lambda, &mut v_inv),
             |step| {
                 for (f, &pose) in symbolic.free_poses.iter().enumerate() {
                     trial_poses[pose] = se3::retract(&step.d_pose[f], &problem.poses[pose]);
@@ -187,24 +186,37 @@ pub(crate) fn subtract_outer<const D: usize>(
     }
 }
 
-/// Gauss-Newton blocks at the current estimate: `H = [U W; W^T V]`, gradient `[b_c; b_p]`
-/// (half the cost gradient). Storage is reused across iterations (the per-observation
-/// buffer is megabytes: reallocating it every iteration costs page faults).
+/// Gauss-Newton blocks at the current estimate for cameras of `D` parameters:
+/// `H = [U W; W^T V]`, gradient `[b_c; b_p]` (half the cost gradient). Storage is reused
+/// across iterations (the per-observation buffer is megabytes: reallocating it every
+/// iteration costs page faults).
 #[derive(Default)]
-struct Linearization {
-    /// Per entry of [`SymbolicBa::point_obs`]: `W = w J_xi^T J_p`, the pose-point coupling
-    /// block (zero for inactive observations and those of fixed poses).
-    w_cp: Vec<Matrix6x3<f64>>,
-    u: Vec<Matrix6<f64>>,
-    b_c: Vec<Vector6<f64>>,
+pub(crate) struct Linearization<const D: usize> {
+    /// Per entry of [`SymbolicBa::point_obs`]: `W = w J_c^T J_p`, the camera-point coupling
+    /// block (zero for inactive observations and those of fixed cameras).
+    w_cp: Vec<SMatrix<f64, D, 3>>,
+    u: Vec<SMatrix<f64, D, D>>,
+    b_c: Vec<SVector<f64, D>>,
     v: Vec<Matrix3<f64>>,
     b_p: Vec<Vector3<f64>>,
 }
 
-struct Step {
-    d_pose: Vec<Vector6<f64>>,
-    d_point: Vec<Vector3<f64>>,
-    predicted_decrease: f64,
+/// A damped step: per free camera (additive or tangent, as the caller retracts it), per
+/// optimised point, and the decrease the quadratic model predicts for it.
+pub(crate) struct Step<const D: usize> {
+    pub(crate) d_pose: Vec<SVector<f64, D>>,
+    pub(crate) d_point: Vec<Vector3<f64>>,
+    pub(crate) predicted_decrease: f64,
+}
+
+/// One observation's contribution to the normal equations: residual `e` (`R` rows), its
+/// Jacobians with respect to the camera's `D` parameters and the point's 3 coordinates, and
+/// the weight `w` of `w |e|^2` (information times robust IRLS factor).
+pub(crate) struct ObservationJacobians<const R: usize, const D: usize> {
+    pub(crate) weight: f64,
+    pub(crate) e: SVector<f64, R>,
+    pub(crate) d_e_d_camera: SMatrix<f64, R, D>,
+    pub(crate) d_e_d_point: SMatrix<f64, R, 3>,
 }
 
 /// Splits `items` into consecutive mutable parts of the given lengths.
@@ -217,15 +229,14 @@ pub(crate) fn split_parts<T>(mut items: &mut [T], lens: impl Iterator<Item = usi
     .collect()
 }
 
-/// One chunk's partial `U` and `b_c`, per free pose.
-type PoseBlocks = (Vec<Matrix6<f64>>, Vec<Vector6<f64>>);
+/// One chunk's partial `U` and `b_c`, per free camera.
+type PoseBlocks<const D: usize> = (Vec<SMatrix<f64, D, D>>, Vec<SVector<f64, D>>);
 
 /// Observations per chunk of the cost sum (fixed, so the sum's order is too).
 const COST_CHUNK: usize = 1024;
 
 struct Context<'a> {
     k: Intrinsics,
-    symbolic: &'a SymbolicBa,
     active: &'a [bool],
     robust: bool,
 }
@@ -264,75 +275,13 @@ impl Context<'_> {
             .sum()
     }
 
-    /// Point chunks of the numeric phase and the number of entries in each.
-    fn chunks(&self) -> impl Iterator<Item = (std::ops::Range<usize>, usize)> + '_ {
-        self.symbolic.point_chunks()
-    }
-
-    /// Linearises at the current estimate into `lin`, point by point: each chunk of points
-    /// fills its points' `V`, `b_p`, `W` and its own partial `U`, `b_c`, which are then
-    /// summed in chunk order.
-    fn linearize(&self, problem: &BaProblem, lin: &mut Linearization) {
-        let sym = self.symbolic;
-        let nfree = sym.free_poses.len();
-        lin.w_cp.resize(sym.point_obs.len(), Matrix6x3::zeros());
-        lin.v.resize(sym.opt_points.len(), Matrix3::zeros());
-        lin.b_p.resize(sym.opt_points.len(), Vector3::zeros());
-        let chunks: Vec<_> = self.chunks().collect();
-        let w_parts = split_parts(&mut lin.w_cp, chunks.iter().map(|(_, e)| *e));
-        let v_parts = split_parts(&mut lin.v, chunks.iter().map(|(c, _)| c.len()));
-        let b_parts = split_parts(&mut lin.b_p, chunks.iter().map(|(c, _)| c.len()));
-        let partial: Vec<PoseBlocks> = chunks
-            .into_par_iter()
-            .zip(w_parts)
-            .zip(v_parts)
-            .zip(b_parts)
-            .map(|((((points, _), w_out), v_out), b_out)| {
-                let mut u = vec![Matrix6::zeros(); nfree];
-                let mut b_c = vec![Vector6::zeros(); nfree];
-                let first_entry = sym.point_obs.range(points.start).start;
-                for (j, p) in points.enumerate() {
-                    let mut v = Matrix3::zeros();
-                    let mut b = Vector3::zeros();
-                    for e in sym.point_obs.range(p) {
-                        let w_cp = &mut w_out[e - first_entry];
-                        *w_cp = Matrix6x3::zeros();
-                        let i = sym.point_obs.items()[e];
-                        let Some((w, l)) = self.linearize_one(problem, i) else {
-                            continue;
-                        };
-                        let jpt = w * l.d_e_d_p_w.transpose();
-                        v += jpt * l.d_e_d_p_w;
-                        b += jpt * l.e;
-                        if let Some(f) = sym.entry_free[e] {
-                            let jxt = w * l.d_e_d_xi.transpose();
-                            u[f] += jxt * l.d_e_d_xi;
-                            b_c[f] += jxt * l.e;
-                            *w_cp = jxt * l.d_e_d_p_w;
-                        }
-                    }
-                    (v_out[j], b_out[j]) = (v, b);
-                }
-                (u, b_c)
-            })
-            .collect();
-        lin.u = vec![Matrix6::zeros(); nfree];
-        lin.b_c = vec![Vector6::zeros(); nfree];
-        for (u, b_c) in partial {
-            for f in 0..nfree {
-                lin.u[f] += u[f];
-                lin.b_c[f] += b_c[f];
-            }
-        }
-    }
-
     /// Weight (`inv_sigma2` times the kernel's IRLS factor) and linearisation of observation
     /// `i`, `None` if it is inactive.
     fn linearize_one(
         &self,
         problem: &BaProblem,
         i: usize,
-    ) -> Option<(f64, residual::Linearization)> {
+    ) -> Option<ObservationJacobians<3, 6>> {
         if !self.active[i] {
             return None;
         }
@@ -347,135 +296,200 @@ impl Context<'_> {
         )?;
         let chi2 = o.inv_sigma2 * l.e.norm_squared();
         let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
-        Some((w, l))
-    }
-
-    /// Solves the damped normal equations `(H + lambda D) dx = -b` by eliminating points.
-    /// `v_inv` is scratch for the inverted damped point blocks.
-    fn step(
-        &self,
-        lin: &Linearization,
-        llt: &SymbolicLlt<usize>,
-        lambda: f64,
-        v_inv: &mut Vec<Matrix3<f64>>,
-    ) -> Result<Step, OptimError> {
-        let sym = self.symbolic;
-        let nfree = sym.free_poses.len();
-        let damp3 = |m: &Matrix3<f64>| m.diagonal().map(damping_diagonal);
-        let damp6 = |m: &Matrix6<f64>| m.diagonal().map(damping_diagonal);
-        let col_ptr = sym.pattern.col_ptr();
-        let col_start: Vec<[usize; 6]> = (0..nfree)
-            .map(|b| std::array::from_fn(|c| col_ptr[6 * b + c]))
-            .collect();
-        let nnz = sym.pattern.row_idx().len();
-
-        // Per chunk of points: invert the damped point blocks, then accumulate the upper
-        // triangle of -W V^-1 W^T and W V^-1 b_p into the chunk's own partial system.
-        v_inv.resize(sym.opt_points.len(), Matrix3::zeros());
-        let chunks: Vec<_> = self.chunks().collect();
-        let v_parts = split_parts(v_inv, chunks.iter().map(|(c, _)| c.len()));
-        let partial: Vec<(Vec<f64>, Vec<Vector6<f64>>)> = chunks
-            .into_par_iter()
-            .zip(v_parts)
-            .map(|((points, _), v_out)| {
-                let mut values = vec![0.0; nnz];
-                let mut r = vec![Vector6::zeros(); nfree];
-                let mut y: Vec<Matrix6x3<f64>> = Vec::new();
-                for (j, p) in points.enumerate() {
-                    let v = &lin.v[p];
-                    // Damped point blocks are positive definite: V is PSD and the damping
-                    // diagonal > 0.
-                    let vd = v + Matrix3::from_diagonal(&(lambda * damp3(v)));
-                    let vi = vd.cholesky().map_or(Matrix3::zeros(), |c| c.inverse());
-                    v_out[j] = vi;
-                    let entries = sym.point_obs.range(p);
-                    let w = &lin.w_cp[entries.clone()];
-                    // Y = W V^-1 per observation (zero for fixed poses: W is).
-                    y.clear();
-                    y.extend(w.iter().map(|w| w * vi));
-                    for (k, e) in entries.enumerate() {
-                        if let Some(f) = sym.entry_free[e] {
-                            r[f] += y[k] * lin.b_p[p];
-                        }
-                    }
-                    for t in sym.point_terms.row(p) {
-                        subtract_outer(
-                            &mut values,
-                            &col_start[t.column],
-                            6 * t.slot,
-                            t.diagonal,
-                            &y[t.a],
-                            &w[t.b],
-                        );
-                    }
-                }
-                (values, r)
-            })
-            .collect();
-        let mut values = vec![0.0; nnz];
-        let mut rhs: Vec<Vector6<f64>> = lin.b_c.iter().map(|b| -b).collect();
-        for (part_values, part_r) in &partial {
-            for (v, p) in values.iter_mut().zip(part_values) {
-                *v += p;
-            }
-            for (r, p) in rhs.iter_mut().zip(part_r) {
-                *r += p;
-            }
-        }
-        // Upper triangle of the damped diagonal blocks U_b + lambda D.
-        for (b, u) in lin.u.iter().enumerate() {
-            let diag_slot = sym.blocks_in_column[b] - 1;
-            for c in 0..6 {
-                let s = col_start[b][c] + 6 * diag_slot;
-                for r in 0..=c {
-                    values[s + r] += u[(r, c)];
-                }
-                values[s + c] += lambda * damping_diagonal(u[(c, c)]);
-            }
-        }
-
-        let factor = factorize_upper(&sym.pattern, llt, &values)?;
-        let mut x = Mat::<f64>::from_fn(6 * nfree, 1, |i, _| rhs[i / 6][i % 6]);
-        factor.solve_in_place(x.as_mut());
-        let d_pose: Vec<Vector6<f64>> = (0..nfree)
-            .map(|b| Vector6::from_fn(|r, _| x[(6 * b + r, 0)]))
-            .collect();
-        if d_pose.iter().any(|d| !d.iter().all(|v| v.is_finite())) {
-            return Err(OptimError::NotPositiveDefinite { column: 0 });
-        }
-
-        // Back-substitution: dp = V^-1 (-b_p - W^T dc).
-        let v_inv = &*v_inv;
-        let d_point: Vec<Vector3<f64>> = (0..sym.opt_points.len())
-            .into_par_iter()
-            .with_min_len(MIN_BACK_SUBSTITUTION_POINTS)
-            .map(|p| {
-                let mut r = -lin.b_p[p];
-                for e in sym.point_obs.range(p) {
-                    if let Some(f) = sym.entry_free[e] {
-                        r -= lin.w_cp[e].transpose() * d_pose[f];
-                    }
-                }
-                v_inv[p] * r
-            })
-            .collect();
-
-        let mut g_dot_dx = 0.0;
-        let mut dx_d_dx = 0.0;
-        for (f, d) in d_pose.iter().enumerate() {
-            g_dot_dx += lin.b_c[f].dot(d);
-            dx_d_dx += d.component_mul(&damp6(&lin.u[f])).dot(d);
-        }
-        for (p, d) in d_point.iter().enumerate() {
-            g_dot_dx += lin.b_p[p].dot(d);
-            dx_d_dx += d.component_mul(&damp3(&lin.v[p])).dot(d);
-        }
-        Ok(Step {
-            d_pose,
-            d_point,
-            predicted_decrease: predicted_decrease(g_dot_dx, lambda, dx_d_dx),
+        Some(ObservationJacobians {
+            weight: w,
+            e: l.e,
+            d_e_d_camera: l.d_e_d_xi,
+            d_e_d_point: l.d_e_d_p_w,
         })
     }
+
+}
+
+/// Linearises at the current estimate into `lin`, point by point (`observation(i)` gives
+/// observation `i`'s terms, `None` to leave it out): each chunk of points fills its points'
+/// `V`, `b_p`, `W` and its own partial `U`, `b_c`, which are then summed in chunk order.
+pub(crate) fn linearize<const R: usize, const D: usize>(
+    sym: &SymbolicBa,
+    lin: &mut Linearization<D>,
+    observation: impl Fn(usize) -> Option<ObservationJacobians<R, D>> + Sync,
+) {
+    let nfree = sym.free_poses.len();
+    lin.w_cp.resize(sym.point_obs.len(), SMatrix::zeros());
+    lin.v.resize(sym.opt_points.len(), Matrix3::zeros());
+    lin.b_p.resize(sym.opt_points.len(), Vector3::zeros());
+    let chunks: Vec<_> = sym.point_chunks().collect();
+    let w_parts = split_parts(&mut lin.w_cp, chunks.iter().map(|(_, e)| *e));
+    let v_parts = split_parts(&mut lin.v, chunks.iter().map(|(c, _)| c.len()));
+    let b_parts = split_parts(&mut lin.b_p, chunks.iter().map(|(c, _)| c.len()));
+    let partial: Vec<PoseBlocks<D>> = chunks
+        .into_par_iter()
+        .zip(w_parts)
+        .zip(v_parts)
+        .zip(b_parts)
+        .map(|((((points, _), w_out), v_out), b_out)| {
+            let mut u = vec![SMatrix::zeros(); nfree];
+            let mut b_c = vec![SVector::zeros(); nfree];
+            let first_entry = sym.point_obs.range(points.start).start;
+            for (j, p) in points.enumerate() {
+                let mut v = Matrix3::zeros();
+                let mut b = Vector3::zeros();
+                for e in sym.point_obs.range(p) {
+                    let w_cp = &mut w_out[e - first_entry];
+                    *w_cp = SMatrix::zeros();
+                    let i = sym.point_obs.items()[e];
+                    let Some(o) = observation(i) else {
+                        continue;
+                    };
+                    let jpt = o.weight * o.d_e_d_point.transpose();
+                    v += jpt * o.d_e_d_point;
+                    b += jpt * o.e;
+                    if let Some(f) = sym.entry_free[e] {
+                        let jxt = o.weight * o.d_e_d_camera.transpose();
+                        u[f] += jxt * o.d_e_d_camera;
+                        b_c[f] += jxt * o.e;
+                        *w_cp = jxt * o.d_e_d_point;
+                    }
+                }
+                (v_out[j], b_out[j]) = (v, b);
+            }
+            (u, b_c)
+        })
+        .collect();
+    lin.u = vec![SMatrix::zeros(); nfree];
+    lin.b_c = vec![SVector::zeros(); nfree];
+    for (u, b_c) in partial {
+        for f in 0..nfree {
+            lin.u[f] += u[f];
+            lin.b_c[f] += b_c[f];
+        }
+    }
+}
+
+/// Solves the damped normal equations `(H + lambda D) dx = -b` by eliminating points
+/// (`llt` is `sym.llt`). `v_inv` is scratch for the inverted damped point blocks.
+pub(crate) fn solve_damped<const D: usize>(
+    sym: &SymbolicBa,
+    lin: &Linearization<D>,
+    llt: &SymbolicLlt<usize>,
+    lambda: f64,
+    v_inv: &mut Vec<Matrix3<f64>>,
+) -> Result<Step<D>, OptimError> {
+    let nfree = sym.free_poses.len();
+    let damp3 = |m: &Matrix3<f64>| m.diagonal().map(damping_diagonal);
+    let damp_c = |m: &SMatrix<f64, D, D>| m.diagonal().map(damping_diagonal);
+    let col_ptr = sym.pattern.col_ptr();
+    let col_start: Vec<[usize; D]> = (0..nfree)
+        .map(|b| std::array::from_fn(|c| col_ptr[D * b + c]))
+        .collect();
+    let nnz = sym.pattern.row_idx().len();
+
+    // Per chunk of points: invert the damped point blocks, then accumulate the upper
+    // triangle of -W V^-1 W^T and W V^-1 b_p into the chunk's own partial system.
+    v_inv.resize(sym.opt_points.len(), Matrix3::zeros());
+    let chunks: Vec<_> = sym.point_chunks().collect();
+    let v_parts = split_parts(v_inv, chunks.iter().map(|(c, _)| c.len()));
+    let partial: Vec<(Vec<f64>, Vec<SVector<f64, D>>)> = chunks
+        .into_par_iter()
+        .zip(v_parts)
+        .map(|((points, _), v_out)| {
+            let mut values = vec![0.0; nnz];
+            let mut r = vec![SVector::zeros(); nfree];
+            let mut y: Vec<SMatrix<f64, D, 3>> = Vec::new();
+            for (j, p) in points.enumerate() {
+                let v = &lin.v[p];
+                // Damped point blocks are positive definite: V is PSD and the damping
+                // diagonal > 0.
+                let vd = v + Matrix3::from_diagonal(&(lambda * damp3(v)));
+                let vi = vd.cholesky().map_or(Matrix3::zeros(), |c| c.inverse());
+                v_out[j] = vi;
+                let entries = sym.point_obs.range(p);
+                let w = &lin.w_cp[entries.clone()];
+                // Y = W V^-1 per observation (zero for fixed poses: W is).
+                y.clear();
+                y.extend(w.iter().map(|w| w * vi));
+                for (k, e) in entries.enumerate() {
+                    if let Some(f) = sym.entry_free[e] {
+                        r[f] += y[k] * lin.b_p[p];
+                    }
+                }
+                for t in sym.point_terms.row(p) {
+                    subtract_outer(
+                        &mut values,
+                        &col_start[t.column],
+                        D * t.slot,
+                        t.diagonal,
+                        &y[t.a],
+                        &w[t.b],
+                    );
+                }
+            }
+            (values, r)
+        })
+        .collect();
+    let mut values = vec![0.0; nnz];
+    let mut rhs: Vec<SVector<f64, D>> = lin.b_c.iter().map(|b| -b).collect();
+    for (part_values, part_r) in &partial {
+        for (v, p) in values.iter_mut().zip(part_values) {
+            *v += p;
+        }
+        for (r, p) in rhs.iter_mut().zip(part_r) {
+            *r += p;
+        }
+    }
+    // Upper triangle of the damped diagonal blocks U_b + lambda D.
+    for (b, u) in lin.u.iter().enumerate() {
+        let diag_slot = sym.blocks_in_column[b] - 1;
+        for c in 0..D {
+            let s = col_start[b][c] + D * diag_slot;
+            for r in 0..=c {
+                values[s + r] += u[(r, c)];
+            }
+            values[s + c] += lambda * damping_diagonal(u[(c, c)]);
+        }
+    }
+
+    let factor = factorize_upper(&sym.pattern, llt, &values)?;
+    let mut x = Mat::<f64>::from_fn(D * nfree, 1, |i, _| rhs[i / D][i % D]);
+    factor.solve_in_place(x.as_mut());
+    let d_pose: Vec<SVector<f64, D>> = (0..nfree)
+        .map(|b| SVector::from_fn(|r, _| x[(D * b + r, 0)]))
+        .collect();
+    if d_pose.iter().any(|d| !d.iter().all(|v| v.is_finite())) {
+        return Err(OptimError::NotPositiveDefinite { column: 0 });
+    }
+
+    // Back-substitution: dp = V^-1 (-b_p - W^T dc).
+    let v_inv = &*v_inv;
+    let d_point: Vec<Vector3<f64>> = (0..sym.opt_points.len())
+        .into_par_iter()
+        .with_min_len(MIN_BACK_SUBSTITUTION_POINTS)
+        .map(|p| {
+            let mut r = -lin.b_p[p];
+            for e in sym.point_obs.range(p) {
+                if let Some(f) = sym.entry_free[e] {
+                    r -= lin.w_cp[e].transpose() * d_pose[f];
+                }
+            }
+            v_inv[p] * r
+        })
+        .collect();
+
+    let mut g_dot_dx = 0.0;
+    let mut dx_d_dx = 0.0;
+    for (f, d) in d_pose.iter().enumerate() {
+        g_dot_dx += lin.b_c[f].dot(d);
+        dx_d_dx += d.component_mul(&damp_c(&lin.u[f])).dot(d);
+    }
+    for (p, d) in d_point.iter().enumerate() {
+        g_dot_dx += lin.b_p[p].dot(d);
+        dx_d_dx += d.component_mul(&damp3(&lin.v[p])).dot(d);
+    }
+    Ok(Step {
+        d_pose,
+        d_point,
+        predicted_decrease: predicted_decrease(g_dot_dx, lambda, dx_d_dx),
+    })
 }
 
 /// Points per parallel task of the back-substitution (a few hundred flops each).
