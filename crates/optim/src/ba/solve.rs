@@ -220,7 +220,10 @@ pub(crate) struct ObservationJacobians<const R: usize, const D: usize> {
 }
 
 /// Splits `items` into consecutive mutable parts of the given lengths.
-pub(crate) fn split_parts<T>(mut items: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+pub(crate) fn split_parts<T>(
+    mut items: &mut [T],
+    lens: impl Iterator<Item = usize>,
+) -> Vec<&mut [T]> {
     lens.map(|len| {
         let (head, tail) = std::mem::take(&mut items).split_at_mut(len);
         items = tail;
@@ -277,11 +280,7 @@ impl Context<'_> {
 
     /// Weight (`inv_sigma2` times the kernel's IRLS factor) and linearisation of observation
     /// `i`, `None` if it is inactive.
-    fn linearize_one(
-        &self,
-        problem: &BaProblem,
-        i: usize,
-    ) -> Option<ObservationJacobians<3, 6>> {
+    fn linearize_one(&self, problem: &BaProblem, i: usize) -> Option<ObservationJacobians<3, 6>> {
         if !self.active[i] {
             return None;
         }
@@ -303,7 +302,6 @@ impl Context<'_> {
             d_e_d_point: l.d_e_d_p_w,
         })
     }
-
 }
 
 /// Linearises at the current estimate into `lin`, point by point (`observation(i)` gives

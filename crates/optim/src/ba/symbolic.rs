@@ -75,7 +75,12 @@ impl SymbolicBa {
     pub fn new(problem: &BaProblem) -> Result<Self, OptimError> {
         problem.validate()?;
         let incidence = problem.observations.iter().map(|o| (o.pose, o.point));
-        Self::from_incidence(&problem.pose_fixed, problem.points.len(), incidence.collect(), 6)
+        Self::from_incidence(
+            &problem.pose_fixed,
+            problem.points.len(),
+            incidence.collect(),
+            6,
+        )
     }
 
     /// The analysis for `dim`-parameter camera blocks from the structure alone: fixed flags
