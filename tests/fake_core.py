@@ -69,6 +69,12 @@ class FakeSlamSystem:
     def frame_segments(self):
         return np.zeros(len(self.stamps), dtype=np.uint32)
 
+    def loops(self):
+        return []
+
+    def loop_stats(self):
+        return {"keyframes_checked": 0, "with_candidates": 0, "verified": 0, "rejected": 0}
+
     def keyframe_trajectory(self):
         ids = np.arange(len(self.kf), dtype=np.uint32)
         return ids, np.array(self.stamps)[self.kf], np.array(self.poses)[self.kf]

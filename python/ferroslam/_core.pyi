@@ -58,6 +58,11 @@ class _SlamOptions(TypedDict, total=False):
     for RGB-D, (0, inf) for stereo."""
     seed: int
     """Seed of every random choice (RANSAC), >= 0."""
+    loop_closure: bool
+    """Detect and close loops once a vocabulary is set (default True)."""
+    loop_closure_threshold: int
+    """Matched map points a verified loop needs, >= 20 (MATLAB ``LoopClosureThreshold``;
+    default 40, ORB-SLAM's)."""
 
 class SlamError(Exception):
     """Base class of ferroslam errors that are not plain bad input (internal failures)."""
@@ -88,6 +93,9 @@ class TrackResult:
     def init_reason(self) -> str | None:
         """Monocular, before the map exists: why this frame did not start it (too few
         matches, degenerate pair refused by the two-view reconstruction, ...); else None."""
+    @property
+    def loop_closed(self) -> bool:
+        """Whether this frame's keyframe closed a loop (details: ``SlamSystem.loops()``)."""
 
 @final
 class SlamSystem:
@@ -211,6 +219,15 @@ class SlamSystem:
     @property
     def threaded(self) -> bool:
         """Whether frames are processed in a background thread."""
+    def loops(self) -> list[dict[str, Any]]:
+        """Loops closed so far, oldest first: ``current`` and ``matched`` keyframe ids, their
+        ``timestamps`` (s), ``num_matches``, the Sim(3) ``scale`` (1 with depth),
+        ``correction_m`` (how far the current keyframe moved) and the essential graph's
+        ``graph_cost`` (before, after)."""
+    def loop_stats(self) -> dict[str, int]:
+        """Loop-detection counters: ``keyframes_checked``, ``with_candidates`` (bag-of-words
+        candidates found), ``verified`` (consistent candidates checked geometrically) and
+        ``rejected`` (refused by the Sim(3) or the match count)."""
     def frame_segments(self) -> NDArray[np.uint32]:
         """Map segment of each pose of ``frame_trajectory`` (N,): 0 for the first map, one
         more per map started after a monocular map was lost. Segments have their own world

@@ -65,9 +65,11 @@ class _VSlam:
 
     Keyword options (MATLAB property names in brackets): ``scale_factor`` (ScaleFactor),
     ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints), ``track_feature_range``
-    (TrackFeatureRange), ``skip_max_frames`` (SkipMaxFrames), ``vocabulary`` (the bag of
-    words used to relocalise: ``"default"`` ships with the package; a file path or a
-    ``ferroslam._core.Vocabulary``; ``None`` for none; CustomBagOfFeatures), ``verbose``
+    (TrackFeatureRange), ``skip_max_frames`` (SkipMaxFrames), ``loop_closure_threshold``
+    (LoopClosureThreshold: matched points a loop needs; ``loop_closure=False`` turns loop
+    closing off), ``vocabulary`` (the bag of words used to relocalise and detect loops:
+    ``"default"`` ships with the package; a file path or a ``ferroslam._core.Vocabulary``;
+    ``None`` for none; CustomBagOfFeatures), ``verbose``
     (Verbose: 1 prints stages, 2 also logs every frame to a file in the temporary folder, 3
     adds keyframe poses after each local BA), ``frame_rate_hz`` (timestamps when none are
     given), ``seed``.
@@ -84,6 +86,8 @@ class _VSlam:
         max_num_points: int = 1000,
         track_feature_range: Sequence[int] = (30, 100),
         skip_max_frames: int = 20,
+        loop_closure_threshold: int = 40,
+        loop_closure: bool = True,
         frame_rate_hz: float = 30.0,
         threaded: bool = True,
         vocabulary: Any = "default",
@@ -104,6 +108,8 @@ class _VSlam:
         self.max_num_points = _positive_int("max_num_points", max_num_points)
         self.track_feature_range = (lower, upper)
         self.skip_max_frames = _positive_int("skip_max_frames", skip_max_frames)
+        self.loop_closure_threshold = _positive_int("loop_closure_threshold",
+                                                    loop_closure_threshold)
         self.frame_rate_hz = float(frame_rate_hz)
         self.verbose = verbose
         # The extractor and the core validate the rest and name what is wrong.
@@ -117,6 +123,7 @@ class _VSlam:
             threaded=bool(threaded),
             scale_factor=self.scale_factor, n_levels=self.num_levels,
             track_feature_range=self.track_feature_range, skip_max_frames=self.skip_max_frames,
+            loop_closure=bool(loop_closure), loop_closure_threshold=self.loop_closure_threshold,
             seed=seed, **(core_options or {}),
         )
         if vocabulary is not None:

@@ -177,6 +177,12 @@ impl PyTrackResult {
         self.inner.init_status.as_ref().map(|s| s.to_string())
     }
 
+    /// Whether this frame's keyframe closed a loop (details: `SlamSystem.loops()`).
+    #[getter]
+    fn loop_closed(&self) -> bool {
+        self.inner.loop_closure.is_some()
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "TrackResult(state={:?}, is_keyframe={}, num_tracked={})",

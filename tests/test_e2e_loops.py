@@ -1,0 +1,134 @@
+"""End to end: loop closing (bag-of-words detection, Sim(3) verification and correction,
+essential graph, global BA).
+
+Real frames without a true loop (TUM fr1/rpy turns in place, KITTI 06 and 01 drive straight
+on): the system must close no loop, and the trajectory must be the one computed with loop
+closing switched off. Detection must still have run and refused its candidates, so these tests
+cannot pass by never looking.
+
+A real trajectory with real revisits: the whole 144 s EuRoC V1_01 flight with synthetic vision
+(``ferroslam.synthetic``; 3 m sensing range, 1 px noise, 700 features per frame, so the map
+drifts as a real one does). Each loop closed must join two frames that see the same landmarks
+(ground truth: the landmark ids each frame sees), and loop closing must lower the ATE.
+Measured on this build, seed 0 (scratch runs; figures in the docstring of each test).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import require_data
+from ferroslam import metrics
+from ferroslam._core import SlamSystem
+from ferroslam.datasets import KittiSequence, TumSequence
+from ferroslam.pipeline import load_vocabulary, run_sequence
+from ferroslam.synthetic import SyntheticStereoSequence, VisionModel
+from ferroslam.trajectory import Trajectory
+
+REAL_RUNS = {
+    "tum_rpy_rgbd": ("tum_rpy", "rgbd", {}),
+    "kitti06_mono": ("kitti_mono", "mono", {"n_features": 2000}),
+    "kitti01_stereo": ("kitti_stereo", "stereo", {"n_features": 2000, "depth_threshold": 35}),
+}
+
+
+def _open(fixture_path, name: str, sensor: str):
+    if name == "tum_rpy":
+        return TumSequence(fixture_path, with_depth=sensor == "rgbd")
+    return KittiSequence(fixture_path, stereo=sensor == "stereo")
+
+
+@pytest.mark.parametrize("case", sorted(REAL_RUNS))
+def test_no_false_loop_on_real_sequences_without_loops(case, request):
+    fixture, sensor, config = REAL_RUNS[case]
+    path = request.getfixturevalue(fixture)
+    with_loops = run_sequence(_open(path, fixture, sensor), config, sensor=sensor,
+                              progress=False)
+    without = run_sequence(_open(path, fixture, sensor), {**config, "loop_closure": False},
+                           sensor=sensor, progress=False)
+    assert with_loops.loops == []
+    stats = with_loops.loop_stats
+    # Detection ran on most keyframes and found bag-of-words candidates (rpy: 41 verified,
+    # KITTI 06: 20; KITTI 01's forward drive yields candidates but none consistent over 3
+    # keyframes), and every one was refused.
+    assert stats["keyframes_checked"] >= 20, stats
+    assert stats["with_candidates"] >= 10, stats
+    assert stats["rejected"] == stats["verified"], stats
+    assert without.loop_stats["keyframes_checked"] == 0
+    np.testing.assert_array_equal(with_loops.trajectory.poses, without.trajectory.poses)
+    assert with_loops.ate_frames.rmse == without.ate_frames.rmse
+
+
+# ---------------------------------------------------------------------------------------------
+# Synthetic vision on the real V1_01 flight: real revisits.
+
+VISION = VisionModel(max_range_m=3.0, pixel_sigma=1.0, max_features=700)
+MIN_SHARED_LANDMARKS = 20
+MIN_LOOP_GAP_S = 10.0
+
+
+@pytest.fixture(scope="module")
+def flight_seq():
+    return SyntheticStereoSequence(require_data("euroc", "V1_01_easy_imu_gt"), vision=VISION)
+
+
+def _run_synthetic(seq, sensor: str, loop_closure: bool):
+    c = seq.camera
+    options = {"bf": seq.bf} if sensor == "rgbd" else {}
+    slam = SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor, seed=0,
+                      loop_closure=loop_closure, **options)
+    slam.set_vocabulary(load_vocabulary("default"))
+    for i in range(len(seq)):
+        f = seq.features(i)
+        if sensor == "rgbd":  # stereo observations, fed through the RGB-D entry point
+            slam.track_rgbd(seq.timestamps[i], f["keypoints"], f["descriptors"], f["depth_m"])
+        else:
+            slam.track_mono(seq.timestamps[i], f["keypoints"], f["descriptors"])
+    align = "se3" if sensor == "rgbd" else "sim3"
+    ate = metrics.ate(Trajectory(*seq.groundtruth()), Trajectory(*slam.frame_trajectory()),
+                      align=align)
+    return slam, ate
+
+
+@pytest.fixture(scope="module", params=["mono", "rgbd"])
+def flight_runs(request, flight_seq):
+    on = _run_synthetic(flight_seq, request.param, True)
+    off = _run_synthetic(flight_seq, request.param, False)
+    return request.param, on, off
+
+
+def _frame_at(seq, t: float) -> int:
+    i = int(np.argmin(np.abs(seq.timestamps - t)))
+    assert abs(seq.timestamps[i] - t) < 1e-6
+    return i
+
+
+def test_synthetic_flight_loops_only_at_true_revisits(flight_runs, flight_seq):
+    """Measured: mono 5 loops, stereo 4, sharing 48-252 landmarks, 14-105 s apart."""
+    sensor, (slam, _), _ = flight_runs
+    loops = slam.loops()
+    assert len(loops) >= 3, slam.loop_stats()
+    for loop in loops:
+        t_current, t_matched = loop["timestamps"]
+        assert t_current - t_matched >= MIN_LOOP_GAP_S, loop
+        a, b = _frame_at(flight_seq, t_current), _frame_at(flight_seq, t_matched)
+        shared = np.intersect1d(flight_seq.visible(a)[0], flight_seq.visible(b)[0]).size
+        assert shared >= MIN_SHARED_LANDMARKS, (loop, shared)
+        assert loop["num_matches"] >= 40
+        assert loop["graph_cost"][1] < loop["graph_cost"][0]
+        if sensor == "rgbd":
+            assert loop["scale"] == 1.0
+
+
+def test_synthetic_flight_loop_closing_lowers_ate(flight_runs):
+    """Measured (seed 0): mono Sim(3) ATE 1.81 cm without loop closing, 1.36 cm with it;
+    stereo SE(3) ATE 1.16 cm without, 1.01 cm with. The gain is modest because tracking
+    against the local map already re-finds most old landmarks in this room, so little drift
+    is left for loop closing to remove (with 8 m range the runs drift by 2 mm only)."""
+    sensor, (_, on), (_, off) = flight_runs
+    print(f"{sensor}: ATE {off.rmse * 100:.2f} cm without loop closing, "
+          f"{on.rmse * 100:.2f} cm with it")
+    assert on.pairs == off.pairs and on.pairs > 2700
+    assert on.rmse < 0.9 * off.rmse
+    assert on.rmse < 0.02
