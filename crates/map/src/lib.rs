@@ -71,5 +71,5 @@ pub use error::MapError;
 pub use frame_features::FrameFeatures;
 pub use ids::{KeyFrameId, MapPointId};
 pub use keyframe::KeyFrame;
-pub use map::{Map, COVISIBILITY_THRESHOLD};
+pub use map::{Map, MapEdit, MapJournal, COVISIBILITY_THRESHOLD};
 pub use map_point::MapPoint;

@@ -13,12 +13,15 @@ use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId}
 
 mod consistency;
 mod covisibility;
+mod journal;
 mod observations;
 pub mod persist;
 mod point_geometry;
 mod spanning_tree;
 
 pub use covisibility::COVISIBILITY_THRESHOLD;
+use journal::Recorder;
+pub use journal::{MapEdit, MapJournal};
 
 /// What is kept of a culled keyframe: its pose relative to the keyframe that adopted its
 /// children (its parent, ORB-SLAM `mTcp`).
@@ -45,6 +48,8 @@ pub struct Map {
     origin: Option<KeyFrameId>,
     culled_keyframes: HashMap<KeyFrameId, CulledKeyFrame>,
     replaced_points: HashMap<MapPointId, MapPointId>,
+    /// Edits being recorded (a copy handed to concurrent mapping), see [`MapJournal`].
+    recorder: Option<Recorder>,
 }
 
 #[allow(non_snake_case)]
@@ -60,6 +65,7 @@ impl Map {
             origin: None,
             culled_keyframes: HashMap::new(),
             replaced_points: HashMap::new(),
+            recorder: None,
         }
     }
 
@@ -103,8 +109,9 @@ impl Map {
         }
         let id = MapPointId(self.next_map_point);
         self.next_map_point += 1;
-        self.map_points
-            .insert(id, MapPoint::new(id, position, reference));
+        let point = MapPoint::new(id, position, reference);
+        self.record_created_point(id, &point);
+        self.map_points.insert(id, point);
         Ok(id)
     }
 
@@ -172,6 +179,18 @@ impl Map {
         kf: KeyFrameId,
         T_c_w: Isometry3<f64>,
     ) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::SetKeyFramePose { kf, T_c_w },
+            |map| map.set_keyframe_pose_now(kf, T_c_w),
+        )
+    }
+
+    /// The body of [`Map::set_keyframe_pose`], run inside its journal entry.
+    fn set_keyframe_pose_now(
+        &mut self,
+        kf: KeyFrameId,
+        T_c_w: Isometry3<f64>,
+    ) -> Result<(), MapError> {
         self.keyframe_mut(kf)?.T_c_w = T_c_w;
         Ok(())
     }
@@ -186,6 +205,18 @@ impl Map {
         mp: MapPointId,
         p_w: Vector3<f64>,
     ) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::SetMapPointPosition { mp, p_w },
+            |map| map.set_map_point_position_now(mp, p_w),
+        )
+    }
+
+    /// The body of [`Map::set_map_point_position`], run inside its journal entry.
+    fn set_map_point_position_now(
+        &mut self,
+        mp: MapPointId,
+        p_w: Vector3<f64>,
+    ) -> Result<(), MapError> {
         self.map_point_mut(mp)?.position = p_w;
         Ok(())
     }
@@ -195,6 +226,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownMapPoint`].
     pub fn increase_visible(&mut self, mp: MapPointId, n: u32) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::IncreaseVisible { mp, n },
+            |map| map.increase_visible_now(mp, n),
+        )
+    }
+
+    /// The body of [`Map::increase_visible`], run inside its journal entry.
+    fn increase_visible_now(&mut self, mp: MapPointId, n: u32) -> Result<(), MapError> {
         let point = self.map_point_mut(mp)?;
         point.visible = point.visible.saturating_add(n);
         Ok(())
@@ -205,6 +244,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownMapPoint`].
     pub fn increase_found(&mut self, mp: MapPointId, n: u32) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::IncreaseFound { mp, n },
+            |map| map.increase_found_now(mp, n),
+        )
+    }
+
+    /// The body of [`Map::increase_found`], run inside its journal entry.
+    fn increase_found_now(&mut self, mp: MapPointId, n: u32) -> Result<(), MapError> {
         let point = self.map_point_mut(mp)?;
         point.found = point.found.saturating_add(n);
         Ok(())

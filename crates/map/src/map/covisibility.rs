@@ -4,6 +4,7 @@
 //! connected is decided by `update_connections`: an edge exists while at least one endpoint's
 //! last update selected it, and disappears when its weight drops to zero.
 
+use super::journal::MapEdit;
 use std::collections::{BTreeMap, BTreeSet};
 
 use super::Map;
@@ -25,6 +26,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownKeyFrame`].
     pub fn update_connections(&mut self, kf: KeyFrameId) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::UpdateConnections { kf },
+            |map| map.update_connections_now(kf),
+        )
+    }
+
+    /// The body of [`Map::update_connections`], run inside its journal entry.
+    fn update_connections_now(&mut self, kf: KeyFrameId) -> Result<(), MapError> {
         let frame = self
             .keyframes
             .get(&kf)

@@ -4,6 +4,7 @@
 //! Every link change also shifts the weights of existing covisibility edges, so edge
 //! weights always equal the number of shared good points.
 
+use super::journal::MapEdit;
 use std::collections::BTreeMap;
 
 use super::Map;
@@ -32,6 +33,19 @@ impl Map {
     /// Unknown ids, [`MapError::KeypointOutOfRange`], [`MapError::SlotOccupied`] (the keypoint
     /// already holds a point), [`MapError::AlreadyObserved`] (`kf` already sees `mp`).
     pub fn add_observation(
+        &mut self,
+        mp: MapPointId,
+        kf: KeyFrameId,
+        index: usize,
+    ) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::AddObservation { mp, kf, index },
+            |map| map.add_observation_now(mp, kf, index),
+        )
+    }
+
+    /// The body of [`Map::add_observation`], run inside its journal entry.
+    fn add_observation_now(
         &mut self,
         mp: MapPointId,
         kf: KeyFrameId,
@@ -76,6 +90,14 @@ impl Map {
     /// If the point's `nObs` falls to 2 or less it is culled everywhere, as ORB-SLAM.
     /// Returns `false` (and does nothing) if `kf` does not observe `mp`.
     pub fn erase_observation(&mut self, mp: MapPointId, kf: KeyFrameId) -> bool {
+        self.journaled(
+            || MapEdit::EraseObservation { mp, kf },
+            |map| map.erase_observation_now(mp, kf),
+        )
+    }
+
+    /// The body of [`Map::erase_observation`], run inside its journal entry.
+    fn erase_observation_now(&mut self, mp: MapPointId, kf: KeyFrameId) -> bool {
         let mut shifts = EdgeShifts::default();
         if !self.unlink(mp, kf, &mut shifts) {
             return false;
@@ -90,6 +112,14 @@ impl Map {
     /// Culls a point (ORB-SLAM `MapPoint::SetBadFlag`): erases all its observations and
     /// removes it from the map. Returns `false` if it was not in the map.
     pub fn set_map_point_bad(&mut self, mp: MapPointId) -> bool {
+        self.journaled(
+            || MapEdit::SetMapPointBad { mp },
+            |map| map.set_map_point_bad_now(mp),
+        )
+    }
+
+    /// The body of [`Map::set_map_point_bad`], run inside its journal entry.
+    fn set_map_point_bad_now(&mut self, mp: MapPointId) -> bool {
         let Some(point) = self.map_points.get(&mp) else {
             return false;
         };
@@ -112,6 +142,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownMapPoint`] for either id.
     pub fn replace_map_point(&mut self, old: MapPointId, new: MapPointId) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::ReplaceMapPoint { old, new },
+            |map| map.replace_map_point_now(old, new),
+        )
+    }
+
+    /// The body of [`Map::replace_map_point`], run inside its journal entry.
+    fn replace_map_point_now(&mut self, old: MapPointId, new: MapPointId) -> Result<(), MapError> {
         if old == new {
             return Ok(());
         }

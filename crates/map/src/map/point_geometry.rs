@@ -2,6 +2,7 @@
 //! direction and scale-invariance distances (ORB-SLAM `ComputeDistinctiveDescriptors`,
 //! `UpdateNormalAndDepth`).
 
+use super::journal::MapEdit;
 use ferroslam_features::{hamming, Descriptor};
 use nalgebra::Vector3;
 
@@ -18,6 +19,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownMapPoint`].
     pub fn update_normal_and_depth(&mut self, mp: MapPointId) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::UpdateNormalAndDepth { mp },
+            |map| map.update_normal_and_depth_now(mp),
+        )
+    }
+
+    /// The body of [`Map::update_normal_and_depth`], run inside its journal entry.
+    fn update_normal_and_depth_now(&mut self, mp: MapPointId) -> Result<(), MapError> {
         let point = self
             .map_points
             .get(&mp)
@@ -56,6 +65,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownMapPoint`].
     pub fn compute_distinctive_descriptor(&mut self, mp: MapPointId) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::ComputeDistinctiveDescriptor { mp },
+            |map| map.compute_distinctive_descriptor_now(mp),
+        )
+    }
+
+    /// The body of [`Map::compute_distinctive_descriptor`], run inside its journal entry.
+    fn compute_distinctive_descriptor_now(&mut self, mp: MapPointId) -> Result<(), MapError> {
         let point = self
             .map_points
             .get(&mp)

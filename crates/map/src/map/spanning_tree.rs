@@ -1,5 +1,6 @@
 //! The spanning tree and keyframe culling (ORB-SLAM `KeyFrame::SetBadFlag`).
 
+use super::journal::MapEdit;
 use std::collections::BTreeSet;
 
 use super::{CulledKeyFrame, Map};
@@ -12,6 +13,14 @@ impl Map {
     /// # Errors
     /// [`MapError::UnknownKeyFrame`] if either is not in the map.
     pub fn add_loop_edge(&mut self, a: KeyFrameId, b: KeyFrameId) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::AddLoopEdge { a, b },
+            |map| map.add_loop_edge_now(a, b),
+        )
+    }
+
+    /// The body of [`Map::add_loop_edge`], run inside its journal entry.
+    fn add_loop_edge_now(&mut self, a: KeyFrameId, b: KeyFrameId) -> Result<(), MapError> {
         self.keyframe_mut(b)?;
         self.keyframe_mut(a)?.loop_edges.insert(b);
         self.keyframe_mut(b)?.loop_edges.insert(a);
@@ -30,6 +39,14 @@ impl Map {
     /// for the origin and for keyframes with loop edges, which are never culled (ORB-SLAM
     /// `mbNotErase`: the essential graph needs both ends of every loop).
     pub fn set_keyframe_bad(&mut self, kf: KeyFrameId) -> bool {
+        self.journaled(
+            || MapEdit::SetKeyFrameBad { kf },
+            |map| map.set_keyframe_bad_now(kf),
+        )
+    }
+
+    /// The body of [`Map::set_keyframe_bad`], run inside its journal entry.
+    fn set_keyframe_bad_now(&mut self, kf: KeyFrameId) -> bool {
         if self.origin == Some(kf) {
             return false;
         }

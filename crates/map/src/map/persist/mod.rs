@@ -292,6 +292,7 @@ impl Map {
             origin,
             culled_keyframes: culled.into_iter().collect(),
             replaced_points: replaced.into_iter().collect(),
+            recorder: None,
         };
         if let Some(o) = origin.filter(|o| !map.keyframes.contains_key(o)) {
             return Err(corrupt(format!("the origin {o} is not a keyframe")));
