@@ -58,6 +58,16 @@ pub enum ImuError {
         /// What the parameter must satisfy.
         reason: &'static str,
     },
+    /// A covariance to invert is not positive definite: nothing was integrated over the
+    /// interval, or the noise densities (or random walks) are zero.
+    #[error(
+        "IMU covariance over {dt} s is not positive definite: integrate at least one sample \
+         and use non-zero noise densities and random walks"
+    )]
+    SingularCovariance {
+        /// Length of the interval, seconds.
+        dt: f64,
+    },
     /// An IMU parameter file could not be read.
     #[error("cannot read IMU parameters from {path}: {message}")]
     Io {

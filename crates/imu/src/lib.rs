@@ -30,6 +30,7 @@ pub mod measurement;
 pub mod params;
 pub mod plausibility;
 pub mod preintegration;
+pub mod residual;
 pub mod state;
 
 pub use bias::Bias;
@@ -38,4 +39,5 @@ pub use measurement::{check_stream, ImuMeasurement};
 pub use params::ImuParams;
 pub use plausibility::check_units;
 pub use preintegration::{BiasJacobians, Preintegrated};
+pub use residual::{BiasWalkFactor, ImuState, InertialFactor, InertialJacobians};
 pub use state::{ImuDelta, NavState};
