@@ -18,18 +18,31 @@ local BA and ours (``local_bundle_adjust``); the 5 fixed keyframes get 1e-6 prio
 generates with the same specification but its own ChaCha8 draws: the two problems have the
 same size and statistics, NOT the same numbers (the crate has no problem export).
 
+BAL (Bundle Adjustment in the Large): ``<data>/ba/problem-21-11315-pre.txt.bz2`` (21 Snavely
+cameras, 11315 points, 36455 observations), the same file and start for both. Ours through
+the ``bal_solve`` example (``ferroslam_optim::bal::solve_bal``: LM, Schur complement on the
+points, faer sparse Cholesky on 9x9 camera blocks, function tolerance 1e-12); gtsam through
+``SfmData.FromBalFile`` + ``GeneralSFMFactorCal3Bundler`` (sigma 1) and LM with the settings of
+``ba/reference.json`` (relative and absolute tolerance 1e-10, METIS). Both costs are
+0.5 sum |r|^2 in pixels^2, no robust loss, nothing held constant; Ceres' final cost from
+``ba/reference.json`` is shown as the reference. gtsam takes ~1.5 min per run, so it runs
+``--bal-repeat`` times (default 1); ours runs ``--repeat`` times; the fastest run is kept.
+
     python benches/solvers_compare.py [--data DIR] [--repeat N] [--all-inits]
-                                      [--skip-ba] [--local-ba-ms MS | --run-local-ba-bench]
-                                      [--json OUT]
+                                      [--skip-pose-graph] [--skip-ba]
+                                      [--local-ba-ms MS | --run-local-ba-bench]
+                                      [--skip-bal] [--bal-repeat N] [--json OUT]
 """
 
 from __future__ import annotations
 
 import argparse
+import bz2
 import json
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -232,18 +245,99 @@ def run_local_ba_bench() -> float | None:
     return value * {"s": 1e3, "ms": 1.0, "µs": 1e-3, "us": 1e-3}[unit]
 
 
+# ---------------------------------------------------------------- BAL
+
+BAL_FILE = "problem-21-11315-pre.txt.bz2"
+
+
+def run_ours_bal(path: Path) -> dict:
+    """One ``bal_solve`` run (release build): read_s, solve_s, iterations, costs."""
+    cmd = ["cargo", "run", "--release", "-q", "-p", "ferroslam-optim", "--example",
+           "bal_solve", "--", str(path)]
+    out = subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, text=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run_gtsam_bal(path: Path) -> dict:
+    """gtsam LM on the same BAL file from the same start; times the optimisation only."""
+    import gtsam
+    from gtsam.symbol_shorthand import C, P
+
+    with tempfile.NamedTemporaryFile("wb", suffix=".txt") as plain:
+        plain.write(bz2.decompress(path.read_bytes()) if path.suffix == ".bz2"
+                    else path.read_bytes())
+        plain.flush()
+        scene = gtsam.SfmData.FromBalFile(plain.name)
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    initial = gtsam.Values()
+    for i in range(scene.numberCameras()):
+        initial.insert(C(i), scene.camera(i))
+    for j in range(scene.numberTracks()):
+        track = scene.track(j)
+        initial.insert(P(j), track.point3())
+        for k in range(track.numberMeasurements()):
+            i, uv = track.measurement(k)
+            graph.add(gtsam.GeneralSFMFactorCal3Bundler(uv, noise, C(i), P(j)))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(1000)
+    params.setRelativeErrorTol(1e-10)
+    params.setAbsoluteErrorTol(1e-10)
+    params.setOrderingType("METIS")
+    start = time.perf_counter()
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    result = optimizer.optimize()
+    seconds = time.perf_counter() - start
+    return {"initial_cost": graph.error(initial), "final_cost": graph.error(result),
+            "iterations": optimizer.iterations(), "time_s": seconds}
+
+
+def bal(folder: Path, repeat: int, gtsam_repeat: int) -> dict:
+    path = folder / BAL_FILE
+    reference = json.loads((folder / "reference.json").read_text())["reference"][BAL_FILE]
+    ours = min((run_ours_bal(path) for _ in range(repeat)), key=lambda r: r["solve_s"])
+    gt = min((run_gtsam_bal(path) for _ in range(gtsam_repeat)), key=lambda r: r["time_s"])
+    return {"file": BAL_FILE, "cameras": ours["cameras"], "points": ours["points"],
+            "observations": ours["observations"], "ceres_final_cost": reference["final_cost"],
+            "ours": {"time_s": ours["solve_s"], "read_s": ours["read_s"],
+                     "iterations": ours["iterations"], "converged": ours["converged"],
+                     "initial_cost": ours["initial_cost"], "final_cost": ours["final_cost"]},
+            "gtsam": gt}
+
+
+def print_bal(r: dict) -> None:
+    print(f"\nBAL {r['file']}: {r['cameras']} cameras, {r['points']} points, "
+          f"{r['observations']} observations; Ceres final cost {r['ceres_final_cost']:.7f}")
+    head = (f"{'solver':<7} {'time s':>8} {'it':>4} {'ms/it':>8} {'initial cost':>16} "
+            f"{'final cost':>16} {'vs Ceres':>9}")
+    print(head)
+    print("-" * len(head))
+    for name in ("ours", "gtsam"):
+        s = r[name]
+        print(f"{name:<7} {s['time_s']:>8.3f} {s['iterations']:>4} "
+              f"{1e3 * s['time_s'] / max(s['iterations'], 1):>8.1f} {s['initial_cost']:>16.6f} "
+              f"{s['final_cost']:>16.7f} {s['final_cost'] / r['ceres_final_cost'] - 1:>9.1e}")
+    print(f"gtsam / ours time = {r['gtsam']['time_s'] / r['ours']['time_s']:.1f}; times are the "
+          "optimisation only (ours: symbolic analysis + LM; file reading excluded for both); "
+          "vs Ceres: final cost / Ceres' - 1.")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", help="data folder holding posegraph/")
     parser.add_argument("--repeat", type=int, default=3, help="runs per solver (fastest kept)")
     parser.add_argument("--all-inits", action="store_true",
                         help="every dataset from both the file and the chordal start")
-    parser.add_argument("--skip-ba", action="store_true", help="pose graphs only")
+    parser.add_argument("--skip-pose-graph", action="store_true", help="no pose graphs")
+    parser.add_argument("--skip-ba", action="store_true", help="no synthetic local BA")
     ours_ba = parser.add_mutually_exclusive_group()
     ours_ba.add_argument("--local-ba-ms", type=float,
                          help=f"our local BA time to compare with (default {LOCAL_BA_MS_NOTED})")
     ours_ba.add_argument("--run-local-ba-bench", action="store_true",
                          help="measure ours now with cargo bench (compiles the bench)")
+    parser.add_argument("--skip-bal", action="store_true", help="no BAL comparison")
+    parser.add_argument("--bal-repeat", type=int, default=1,
+                        help="gtsam runs on BAL (~1.5 min each; fastest kept)")
     parser.add_argument("--json", type=Path, metavar="OUT")
     args = parser.parse_args(argv)
 
@@ -251,9 +345,11 @@ def main(argv=None) -> int:
     pairs = PAIRS
     if args.all_inits:
         pairs = [(n, i) for n, _ in PAIRS for i in ("file", "chordal")]
-    report = {"pose_graph": pose_graphs(folder, pairs, args.repeat)}
-    print("Pose graph (Levenberg-Marquardt), fastest of", args.repeat, "runs each:")
-    print_pose_graphs(report["pose_graph"])
+    report = {}
+    if not args.skip_pose_graph:
+        report["pose_graph"] = pose_graphs(folder, pairs, args.repeat)
+        print("Pose graph (Levenberg-Marquardt), fastest of", args.repeat, "runs each:")
+        print_pose_graphs(report["pose_graph"])
 
     if not args.skip_ba:
         scene = ba_scene()
@@ -279,6 +375,9 @@ def main(argv=None) -> int:
               f"gtsam / ours = {1e3 * g['time_s'] / ours_ms:.2f}")
         print("  Same size and statistics, different random draws (no problem export from the "
               "crate): a like-for-like size comparison, not the same numbers.")
+    if not args.skip_bal:
+        report["bal"] = bal(data_dir(args.data) / "ba", args.repeat, args.bal_repeat)
+        print_bal(report["bal"])
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     return 0

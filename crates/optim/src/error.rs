@@ -42,3 +42,24 @@ pub enum OptimError {
     #[error("sparse solver failure: {0}")]
     Solver(String),
 }
+
+impl OptimError {
+    /// `Ok` if `index < len`, else [`OptimError::IndexOutOfRange`] for observation
+    /// `observation` referring to `what` (`"pose"`, `"camera"`, `"point"`) `index`.
+    pub(crate) fn check_index(
+        observation: usize,
+        what: &'static str,
+        index: usize,
+        len: usize,
+    ) -> Result<(), Self> {
+        if index < len {
+            return Ok(());
+        }
+        Err(Self::IndexOutOfRange {
+            observation,
+            what,
+            index,
+            len,
+        })
+    }
+}

@@ -88,14 +88,7 @@ impl BaProblem {
                 ("pose", o.pose, self.poses.len()),
                 ("point", o.point, self.points.len()),
             ] {
-                if index >= len {
-                    return Err(OptimError::IndexOutOfRange {
-                        observation: i,
-                        what,
-                        index,
-                        len,
-                    });
-                }
+                OptimError::check_index(i, what, index, len)?;
             }
             residual::validate_measurement(i, &o.uv, o.u_right, o.inv_sigma2)?;
         }
