@@ -2,48 +2,18 @@
 //! vicon2gt poses: cam0 poses (via `T_BS`) in a rotated, translated, scaled world frame with
 //! seeded noise, as monocular SLAM would deliver them.
 //!
-//! Data: `$FERROSLAM_DATA/euroc/V1_01_easy_imu_gt`, else `../../../shared/data/...` relative
-//! to this crate. Missing data fails the test loudly.
+//! Data: see `common` (missing data fails the test loudly).
 
 #![allow(non_snake_case)]
 
-use std::path::PathBuf;
+mod common;
 
+use common::{data_dir, load, read, GroundTruth as Truth};
 use ferroslam_imu::alignment::{align, Alignment, AlignmentConfig, AlignmentError};
 use ferroslam_imu::{Bias, ImuMeasurement, ImuParams, Preintegrated};
-use nalgebra::{Isometry3, Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-
-fn data_dir() -> PathBuf {
-    std::env::var_os("FERROSLAM_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"))
-        .join("euroc/V1_01_easy_imu_gt")
-}
-
-fn read(name: &str) -> String {
-    let path = data_dir().join(name);
-    std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e} (set FERROSLAM_DATA to the data folder)",
-            path.display()
-        )
-    })
-}
-
-/// Numeric rows of a comma-separated file without `#` lines; the first column (ns) apart.
-fn read_csv(name: &str) -> Vec<(i64, Vec<f64>)> {
-    read(name)
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(|l| {
-            let mut fields = l.split(',').map(str::trim);
-            let ns = fields.next().unwrap().parse::<i64>().unwrap();
-            (ns, fields.map(|f| f.parse::<f64>().unwrap()).collect())
-        })
-        .collect()
-}
 
 /// `T_BS` of cam0: the camera pose in the IMU frame, `T_b_c`.
 fn T_b_c() -> Isometry3<f64> {
@@ -58,46 +28,6 @@ fn T_b_c() -> Isometry3<f64> {
         Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
         UnitQuaternion::from_rotation_matrix(&r),
     )
-}
-
-struct Truth {
-    t_s: f64,
-    T_w_b: Isometry3<f64>,
-    v_w_b: Vector3<f64>,
-    gyro_bias: Vector3<f64>,
-    accel_bias: Vector3<f64>,
-}
-
-/// Real IMU and vicon2gt states, seconds since the first IMU sample.
-fn load() -> (Vec<ImuMeasurement>, Vec<Truth>) {
-    let rows = read_csv("imu0/data.csv");
-    let t0 = rows[0].0;
-    let s = |ns: i64| (ns - t0) as f64 * 1e-9;
-    let imu = rows
-        .iter()
-        .map(|(ns, r)| {
-            ImuMeasurement::new(
-                s(*ns),
-                Vector3::new(r[0], r[1], r[2]),
-                Vector3::new(r[3], r[4], r[5]),
-            )
-        })
-        .collect();
-    // vicon2gt: p xyz, q wxyz, v xyz, gyro bias xyz, accel bias xyz.
-    let gt = read_csv("groundtruth_vicon2gt.csv")
-        .iter()
-        .map(|(ns, r)| Truth {
-            t_s: s(*ns),
-            T_w_b: Isometry3::from_parts(
-                Translation3::new(r[0], r[1], r[2]),
-                UnitQuaternion::from_quaternion(Quaternion::new(r[3], r[4], r[5], r[6])),
-            ),
-            v_w_b: Vector3::new(r[7], r[8], r[9]),
-            gyro_bias: Vector3::new(r[10], r[11], r[12]),
-            accel_bias: Vector3::new(r[13], r[14], r[15]),
-        })
-        .collect();
-    (imu, gt)
 }
 
 /// Standard normal sample (Box-Muller), seeded through `rng`.
@@ -137,7 +67,7 @@ fn keyframes(
     let poses = picks
         .iter()
         .map(|&i| {
-            let T_v_c = T_v_w * gt[i].T_w_b * T_b_c;
+            let T_v_c = T_v_w * gt[i].state.T_w_b * T_b_c;
             // 1 mm and 0.1 deg of vision noise, the position noise in visual units.
             let p = (T_v_c.translation.vector + noise(&mut rng, 1e-3)) * VISUAL_SCALE;
             let q = UnitQuaternion::from_scaled_axis(noise(&mut rng, 0.1f64.to_radians()))
@@ -165,10 +95,9 @@ fn fitted_gravity(gt: &[Truth], picks: &[usize], pres: &[Preintegrated]) -> Vect
             .zip(pres)
             .fold((Vector3::zeros(), 0.0), |(num, den), (w, pre)| {
                 let (a, b) = (&gt[w[0]], &gt[w[1]]);
-                let pre = pre
-                    .reintegrated(Bias::new(a.gyro_bias, a.accel_bias))
-                    .unwrap();
-                let lhs = b.v_w_b - a.v_w_b - a.T_w_b.rotation * pre.delta().delta_v;
+                let pre = pre.reintegrated(a.bias()).unwrap();
+                let lhs =
+                    b.state.v_w_b - a.state.v_w_b - a.state.T_w_b.rotation * pre.delta().delta_v;
                 (num + lhs * pre.dt(), den + pre.dt() * pre.dt())
             });
     num / den
@@ -187,10 +116,14 @@ struct Errors {
 
 fn errors(out: &Alignment, gt: &[Truth], picks: &[usize], fitted: &Vector3<f64>) -> Errors {
     let n = picks.len() as f64;
-    let bg = picks.iter().map(|&i| gt[i].gyro_bias).sum::<Vector3<f64>>() / n;
+    let bg = picks
+        .iter()
+        .map(|&i| gt[i].state.bias.gyro)
+        .sum::<Vector3<f64>>()
+        / n;
     let ba = picks
         .iter()
-        .map(|&i| gt[i].accel_bias)
+        .map(|&i| gt[i].state.bias.accel)
         .sum::<Vector3<f64>>()
         / n;
     let R_v_w = T_v_w().rotation;

@@ -1,94 +1,15 @@
 //! Preintegration of the REAL EuRoC V1_01_easy IMU between ground-truth states.
 //!
-//! Data: `$FERROSLAM_DATA/euroc/V1_01_easy_imu_gt`, else `../../../shared/data/...` relative
-//! to this crate (see that folder's README). Missing data fails the test loudly.
+//! Data: see `common` (missing data fails the test loudly).
 
 #![allow(non_snake_case)]
 
-use std::path::PathBuf;
+mod common;
 
+use common::{data_dir, fitted_gravity, load, median_max, GroundTruth};
 use ferroslam_geometry::so3;
-use ferroslam_imu::{
-    check_units, Bias, ImuDelta, ImuMeasurement, ImuParams, NavState, Preintegrated,
-};
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-
-fn data_dir() -> PathBuf {
-    std::env::var_os("FERROSLAM_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"))
-        .join("euroc/V1_01_easy_imu_gt")
-}
-
-/// Numeric rows of a comma-separated file, skipping `#` comment lines. The first column
-/// (nanoseconds) is returned separately as an integer so no precision is lost.
-fn read_csv(name: &str) -> Vec<(i64, Vec<f64>)> {
-    let path = data_dir().join(name);
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e} (set FERROSLAM_DATA to the data folder)",
-            path.display()
-        )
-    });
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(|l| {
-            let mut fields = l.split(',').map(str::trim);
-            let ns = fields.next().unwrap().parse::<i64>().unwrap();
-            (ns, fields.map(|f| f.parse::<f64>().unwrap()).collect())
-        })
-        .collect()
-}
-
-/// Seconds since `t0_ns`.
-fn seconds(ns: i64, t0_ns: i64) -> f64 {
-    (ns - t0_ns) as f64 * 1e-9
-}
-
-struct GroundTruth {
-    t_s: f64,
-    state: NavState,
-    bias: Bias,
-}
-
-fn load() -> (Vec<ImuMeasurement>, Vec<GroundTruth>) {
-    let imu_rows = read_csv("imu0/data.csv");
-    let t0 = imu_rows[0].0;
-    let imu = imu_rows
-        .iter()
-        .map(|(ns, r)| {
-            ImuMeasurement::new(
-                seconds(*ns, t0),
-                Vector3::new(r[0], r[1], r[2]),
-                Vector3::new(r[3], r[4], r[5]),
-            )
-        })
-        .collect();
-    // vicon2gt: p xyz, q wxyz, v xyz, gyro bias xyz, accel bias xyz.
-    let gt = read_csv("groundtruth_vicon2gt.csv")
-        .iter()
-        .map(|(ns, r)| GroundTruth {
-            t_s: seconds(*ns, t0),
-            state: NavState {
-                R_w_b: UnitQuaternion::from_quaternion(Quaternion::new(r[3], r[4], r[5], r[6])),
-                v_w_b: Vector3::new(r[7], r[8], r[9]),
-                p_w_b: Vector3::new(r[0], r[1], r[2]),
-            },
-            bias: Bias::new(
-                Vector3::new(r[10], r[11], r[12]),
-                Vector3::new(r[13], r[14], r[15]),
-            ),
-        })
-        .collect();
-    (imu, gt)
-}
-
-/// Median and maximum (sorted copy).
-fn median_max(v: &[f64]) -> (f64, f64) {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    (v[v.len() / 2], v[v.len() - 1])
-}
+use ferroslam_imu::{check_units, Bias, ImuDelta, ImuParams, Preintegrated};
+use nalgebra::Vector3;
 
 /// Per-window errors of predicted deltas against ground-truth deltas.
 #[derive(Default)]
@@ -141,7 +62,7 @@ fn preintegrated_deltas_match_vicon2gt_over_half_second_windows() {
         .iter()
         .zip(&gt[WINDOW..])
         .map(|(a, b)| {
-            let pre = Preintegrated::between(&imu, a.t_s, b.t_s, a.bias, &params).unwrap();
+            let pre = Preintegrated::between(&imu, a.t_s, b.t_s, a.bias(), &params).unwrap();
             (a, b, pre)
         })
         .collect();
@@ -151,14 +72,7 @@ fn preintegrated_deltas_match_vicon2gt_over_half_second_windows() {
     // across windows) that body-frame causes (accelerometer bias) cannot produce while the
     // MAV yaws. So fit gravity once, by least squares over all windows:
     // v_j - v_i - R_i dv = g dt.
-    let (num, den) = windows
-        .iter()
-        .fold((Vector3::zeros(), 0.0), |(num, den), (a, b, pre)| {
-            let d = pre.delta();
-            let lhs = b.state.v_w_b - a.state.v_w_b - a.state.R_w_b * d.delta_v;
-            (num + lhs * d.dt, den + d.dt * d.dt)
-        });
-    let gravity: Vector3<f64> = num / den;
+    let gravity = fitted_gravity(windows.iter().map(|(a, b, pre)| (*a, *b, pre)));
     let tilt_deg = gravity.angle(&-Vector3::z()).to_degrees();
     println!(
         "fitted gravity {:?}: |g| {:.4} m/s^2, tilt {tilt_deg:.3} deg",
@@ -178,15 +92,15 @@ fn preintegrated_deltas_match_vicon2gt_over_half_second_windows() {
         (Errors::default(), Errors::default(), Errors::default());
     for (a, b, pre) in &windows {
         let dt = b.t_s - a.t_s;
-        let truth = ImuDelta::between(&a.state, &b.state, dt, &gravity);
+        let truth = ImuDelta::between(&a.nav_state(), &b.nav_state(), dt, &gravity);
         fitted.push(&pre.delta(), &truth);
         untilted.push(
             &pre.delta(),
-            &ImuDelta::between(&a.state, &b.state, dt, &nominal),
+            &ImuDelta::between(&a.nav_state(), &b.nav_state(), dt, &nominal),
         );
         // Bias Jacobians on real data: integrate at zero bias, correct to the true bias.
         let zero = pre.reintegrated(Bias::default()).unwrap();
-        from_zero_bias.push(&zero.corrected(&a.bias), &truth);
+        from_zero_bias.push(&zero.corrected(&a.bias()), &truth);
     }
     let [rot, vel, pos] = fitted.summary("fitted gravity");
     let [rot_n, vel_n, pos_n] = untilted.summary("g = (0, 0, -9.81)");
