@@ -1,5 +1,7 @@
 //! IMU support for ferroslam: measurements, noise parameters, biases, unit plausibility
-//! checks and on-manifold preintegration (Forster et al., T-RO 2017).
+//! checks, on-manifold preintegration (Forster et al., T-RO 2017), the inertial residuals
+//! of visual-inertial BA ([`InertialFactor`], [`BiasWalkFactor`]; LEFT pose perturbations)
+//! and velocity/bias refinement from fixed poses ([`inertial_velocity_refine`]).
 //!
 //! # Frames and units
 //!
@@ -32,6 +34,7 @@ pub mod plausibility;
 pub mod preintegration;
 pub mod residual;
 pub mod state;
+pub mod velocity_refine;
 
 pub use bias::Bias;
 pub use error::ImuError;
@@ -41,3 +44,4 @@ pub use plausibility::check_units;
 pub use preintegration::{BiasJacobians, Preintegrated};
 pub use residual::{BiasWalkFactor, ImuState, InertialFactor, InertialJacobians};
 pub use state::{ImuDelta, NavState};
+pub use velocity_refine::{inertial_velocity_refine, VelocityRefineConfig, VelocityRefinement};
