@@ -7,7 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
+from ferroslam import metrics
 from ferroslam.datasets import KittiSequence, TumSequence
+from ferroslam.trajectory import Trajectory
 from ferroslam.pipeline import run_sequence
 from ferroslam.vslam import MonoVSlam, RGBDVSlam, StereoVSlam, TrackingStatus
 
@@ -56,9 +58,14 @@ def test_rgbd_workflow_matches_the_pipeline(tum, rgbd_run):
 
 
 def test_threaded_stress_matches_synchronous(tum, rgbd_run):
-    """Frames pushed as fast as extraction allows (no pacing): the background thread lags,
-    the bounded queue blocks the producer instead of growing, and the result equals the
-    synchronous run exactly (frames are processed in order)."""
+    """Frames pushed as fast as extraction allows (no pacing, ~5x real time): the tracking
+    thread lags, the bounded queue blocks the producer instead of growing, local mapping runs
+    in a third thread on map snapshots, and every frame is still tracked with an accuracy
+    close to the synchronous run's. Measured on these 60 frames: 3.6-4.0 cm over four
+    threaded runs against 2.35 cm synchronous; runs differ because mapping lags tracking by a
+    varying number of frames. Paced at 30 Hz instead, the whole sequence gives 2.78 cm
+    threaded against 2.73 cm synchronous (scratch run), so the gap is the price of feeding
+    faster than real time; the bound allows 2.5x."""
     vslam = RGBDVSlam(tum.camera, depth_scale_factor=5000, skip_max_frames=30)
     seen_pending = False
     for i in range(N_FRAMES):
@@ -68,9 +75,18 @@ def test_threaded_stress_matches_synchronous(tum, rgbd_run):
     vslam.wait()
     assert vslam.is_done() and vslam.num_processed == N_FRAMES
     assert seen_pending  # the work really happened in the background
+    assert vslam.check_status() is not TrackingStatus.LOST
     sync, _, _ = rgbd_run
-    np.testing.assert_array_equal(vslam.frame_trajectory()[1], sync.frame_trajectory()[1])
-    np.testing.assert_array_equal(vslam.map_points(), sync.map_points())
+    groundtruth = Trajectory(*tum.groundtruth())
+
+    def ate(v):
+        stamps, poses, _ = v.frame_trajectory()
+        return metrics.ate(groundtruth, Trajectory(stamps, poses)).rmse
+
+    threaded_stamps = vslam.frame_trajectory()[0]
+    assert len(threaded_stamps) == N_FRAMES
+    assert ate(vslam) < 2.5 * ate(sync), (ate(vslam), ate(sync))
+    assert vslam._system.num_keyframes >= 3
     vslam.close()
 
 

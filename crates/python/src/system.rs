@@ -255,7 +255,7 @@ impl PySlamSystem {
         let engine = if threaded {
             let guard = system.input_guard();
             Engine::Background {
-                slam: BackgroundSlam::spawn(system),
+                slam: BackgroundSlam::spawn(system, true),
                 guard,
             }
         } else {
@@ -355,17 +355,20 @@ impl PySlamSystem {
             .collect()
     }
 
-    /// Whether every submitted frame has been processed (always true when synchronous).
+    /// Whether every submitted frame has been tracked and mapped (always true when
+    /// synchronous).
     fn is_done(&self) -> bool {
         match &self.engine {
             Engine::Inline(_) => true,
-            Engine::Background { slam, .. } => slam.pending() == 0,
+            Engine::Background { slam, .. } => slam.is_idle(),
         }
     }
 
-    /// Blocks (without the GIL) until every submitted frame has been processed.
+    /// Blocks (without the GIL) until every submitted frame has been tracked and mapped.
     fn wait(&mut self, py: Python<'_>) -> PyResult<()> {
-        self.engine.run(py, |_| ())
+        self.engine
+            .run(py, SlamSystem::finish_mapping)?
+            .map_err(to_py)
     }
 
     /// Whether frames are processed in a background thread.

@@ -1,10 +1,12 @@
-//! Background mode: the SLAM system runs in a thread of its own, fed through a bounded queue.
+//! Background mode: the SLAM system runs in a thread of its own, fed through a bounded queue,
+//! with local mapping and loop closing in a third thread.
 //!
 //! The caller (e.g. Python, extracting ORB features) submits frames and returns at once
-//! unless the queue is full; the worker tracks and maps them in submission order, so results
-//! are exactly those of the synchronous [`SlamSystem`]. Everything else (trajectory, map,
-//! saving) is a message executed by the worker after the frames queued before it: the worker
-//! owns the map, nobody locks it.
+//! unless the queue is full; the tracking thread tracks them in submission order and hands
+//! keyframes to the mapping thread ([`SlamSystem::set_concurrent_mapping`]), so tracking
+//! never waits for local bundle adjustment. Everything else (trajectory, map, saving) is a
+//! message executed by the tracking thread after the frames queued before it: it owns the
+//! map, nobody locks it. [`BackgroundSlam::wait`] also waits for the mapping thread.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
@@ -155,12 +157,18 @@ pub struct BackgroundSlam {
     /// Behind a mutex only so the handle can be shared (`Sync`); one reader at a time.
     results: Mutex<Receiver<Result<TrackResult, SlamError>>>,
     pending: Arc<AtomicUsize>,
+    /// Keyframes the mapping thread has queued or is processing.
+    mapping_backlog: Option<Arc<AtomicUsize>>,
     worker: Option<JoinHandle<()>>,
 }
 
 impl BackgroundSlam {
-    /// Moves `system` into a new worker thread.
-    pub fn spawn(mut system: SlamSystem) -> Self {
+    /// Moves `system` into a new tracking thread; local mapping and loop closing run in
+    /// another (unless `concurrent_mapping` is false: then inline, in the tracking thread).
+    pub fn spawn(mut system: SlamSystem, concurrent_mapping: bool) -> Self {
+        // Switching on cannot fail: there is no queued work to finish.
+        let _ = system.set_concurrent_mapping(concurrent_mapping);
+        let mapping_backlog = system.mapping_backlog();
         let (sender, inbox) = sync_channel::<Message>(QUEUE_CAPACITY);
         let (report, results) = channel();
         let pending = Arc::new(AtomicUsize::new(0));
@@ -173,6 +181,7 @@ impl BackgroundSlam {
             sender: Some(sender),
             results: Mutex::new(results),
             pending,
+            mapping_backlog,
             worker: Some(worker),
         }
     }
@@ -219,9 +228,23 @@ impl BackgroundSlam {
         self.pending.load(Ordering::SeqCst)
     }
 
-    /// Blocks until every submitted frame is processed.
+    /// Whether every submitted frame is tracked and every keyframe mapped (the mapping
+    /// thread's last edits reach the map with the next frame or query).
+    pub fn is_idle(&self) -> bool {
+        self.pending() == 0
+            && self
+                .mapping_backlog
+                .as_ref()
+                .is_none_or(|b| b.load(Ordering::SeqCst) == 0)
+    }
+
+    /// Blocks until every submitted frame is processed and mapped, and the map has every
+    /// edit of the mapping thread.
+    ///
+    /// # Errors
+    /// An error local mapping met, or a stopped thread.
     pub fn wait(&self) -> Result<(), SlamError> {
-        self.run(|_| ())
+        self.run(SlamSystem::finish_mapping)?
     }
 }
 
@@ -256,6 +279,8 @@ fn worker_loop(
             Message::Run(job) => job(system),
         }
     }
+    // The queue is closed: let the mapping thread finish so nothing submitted is lost.
+    let _ = system.finish_mapping();
 }
 
 fn stopped() -> SlamError {
@@ -288,7 +313,7 @@ mod tests {
 
     #[test]
     fn frames_and_queries_run_in_submission_order() {
-        let slam = BackgroundSlam::spawn(system());
+        let slam = BackgroundSlam::spawn(system(), true);
         for i in 0..20 {
             slam.submit(empty(i as f64)).unwrap();
         }
@@ -308,7 +333,7 @@ mod tests {
 
     #[test]
     fn dropping_with_queued_frames_finishes_them_and_stops() {
-        let slam = BackgroundSlam::spawn(system());
+        let slam = BackgroundSlam::spawn(system(), true);
         for i in 0..(3 * QUEUE_CAPACITY) {
             slam.submit(empty(i as f64)).unwrap();
         }

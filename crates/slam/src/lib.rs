@@ -7,6 +7,7 @@
 #![allow(non_snake_case)]
 
 pub mod background;
+pub mod concurrent_mapping;
 pub mod config;
 pub mod context;
 pub mod error;

@@ -85,6 +85,21 @@ impl LocalMapper {
         self.recent_points.push(m);
     }
 
+    /// Hands over the recent points (to the concurrent mapping thread).
+    pub(crate) fn take_recent_points(&mut self) -> Vec<MapPointId> {
+        std::mem::take(&mut self.recent_points)
+    }
+
+    /// Follows the renaming of points created in a map copy and replayed on the original
+    /// (see `ferroslam_map::MapJournal`).
+    pub(crate) fn rename_recent_points(&mut self, renamed: &HashMap<MapPointId, MapPointId>) {
+        for m in &mut self.recent_points {
+            if let Some(new) = renamed.get(m) {
+                *m = *new;
+            }
+        }
+    }
+
     /// Turns a tracked frame into a keyframe: links its matched points, and creates points
     /// from measured depth for the closest unmatched features (ORB-SLAM `CreateNewKeyFrame`,
     /// at least 100 points, all those closer than `close_depth_m`; the first keyframe passes

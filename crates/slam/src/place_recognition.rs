@@ -43,6 +43,11 @@ impl PlaceRecognition {
         }
     }
 
+    /// The vocabulary words come from.
+    pub fn vocabulary(&self) -> &Arc<Vocabulary> {
+        &self.vocabulary
+    }
+
     /// Bag of words of a set of descriptors.
     pub fn bow(&self, descriptors: &[Descriptor]) -> BowVector {
         self.vocabulary.transform(descriptors, FEATURE_LEVELS_UP).0

@@ -7,6 +7,7 @@ use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{KeyFrameId, Map};
 use nalgebra::{Isometry3, Vector3};
 
+use crate::concurrent_mapping::{ConcurrentMapper, KeyFrameWork, MAX_QUEUED_KEYFRAMES};
 use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
@@ -69,8 +70,14 @@ pub struct SlamSystem {
     localization_only: bool,
     /// Bag-of-words index of the keyframes, once a vocabulary is set.
     place: Option<PlaceRecognition>,
-    /// Loop detection and correction (with a vocabulary and `config.loop_closure`).
+    /// Loop detection and correction (with a vocabulary and `config.loop_closure`), when
+    /// mapping runs inline.
     closer: LoopCloser,
+    /// The mapping thread, when local mapping and loop closing run concurrently.
+    concurrent: Option<ConcurrentMapper>,
+    /// Loops closed so far (kept across map resets) and the detection counters.
+    loops: Vec<LoopClosure>,
+    loop_stats: LoopStats,
     frames_seen: usize,
     guard: InputGuard,
     resets: usize,
@@ -95,6 +102,9 @@ impl SlamSystem {
             localization_only: false,
             place: None,
             closer: LoopCloser::default(),
+            concurrent: None,
+            loops: Vec::new(),
+            loop_stats: LoopStats::default(),
             frames_seen: 0,
             guard,
             resets: 0,
@@ -147,6 +157,7 @@ impl SlamSystem {
     /// Initialises or tracks a frame, then inserts a keyframe when needed.
     fn track_frame(&mut self, mut frame: Frame, start: Instant) -> Result<TrackResult, SlamError> {
         self.frames_seen += 1;
+        self.collect_mapping(false)?;
         if self.tracker.state == TrackingState::NotInitialized {
             let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
                 (self.initialise(frame)?, None)
@@ -201,6 +212,16 @@ impl SlamSystem {
             && self.tracker.state == TrackingState::Ok
             && self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx);
         if new_keyframe {
+            // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
+            // frames would be tracked against a map missing the points of several keyframes
+            // (fatal for monocular maps, which only grow by triangulation), so it waits.
+            if self
+                .concurrent
+                .as_ref()
+                .is_some_and(|c| c.backlog() >= MAX_QUEUED_KEYFRAMES)
+            {
+                self.finish_mapping()?;
+            }
             let mut report = MappingReport::default();
             let kf = self.mapper.insert_keyframe(
                 &mut frame,
@@ -210,18 +231,21 @@ impl SlamSystem {
                 &mut report,
             )?;
             self.tracker.on_keyframe(frame.index, kf);
-            self.mapper
-                .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
             result.is_keyframe = true;
+            if let Some(concurrent) = self.concurrent.as_mut() {
+                let work = KeyFrameWork {
+                    kf,
+                    new_points: self.mapper.take_recent_points(),
+                };
+                concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
+            } else {
+                self.mapper
+                    .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
+                self.index_keyframes();
+                result.loop_closure = self.close_loops(kf)?;
+            }
             result.mapping = Some(report);
             self.index_keyframes();
-            if let Some(place) = self.place.as_ref().filter(|_| self.ctx.config.loop_closure) {
-                if self.map.keyframe(kf).is_some() {
-                    result.loop_closure =
-                        self.closer
-                            .process_keyframe(kf, &mut self.map, &self.ctx, place)?;
-                }
-            }
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(r) = self.tracker.reference_kf {
@@ -231,6 +255,87 @@ impl SlamSystem {
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, new_keyframe);
         Ok(result)
+    }
+
+    /// Inline loop closing for keyframe `kf` (with a vocabulary and `config.loop_closure`).
+    fn close_loops(&mut self, kf: KeyFrameId) -> Result<Option<LoopClosure>, SlamError> {
+        let Some(place) = self.place.as_ref().filter(|_| self.ctx.config.loop_closure) else {
+            return Ok(None);
+        };
+        if self.map.keyframe(kf).is_none() {
+            return Ok(None);
+        }
+        let closed = self
+            .closer
+            .process_keyframe(kf, &mut self.map, &self.ctx, place)?;
+        self.loop_stats = self.closer.stats();
+        self.loops.extend(closed.clone());
+        Ok(closed)
+    }
+
+    /// Runs local mapping and loop closing in a thread of their own (`true`) or inline in
+    /// each call (`false`, the default: deterministic). Concurrent mapping works on copies of
+    /// the map and its edits are replayed here before each frame (see
+    /// [`crate::concurrent_mapping`]); switching it off first finishes the work queued.
+    ///
+    /// # Errors
+    /// An error local mapping met in the thread.
+    pub fn set_concurrent_mapping(&mut self, on: bool) -> Result<(), SlamError> {
+        if on == self.concurrent.is_some() {
+            return Ok(());
+        }
+        if on {
+            // Points created since the last keyframe (monocular initialisation) go with the
+            // next keyframe to the thread.
+            self.concurrent = Some(ConcurrentMapper::spawn(self.ctx.clone()));
+            Ok(())
+        } else {
+            let finished = self.finish_mapping();
+            self.concurrent = None;
+            finished
+        }
+    }
+
+    /// Whether local mapping runs in its own thread.
+    pub fn concurrent_mapping(&self) -> bool {
+        self.concurrent.is_some()
+    }
+
+    /// Keyframes the mapping thread has queued or is processing (0 inline), shared so
+    /// another thread can poll it.
+    pub fn mapping_backlog(&self) -> Option<Arc<std::sync::atomic::AtomicUsize>> {
+        self.concurrent
+            .as_ref()
+            .map(ConcurrentMapper::backlog_handle)
+    }
+
+    /// Waits for the mapping thread to process every queued keyframe and applies its edits
+    /// to the map (no-op inline).
+    ///
+    /// # Errors
+    /// An error local mapping met in the thread.
+    pub fn finish_mapping(&mut self) -> Result<(), SlamError> {
+        self.collect_mapping(true)
+    }
+
+    /// Applies what the mapping thread finished (waiting for all of it if `wait`).
+    fn collect_mapping(&mut self, wait: bool) -> Result<(), SlamError> {
+        let Some(concurrent) = self.concurrent.as_mut() else {
+            return Ok(());
+        };
+        let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
+        let finished = concurrent.collect(&mut self.map, vocabulary.as_ref(), wait);
+        if finished.is_empty() {
+            return Ok(());
+        }
+        let mut error = None;
+        for mapped in finished {
+            self.loops.extend(mapped.loops);
+            self.loop_stats = mapped.stats;
+            error = error.or(mapped.error);
+        }
+        self.index_keyframes();
+        error.map_or(Ok(()), Err)
     }
 
     /// A lost map with few keyframes is discarded (ORB-SLAM); a lost monocular map that does
@@ -330,6 +435,9 @@ impl SlamSystem {
         self.mapper.reset();
         self.initializer.reset();
         self.closer.reset_map();
+        if let Some(concurrent) = self.concurrent.as_mut() {
+            concurrent.reset();
+        }
         self.trajectory.clear();
         self.lost_since = None;
     }
@@ -351,12 +459,12 @@ impl SlamSystem {
 
     /// Loops closed so far, oldest first (kept across map resets).
     pub fn loops(&self) -> &[LoopClosure] {
-        self.closer.loops()
+        &self.loops
     }
 
     /// What loop detection has done so far.
     pub fn loop_stats(&self) -> LoopStats {
-        self.closer.stats()
+        self.loop_stats
     }
 
     /// Localisation-only mode: frames are tracked (and relocalised) against the map but never

@@ -81,7 +81,10 @@ pub(super) fn correct_loop(
         match own {
             Some(own) if own != loop_point => map.replace_map_point(own, loop_point)?,
             Some(_) => {}
-            None if map.map_point(loop_point).is_some_and(|p| p.observation(current).is_none()) => {
+            None if map
+                .map_point(loop_point)
+                .is_some_and(|p| p.observation(current).is_none()) =>
+            {
                 map.add_observation(loop_point, current, i)?;
                 map.compute_distinctive_descriptor(loop_point)?;
             }

@@ -116,7 +116,9 @@ pub(super) fn optimize_essential_graph(
             .get(&m)
             .copied()
             .unwrap_or_else(|| p.reference_keyframe());
-        let Some(&r) = index.get(&reference) else { continue };
+        let Some(&r) = index.get(&reference) else {
+            continue;
+        };
         let p_w = move_point(&p.position(), &initial[r], &optimised[r]);
         map.set_map_point_position(m, p_w)?;
         map.update_normal_and_depth(m)?;

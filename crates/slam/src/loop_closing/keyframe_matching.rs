@@ -1,8 +1,8 @@
 //! Matching the map points of two keyframes: by bag-of-words node (ORB-SLAM
 //! `SearchByBoW(KeyFrame, KeyFrame)`) and guided by a Sim(3) (`SearchBySim3`).
 
-use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_HIGH, TH_LOW};
 use ferroslam_features::matcher::RotationHistogram;
+use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_HIGH, TH_LOW};
 use ferroslam_features::{hamming, MatchOptions};
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
@@ -97,7 +97,8 @@ pub(super) fn match_by_sim3(
     let (Some(k1), Some(k2)) = (map.keyframe(kf1), map.keyframe(kf2)) else {
         return 0;
     };
-    let already: std::collections::HashSet<MapPointId> = matches.iter().flatten().copied().collect();
+    let already: std::collections::HashSet<MapPointId> =
+        matches.iter().flatten().copied().collect();
     let S_21 = S_12.inverse();
     // Camera-1 points of kf1's unmatched map points, projected into kf2, and vice versa.
     let side = |from: &ferroslam_map::KeyFrame,
@@ -145,7 +146,8 @@ pub(super) fn match_by_sim3(
             nn_ratio: None,
             check_orientation: false,
         };
-        let found = search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &[], &opts);
+        let found =
+            search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &[], &opts);
         let mut out = vec![None; from.map_points().len()];
         for (q, hit) in found.into_iter().enumerate() {
             if let Some((t, _)) = hit {

@@ -67,21 +67,15 @@ const MIN_KEYFRAMES_BETWEEN: u32 = 10;
 pub struct LoopCloser {
     detector: LoopDetector,
     last_loop: Option<KeyFrameId>,
-    loops: Vec<LoopClosure>,
     stats: LoopStats,
 }
 
 impl LoopCloser {
-    /// Forgets the candidate groups of a discarded map; the loops closed so far and the
-    /// counters stay (they describe the run).
+    /// Forgets the candidate groups of a discarded map; the counters stay (they describe
+    /// the run).
     pub fn reset_map(&mut self) {
         self.detector.clear();
         self.last_loop = None;
-    }
-
-    /// Loops closed so far, oldest first.
-    pub fn loops(&self) -> &[LoopClosure] {
-        &self.loops
     }
 
     /// What detection has done so far.
@@ -141,7 +135,6 @@ impl LoopCloser {
             };
             self.last_loop = Some(kf);
             self.detector.clear();
-            self.loops.push(loop_closure.clone());
             return Ok(Some(loop_closure));
         }
         Ok(None)

@@ -5,12 +5,12 @@
 
 use std::collections::HashSet;
 
+use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_LOW};
+use ferroslam_features::MatchOptions;
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_geometry::sim3_ransac::{sim3_ransac, Sim3Correspondence, Sim3RansacParams};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::sim3_align::{optimize_sim3, Sim3Match};
-use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_LOW};
-use ferroslam_features::MatchOptions;
 use nalgebra::{Isometry3, Point3, Translation3, Vector2};
 use rand_chacha::ChaCha8Rng;
 
@@ -89,9 +89,24 @@ pub(crate) fn verify_loop(
         })
         .collect();
     let ransac = sim3_ransac(&corr, |p| ctx.camera.project(p), &params, rng)?;
-    match_by_sim3(map, ctx, current, candidate, &ransac.S_12, GUIDED_RADIUS_PX, &mut matches);
+    match_by_sim3(
+        map,
+        ctx,
+        current,
+        candidate,
+        &ransac.S_12,
+        GUIDED_RADIUS_PX,
+        &mut matches,
+    );
     let (ids, pairs) = correspondences(map, current, candidate, &matches);
-    let refined = optimize_sim3(&ransac.S_12, &pairs, &ctx.intrinsics, REFINE_CHI2, fix_scale).ok()?;
+    let refined = optimize_sim3(
+        &ransac.S_12,
+        &pairs,
+        &ctx.intrinsics,
+        REFINE_CHI2,
+        fix_scale,
+    )
+    .ok()?;
     if refined.num_inliers < MIN_STAGE_MATCHES {
         return None;
     }
@@ -109,8 +124,14 @@ pub(crate) fn verify_loop(
     }
     let mut loop_points = Vec::new();
     let mut seen = HashSet::new();
-    for kf in std::iter::once(candidate).chain(map.covisibles(candidate).into_iter().map(|(k, _)| k)) {
-        for m in map.keyframe(kf).into_iter().flat_map(|k| k.map_points().iter().flatten()) {
+    for kf in
+        std::iter::once(candidate).chain(map.covisibles(candidate).into_iter().map(|(k, _)| k))
+    {
+        for m in map
+            .keyframe(kf)
+            .into_iter()
+            .flat_map(|k| k.map_points().iter().flatten())
+        {
             if map.map_point(*m).is_some() && seen.insert(*m) {
                 loop_points.push(*m);
             }
@@ -143,7 +164,14 @@ pub(crate) fn verify_loop(
         nn_ratio: None,
         check_orientation: false,
     };
-    let found = search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &taken, &opts);
+    let found = search_by_projection(
+        &queries,
+        &f.keypoints,
+        &f.descriptors,
+        &f.grid,
+        &taken,
+        &opts,
+    );
     for (q, hit) in found.into_iter().enumerate() {
         if let Some((i, _)) = hit {
             matched[i] = Some(sources[q]);
