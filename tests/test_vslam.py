@@ -181,7 +181,8 @@ def test_verbose_log_and_close(tum, capsys):
     assert "frame 0: map initialised" in printed and str(log) in printed
     text = log.read_text()
     assert text.count("\nframe ") + text.startswith("frame ") == 3
-    assert "T_w_c after local BA" in text
+    assert "T_w_c after local BA" in text and "T_w_c before local BA" in text
+    assert "initial map: 1 keyframes" in text
     with pytest.raises(RuntimeError, match="closed"):
         vslam.add_frame(tum.load_gray(3), raw_depth(tum, 3))
 

@@ -51,6 +51,11 @@ class TrackingStatus(enum.Enum):
     camera; raise ``skip_max_frames`` (``FrequentKeyFrames``)."""
 
 
+def _pose_text(T: np.ndarray) -> str:
+    """The 3x4 part of a pose, one line."""
+    return np.array2string(T[:3].ravel(), precision=6, max_line_width=400)
+
+
 def _positive_int(name: str, value: Any) -> int:
     if isinstance(value, bool) or int(value) != value or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -70,8 +75,9 @@ class _VSlam:
     closing off), ``vocabulary`` (the bag of words used to relocalise and detect loops:
     ``"default"`` ships with the package; a file path or a ``ferroslam._core.Vocabulary``;
     ``None`` for none; CustomBagOfFeatures), ``verbose``
-    (Verbose: 1 prints stages, 2 also logs every frame to a file in the temporary folder, 3
-    adds keyframe poses after each local BA), ``frame_rate_hz`` (timestamps when none are
+    (Verbose: 1 prints stages and loop closures, 2 also logs every frame, the initial map and
+    each loop closure's data to a file in the temporary folder, 3 adds each new keyframe's
+    pose before local BA and the keyframe poses after it), ``frame_rate_hz`` (timestamps when none are
     given), ``seed``.
     """
 
@@ -135,6 +141,7 @@ class _VSlam:
         self._last_timestamp: Optional[float] = None
         self._last = None
         self._new_keyframe = False
+        self._loops_seen = 0
         self._closed = False
         self._log: Optional[TextIO] = None
         self.log_path: Optional[Path] = None
@@ -180,8 +187,9 @@ class _VSlam:
         if self.verbose == 0:
             return
         frame = self._processed - 1
+        initialised = previous == "not_initialized" and result.state == "ok"
         events = []
-        if previous == "not_initialized" and result.state == "ok":
+        if initialised:
             events.append("map initialised")
         elif previous == "ok" and result.state == "lost":
             events.append("tracking lost")
@@ -189,6 +197,9 @@ class _VSlam:
             events.append("relocalised")
         if result.is_keyframe:
             events.append(f"new keyframe ({self._system.num_keyframes} in the map)")
+        loops = self._new_loops() if result.is_keyframe else []
+        events.extend(f"loop closed between keyframes {lp['current']} and {lp['matched']}"
+                      for lp in loops)
         for event in events:
             print(f"ferroslam: frame {frame}: {event}")
         if self._log is None:
@@ -198,12 +209,25 @@ class _VSlam:
         self._log.write(f"frame {frame} state={result.state} tracked={result.num_tracked} "
                         f"keyframe={result.is_keyframe} core_ms={ms:.2f}"
                         + (f" init: {reason}" if reason else "") + "\n")
+        if initialised:
+            self._log.write(f"  initial map: {self._system.num_keyframes} keyframes, "
+                            f"{self._system.num_map_points} map points\n")
+        for lp in loops:
+            self._log.write(f"  loop closure {lp}\n")
         if self.verbose >= 3 and result.is_keyframe:
+            if result.T_w_c is not None:
+                self._log.write(f"  new keyframe T_w_c before local BA "
+                                f"{_pose_text(result.T_w_c)}\n")
             ids, poses = self.poses()
             for i, T in zip(ids.tolist(), poses):
-                self._log.write(f"  keyframe {i} T_w_c after local BA "
-                                f"{np.array2string(T[:3].ravel(), precision=6, max_line_width=400)}\n")
+                self._log.write(f"  keyframe {i} T_w_c after local BA {_pose_text(T)}\n")
         self._log.flush()
+
+    def _new_loops(self) -> list:
+        """Loops closed since the last call (only looked up when verbose)."""
+        loops = self._system.loops()
+        new, self._loops_seen = loops[self._loops_seen:], len(loops)
+        return new
 
     # -- what MATLAB users call -----------------------------------------------------------
     def has_new_keyframe(self) -> bool:
