@@ -150,8 +150,10 @@ class OrbSlam3Run:
         return sum(s == "OK" for s in self.states)
 
 
-def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path) -> OrbSlam3Run:
-    """Feed frames ``0..n`` of ``seq`` to ORB-SLAM3 one by one, timing only the track call.
+def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path,
+                 realtime: bool = False) -> OrbSlam3Run:
+    """Feed frames ``0..n`` of ``seq`` to ORB-SLAM3 one by one, timing only the track call
+    (at the pace of their timestamps with ``realtime``).
 
     Image loading (and TUM depth scaling to raw units) happens outside the timed region, as
     ferroslam's ``frame_ms`` excludes loading. ORB-SLAM3's local mapping and loop closing
@@ -168,8 +170,11 @@ def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path) -> OrbSl
     factor = PRESETS["tum"]["depth_factor"]
     call_ms = np.full(n, np.nan)
     states, stamps, poses = [], [], []
+    start = time.perf_counter()
     for i in range(n):
         t = float(seq.timestamps[i])
+        if realtime:
+            time.sleep(max(0.0, start + t - float(seq.timestamps[0]) - time.perf_counter()))
         if sensor == "rgbd":
             args = (seq.load_gray(i), (seq.load_depth(i) * factor).astype(np.float32))
             fn = slam.track_rgbd

@@ -10,16 +10,20 @@ process would inherit; both systems of a sequence share that process.
 
     python benches/compare.py [--sequences tum_rgbd tum_mono kitti_stereo euroc_stereo]
                               [--max-frames N] [--orb3-runs R] [--json OUT] [--workdir DIR]
+                              [--inline-mapping] [--realtime]
 
 Needs ``pip install -e .[bench]`` (pyorbslam3) and the native module built in release mode.
 ORB-SLAM3 uses ferroslam's shipped vocabulary exported as DBoW2 text and settings files
 written from the loaders' calibration (``benches/_orbslam3.py``), both in a temporary folder
 (``--workdir`` to keep them); ORB-SLAM3's console output goes to ``<workdir>/<seq>.log``.
 
-Times: ours = ``frame_ms`` (ORB extraction + depth sampling / stereo matching + tracking +
-local mapping, which runs inside the call); ORB-SLAM3 = the track call (extraction +
+Times: ours = ``frame_ms`` (ORB extraction + depth sampling / stereo matching + tracking;
+local mapping and loop closing run in their own thread, as ORB-SLAM3's do, unless
+``--inline-mapping`` puts them inside the call); ORB-SLAM3 = the track call (extraction +
 tracking; its local mapping and loop closing run in background threads that compete for
-the same cores). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
+the same cores). Frames go to both systems as fast as they take them, or at the pace of
+their timestamps with ``--realtime`` (a live camera: mapping threads then have the time
+between frames, as in ORB-SLAM's own examples). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
 each system (``/proc/self/clear_refs``), minus the RSS at its start.
 """
 
@@ -70,7 +74,8 @@ def _ate(gt, traj, align: str) -> dict:
     return {"rmse_m": float(a.rmse), "pairs": int(a.pairs), "scale": float(a.scale)}
 
 
-def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int) -> None:
+def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int,
+           mapping_thread: bool, realtime: bool) -> None:
     """Run both systems on one sequence and write the measurements as JSON to ``out``."""
     from ferroslam._data import data_dir
     from ferroslam.datasets import open_sequence
@@ -84,15 +89,17 @@ def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int) -> N
     gt = Trajectory(*seq.groundtruth())
     vocab = orb.export_vocabulary(workdir)
     settings = orb.write_settings(seq, sensor, workdir)
-    config = orb.ferroslam_config(seq, sensor)
+    config = {**orb.ferroslam_config(seq, sensor), "mapping_thread": mapping_thread}
     rec = {"sequence": name, "path": folder, "sensor": sensor, "frames": n, "align": align,
+           "realtime": realtime,
            "config": config, "settings": str(settings), "load_start": orb.load_average()}
 
     # ferroslam
     base = orb.memory_kb()["VmRSS"]
     orb.reset_peak_memory()
     t0 = time.perf_counter()
-    res = run_sequence(seq, config, max_frames=n, progress=False, sensor=sensor)
+    res = run_sequence(seq, config, max_frames=n, progress=False, sensor=sensor,
+                       realtime=realtime)
     wall = time.perf_counter() - t0
     peak = orb.memory_kb()["VmHWM"]
     traj = res.trajectory
@@ -115,7 +122,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int) -> N
         base = orb.memory_kb()["VmRSS"]
         orb.reset_peak_memory()
         t0 = time.perf_counter()
-        run = orb.run_orbslam3(seq, sensor, n, vocab, settings)
+        run = orb.run_orbslam3(seq, sensor, n, vocab, settings, realtime=realtime)
         wall = time.perf_counter() - t0
         peak = orb.memory_kb()["VmHWM"]
         runs.append({
@@ -195,12 +202,17 @@ def main(argv=None) -> int:
     parser.add_argument("--workdir", type=Path, help="keep settings, vocabulary and logs here")
     parser.add_argument("--orb3-runs", type=int, default=3,
                         help="ORB-SLAM3 runs per sequence (not deterministic; median-ATE run shown)")
+    parser.add_argument("--inline-mapping", action="store_true",
+                        help="run our local mapping inside the track call (deterministic)")
+    parser.add_argument("--realtime", action="store_true",
+                        help="feed frames at the pace of their timestamps")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     if args.worker:
-        worker(args.worker, args.max_frames, args.worker_out, args.workdir, args.orb3_runs)
+        worker(args.worker, args.max_frames, args.worker_out, args.workdir, args.orb3_runs,
+               not args.inline_mapping, args.realtime)
         return 0
 
     tmp = None
@@ -215,6 +227,7 @@ def main(argv=None) -> int:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", name,
                "--worker-out", str(out), "--workdir", str(args.workdir)]
         cmd += ["--orb3-runs", str(args.orb3_runs)]
+        cmd += ["--inline-mapping"] * args.inline_mapping + ["--realtime"] * args.realtime
         if args.max_frames:
             cmd += ["--max-frames", str(args.max_frames)]
         print(f"running {name} ... (log {log})", flush=True)

@@ -169,6 +169,8 @@ def main(argv=None) -> int:
     parser.add_argument("--max-frames", type=int, help="process only the first N frames")
     parser.add_argument("--config", help="JSON object or JSON file of SlamSystem/extractor options")
     parser.add_argument("--json", type=Path, metavar="OUT", help="also write the report as JSON")
+    parser.add_argument("--realtime", action="store_true",
+                        help="feed frames at the pace of their timestamps (a live camera)")
     args = parser.parse_args(argv)
     if not args.sequence.is_dir():
         parser.error(f"sequence not found: {args.sequence} (set FERROSLAM_DATA)")
@@ -183,7 +185,7 @@ def main(argv=None) -> int:
         return recorders[-1]
 
     result = run_sequence(seq, _config(args.config), max_frames=args.max_frames, progress=False,
-                          sensor=args.sensor, system_factory=factory)
+                          sensor=args.sensor, system_factory=factory, realtime=args.realtime)
     rep = report(result, np.array(recorders[0].is_keyframe, bool), time.perf_counter() - start,
                  budget_ms)
     print_report(rep)

@@ -69,6 +69,9 @@ class FakeSlamSystem:
     def frame_segments(self):
         return np.zeros(len(self.stamps), dtype=np.uint32)
 
+    def wait(self):
+        pass
+
     def loops(self):
         return []
 

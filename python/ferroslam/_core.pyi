@@ -99,7 +99,10 @@ class TrackResult:
 
 @final
 class SlamSystem:
-    """The SLAM system: tracking and local mapping run synchronously inside each call."""
+    """The SLAM system. By default tracking, local mapping and loop closing run inside each
+    ``track_*`` call (deterministic); ``threaded=True`` tracks in a background thread fed
+    through a bounded queue, and ``set_mapping_thread(True)`` (implied by ``threaded``) maps in
+    another."""
 
     def __new__(
         cls,
@@ -213,12 +216,21 @@ class SlamSystem:
         """Threaded mode: the results of the frames processed since the last call, in order
         (a frame the core rejected raises here). Synchronous mode: always empty."""
     def is_done(self) -> bool:
-        """Whether every submitted frame has been processed (always true synchronously)."""
+        """Whether every submitted frame has been tracked and mapped (always true
+        synchronously)."""
     def wait(self) -> None:
-        """Blocks (without the GIL) until every submitted frame has been processed."""
+        """Blocks (without the GIL) until every submitted frame has been tracked and every
+        keyframe mapped (see ``set_mapping_thread``)."""
     @property
     def threaded(self) -> bool:
         """Whether frames are processed in a background thread."""
+    def set_mapping_thread(self, on: bool) -> None:
+        """Runs local mapping and loop closing in a thread of their own, fed with map
+        snapshots (always so when ``threaded``); off again, the queued keyframes are mapped
+        first. ``wait()`` waits for the mapping thread too."""
+    @property
+    def mapping_thread(self) -> bool:
+        """Whether local mapping and loop closing run in a thread of their own."""
     def loops(self) -> list[dict[str, Any]]:
         """Loops closed so far, oldest first: ``current`` and ``matched`` keyframe ids, their
         ``timestamps`` (s), ``num_matches``, the Sim(3) ``scale`` (1 with depth),

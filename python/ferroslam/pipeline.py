@@ -25,7 +25,7 @@ SENSORS = ("mono", "stereo", "rgbd")
 EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
 _EXTRACTOR_ONLY = ("n_features", "ini_fast", "min_fast")
 # Pipeline options that are not SlamSystem keywords.
-_PIPELINE_ONLY = ("vocabulary",)
+_PIPELINE_ONLY = ("vocabulary", "mapping_thread")
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")
 
 
@@ -296,6 +296,7 @@ def run_sequence(
     *,
     sensor: str = "rgbd",
     system_factory: Optional[Callable[..., Any]] = None,
+    realtime: bool = False,
 ) -> RunResult:
     """Track a whole sequence and evaluate it.
 
@@ -305,9 +306,14 @@ def run_sequence(
         config: keyword options for ``SlamSystem`` (unknown keys: ``ValueError`` from the
             core) plus the extractor options (``n_features``, ``ini_fast``, ``min_fast``) and
             ``vocabulary`` (``"default"``: the shipped one; a vocabulary file; ``None`` for
-            none): lost frames relocalise against the keyframes they resemble.
+            none): lost frames relocalise against the keyframes they resemble; and
+            ``mapping_thread`` (``True``: local mapping and loop closing run in their own
+            thread, as in ORB-SLAM, and ``tracking_ms`` is the tracking thread's time; the
+            default, ``False``, maps inline and is deterministic).
         max_frames: process only the first ``max_frames`` frames.
         progress: show a tqdm progress bar.
+        realtime: feed frames at the pace of their timestamps, as a live camera would
+            (frames are otherwise fed as fast as they are processed).
         sensor: ``"mono"``, ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs
             ``is_stereo``, ``load_stereo(i)`` giving a rectified pair and ``baseline_m``).
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
@@ -340,20 +346,27 @@ def run_sequence(
     vocabulary = config.get("vocabulary", "default")
     if vocabulary:
         system.set_vocabulary(load_vocabulary(vocabulary))
+    if config.get("mapping_thread"):
+        system.set_mapping_thread(True)
     try:
-        return _run(seq, system, feed, n, sensor, config, progress)
+        return _run(seq, system, feed, n, sensor, config, progress, realtime)
     finally:
         feed.close()
 
 
-def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -> RunResult:
+def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
+         realtime: bool) -> RunResult:
 
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
     init_reasons: list[Optional[str]] = []
     num_tracked = np.zeros(n, dtype=np.int64)
     bar = tqdm(range(n), disable=not progress, desc=getattr(seq, "name", "sequence"), unit="frame")
+    start = time.perf_counter()
     for i in bar:
+        if realtime:
+            time.sleep(max(0.0, start + float(seq.timestamps[i] - seq.timestamps[0])
+                           - time.perf_counter()))
         t0 = time.perf_counter()
         data = feed.load(i)
         t1 = time.perf_counter()
@@ -373,6 +386,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool) -
         if progress:
             bar.set_postfix(state=res.state, tracked=res.num_tracked, refresh=False)
     bar.close()
+    system.wait()  # the mapping thread's last keyframes (no-op when mapping inline)
 
     stamps, poses = system.frame_trajectory()
     kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()

@@ -193,7 +193,9 @@ impl PyTrackResult {
     }
 }
 
-/// The SLAM system (synchronous: tracking and local mapping run inside each call).
+/// The SLAM system: tracking, local mapping and loop closing inside each call, or tracking in
+/// a background thread and mapping in another (`threaded`), or mapping alone in its own
+/// thread (`set_mapping_thread`).
 #[pyclass(name = "SlamSystem", module = "ferroslam._core")]
 pub struct PySlamSystem {
     engine: Engine,
@@ -369,6 +371,20 @@ impl PySlamSystem {
         self.engine
             .run(py, SlamSystem::finish_mapping)?
             .map_err(to_py)
+    }
+
+    /// Runs local mapping and loop closing in a thread of their own (always so when
+    /// threaded); off again, the queued keyframes are mapped first.
+    fn set_mapping_thread(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.engine
+            .run(py, move |s| s.set_concurrent_mapping(on))?
+            .map_err(to_py)
+    }
+
+    /// Whether local mapping and loop closing run in a thread of their own.
+    #[getter]
+    fn mapping_thread(&mut self, py: Python<'_>) -> PyResult<bool> {
+        self.engine.run(py, |s| s.concurrent_mapping())
     }
 
     /// Whether frames are processed in a background thread.
