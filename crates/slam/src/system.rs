@@ -12,6 +12,7 @@ use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::inertial::{rescale_map, AlignmentStatus, ImuSample, Inertial, InertialConfig};
 use crate::input_guard::InputGuard;
 use crate::local_mapping::{LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
@@ -81,6 +82,8 @@ pub struct SlamSystem {
     frames_seen: usize,
     guard: InputGuard,
     resets: usize,
+    /// IMU samples, keyframe preintegrations and the camera-IMU alignment, once set.
+    inertial: Option<Inertial>,
 }
 
 impl SlamSystem {
@@ -108,6 +111,7 @@ impl SlamSystem {
             frames_seen: 0,
             guard,
             resets: 0,
+            inertial: None,
         })
     }
 
@@ -246,6 +250,7 @@ impl SlamSystem {
             }
             result.mapping = Some(report);
             self.index_keyframes();
+            self.update_inertial()?;
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
         if let Some(r) = self.tracker.reference_kf {
@@ -440,6 +445,77 @@ impl SlamSystem {
         }
         self.trajectory.clear();
         self.lost_since = None;
+        if let Some(inertial) = self.inertial.as_mut() {
+            inertial.clear_map();
+        }
+    }
+
+    /// Sets the IMU (noise model, camera pose in the body frame, alignment knobs): from now
+    /// on keyframes keep their preintegrated IMU and the camera-IMU alignment runs once the
+    /// map holds `num_poses_threshold` keyframes (see [`crate::inertial`]). Replaces an
+    /// earlier IMU setup, its buffered samples and its alignment.
+    ///
+    /// # Errors
+    /// `InvalidConfig` naming the bad value; the system is unchanged then.
+    pub fn set_imu(&mut self, config: InertialConfig) -> Result<(), SlamError> {
+        self.inertial = Some(Inertial::new(config)?);
+        Ok(())
+    }
+
+    /// The IMU setup, if any.
+    pub fn imu_config(&self) -> Option<&InertialConfig> {
+        self.inertial.as_ref().map(Inertial::config)
+    }
+
+    /// Adds IMU samples (body frame, rad/s and m/s^2, camera clock). Feed the samples up to
+    /// (and including) a frame's time before tracking that frame: a keyframe's IMU is
+    /// integrated once samples cover it.
+    ///
+    /// # Errors
+    /// `InvalidInput` without [`Self::set_imu`], for non-finite values, timestamps not
+    /// strictly increasing (within the batch or after the samples already added) or values
+    /// that look like deg/s or g; the system is unchanged then.
+    pub fn add_imu(&mut self, samples: &[ImuSample]) -> Result<(), SlamError> {
+        let inertial = self.inertial.as_mut().ok_or_else(|| {
+            SlamError::InvalidInput("add_imu: no IMU configured, call set_imu first".into())
+        })?;
+        inertial.add(samples)
+    }
+
+    /// Where the camera-IMU alignment of the current map stands (`None` without an IMU).
+    pub fn inertial_alignment(&self) -> Option<&AlignmentStatus> {
+        self.inertial.as_ref().map(Inertial::status)
+    }
+
+    /// IMU preintegrated from the previous live keyframe (returned with it) to keyframe `kf`,
+    /// at the biases of the alignment once there is one (zero before).
+    pub fn keyframe_imu(
+        &self,
+        kf: KeyFrameId,
+    ) -> Option<(KeyFrameId, &ferroslam_imu::Preintegrated)> {
+        self.inertial.as_ref()?.preintegrated(kf)
+    }
+
+    /// Preintegrates the new keyframe's IMU and, when due, aligns camera and IMU: a
+    /// monocular map is then rescaled to metres (map, frame trajectory, motion model).
+    fn update_inertial(&mut self) -> Result<(), SlamError> {
+        let Some(mut alignment) = self.inertial.as_mut().and_then(|i| i.try_align(&self.map))
+        else {
+            return Ok(());
+        };
+        if !self.ctx.config.sensor.has_depth() {
+            // The mapping thread's edits land first, so none arrives in the old scale.
+            self.finish_mapping()?;
+            let s = alignment.scale;
+            self.trajectory
+                .rescale(s, &mut self.map, |map| rescale_map(map, s))?;
+            self.tracker.rescale(s);
+            alignment.map_rescaled = true;
+        }
+        if let Some(inertial) = self.inertial.as_mut() {
+            inertial.accept(alignment, &self.map);
+        }
+        Ok(())
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by their bag of words and a lost frame

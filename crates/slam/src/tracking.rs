@@ -17,6 +17,7 @@ use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
 use crate::frustum::visible_point;
+use crate::inertial::scale_translation;
 use crate::place_recognition::PlaceRecognition;
 
 /// Tracking state exposed to users.
@@ -181,6 +182,21 @@ impl Tracker {
     /// Starts tracking from scratch (after a map reset).
     pub fn reset(&mut self) {
         *self = Self::default();
+    }
+
+    /// Expresses the last frame and the motion model in a world scaled by `s` (the monocular
+    /// map rescaled to metres by the inertial alignment).
+    pub(crate) fn rescale(&mut self, s: f64) {
+        if let Some(last) = self.last_frame.as_mut() {
+            last.T_c_w = scale_translation(&last.T_c_w, s);
+            last.vo_points.iter_mut().flatten().for_each(|p| *p *= s);
+        }
+        if let Some((_, T_l_r)) = self.last_T_c_r.as_mut() {
+            *T_l_r = scale_translation(T_l_r, s);
+        }
+        if let Some(velocity) = self.velocity.as_mut() {
+            *velocity = scale_translation(velocity, s);
+        }
     }
 
     /// Marks the frame index of a new keyframe.

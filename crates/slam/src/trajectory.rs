@@ -4,6 +4,8 @@
 use ferroslam_map::{KeyFrameId, Map};
 use nalgebra::Isometry3;
 
+use crate::inertial::scale_translation;
+
 /// One tracked frame: its reference keyframe and its pose relative to it.
 #[derive(Clone, Copy, Debug)]
 struct FrameRecord {
@@ -46,6 +48,36 @@ impl Trajectory {
                 Some((f.timestamp, (f.T_c_r * T_r_w).inverse()))
             })
             .collect()
+    }
+
+    /// Scales the world by `s`: `rescale_map` scales `map`, and every frame keeps its pose
+    /// scaled by `s`, re-anchored to its (possibly culled) reference keyframe.
+    ///
+    /// # Errors
+    /// Whatever `rescale_map` returns; the trajectory is unchanged then.
+    pub fn rescale<E>(
+        &mut self,
+        s: f64,
+        map: &mut Map,
+        rescale_map: impl FnOnce(&mut Map) -> Result<(), E>,
+    ) -> Result<(), E> {
+        // Culled keyframes are placed relative to their anchors by unscaled offsets (inside
+        // the map), so the frames are re-anchored rather than their offsets scaled.
+        let scaled: Vec<_> = self
+            .frames
+            .iter()
+            .map(|f| {
+                let T_r_w = map.resolve_keyframe_pose(f.reference)?;
+                Some(scale_translation(&(f.T_c_r * T_r_w), s))
+            })
+            .collect();
+        rescale_map(map)?;
+        for (f, T_c_w) in self.frames.iter_mut().zip(scaled) {
+            if let (Some(T_c_w), Some(T_r_w)) = (T_c_w, map.resolve_keyframe_pose(f.reference)) {
+                f.T_c_r = T_c_w * T_r_w.inverse();
+            }
+        }
+        Ok(())
     }
 
     /// Number of tracked frames.

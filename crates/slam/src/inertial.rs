@@ -1,0 +1,453 @@
+//! Visual-inertial initialisation: IMU input, preintegration between keyframes and the
+//! camera-IMU alignment (MATLAB `NumPosesThreshold` / `AlignmentFraction`, ORB-SLAM3's
+//! first inertial initialisation without its inertial BA).
+//!
+//! # Frames and units
+//!
+//! IMU samples are in the body (IMU) frame `b`: gyro rad/s, accelerometer m/s^2 (specific
+//! force, a resting IMU reads +9.81 upwards), timestamps in seconds on the camera clock
+//! (see [`ferroslam_imu`]). `T_b_c` is the camera pose in the body frame (EuRoC `T_BS` of
+//! cam0), metres.
+//!
+//! # What the alignment changes
+//!
+//! Once the map holds [`InertialConfig::num_poses_threshold`] keyframes, the most recent
+//! [`InertialConfig::alignment_fraction`] of them (by timestamp) are aligned with the IMU
+//! preintegrated between them ([`ferroslam_imu::alignment::align`]): gyro bias, gravity
+//! direction, scale and keyframe velocities. For a monocular map the map is then RESCALED
+//! in place to metres (keyframe translations, points, the frame trajectory and the motion
+//! model); maps with depth keep their scale (already metric; the estimate is reported).
+//! The world is NOT rotated: gravity is stored as `gravity_w` and `R_w_g` (gravity-aligned
+//! frame, z up, into the map's world), so poses already handed out stay valid.
+//! A failed attempt (no excitation yet, missing IMU data) is retried at the next keyframe;
+//! after a success no further alignment runs on this map (ORB-SLAM3's later refinements
+//! and inertial BA are not implemented).
+
+use std::collections::BTreeMap;
+
+use ferroslam_imu::alignment::{align, AlignmentConfig};
+use ferroslam_imu::{check_stream, check_units, Bias, ImuError, ImuParams, Preintegrated};
+use ferroslam_map::{KeyFrameId, Map, MapError};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+
+use crate::error::SlamError;
+
+pub use ferroslam_imu::ImuMeasurement as ImuSample;
+
+/// IMU setup of a visual-inertial system.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InertialConfig {
+    /// Noise densities and random walks (EuRoC `imu0/sensor.yaml`).
+    pub params: ImuParams,
+    /// Camera pose in the body (IMU) frame, metres.
+    pub T_b_c: Isometry3<f64>,
+    /// Keyframes in the map before the alignment is attempted (MATLAB `NumPosesThreshold`).
+    pub num_poses_threshold: usize,
+    /// Fraction of the keyframes, the most recent ones, the alignment uses (MATLAB
+    /// `AlignmentFraction`), in (0, 1].
+    pub alignment_fraction: f64,
+    /// Magnitude of gravity, m/s^2.
+    pub gravity_magnitude: f64,
+}
+
+impl InertialConfig {
+    /// The defaults: 20 keyframes, 0.9 of them, |g| = 9.81 m/s^2.
+    pub fn new(params: ImuParams, T_b_c: Isometry3<f64>) -> Self {
+        Self {
+            params,
+            T_b_c,
+            num_poses_threshold: 20,
+            alignment_fraction: 0.9,
+            gravity_magnitude: 9.81,
+        }
+    }
+
+    /// Checks the values; `InvalidConfig` names the first bad one.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        let bad = |m: String| Err(SlamError::InvalidConfig(m));
+        if let Err(e) = self.params.validate() {
+            return bad(format!("imu: {e}"));
+        }
+        let pose = &self.T_b_c;
+        if !(pose.translation.vector.iter().all(|v| v.is_finite())
+            && pose.rotation.coords.iter().all(|v| v.is_finite()))
+        {
+            return bad("imu: T_b_c must be finite".into());
+        }
+        if self.num_poses_threshold < 3 {
+            return bad(format!(
+                "imu: num_poses_threshold = {} must be at least 3",
+                self.num_poses_threshold
+            ));
+        }
+        if !(self.alignment_fraction > 0.0 && self.alignment_fraction <= 1.0) {
+            return bad(format!(
+                "imu: alignment_fraction = {} must be in (0, 1]",
+                self.alignment_fraction
+            ));
+        }
+        if self.window(self.num_poses_threshold) < 3 {
+            return bad(format!(
+                "imu: alignment_fraction {} of num_poses_threshold {} keyframes leaves fewer \
+                 than 3 to align",
+                self.alignment_fraction, self.num_poses_threshold
+            ));
+        }
+        if !(self.gravity_magnitude.is_finite() && self.gravity_magnitude > 0.0) {
+            return bad(format!(
+                "imu: gravity_magnitude = {} must be positive",
+                self.gravity_magnitude
+            ));
+        }
+        Ok(())
+    }
+
+    /// Keyframes aligned out of `n`: `ceil(alignment_fraction * n)`.
+    fn window(&self, n: usize) -> usize {
+        ((self.alignment_fraction * n as f64 - 1e-9).ceil() as usize).min(n)
+    }
+}
+
+/// A successful camera-IMU alignment, in the map's world frame `w` after any rescaling.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InertialAlignment {
+    /// Metric length of one visual unit estimated by the alignment (monocular: the factor
+    /// the map was multiplied by; with depth: a check, ideally 1).
+    pub scale: f64,
+    /// Whether the map was rescaled by [`scale`](Self::scale) (monocular only).
+    pub map_rescaled: bool,
+    /// Gravity in `w`, m/s^2.
+    pub gravity_w: Vector3<f64>,
+    /// Gravity-aligned frame `g` (z up, no yaw) into `w`:
+    /// `gravity_w = R_w_g * (0, 0, -|g|)`.
+    pub R_w_g: UnitQuaternion<f64>,
+    /// Gyro bias, rad/s.
+    pub gyro_bias: Vector3<f64>,
+    /// Accelerometer bias, m/s^2 (zero: not estimated by this first alignment).
+    pub accel_bias: Vector3<f64>,
+    /// Body velocity in `w`, m/s, of each aligned keyframe, oldest first.
+    pub velocities: Vec<(KeyFrameId, Vector3<f64>)>,
+    /// Timestamp of the newest aligned keyframe, seconds.
+    pub timestamp: f64,
+    /// RMS variation of the world-frame specific force over the window, m/s^2.
+    pub acceleration_excitation: f64,
+}
+
+/// Where the camera-IMU alignment of the current map stands.
+#[derive(Clone, Debug, PartialEq)]
+pub enum AlignmentStatus {
+    /// Fewer keyframes than `num_poses_threshold` so far.
+    Waiting {
+        /// Live keyframes in the map.
+        keyframes: usize,
+        /// Keyframes needed.
+        needed: usize,
+    },
+    /// The last attempt failed (retried at the next keyframe).
+    Failed {
+        /// Keyframes in the attempted window.
+        keyframes: usize,
+        /// Why, in words.
+        reason: String,
+    },
+    /// Aligned (the map is metric and gravity known).
+    Aligned(InertialAlignment),
+}
+
+/// Preintegrated IMU of a keyframe since the previous live keyframe.
+#[derive(Clone, Debug)]
+struct KeyFrameImu {
+    previous: KeyFrameId,
+    preintegrated: Preintegrated,
+}
+
+/// The inertial state of a system: buffered samples, per-keyframe preintegrations, status.
+#[derive(Clone, Debug)]
+pub(crate) struct Inertial {
+    config: InertialConfig,
+    samples: Vec<ImuSample>,
+    keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
+    status: AlignmentStatus,
+}
+
+impl Inertial {
+    pub(crate) fn new(config: InertialConfig) -> Result<Self, SlamError> {
+        config.validate()?;
+        let needed = config.num_poses_threshold;
+        Ok(Self {
+            config,
+            samples: Vec::new(),
+            keyframes: BTreeMap::new(),
+            status: AlignmentStatus::Waiting {
+                keyframes: 0,
+                needed,
+            },
+        })
+    }
+
+    pub(crate) fn config(&self) -> &InertialConfig {
+        &self.config
+    }
+
+    pub(crate) fn status(&self) -> &AlignmentStatus {
+        &self.status
+    }
+
+    /// Appends samples after the buffered ones; all or nothing.
+    ///
+    /// # Errors
+    /// `InvalidInput` for a non-finite value, timestamps not strictly increasing (within the
+    /// batch or against the last sample added) or units that look like deg/s or g.
+    pub(crate) fn add(&mut self, samples: &[ImuSample]) -> Result<(), SlamError> {
+        let invalid = |e: ImuError| SlamError::InvalidInput(format!("add_imu: {e}"));
+        check_stream(samples).map_err(invalid)?;
+        check_units(samples).map_err(invalid)?;
+        if let (Some(last), Some(first)) = (self.samples.last(), samples.first()) {
+            if first.t_s <= last.t_s {
+                return Err(SlamError::InvalidInput(format!(
+                    "add_imu: sample 0 at t = {} s is not after the last sample added, at {} s",
+                    first.t_s, last.t_s
+                )));
+            }
+        }
+        self.samples.extend_from_slice(samples);
+        Ok(())
+    }
+
+    /// Forgets the map's keyframes and alignment (after a map reset); samples stay.
+    pub(crate) fn clear_map(&mut self) {
+        self.keyframes.clear();
+        self.status = AlignmentStatus::Waiting {
+            keyframes: 0,
+            needed: self.config.num_poses_threshold,
+        };
+    }
+
+    /// Preintegrated IMU of `kf` since the previous live keyframe, if the samples cover it.
+    pub(crate) fn preintegrated(&self, kf: KeyFrameId) -> Option<(KeyFrameId, &Preintegrated)> {
+        self.keyframes
+            .get(&kf)
+            .map(|k| (k.previous, &k.preintegrated))
+    }
+
+    /// Brings the per-keyframe preintegrations up to date with the live keyframes (new
+    /// ones, and the successors of culled ones, integrate from the previous live keyframe)
+    /// and drops samples older than the first live keyframe.
+    pub(crate) fn sync(&mut self, map: &Map) {
+        let live = live_keyframes(map);
+        let bias = match &self.status {
+            AlignmentStatus::Aligned(a) => Bias::new(a.gyro_bias, a.accel_bias),
+            _ => Bias::default(),
+        };
+        let mut synced = BTreeMap::new();
+        for pair in live.windows(2) {
+            let ((a, ta), (b, tb)) = (pair[0], pair[1]);
+            let kept = self.keyframes.remove(&b).filter(|k| k.previous == a);
+            let entry = kept.or_else(|| {
+                Preintegrated::between(&self.samples, ta, tb, bias, &self.config.params)
+                    .ok()
+                    .map(|preintegrated| KeyFrameImu {
+                        previous: a,
+                        preintegrated,
+                    })
+            });
+            if let Some(entry) = entry {
+                synced.insert(b, entry);
+            }
+        }
+        self.keyframes = synced;
+        if let Some(&(_, t0)) = live.first() {
+            // Keep the sample at or before the first keyframe: it brackets the interval.
+            let first = self.samples.partition_point(|s| s.t_s <= t0).saturating_sub(1);
+            self.samples.drain(..first);
+        }
+    }
+
+    /// Syncs the preintegrations, then attempts the alignment when due (enough keyframes,
+    /// not aligned yet) and records the outcome; returns the new alignment when one
+    /// succeeded. The map is not changed here.
+    pub(crate) fn try_align(&mut self, map: &Map) -> Option<InertialAlignment> {
+        self.sync(map);
+        if matches!(self.status, AlignmentStatus::Aligned(_)) {
+            return None;
+        }
+        let live = live_keyframes(map);
+        let needed = self.config.num_poses_threshold;
+        if live.len() < needed {
+            self.status = AlignmentStatus::Waiting {
+                keyframes: live.len(),
+                needed,
+            };
+            return None;
+        }
+        let window = &live[live.len() - self.config.window(live.len())..];
+        match self.align_window(map, window) {
+            Ok(alignment) => Some(alignment),
+            Err(reason) => {
+                self.status = AlignmentStatus::Failed {
+                    keyframes: window.len(),
+                    reason,
+                };
+                None
+            }
+        }
+    }
+
+    fn align_window(
+        &self,
+        map: &Map,
+        window: &[(KeyFrameId, f64)],
+    ) -> Result<InertialAlignment, String> {
+        let mut poses = Vec::with_capacity(window.len());
+        let mut pres = Vec::with_capacity(window.len());
+        for (k, &(id, t)) in window.iter().enumerate() {
+            let kf = map.keyframe(id).ok_or("keyframe culled meanwhile")?;
+            poses.push(kf.T_w_c());
+            if k > 0 {
+                let entry = self.keyframes.get(&id).ok_or_else(|| {
+                    format!(
+                        "no IMU samples cover keyframes {} .. {} (t = {:.3} .. {t:.3} s): call \
+                         add_imu with the samples up to each frame before tracking it",
+                        window[k - 1].0 .0,
+                        id.0,
+                        window[k - 1].1
+                    )
+                })?;
+                pres.push(entry.preintegrated.clone());
+            }
+        }
+        let config = AlignmentConfig {
+            gravity_magnitude: self.config.gravity_magnitude,
+            min_keyframes: 3,
+            ..AlignmentConfig::default()
+        };
+        let out = align(&poses, &self.config.T_b_c, &pres, &config).map_err(|e| e.to_string())?;
+        Ok(InertialAlignment {
+            scale: out.scale,
+            map_rescaled: false,
+            gravity_w: out.gravity_w,
+            R_w_g: out.R_w_gravity,
+            gyro_bias: out.gyro_bias,
+            accel_bias: out.accel_bias,
+            velocities: window.iter().map(|&(id, _)| id).zip(out.velocities).collect(),
+            timestamp: window.last().map_or(f64::NAN, |&(_, t)| t),
+            acceleration_excitation: out.acceleration_excitation,
+        })
+    }
+
+    /// Records a successful alignment (after the system applied it) and reintegrates the
+    /// keyframes' IMU at the estimated biases.
+    pub(crate) fn accept(&mut self, alignment: InertialAlignment, map: &Map) {
+        self.status = AlignmentStatus::Aligned(alignment);
+        self.keyframes.clear();
+        self.sync(map);
+    }
+}
+
+/// Live keyframes `(id, timestamp)` in time order.
+fn live_keyframes(map: &Map) -> Vec<(KeyFrameId, f64)> {
+    let mut live: Vec<_> = map.keyframes().map(|k| (k.id(), k.timestamp())).collect();
+    live.sort_by(|a, b| a.1.total_cmp(&b.1));
+    live
+}
+
+/// `T` with its translation multiplied by `s`: the same pose in a world scaled by `s`
+/// (for `T_c_w` and `T_w_c` alike, the rotation being unchanged).
+pub(crate) fn scale_translation(T: &Isometry3<f64>, s: f64) -> Isometry3<f64> {
+    let mut scaled = *T;
+    scaled.translation.vector *= s;
+    scaled
+}
+
+/// Multiplies every keyframe position and point of `map` by `s` about the world origin and
+/// refreshes the points' normals and scale-invariance distances.
+///
+/// # Errors
+/// A [`MapError`] only on an internal inconsistency (ids listed by the map itself).
+pub(crate) fn rescale_map(map: &mut Map, s: f64) -> Result<(), MapError> {
+    for id in map.keyframe_ids() {
+        if let Some(T_c_w) = map.keyframe(id).map(|k| scale_translation(k.T_c_w(), s)) {
+            map.set_keyframe_pose(id, T_c_w)?;
+        }
+    }
+    for id in map.map_point_ids() {
+        if let Some(p) = map.map_point(id).map(|p| p.position() * s) {
+            map.set_map_point_position(id, p)?;
+            map.update_normal_and_depth(id)?;
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> InertialConfig {
+        InertialConfig::new(ImuParams::euroc(), Isometry3::identity())
+    }
+
+    fn sample(t_s: f64) -> ImuSample {
+        ImuSample::new(t_s, Vector3::zeros(), Vector3::new(0.0, 0.0, 9.81))
+    }
+
+    #[test]
+    fn validates_the_configuration() {
+        assert!(config().validate().is_ok());
+        let mut c = config();
+        c.alignment_fraction = 0.0;
+        assert!(matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("alignment_fraction")));
+        let mut c = config();
+        c.num_poses_threshold = 2;
+        assert!(matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("num_poses_threshold")));
+        let mut c = config();
+        c.T_b_c.translation.vector.x = f64::NAN;
+        assert!(c.validate().is_err());
+        let mut c = config();
+        c.params.rate_hz = -1.0;
+        assert!(c.validate().is_err());
+    }
+
+    #[test]
+    fn window_is_the_rounded_up_fraction() {
+        let c = config();
+        assert_eq!(c.window(20), 18);
+        assert_eq!(c.window(21), 19);
+        let mut c = config();
+        c.alignment_fraction = 1.0;
+        assert_eq!(c.window(20), 20);
+    }
+
+    #[test]
+    fn bad_samples_are_refused_and_leave_the_buffer_unchanged() {
+        let mut inertial = Inertial::new(config()).unwrap();
+        inertial.add(&[sample(0.0), sample(0.005)]).unwrap();
+        let err = inertial.add(&[sample(0.01), sample(0.008)]).unwrap_err();
+        assert!(err.to_string().contains("not after"), "{err}");
+        let err = inertial.add(&[sample(0.005)]).unwrap_err();
+        assert!(err.to_string().contains("last sample added"), "{err}");
+        let mut nan = sample(0.02);
+        nan.accel_m_s2.x = f64::NAN;
+        let err = inertial.add(&[nan]).unwrap_err();
+        assert!(err.to_string().contains("non-finite"), "{err}");
+        let mut degrees = sample(0.02);
+        degrees.gyro_rad_s.z = 90.0;
+        let err = inertial.add(&[degrees]).unwrap_err();
+        assert!(err.to_string().contains("deg/s"), "{err}");
+        let mut g = sample(0.02);
+        g.accel_m_s2.z = 1.0;
+        let err = inertial.add(&[g]).unwrap_err();
+        assert!(err.to_string().contains("in g"), "{err}");
+        assert_eq!(inertial.samples.len(), 2);
+        inertial.add(&[sample(0.01)]).unwrap();
+        assert_eq!(inertial.samples.len(), 3);
+    }
+
+    #[test]
+    fn scaling_a_pose_scales_the_camera_centre() {
+        let T_c_w = Isometry3::new(Vector3::new(1.0, -2.0, 0.5), Vector3::new(0.3, 0.1, -0.2));
+        let scaled = scale_translation(&T_c_w, 2.5);
+        let centre = |T: &Isometry3<f64>| T.inverse().translation.vector;
+        assert!((centre(&scaled) - centre(&T_c_w) * 2.5).norm() < 1e-12);
+    }
+}
