@@ -6,6 +6,7 @@
 
 mod convert;
 mod errors;
+mod inertial;
 mod stereo;
 mod system;
 mod vocabulary;

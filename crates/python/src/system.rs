@@ -13,6 +13,7 @@ use pyo3::types::PyDict;
 
 use crate::convert;
 use crate::errors::to_py;
+use crate::inertial;
 use crate::vocabulary::PyVocabulary;
 
 fn state_name(state: TrackingState) -> &'static str {
@@ -538,6 +539,52 @@ impl PySlamSystem {
     #[getter]
     fn num_resets(&mut self, py: Python<'_>) -> PyResult<usize> {
         self.engine.run(py, |s| s.resets())
+    }
+
+    /// Sets the IMU: noise model `params` (an ImuParams or a dict), `T_b_c` (4, 4) camera
+    /// pose in the body frame, and the alignment knobs (MATLAB NumPosesThreshold,
+    /// AlignmentFraction).
+    #[pyo3(signature = (params, T_b_c, *, num_poses_threshold = 20, alignment_fraction = 0.9, gravity_magnitude = 9.81))]
+    fn set_imu(
+        &mut self,
+        py: Python<'_>,
+        params: &Bound<'_, PyAny>,
+        T_b_c: &Bound<'_, PyAny>,
+        num_poses_threshold: usize,
+        alignment_fraction: f64,
+        gravity_magnitude: f64,
+    ) -> PyResult<()> {
+        let config = inertial::inertial_config(
+            params,
+            T_b_c,
+            num_poses_threshold,
+            alignment_fraction,
+            gravity_magnitude,
+        )?;
+        self.engine
+            .run(py, move |s| s.set_imu(config))?
+            .map_err(to_py)
+    }
+
+    /// Adds IMU samples: timestamps (M,) s, gyro (M, 3) rad/s, accel (M, 3) m/s^2, float64,
+    /// body frame; feed each frame's samples before tracking it.
+    fn add_imu(
+        &mut self,
+        py: Python<'_>,
+        timestamps: &Bound<'_, PyAny>,
+        gyro: &Bound<'_, PyAny>,
+        accel: &Bound<'_, PyAny>,
+    ) -> PyResult<()> {
+        let samples = inertial::samples(timestamps, gyro, accel)?;
+        self.engine
+            .run(py, move |s| s.add_imu(&samples))?
+            .map_err(to_py)
+    }
+
+    /// The camera-IMU alignment of the current map as a dict, or None without an IMU.
+    fn inertial_alignment<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let status = self.engine.run(py, |s| s.inertial_alignment().cloned())?;
+        status.map(|s| inertial::status_dict(py, &s)).transpose()
     }
 }
 

@@ -26,13 +26,13 @@
 use std::collections::BTreeMap;
 
 use ferroslam_imu::alignment::{align, AlignmentConfig};
-use ferroslam_imu::{check_stream, check_units, Bias, ImuError, ImuParams, Preintegrated};
+use ferroslam_imu::{check_stream, check_units, Bias, ImuError};
 use ferroslam_map::{KeyFrameId, Map, MapError};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
 use crate::error::SlamError;
 
-pub use ferroslam_imu::ImuMeasurement as ImuSample;
+pub use ferroslam_imu::{ImuMeasurement as ImuSample, ImuParams, Preintegrated};
 
 /// IMU setup of a visual-inertial system.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,7 +41,8 @@ pub struct InertialConfig {
     pub params: ImuParams,
     /// Camera pose in the body (IMU) frame, metres.
     pub T_b_c: Isometry3<f64>,
-    /// Keyframes in the map before the alignment is attempted (MATLAB `NumPosesThreshold`).
+    /// Keyframes created in the map (culled ones included) before the alignment is
+    /// attempted (MATLAB `NumPosesThreshold`).
     pub num_poses_threshold: usize,
     /// Fraction of the keyframes, the most recent ones, the alignment uses (MATLAB
     /// `AlignmentFraction`), in (0, 1].
@@ -125,8 +126,10 @@ pub struct InertialAlignment {
     pub gyro_bias: Vector3<f64>,
     /// Accelerometer bias, m/s^2 (zero: not estimated by this first alignment).
     pub accel_bias: Vector3<f64>,
-    /// Body velocity in `w`, m/s, of each aligned keyframe, oldest first.
-    pub velocities: Vec<(KeyFrameId, Vector3<f64>)>,
+    /// The aligned keyframes `(id, timestamp)`, oldest first (some may be culled since).
+    pub keyframes: Vec<(KeyFrameId, f64)>,
+    /// Body velocity in `w`, m/s, at each of [`keyframes`](Self::keyframes).
+    pub velocities: Vec<Vector3<f64>>,
     /// Timestamp of the newest aligned keyframe, seconds.
     pub timestamp: f64,
     /// RMS variation of the world-frame specific force over the window, m/s^2.
@@ -138,7 +141,7 @@ pub struct InertialAlignment {
 pub enum AlignmentStatus {
     /// Fewer keyframes than `num_poses_threshold` so far.
     Waiting {
-        /// Live keyframes in the map.
+        /// Keyframes created in the map so far (culled ones included).
         keyframes: usize,
         /// Keyframes needed.
         needed: usize,
@@ -167,6 +170,8 @@ pub(crate) struct Inertial {
     config: InertialConfig,
     samples: Vec<ImuSample>,
     keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
+    /// Every keyframe `(id, timestamp)` of the map until the alignment, culled ones too.
+    history: Vec<(KeyFrameId, f64)>,
     status: AlignmentStatus,
 }
 
@@ -178,6 +183,7 @@ impl Inertial {
             config,
             samples: Vec::new(),
             keyframes: BTreeMap::new(),
+            history: Vec::new(),
             status: AlignmentStatus::Waiting {
                 keyframes: 0,
                 needed,
@@ -217,6 +223,7 @@ impl Inertial {
     /// Forgets the map's keyframes and alignment (after a map reset); samples stay.
     pub(crate) fn clear_map(&mut self) {
         self.keyframes.clear();
+        self.history.clear();
         self.status = AlignmentStatus::Waiting {
             keyframes: 0,
             needed: self.config.num_poses_threshold,
@@ -231,8 +238,8 @@ impl Inertial {
     }
 
     /// Brings the per-keyframe preintegrations up to date with the live keyframes (new
-    /// ones, and the successors of culled ones, integrate from the previous live keyframe)
-    /// and drops samples older than the first live keyframe.
+    /// ones, and the successors of culled ones, integrate from the previous live keyframe),
+    /// records new keyframes in the history and drops samples no interval needs any more.
     pub(crate) fn sync(&mut self, map: &Map) {
         let live = live_keyframes(map);
         let bias = match &self.status {
@@ -256,9 +263,19 @@ impl Inertial {
             }
         }
         self.keyframes = synced;
-        if let Some(&(_, t0)) = live.first() {
-            // Keep the sample at or before the first keyframe: it brackets the interval.
-            let first = self.samples.partition_point(|s| s.t_s <= t0).saturating_sub(1);
+        if !matches!(self.status, AlignmentStatus::Aligned(_)) {
+            let last = self.history.last().map(|&(id, _)| id);
+            let mut new: Vec<_> = live.iter().filter(|&&(id, _)| Some(id) > last).collect();
+            new.sort_by_key(|&&(id, _)| id);
+            self.history.extend(new);
+        }
+        let oldest = self.history.first().into_iter().chain(live.first());
+        if let Some(t0) = oldest.map(|&(_, t)| t).reduce(f64::min) {
+            // Keep the sample at or before the oldest keyframe: it brackets the interval.
+            let first = self
+                .samples
+                .partition_point(|s| s.t_s <= t0)
+                .saturating_sub(1);
             self.samples.drain(..first);
         }
     }
@@ -266,21 +283,26 @@ impl Inertial {
     /// Syncs the preintegrations, then attempts the alignment when due (enough keyframes,
     /// not aligned yet) and records the outcome; returns the new alignment when one
     /// succeeded. The map is not changed here.
+    ///
+    /// Keyframes count from the map's start, culled ones included (local mapping culls
+    /// redundant keyframes, ~9 in 10 on the synthetic EuRoC flight, and would otherwise
+    /// starve the alignment): a culled keyframe's pose is the one the map keeps for it,
+    /// relative to the keyframe that adopted it.
     pub(crate) fn try_align(&mut self, map: &Map) -> Option<InertialAlignment> {
         self.sync(map);
         if matches!(self.status, AlignmentStatus::Aligned(_)) {
             return None;
         }
-        let live = live_keyframes(map);
         let needed = self.config.num_poses_threshold;
-        if live.len() < needed {
+        let n = self.history.len();
+        if n < needed {
             self.status = AlignmentStatus::Waiting {
-                keyframes: live.len(),
+                keyframes: n,
                 needed,
             };
             return None;
         }
-        let window = &live[live.len() - self.config.window(live.len())..];
+        let window = &self.history[n - self.config.window(n)..];
         match self.align_window(map, window) {
             Ok(alignment) => Some(alignment),
             Err(reason) => {
@@ -299,23 +321,26 @@ impl Inertial {
         window: &[(KeyFrameId, f64)],
     ) -> Result<InertialAlignment, String> {
         let mut poses = Vec::with_capacity(window.len());
-        let mut pres = Vec::with_capacity(window.len());
-        for (k, &(id, t)) in window.iter().enumerate() {
-            let kf = map.keyframe(id).ok_or("keyframe culled meanwhile")?;
-            poses.push(kf.T_w_c());
-            if k > 0 {
-                let entry = self.keyframes.get(&id).ok_or_else(|| {
-                    format!(
-                        "no IMU samples cover keyframes {} .. {} (t = {:.3} .. {t:.3} s): call \
-                         add_imu with the samples up to each frame before tracking it",
-                        window[k - 1].0 .0,
-                        id.0,
-                        window[k - 1].1
-                    )
-                })?;
-                pres.push(entry.preintegrated.clone());
-            }
+        for &(id, _) in window {
+            let T_c_w = map
+                .resolve_keyframe_pose(id)
+                .ok_or_else(|| format!("keyframe {} has no pose", id.0))?;
+            poses.push(T_c_w.inverse());
         }
+        let pres = window
+            .windows(2)
+            .map(|pair| {
+                let ((a, ta), (b, tb)) = (pair[0], pair[1]);
+                Preintegrated::between(&self.samples, ta, tb, Bias::default(), &self.config.params)
+                    .map_err(|e| {
+                        format!(
+                            "IMU between keyframes {} and {}: {e} (call add_imu with the \
+                             samples up to each frame before tracking it)",
+                            a.0, b.0
+                        )
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         let config = AlignmentConfig {
             gravity_magnitude: self.config.gravity_magnitude,
             min_keyframes: 3,
@@ -329,7 +354,8 @@ impl Inertial {
             R_w_g: out.R_w_gravity,
             gyro_bias: out.gyro_bias,
             accel_bias: out.accel_bias,
-            velocities: window.iter().map(|&(id, _)| id).zip(out.velocities).collect(),
+            keyframes: window.to_vec(),
+            velocities: out.velocities,
             timestamp: window.last().map_or(f64::NAN, |&(_, t)| t),
             acceleration_excitation: out.acceleration_excitation,
         })
@@ -340,6 +366,7 @@ impl Inertial {
     pub(crate) fn accept(&mut self, alignment: InertialAlignment, map: &Map) {
         self.status = AlignmentStatus::Aligned(alignment);
         self.keyframes.clear();
+        self.history.clear();
         self.sync(map);
     }
 }
@@ -396,10 +423,14 @@ mod tests {
         assert!(config().validate().is_ok());
         let mut c = config();
         c.alignment_fraction = 0.0;
-        assert!(matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("alignment_fraction")));
+        assert!(
+            matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("alignment_fraction"))
+        );
         let mut c = config();
         c.num_poses_threshold = 2;
-        assert!(matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("num_poses_threshold")));
+        assert!(
+            matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("num_poses_threshold"))
+        );
         let mut c = config();
         c.T_b_c.translation.vector.x = f64::NAN;
         assert!(c.validate().is_err());

@@ -27,7 +27,7 @@ pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{Sensor, SlamConfig};
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
-pub use inertial::{AlignmentStatus, ImuSample, InertialAlignment, InertialConfig};
+pub use inertial::{AlignmentStatus, ImuParams, ImuSample, InertialAlignment, InertialConfig};
 pub use input_guard::InputGuard;
 pub use loop_closing::{LoopClosure, LoopStats};
 pub use system::{SlamSystem, TrackResult};

@@ -492,7 +492,7 @@ impl SlamSystem {
     pub fn keyframe_imu(
         &self,
         kf: KeyFrameId,
-    ) -> Option<(KeyFrameId, &ferroslam_imu::Preintegrated)> {
+    ) -> Option<(KeyFrameId, &crate::inertial::Preintegrated)> {
         self.inertial.as_ref()?.preintegrated(kf)
     }
 

@@ -1,0 +1,184 @@
+"""Camera-IMU alignment (issue 11): monocular SLAM on synthetic vision along the real EuRoC
+V1_01 flight, fed the REAL 200 Hz IMU of that flight between frames.
+
+After ``num_poses_threshold`` keyframes the system aligns the most recent
+``alignment_fraction`` of them with the preintegrated IMU and rescales the map to metres.
+Checked against vicon2gt: the metric scale of the keyframes (Sim(3) fit to the ground truth)
+and their path length, gravity in the ground-truth world, the gyro bias and the keyframe
+velocities. Measured numbers are in each test's docstring (this build, seed 0). The issue's
+target (scale within 3 %, gravity within 1 degree) is NOT met yet: an xfail test records it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import require_data
+from ferroslam import metrics
+from ferroslam._core import SlamSystem
+from ferroslam.synthetic import SyntheticStereoSequence
+from ferroslam.trajectory import Trajectory
+
+START_S, DURATION_S = 10.0, 25.0  # in flight (take-off at ~5.3 s)
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return SyntheticStereoSequence(require_data("euroc", "V1_01_easy_imu_gt"), start_s=START_S,
+                                   duration_s=DURATION_S)
+
+
+def _mono(seq) -> SlamSystem:
+    c = seq.camera
+    return SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor="mono", seed=0)
+
+
+@pytest.fixture(scope="module")
+def run(seq):
+    """Tracks the whole cut; snapshots the keyframes right after the alignment."""
+    slam = _mono(seq)
+    slam.set_imu(seq.imu_params(), seq.T_b_c, num_poses_threshold=20, alignment_fraction=0.9)
+    assert slam.inertial_alignment() == {"status": "waiting", "keyframes": 0, "needed": 20}
+    snapshot = None
+    for i in range(len(seq)):
+        slam.add_imu(*seq.imu_between(i))
+        f = seq.features(i)
+        slam.track_mono(seq.timestamps[i], f["keypoints"], f["descriptors"])
+        status = slam.inertial_alignment()
+        if snapshot is None and status["status"] == "aligned":
+            snapshot = (i, status, slam.keyframe_trajectory())
+        elif snapshot is None and status["status"] == "failed":
+            print(f"frame {i}: alignment failed: {status['reason']}")
+    assert snapshot is not None, slam.inertial_alignment()
+    return slam, snapshot
+
+
+def _gt_index(seq, t: np.ndarray) -> np.ndarray:
+    idx = np.searchsorted(seq.timestamps, t - 1e-6)
+    np.testing.assert_allclose(seq.timestamps[idx], t, atol=1e-6)
+    return idx
+
+
+def _alignment_errors(seq, run):
+    """Errors of the alignment against vicon2gt, from the live keyframes right after it."""
+    _, (frame, status, (ids, stamps, T_w_c)) = run
+    gt_idx = _gt_index(seq, stamps)
+    _, gt_T_w_c = seq.groundtruth()
+    R, _, c = metrics.umeyama_alignment(T_w_c[:, :3, 3], gt_T_w_c[gt_idx, :3, 3],
+                                        with_scale=True)
+    lengths = metrics.path_length(Trajectory(stamps, gt_T_w_c[gt_idx]), Trajectory(stamps, T_w_c))
+    gravity_gt = R @ status["gravity_w"]
+    gravity_deg = float(np.degrees(np.arccos(-gravity_gt[2] / np.linalg.norm(gravity_gt))))
+    window = _gt_index(seq, status["keyframe_timestamps"])
+    gyro_err = float(np.linalg.norm(status["gyro_bias"] - seq.gyro_bias[window].mean(0)))
+    v_err = R @ status["velocities"].T - seq.v_w_b[window].T
+    v_rms = float(np.sqrt(np.mean(np.sum(v_err ** 2, 0))))
+    print(f"aligned at frame {frame} ({status['keyframes']} keyframes, "
+          f"{status['keyframe_timestamps'][-1] - status['keyframe_timestamps'][0]:.2f} s): "
+          f"scale {status['scale']:.4f}; Sim(3) scale of the {len(ids)} live keyframes "
+          f"{c:.4f}, path length error {100 * lengths.scale_error:.2f} %, gravity "
+          f"{gravity_deg:.3f} deg, gyro bias error {gyro_err:.5f} rad/s, velocity RMS "
+          f"{v_rms:.4f} m/s")
+    return c, lengths.scale_error, gravity_deg, gyro_err, v_rms
+
+
+def test_alignment_rescales_the_map_and_finds_gravity(seq, run):
+    """Measured (start 10 s, 20 keyframes, 18 aligned over 2.25 s, aligned at frame 52):
+    scale 3.20; live keyframes' Sim(3) scale to vicon2gt 1.19 (path length -16 %), gravity
+    1.53 deg, gyro bias 0.0012 rad/s from vicon2gt, velocities 4.3 cm/s RMS. The window's
+    visual trajectory itself holds its scale within 3 % (Sim(3) fits of its halves: 3.74 and
+    3.84), so the scale error is the linear alignment's: no accelerometer bias (vicon2gt:
+    0.05..0.17 m/s^2) against 0.64 m/s^2 of excitation over 2 s, and keyframe intervals from
+    0.05 s to seconds weighted alike. Bounds: measured + margin, NOT the issue's target (see
+    the xfail test below)."""
+    _, (_, status, _) = run
+    assert status["map_rescaled"]
+    assert status["keyframes"] >= 18  # 0.9 of at least 20
+    c, length_error, gravity_deg, gyro_err, v_rms = _alignment_errors(seq, run)
+    assert abs(c - 1.0) < 0.25
+    assert abs(length_error) < 0.25
+    assert gravity_deg < 2.0
+    assert gyro_err < 3e-3
+    assert v_rms < 0.1
+    np.testing.assert_allclose(np.linalg.norm(status["gravity_w"]), 9.81, rtol=1e-9)
+    np.testing.assert_allclose(status["R_w_g"] @ [0, 0, -9.81], status["gravity_w"], atol=1e-9)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 11 target not reached: linear alignment only "
+                   "(no accelerometer bias, no inertial-only optimisation or inertial BA)")
+def test_alignment_meets_the_issue_target(seq, run):
+    c, length_error, gravity_deg, _, _ = _alignment_errors(seq, run)
+    assert abs(c - 1.0) < 0.03 and abs(length_error) < 0.03 and gravity_deg < 1.0
+
+
+def test_map_stays_at_the_new_scale_after_the_alignment(seq, run):
+    """Frames tracked after the alignment (rescaled map, trajectory and motion model) keep the
+    scale the alignment gave the keyframes: no jump, no relapse to visual units."""
+    slam, (frame, _, _) = run
+    c_keyframes = _alignment_errors(seq, run)[0]
+    stamps, T_w_c = slam.frame_trajectory()
+    after = stamps > seq.timestamps[frame]
+    gt_idx = _gt_index(seq, stamps[after])
+    _, gt_T_w_c = seq.groundtruth()
+    est = Trajectory(stamps[after], T_w_c[after])
+    ref = Trajectory(seq.timestamps[gt_idx], gt_T_w_c[gt_idx])
+    ate = metrics.ate(ref, est, align="sim3")
+    print(f"{after.sum()} frames after alignment: Sim(3) scale {ate.scale:.4f} "
+          f"(keyframes at alignment: {c_keyframes:.4f}), ATE {ate.rmse:.4f} m")
+    assert after.sum() > 0.8 * (len(seq) - frame)
+    assert abs(ate.scale / c_keyframes - 1.0) < 0.05
+    assert slam.inertial_alignment()["status"] == "aligned"
+
+
+def _imu_chunk(t0=0.0, n=10):
+    t = t0 + 0.005 * np.arange(n)
+    gyro = np.tile([0.01, -0.02, 0.03], (n, 1))
+    accel = np.tile([0.1, 0.2, 9.81], (n, 1))
+    return t, gyro, accel
+
+
+def test_bad_imu_input_raises_and_leaves_the_system_unchanged(seq):
+    slam = _mono(seq)
+    assert slam.inertial_alignment() is None
+    with pytest.raises(ValueError, match="set_imu first"):
+        slam.add_imu(*_imu_chunk())
+    params, T_b_c = seq.imu_params(), seq.T_b_c
+    with pytest.raises(ValueError, match="alignment_fraction"):
+        slam.set_imu(params, T_b_c, alignment_fraction=0.0)
+    with pytest.raises(ValueError, match="num_poses_threshold"):
+        slam.set_imu(params, T_b_c, num_poses_threshold=2)
+    with pytest.raises(ValueError, match="rigid"):
+        slam.set_imu(params, 2.0 * T_b_c)
+    with pytest.raises(TypeError, match="T_b_c"):
+        slam.set_imu(params, T_b_c.astype(np.float32))
+    with pytest.raises(TypeError, match="gyroscope_noise_density"):
+        slam.set_imu({"rate_hz": 200.0}, T_b_c)
+    bad_params = {k: getattr(params, k) for k in (
+        "gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",
+        "accelerometer_random_walk", "rate_hz")}
+    with pytest.raises(ValueError, match="rate_hz"):
+        slam.set_imu({**bad_params, "rate_hz": -1.0}, T_b_c)
+    assert slam.inertial_alignment() is None
+
+    slam.set_imu(bad_params, T_b_c)
+    slam.add_imu(*_imu_chunk(0.0))
+    t, gyro, accel = _imu_chunk(1.0)
+    with pytest.raises(ValueError, match="not after"):
+        slam.add_imu(t[::-1].copy(), gyro, accel)
+    with pytest.raises(ValueError, match="last sample added"):
+        slam.add_imu(*_imu_chunk(0.02))
+    nan = accel.copy()
+    nan[3, 1] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        slam.add_imu(t, gyro, nan)
+    with pytest.raises(ValueError, match="deg/s"):
+        slam.add_imu(t, np.degrees(gyro) * 1000.0, accel)
+    with pytest.raises(ValueError, match="in g"):
+        slam.add_imu(t, gyro, accel / 9.81)
+    with pytest.raises(ValueError, match="shape"):
+        slam.add_imu(t, gyro[:, :2].copy(), accel)
+    with pytest.raises(TypeError, match="gyro"):
+        slam.add_imu(t, gyro.astype(np.float32), accel)
+    slam.add_imu(t, gyro, accel)  # the rejected batches left the buffer as it was
+    assert slam.inertial_alignment()["status"] == "waiting"
