@@ -298,6 +298,58 @@ class SlamSystem:
     def num_resets(self) -> int:
         """Map resets so far: automatic ones (tracking lost with at most 5 keyframes in the
         map) and ``reset()`` calls."""
+    def set_imu(
+        self,
+        params: Any,
+        T_b_c: NDArray[np.float64],
+        *,
+        num_poses_threshold: int = 20,
+        alignment_fraction: float = 0.9,
+        gravity_magnitude: float = 9.81,
+    ) -> None:
+        """Sets the IMU; from now on the camera-IMU alignment runs once the map has had
+        ``num_poses_threshold`` keyframes (MATLAB NumPosesThreshold; culled ones count), on
+        the newest ``alignment_fraction`` of them (AlignmentFraction). A monocular map is then
+        rescaled to metres in place; the world is not rotated (gravity is reported).
+
+        Args:
+            params: ``ferroslam.datasets.euroc.ImuParams`` or a dict with
+                ``gyroscope_noise_density``, ``gyroscope_random_walk``,
+                ``accelerometer_noise_density``, ``accelerometer_random_walk``, ``rate_hz``.
+            T_b_c: (4, 4) float64 camera pose in the body (IMU) frame (EuRoC ``T_BS``).
+
+        Raises:
+            TypeError: missing parameter, wrong dtype.
+            ValueError: non-rigid ``T_b_c``, a threshold below 3, a fraction outside (0, 1],
+                invalid noise values.
+        """
+    def add_imu(
+        self,
+        timestamps: NDArray[np.float64],
+        gyro: NDArray[np.float64],
+        accel: NDArray[np.float64],
+    ) -> None:
+        """Adds IMU samples (body frame): timestamps (M,) s on the camera clock, gyro (M, 3)
+        rad/s, accel (M, 3) m/s^2 specific force. Feed the samples up to each frame's time
+        before tracking it.
+
+        Raises:
+            TypeError: not float64 arrays.
+            ValueError: no ``set_imu`` yet, wrong shapes, non-finite values, timestamps not
+                strictly increasing (also against the samples added before), gyro beyond
+                35 rad/s (deg/s?) or mean |accel| near 1 (g?); the system is unchanged then.
+        """
+    def inertial_alignment(self) -> dict[str, Any] | None:
+        """The camera-IMU alignment of the current map, None without ``set_imu``.
+
+        ``{"status": "waiting", "keyframes", "needed"}``, ``{"status": "failed",
+        "keyframes", "reason"}`` (retried at the next keyframe) or ``{"status": "aligned",
+        "keyframes", "scale" (metres per former map unit), "map_rescaled" (mono),
+        "gravity_w" (3,) m/s^2 in the map's world, "R_w_g" (3, 3) gravity-aligned (z up) to
+        world, "gyro_bias" (3,) rad/s, "accel_bias" (3,) (zero: not estimated),
+        "keyframe_ids" (K,) uint32, "keyframe_timestamps" (K,), "velocities" (K, 3) m/s in the
+        world, "timestamp", "acceleration_excitation" m/s^2}``.
+        """
 
 def match_stereo(
     left_keypoints: NDArray[np.float32],
