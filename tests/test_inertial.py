@@ -2,11 +2,12 @@
 V1_01 flight, fed the REAL 200 Hz IMU of that flight between frames.
 
 After ``num_poses_threshold`` keyframes the system aligns the most recent
-``alignment_fraction`` of them with the preintegrated IMU and rescales the map to metres.
+``alignment_fraction`` of them with the preintegrated IMU and rescales the map to metres,
+then refines the alignment (ORB-SLAM3 style) when the keyframes since it span 5 s and 15 s.
 Checked against vicon2gt: the metric scale of the keyframes (Sim(3) fit to the ground truth)
 and their path length, gravity in the ground-truth world, the gyro bias and the keyframe
 velocities. Measured numbers are in each test's docstring (this build, seed 0). The issue's
-target (scale within 3 %, gravity within 1 degree) is NOT met yet: an xfail test records it.
+target (scale within 3 %, gravity within 1 degree) is met after the last refinement.
 """
 
 from __future__ import annotations
@@ -36,22 +37,24 @@ def _mono(seq) -> SlamSystem:
 
 @pytest.fixture(scope="module")
 def run(seq):
-    """Tracks the whole cut; snapshots the keyframes right after the alignment."""
+    """Tracks the whole cut; snapshots the keyframes right after each alignment (the first
+    one and its refinements, told apart by their newest keyframe), oldest first."""
     slam = _mono(seq)
     slam.set_imu(seq.imu_params(), seq.T_b_c, num_poses_threshold=20, alignment_fraction=0.9)
     assert slam.inertial_alignment() == {"status": "waiting", "keyframes": 0, "needed": 20}
-    snapshot = None
+    snapshots = []
     for i in range(len(seq)):
         slam.add_imu(*seq.imu_between(i))
         f = seq.features(i)
         slam.track_mono(seq.timestamps[i], f["keypoints"], f["descriptors"])
         status = slam.inertial_alignment()
-        if snapshot is None and status["status"] == "aligned":
-            snapshot = (i, status, slam.keyframe_trajectory())
-        elif snapshot is None and status["status"] == "failed":
+        if status["status"] == "aligned" and (
+                not snapshots or snapshots[-1][1]["timestamp"] != status["timestamp"]):
+            snapshots.append((i, status, slam.keyframe_trajectory()))
+        elif not snapshots and status["status"] == "failed":
             print(f"frame {i}: alignment failed: {status['reason']}")
-    assert snapshot is not None, slam.inertial_alignment()
-    return slam, snapshot
+    assert snapshots, slam.inertial_alignment()
+    return slam, snapshots
 
 
 def _gt_index(seq, t: np.ndarray) -> np.ndarray:
@@ -60,9 +63,9 @@ def _gt_index(seq, t: np.ndarray) -> np.ndarray:
     return idx
 
 
-def _alignment_errors(seq, run):
-    """Errors of the alignment against vicon2gt, from the live keyframes right after it."""
-    _, (frame, status, (ids, stamps, T_w_c)) = run
+def _alignment_errors(seq, snapshot):
+    """Errors of an alignment against vicon2gt, from the live keyframes right after it."""
+    frame, status, (ids, stamps, T_w_c) = snapshot
     gt_idx = _gt_index(seq, stamps)
     _, gt_T_w_c = seq.groundtruth()
     R, _, c = metrics.umeyama_alignment(T_w_c[:, :3, 3], gt_T_w_c[gt_idx, :3, 3],
@@ -83,19 +86,19 @@ def _alignment_errors(seq, run):
     return c, lengths.scale_error, gravity_deg, gyro_err, v_rms
 
 
-def test_alignment_rescales_the_map_and_finds_gravity(seq, run):
+def test_first_alignment_rescales_the_map_and_finds_gravity(seq, run):
     """Measured (start 10 s, 20 keyframes, 18 aligned over 2.25 s, aligned at frame 52):
     scale 3.20; live keyframes' Sim(3) scale to vicon2gt 1.19 (path length -16 %), gravity
     1.53 deg, gyro bias 0.0012 rad/s from vicon2gt, velocities 4.3 cm/s RMS. The window's
     visual trajectory itself holds its scale within 3 % (Sim(3) fits of its halves: 3.74 and
-    3.84), so the scale error is the linear alignment's: no accelerometer bias (vicon2gt:
-    0.05..0.17 m/s^2) against 0.64 m/s^2 of excitation over 2 s, and keyframe intervals from
-    0.05 s to seconds weighted alike. Bounds: measured + margin, NOT the issue's target (see
-    the xfail test below)."""
-    _, (_, status, _) = run
+    3.84); the window rotates too little for the accelerometer bias (vicon2gt: 0.05..0.17
+    m/s^2) to be estimated against 0.64 m/s^2 of excitation over 2 s. Bounds: measured +
+    margin; the refinements below reach the issue's target."""
+    _, snapshots = run
+    status = snapshots[0][1]
     assert status["map_rescaled"]
     assert status["keyframes"] >= 18  # 0.9 of at least 20
-    c, length_error, gravity_deg, gyro_err, v_rms = _alignment_errors(seq, run)
+    c, length_error, gravity_deg, gyro_err, v_rms = _alignment_errors(seq, snapshots[0])
     assert abs(c - 1.0) < 0.25
     assert abs(length_error) < 0.25
     assert gravity_deg < 2.0
@@ -105,18 +108,38 @@ def test_alignment_rescales_the_map_and_finds_gravity(seq, run):
     np.testing.assert_allclose(status["R_w_g"] @ [0, 0, -9.81], status["gravity_w"], atol=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 11 target not reached: linear alignment only "
-                   "(no accelerometer bias, no inertial-only optimisation or inertial BA)")
-def test_alignment_meets_the_issue_target(seq, run):
-    c, length_error, gravity_deg, _, _ = _alignment_errors(seq, run)
-    assert abs(c - 1.0) < 0.03 and abs(length_error) < 0.03 and gravity_deg < 1.0
+def test_refinements_at_5_and_15_s_meet_the_issue_target(seq, run):
+    """Measured (refinements with the accelerometer bias, the windows rotating enough):
+    at 5 s (27 keyframes, frame 164) Sim(3) scale 1.0075, path length -0.6 %, gravity
+    0.73 deg, velocities 2.0 cm/s RMS; at 15 s (54 keyframes, frame 352) Sim(3) scale
+    1.0151, path length -1.5 %, gravity 0.17 deg, gyro bias 0.0007 rad/s, velocities
+    4.7 cm/s RMS. Without the accelerometer bias the refinements ended 13 % (Sim(3) 0.866,
+    path +16 %) off, so the bias estimate is what closes the gap. Bounds: the issue's target
+    (3 %, 1 deg), twice the measured scale error; the rest measured + margin."""
+    _, snapshots = run
+    assert len(snapshots) == 3, [s[0] for s in snapshots]
+    spans = [s[1]["keyframe_timestamps"][-1] - s[1]["keyframe_timestamps"][0]
+             for s in snapshots]
+    assert spans[0] < 5.0 and 5.0 - 1e-6 <= spans[1] < 15.0 and spans[2] >= 15.0 - 1e-6, spans
+    for _, status, _ in snapshots:
+        assert status["map_rescaled"]
+        np.testing.assert_allclose(np.linalg.norm(status["gravity_w"]), 9.81, rtol=1e-9)
+    c, length_error, gravity_deg, gyro_err, v_rms = _alignment_errors(seq, snapshots[-1])
+    assert abs(c - 1.0) < 0.03
+    assert abs(length_error) < 0.03
+    assert gravity_deg < 1.0
+    assert gyro_err < 2e-3
+    assert v_rms < 0.08
+    assert np.linalg.norm(snapshots[-1][1]["accel_bias"]) > 0.0  # estimated
 
 
 def test_map_stays_at_the_new_scale_after_the_alignment(seq, run):
-    """Frames tracked after the alignment (rescaled map, trajectory and motion model) keep the
-    scale the alignment gave the keyframes: no jump, no relapse to visual units."""
-    slam, (frame, _, _) = run
-    c_keyframes = _alignment_errors(seq, run)[0]
+    """Frames tracked after the last alignment (rescaled map, trajectory and motion model)
+    keep the scale the alignment gave the keyframes: no jump, no relapse to visual units.
+    Measured: 147 frames, Sim(3) scale 1.0170 (keyframes 1.0151), ATE 1.5 mm."""
+    slam, snapshots = run
+    frame = snapshots[-1][0]
+    c_keyframes = _alignment_errors(seq, snapshots[-1])[0]
     stamps, T_w_c = slam.frame_trajectory()
     after = stamps > seq.timestamps[frame]
     gt_idx = _gt_index(seq, stamps[after])

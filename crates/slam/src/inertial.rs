@@ -19,9 +19,16 @@
 //! model); maps with depth keep their scale (already metric; the estimate is reported).
 //! The world is NOT rotated: gravity is stored as `gravity_w` and `R_w_g` (gravity-aligned
 //! frame, z up, into the map's world), so poses already handed out stay valid.
-//! A failed attempt (no excitation yet, missing IMU data) is retried at the next keyframe;
-//! after a success no further alignment runs on this map (ORB-SLAM3's later refinements
-//! and inertial BA are not implemented).
+//! A failed attempt (no excitation yet, missing IMU data) is retried at the next keyframe.
+//!
+//! # Refinements
+//!
+//! As ORB-SLAM3 re-initialises at ~5 s and ~15 s, the alignment is re-run when the keyframes
+//! since the first alignment span [`REFINEMENT_SPANS_S`], over the keyframes (live or
+//! culled) of the newest span, at the poses the map holds now and with the biases found so
+//! far as priors. The scale found is relative to the current map, so a monocular map is
+//! multiplied by it again (the trajectory stays continuous). A failed refinement keeps the
+//! previous alignment and is retried at the next keyframe. Inertial BA is not implemented.
 
 use std::collections::BTreeMap;
 
@@ -31,6 +38,10 @@ use ferroslam_map::{KeyFrameId, Map, MapError};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
 use crate::error::SlamError;
+
+/// Spans of keyframe time since the first alignment, seconds, after which the alignment is
+/// re-run over the newest keyframes of that span (ORB-SLAM3's refinements at ~5 s and ~15 s).
+pub const REFINEMENT_SPANS_S: [f64; 2] = [5.0, 15.0];
 
 pub use ferroslam_imu::{ImuMeasurement as ImuSample, ImuParams, Preintegrated};
 
@@ -112,9 +123,12 @@ impl InertialConfig {
 /// A successful camera-IMU alignment, in the map's world frame `w` after any rescaling.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InertialAlignment {
-    /// Metric length of one visual unit estimated by the alignment (monocular: the factor
-    /// the map was multiplied by; with depth: a check, ideally 1).
+    /// Metric length of one unit of the map as it was before this alignment (monocular: the
+    /// factor the map was multiplied by, relative for a refinement; with depth: a check,
+    /// ideally 1).
     pub scale: f64,
+    /// 0 for the first alignment, `k` for the refinement after `REFINEMENT_SPANS_S[k - 1]`.
+    pub refinement: usize,
     /// Whether the map was rescaled by [`scale`](Self::scale) (monocular only).
     pub map_rescaled: bool,
     /// Gravity in `w`, m/s^2.
@@ -124,7 +138,8 @@ pub struct InertialAlignment {
     pub R_w_g: UnitQuaternion<f64>,
     /// Gyro bias, rad/s.
     pub gyro_bias: Vector3<f64>,
-    /// Accelerometer bias, m/s^2 (zero: not estimated by this first alignment).
+    /// Accelerometer bias, m/s^2 (the previous alignment's, zero at first, when the window
+    /// rotates too little to estimate it).
     pub accel_bias: Vector3<f64>,
     /// The aligned keyframes `(id, timestamp)`, oldest first (some may be culled since).
     pub keyframes: Vec<(KeyFrameId, f64)>,
@@ -164,14 +179,31 @@ struct KeyFrameImu {
     preintegrated: Preintegrated,
 }
 
+/// A keyframe of the history, as last seen live.
+#[allow(non_snake_case)]
+#[derive(Clone, Copy, Debug)]
+struct Seen {
+    id: KeyFrameId,
+    timestamp: f64,
+    /// Its pose when last seen live, in the map of that time.
+    T_c_w: Isometry3<f64>,
+    /// [`Inertial::map_scale`] when last seen live.
+    map_scale: f64,
+}
+
 /// The inertial state of a system: buffered samples, per-keyframe preintegrations, status.
 #[derive(Clone, Debug)]
 pub(crate) struct Inertial {
     config: InertialConfig,
     samples: Vec<ImuSample>,
     keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
-    /// Every keyframe `(id, timestamp)` of the map until the alignment, culled ones too.
-    history: Vec<(KeyFrameId, f64)>,
+    /// Every keyframe of the map, culled ones too, by id, until the last refinement (since
+    /// the first alignment once aligned).
+    history: Vec<Seen>,
+    /// Product of the rescalings applied to the map (1 with depth).
+    map_scale: f64,
+    /// Timestamp of the newest keyframe of the first alignment.
+    first_aligned_s: Option<f64>,
     status: AlignmentStatus,
 }
 
@@ -184,6 +216,8 @@ impl Inertial {
             samples: Vec::new(),
             keyframes: BTreeMap::new(),
             history: Vec::new(),
+            map_scale: 1.0,
+            first_aligned_s: None,
             status: AlignmentStatus::Waiting {
                 keyframes: 0,
                 needed,
@@ -224,6 +258,8 @@ impl Inertial {
     pub(crate) fn clear_map(&mut self) {
         self.keyframes.clear();
         self.history.clear();
+        self.map_scale = 1.0;
+        self.first_aligned_s = None;
         self.status = AlignmentStatus::Waiting {
             keyframes: 0,
             needed: self.config.num_poses_threshold,
@@ -239,13 +275,11 @@ impl Inertial {
 
     /// Brings the per-keyframe preintegrations up to date with the live keyframes (new
     /// ones, and the successors of culled ones, integrate from the previous live keyframe),
-    /// records new keyframes in the history and drops samples no interval needs any more.
+    /// records new keyframes in the history (and how live ones look now) and drops samples
+    /// no interval needs any more.
     pub(crate) fn sync(&mut self, map: &Map) {
         let live = live_keyframes(map);
-        let bias = match &self.status {
-            AlignmentStatus::Aligned(a) => Bias::new(a.gyro_bias, a.accel_bias),
-            _ => Bias::default(),
-        };
+        let bias = self.bias();
         let mut synced = BTreeMap::new();
         for pair in live.windows(2) {
             let ((a, ta), (b, tb)) = (pair[0], pair[1]);
@@ -263,14 +297,30 @@ impl Inertial {
             }
         }
         self.keyframes = synced;
-        if !matches!(self.status, AlignmentStatus::Aligned(_)) {
-            let last = self.history.last().map(|&(id, _)| id);
+        if self.next_refinement().is_some() {
+            let last = self.history.last().map(|k| k.id);
             let mut new: Vec<_> = live.iter().filter(|&&(id, _)| Some(id) > last).collect();
             new.sort_by_key(|&&(id, _)| id);
-            self.history.extend(new);
+            self.history
+                .extend(new.into_iter().map(|&(id, timestamp)| Seen {
+                    id,
+                    timestamp,
+                    T_c_w: Isometry3::identity(),
+                    map_scale: f64::NAN,
+                }));
+            for seen in &mut self.history {
+                if let Some(kf) = map.keyframe(seen.id) {
+                    seen.T_c_w = *kf.T_c_w();
+                    seen.map_scale = self.map_scale;
+                }
+            }
         }
-        let oldest = self.history.first().into_iter().chain(live.first());
-        if let Some(t0) = oldest.map(|&(_, t)| t).reduce(f64::min) {
+        let oldest = self.history.first().map(|k| k.timestamp);
+        if let Some(t0) = oldest
+            .into_iter()
+            .chain(live.first().map(|&(_, t)| t))
+            .reduce(f64::min)
+        {
             // Keep the sample at or before the oldest keyframe: it brackets the interval.
             let first = self
                 .samples
@@ -280,9 +330,29 @@ impl Inertial {
         }
     }
 
-    /// Syncs the preintegrations, then attempts the alignment when due (enough keyframes,
-    /// not aligned yet) and records the outcome; returns the new alignment when one
-    /// succeeded. The map is not changed here.
+    /// The biases of the current alignment (zero before).
+    fn bias(&self) -> Bias {
+        match &self.status {
+            AlignmentStatus::Aligned(a) => Bias::new(a.gyro_bias, a.accel_bias),
+            _ => Bias::default(),
+        }
+    }
+
+    /// Index into [`REFINEMENT_SPANS_S`] of the next alignment (0 before the first one,
+    /// which [`InertialAlignment::refinement`] counts as 0 too), `None` when all are done.
+    fn next_refinement(&self) -> Option<usize> {
+        match &self.status {
+            AlignmentStatus::Aligned(a) if a.refinement < REFINEMENT_SPANS_S.len() => {
+                Some(a.refinement)
+            }
+            AlignmentStatus::Aligned(_) => None,
+            _ => Some(0),
+        }
+    }
+
+    /// Syncs the preintegrations, then attempts the alignment when due (enough keyframes
+    /// before the first one, a refinement span since it) and records the outcome; returns
+    /// the new alignment when one succeeded. The map is not changed here.
     ///
     /// Keyframes count from the map's start, culled ones included (local mapping culls
     /// redundant keyframes, ~9 in 10 on the synthetic EuRoC flight, and would otherwise
@@ -290,8 +360,21 @@ impl Inertial {
     /// relative to the keyframe that adopted it.
     pub(crate) fn try_align(&mut self, map: &Map) -> Option<InertialAlignment> {
         self.sync(map);
-        if matches!(self.status, AlignmentStatus::Aligned(_)) {
-            return None;
+        if let (AlignmentStatus::Aligned(a), Some(t0)) = (&self.status, self.first_aligned_s) {
+            let span = *REFINEMENT_SPANS_S.get(a.refinement)?;
+            let newest = self.history.last()?.timestamp;
+            if newest - t0 < span {
+                return None;
+            }
+            let start = self
+                .history
+                .partition_point(|k| k.timestamp < newest - span);
+            let refinement = a.refinement + 1;
+            // A failed refinement keeps the current alignment and retries at the next keyframe.
+            return self
+                .align_window(map, &self.history[start..])
+                .ok()
+                .map(|a| InertialAlignment { refinement, ..a });
         }
         let needed = self.config.num_poses_threshold;
         let n = self.history.len();
@@ -315,58 +398,79 @@ impl Inertial {
         }
     }
 
-    fn align_window(
-        &self,
-        map: &Map,
-        window: &[(KeyFrameId, f64)],
-    ) -> Result<InertialAlignment, String> {
+    /// Aligns the keyframes of `window` at the poses the map holds now. A keyframe culled
+    /// before the last rescaling is placed at its last live pose, rescaled: the map keeps a
+    /// culled keyframe's offset to its anchor unscaled.
+    fn align_window(&self, map: &Map, window: &[Seen]) -> Result<InertialAlignment, String> {
         let mut poses = Vec::with_capacity(window.len());
-        for &(id, _) in window {
-            let T_c_w = map
-                .resolve_keyframe_pose(id)
-                .ok_or_else(|| format!("keyframe {} has no pose", id.0))?;
+        for seen in window {
+            let T_c_w = if map.keyframe(seen.id).is_some() || seen.map_scale == self.map_scale {
+                map.resolve_keyframe_pose(seen.id)
+                    .ok_or_else(|| format!("keyframe {} has no pose", seen.id.0))?
+            } else {
+                scale_translation(&seen.T_c_w, self.map_scale / seen.map_scale)
+            };
             poses.push(T_c_w.inverse());
         }
+        let prior = self.bias();
         let pres = window
             .windows(2)
             .map(|pair| {
-                let ((a, ta), (b, tb)) = (pair[0], pair[1]);
-                Preintegrated::between(&self.samples, ta, tb, Bias::default(), &self.config.params)
-                    .map_err(|e| {
-                        format!(
-                            "IMU between keyframes {} and {}: {e} (call add_imu with the \
-                             samples up to each frame before tracking it)",
-                            a.0, b.0
-                        )
-                    })
+                let (a, b) = (pair[0], pair[1]);
+                Preintegrated::between(
+                    &self.samples,
+                    a.timestamp,
+                    b.timestamp,
+                    prior,
+                    &self.config.params,
+                )
+                .map_err(|e| {
+                    format!(
+                        "IMU between keyframes {} and {}: {e} (call add_imu with the \
+                         samples up to each frame before tracking it)",
+                        a.id.0, b.id.0
+                    )
+                })
             })
             .collect::<Result<Vec<_>, _>>()?;
         let config = AlignmentConfig {
             gravity_magnitude: self.config.gravity_magnitude,
             min_keyframes: 3,
+            // `align` estimates it only once the window rotates enough to tell it from
+            // gravity (not in the first ~2 s on EuRoC V1_01, but at 5 s and 15 s).
+            estimate_accel_bias: true,
             ..AlignmentConfig::default()
         };
         let out = align(&poses, &self.config.T_b_c, &pres, &config).map_err(|e| e.to_string())?;
         Ok(InertialAlignment {
             scale: out.scale,
+            refinement: 0,
             map_rescaled: false,
             gravity_w: out.gravity_w,
             R_w_g: out.R_w_gravity,
             gyro_bias: out.gyro_bias,
             accel_bias: out.accel_bias,
-            keyframes: window.to_vec(),
+            keyframes: window.iter().map(|k| (k.id, k.timestamp)).collect(),
             velocities: out.velocities,
-            timestamp: window.last().map_or(f64::NAN, |&(_, t)| t),
+            timestamp: window.last().map_or(f64::NAN, |k| k.timestamp),
             acceleration_excitation: out.acceleration_excitation,
         })
     }
 
-    /// Records a successful alignment (after the system applied it) and reintegrates the
-    /// keyframes' IMU at the estimated biases.
+    /// Records a successful alignment (after the system applied it), keeps the history
+    /// the refinements still need and reintegrates the keyframes' IMU at the new biases.
     pub(crate) fn accept(&mut self, alignment: InertialAlignment, map: &Map) {
+        if alignment.map_rescaled {
+            self.map_scale *= alignment.scale;
+        }
+        let t0 = *self.first_aligned_s.get_or_insert(alignment.timestamp);
         self.status = AlignmentStatus::Aligned(alignment);
         self.keyframes.clear();
-        self.history.clear();
+        if self.next_refinement().is_some() {
+            self.history.retain(|k| k.timestamp >= t0);
+        } else {
+            self.history.clear();
+        }
         self.sync(map);
     }
 }
@@ -472,6 +576,35 @@ mod tests {
         assert_eq!(inertial.samples.len(), 2);
         inertial.add(&[sample(0.01)]).unwrap();
         assert_eq!(inertial.samples.len(), 3);
+    }
+
+    #[test]
+    fn refinements_follow_the_first_alignment_then_stop() {
+        let mut inertial = Inertial::new(config()).unwrap();
+        assert_eq!(inertial.next_refinement(), Some(0));
+        let aligned = |refinement| {
+            AlignmentStatus::Aligned(InertialAlignment {
+                scale: 1.0,
+                refinement,
+                map_rescaled: false,
+                gravity_w: Vector3::new(0.0, 0.0, -9.81),
+                R_w_g: UnitQuaternion::identity(),
+                gyro_bias: Vector3::zeros(),
+                accel_bias: Vector3::zeros(),
+                keyframes: Vec::new(),
+                velocities: Vec::new(),
+                timestamp: 0.0,
+                acceleration_excitation: 1.0,
+            })
+        };
+        for (refinement, next) in [(0, Some(0)), (1, Some(1)), (2, None)] {
+            inertial.status = aligned(refinement);
+            assert_eq!(
+                inertial.next_refinement(),
+                next,
+                "after refinement {refinement}"
+            );
+        }
     }
 
     #[test]
