@@ -32,9 +32,6 @@ pub enum TrackingState {
 }
 
 /// Minimum matches for the motion model and reference keyframe searches (ORB-SLAM).
-/// Fraction of the reference keyframe's points below which SkipMaxFrames may insert a
-/// keyframe (ORB-SLAM's monocular `thRefRatio`).
-const REVISIT_RATIO: f64 = 0.9;
 const MIN_SEARCH_MATCHES: usize = 20;
 const MIN_REFERENCE_MATCHES: usize = 15;
 /// Motion-model inliers above which the pose is trusted without a PnP cross-check.
@@ -514,13 +511,8 @@ impl Tracker {
         };
         // MATLAB's rule (fewer tracked points than the upper limit, or SkipMaxFrames reached)
         // or ORB-SLAM's (tracking much less than the reference keyframe, or close structure
-        // left untracked). As ORB-SLAM's `mMaxFrames`, SkipMaxFrames only inserts a keyframe
-        // when tracking sees less than its reference keyframe: a camera revisiting a mapped
-        // place would otherwise add a keyframe (and new depth points) every SkipMaxFrames
-        // frames forever, and the map would grow without bound.
-        let weaker_than_reference = (inliers as f64) < ref_matches * REVISIT_RATIO;
-        let matlab = inliers < ctx.config.track_feature_range.1
-            || (since_kf >= max_frames && weaker_than_reference);
+        // left untracked); local mapping runs inline, so it is always idle here.
+        let matlab = inliers < ctx.config.track_feature_range.1 || since_kf >= max_frames;
         let orb_slam = (inliers as f64) < ref_matches * ratio || need_close;
         (matlab || orb_slam) && inliers > 15
     }
