@@ -340,13 +340,17 @@ class SlamSystem:
                 35 rad/s (deg/s?) or mean |accel| near 1 (g?); the system is unchanged then.
         """
     def inertial_alignment(self) -> dict[str, Any] | None:
-        """The camera-IMU alignment of the current map, None without ``set_imu``.
+        """The camera-IMU alignment of the current map, None without ``set_imu``. It runs
+        after ``num_poses_threshold`` keyframes and again (ORB-SLAM3 style) when the keyframes
+        since then span 5 s and 15 s; this is the latest.
 
         ``{"status": "waiting", "keyframes", "needed"}``, ``{"status": "failed",
         "keyframes", "reason"}`` (retried at the next keyframe) or ``{"status": "aligned",
-        "keyframes", "scale" (metres per former map unit), "map_rescaled" (mono),
+        "refinement" (0 first, then 1 and 2), "keyframes", "scale" (metres per former map
+        unit: relative to the previous alignment for a refinement), "map_rescaled" (mono),
         "gravity_w" (3,) m/s^2 in the map's world, "R_w_g" (3, 3) gravity-aligned (z up) to
-        world, "gyro_bias" (3,) rad/s, "accel_bias" (3,) (zero: not estimated),
+        world, "gyro_bias" (3,) rad/s, "accel_bias" (3,) (zero when not estimated: the window
+        must rotate enough),
         "keyframe_ids" (K,) uint32, "keyframe_timestamps" (K,), "velocities" (K, 3) m/s in the
         world, "timestamp", "acceleration_excitation" m/s^2}``.
         """

@@ -156,6 +156,7 @@ pub fn status_dict<'py>(py: Python<'py>, status: &AlignmentStatus) -> PyResult<B
             d.set_item("velocities", PyArray2::from_owned_array(py, v))?;
             d.set_item("timestamp", a.timestamp)?;
             d.set_item("acceleration_excitation", a.acceleration_excitation)?;
+            d.set_item("refinement", a.refinement)?;
         }
     }
     Ok(d)

@@ -23,14 +23,16 @@ pub use projection::{search_by_projection, search_by_projection_with, Projection
 pub use rotation::{RotationHistogram, HISTO_LENGTH};
 
 /// A query's chosen target: `(target index, Hamming distance)`.
-type Candidate = (usize, u32);
+pub type Candidate = (usize, u32);
 
-/// Steps 2 and 3 of the pipeline (see the module docs), in place.
+/// Steps 2 and 3 of the pipeline (see the module docs), in place: for matchers written
+/// elsewhere (e.g. bag-of-words matching between keyframes) that produce per-query best
+/// candidates `(target index, Hamming distance)`.
 ///
 /// `angle_diff(query, target)` gives the orientation difference in degrees, or `None` when
 /// the query has no orientation (it is then exempt from the rotation check). Every target
 /// index in `matches` must be `< n_targets`.
-fn finalize(
+pub fn finalize(
     matches: &mut [Option<Candidate>],
     n_targets: usize,
     check_orientation: bool,

@@ -1,7 +1,7 @@
 //! Matching the map points of two keyframes: by bag-of-words node (ORB-SLAM
 //! `SearchByBoW(KeyFrame, KeyFrame)`) and guided by a Sim(3) (`SearchBySim3`).
 
-use ferroslam_features::matcher::RotationHistogram;
+use ferroslam_features::matcher::finalize;
 use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_HIGH, TH_LOW};
 use ferroslam_features::{hamming, MatchOptions};
 use ferroslam_geometry::sim3::Sim3;
@@ -14,7 +14,8 @@ use crate::context::Context;
 /// For each keypoint of `kf1` carrying a map point, the map point of `kf2` whose keypoint
 /// shares its vocabulary node and has the closest descriptor: within [`TH_LOW`], below `ratio`
 /// times the second closest, one-to-one (the closer match wins) and consistent with the
-/// dominant keypoint rotations. Indexed by `kf1`'s keypoints.
+/// dominant keypoint rotations (the matchers' common `finalize`). Indexed by `kf1`'s
+/// keypoints.
 pub(super) fn match_by_bow(
     map: &Map,
     (kf1, fv1): (KeyFrameId, &FeatureVector),
@@ -54,28 +55,9 @@ pub(super) fn match_by_bow(
             }
         }
     }
-    // One-to-one: each keypoint of kf2 keeps its closest match.
-    let mut owner: Vec<Option<usize>> = vec![None; f2.len()];
-    for i1 in 0..best.len() {
-        let Some((i2, d)) = best[i1] else { continue };
-        match owner[i2] {
-            Some(prev) if best[prev].is_some_and(|(_, pd)| pd <= d) => best[i1] = None,
-            Some(prev) => {
-                best[prev] = None;
-                owner[i2] = Some(i1);
-            }
-            None => owner[i2] = Some(i1),
-        }
-    }
-    let mut histogram = RotationHistogram::new();
-    for (i1, m) in best.iter().enumerate() {
-        if let Some((i2, _)) = m {
-            histogram.add(i1, f1.keypoints[i1].angle_deg - f2.keypoints[*i2].angle_deg);
-        }
-    }
-    for i1 in histogram.rejected() {
-        best[i1] = None;
-    }
+    finalize(&mut best, f2.len(), true, |i1, i2| {
+        Some(f1.keypoints[i1].angle_deg - f2.keypoints[i2].angle_deg)
+    });
     best.iter()
         .map(|m| m.and_then(|(i2, _)| good(k2, i2)))
         .collect()
