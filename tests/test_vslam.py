@@ -222,3 +222,42 @@ def test_stereo_object_and_input_errors(kitti_stereo, tum):
     rgbd = RGBDVSlam(tum.camera, depth_scale_factor=5000)
     with pytest.raises(ValueError, match="color and depth images differ in size"):
         rgbd.add_frame(tum.load_gray(0), raw_depth(tum, 0)[:-1])
+
+
+def test_stereo_object_with_imu_on_euroc(euroc_micro):
+    """IMU options (MATLAB imuParameters, CameraToIMUTransform, NumPosesThreshold,
+    AlignmentFraction) on the real V1_01 micro stereo pair and IMU: the samples between frames
+    go with add_frame, tracking is unchanged by them, and the alignment waits, as it should on
+    a MAV standing still with 4 keyframes (it needs num_poses_threshold = 10)."""
+    from ferroslam.datasets import EurocSequence
+
+    seq = EurocSequence(euroc_micro, stereo=True)
+    t_imu, gyro, accel = seq.imu()
+    common = dict(max_num_points=1200, threaded=False)
+    with StereoVSlam(seq.camera, seq.baseline_m, **common) as plain, \
+            StereoVSlam(seq.camera, seq.baseline_m, imu=seq.imu_params(),
+                        camera_to_imu_transform=seq.T_b_c, num_poses_threshold=10,
+                        **common) as inertial:
+        previous = -np.inf
+        for i in range(len(seq)):
+            t = float(seq.timestamps[i])
+            left, right = seq.load_stereo(i)
+            between = (t_imu > previous) & (t_imu <= t)
+            plain.add_frame(left, right, timestamp=t)
+            inertial.add_frame(left, right, timestamp=t,
+                               imu=(t_imu[between], gyro[between], accel[between]))
+            previous = t
+        assert plain.inertial_alignment() is None
+        status = inertial.inertial_alignment()
+        assert status["status"] == "waiting" and status["needed"] == 10
+        np.testing.assert_array_equal(inertial.frame_trajectory()[1],
+                                      plain.frame_trajectory()[1])
+        # Samples must keep moving forward in time; the object stays usable after a refusal.
+        with pytest.raises(ValueError, match="is not after the last sample added"):
+            inertial.add_frame(left, right, timestamp=previous + 0.05,
+                               imu=(t_imu[-3:], gyro[-3:], accel[-3:]))
+        assert inertial.num_frames == len(seq)  # the refused frame was not queued
+        with pytest.raises(ValueError, match="no IMU"):
+            plain.add_frame(left, right, imu=(t_imu[:2], gyro[:2], accel[:2]))
+    with pytest.raises(ValueError, match="camera_to_imu_transform"):
+        StereoVSlam(seq.camera, seq.baseline_m, imu=seq.imu_params())

@@ -99,6 +99,10 @@ class _VSlam:
         vocabulary: Any = "default",
         verbose: int = 0,
         seed: int = 0,
+        imu: Any = None,
+        camera_to_imu_transform: Optional[np.ndarray] = None,
+        num_poses_threshold: int = 20,
+        alignment_fraction: float = 0.9,
         core_options: Optional[dict] = None,
     ) -> None:
         if not isinstance(intrinsics, Camera):
@@ -136,6 +140,14 @@ class _VSlam:
             from .pipeline import load_vocabulary
 
             self._system.set_vocabulary(load_vocabulary(vocabulary))
+        self.imu = imu
+        if imu is not None:
+            if camera_to_imu_transform is None:
+                raise ValueError("imu needs camera_to_imu_transform: the (4, 4) camera pose in "
+                                 "the IMU (body) frame, e.g. EuRoC's T_BS")
+            self._system.set_imu(imu, np.asarray(camera_to_imu_transform, dtype=np.float64),
+                                 num_poses_threshold=num_poses_threshold,
+                                 alignment_fraction=alignment_fraction)
         self._frames = 0
         self._processed = 0
         self._last_timestamp: Optional[float] = None
@@ -160,10 +172,17 @@ class _VSlam:
                 timestamp = self._last_timestamp + 1.0 / self.frame_rate_hz
         return float(timestamp)
 
-    def _track(self, timestamp: Optional[float], method: str, *args: Any) -> None:
+    def _track(self, timestamp: Optional[float], method: str, *args: Any,
+               imu: Optional[Sequence[np.ndarray]] = None) -> None:
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
+        if imu is not None:
+            if self.imu is None:
+                raise ValueError("IMU samples given but this object has no IMU: pass imu=... "
+                                 "and camera_to_imu_transform=... when creating it")
+            stamps, gyro, accel = (np.asarray(a, dtype=np.float64) for a in imu)
+            self._system.add_imu(stamps, gyro, accel)
         result = getattr(self._system, method)(t, *args)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
@@ -272,6 +291,12 @@ class _VSlam:
         monocular)."""
         return np.asarray(self._system.map_points(), dtype=np.float64).reshape(-1, 3)
 
+    def inertial_alignment(self) -> Optional[dict]:
+        """The camera-IMU alignment (``None`` without an IMU): status ``"waiting"``,
+        ``"failed"`` (with the reason) or ``"aligned"`` with scale, gravity and biases (see
+        ``ferroslam._core.SlamSystem.inertial_alignment``)."""
+        return self._system.inertial_alignment()
+
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         """``(keyframe ids (K,), T_w_c (K, 4, 4))`` of the current map's keyframes (MATLAB
         ``poses``)."""
@@ -353,12 +378,14 @@ class MonoVSlam(_VSlam):
 
     _sensor = "mono"
 
-    def add_frame(self, image: np.ndarray, timestamp: Optional[float] = None) -> None:
+    def add_frame(self, image: np.ndarray, timestamp: Optional[float] = None,
+                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
         """Adds a grey ``(H, W)`` or BGR ``(H, W, 3)`` uint8 image (raw, distorted: the
         intrinsics' distortion is applied to the keypoints). ``timestamp`` in seconds defaults
-        to the frame count divided by ``frame_rate_hz``."""
+        to the frame count divided by ``frame_rate_hz``. ``imu``: the IMU samples up to this
+        frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``."""
         keypoints, descriptors = self._extractor.detect(image)
-        self._track(timestamp, "track_mono", keypoints, descriptors)
+        self._track(timestamp, "track_mono", keypoints, descriptors, imu=imu)
 
 
 class StereoVSlam(_VSlam):
@@ -379,14 +406,16 @@ class StereoVSlam(_VSlam):
         super().__init__(intrinsics, core_options=core, **options)
 
     def add_frame(self, left: np.ndarray, right: np.ndarray,
-                  timestamp: Optional[float] = None) -> None:
-        """Adds a rectified pair of uint8 images of equal size."""
+                  timestamp: Optional[float] = None,
+                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+        """Adds a rectified pair of uint8 images of equal size (``imu`` as
+        :meth:`MonoVSlam.add_frame`)."""
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
         kl, dl, pl = self._extractor.detect_with_pyramid(left)
         kr, dr, pr = self._extractor.detect_with_pyramid(right)
-        self._track(timestamp, "track_stereo", kl, dl, pl, kr, dr, pr)
+        self._track(timestamp, "track_stereo", kl, dl, pl, kr, dr, pr, imu=imu)
 
 
 class RGBDVSlam(_VSlam):
@@ -406,13 +435,14 @@ class RGBDVSlam(_VSlam):
         super().__init__(intrinsics, core_options=core, **options)
 
     def add_frame(self, color: np.ndarray, depth: np.ndarray,
-                  timestamp: Optional[float] = None) -> None:
+                  timestamp: Optional[float] = None,
+                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
         """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
-        dtype; divided by ``depth_scale_factor``)."""
+        dtype; divided by ``depth_scale_factor``; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
         depth = np.asarray(depth)
         if depth.shape[:2] != np.shape(color)[:2]:
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
         keypoints, descriptors = self._extractor.detect(color)
         depth_m = sample_depth(depth.astype(np.float64) / self.depth_scale_factor, keypoints)
-        self._track(timestamp, "track_rgbd", keypoints, descriptors, depth_m)
+        self._track(timestamp, "track_rgbd", keypoints, descriptors, depth_m, imu=imu)
