@@ -242,14 +242,15 @@ impl SlamSystem {
                     new_points: self.mapper.take_recent_points(),
                 };
                 concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
+                self.index_keyframes();
             } else {
                 self.mapper
                     .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
+                // Indexed after culling, before loop detection queries it.
                 self.index_keyframes();
                 result.loop_closure = self.close_loops(kf)?;
             }
             result.mapping = Some(report);
-            self.index_keyframes();
             self.update_inertial()?;
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
