@@ -1,0 +1,1 @@
+//! Visual-inertial local bundle adjustment (in progress).

@@ -1,0 +1,1 @@
+//! Visual-inertial motion-only optimisation for tracking (in progress).
