@@ -45,8 +45,12 @@ pub use ba::{
     SymbolicBa,
 };
 pub use error::OptimError;
+pub use inertial_ba::{
+    inertial_bundle_adjust, InertialBaOptions, InertialBaProblem, InertialBaResult, InertialEdge,
+};
 pub use intrinsics::Intrinsics;
 pub use pose::{optimize_pose, PoseEstimate, PoseObservation};
+pub use pose_inertial::{optimize_pose_inertial, InertialLink, InertialPoseEstimate};
 pub use pose_graph::{
     optimize_pose_graph, read_g2o, PoseEdge, PoseGraph, PoseGraphOptions, PoseGraphReport,
     Se3PoseGraph, Sim3PoseGraph, SymbolicPoseGraph,
