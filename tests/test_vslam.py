@@ -224,12 +224,22 @@ def test_stereo_object_and_input_errors(kitti_stereo, tum):
         rgbd.add_frame(tum.load_gray(0), raw_depth(tum, 0)[:-1])
 
 
-def test_stereo_object_with_imu_on_euroc(euroc_micro):
-    """IMU options (MATLAB imuParameters, CameraToIMUTransform, NumPosesThreshold,
-    AlignmentFraction) on the real V1_01 micro stereo pair and IMU: the samples between frames
-    go with add_frame, tracking is unchanged by them, and the alignment waits, as it should on
-    a MAV standing still with 4 keyframes (it needs num_poses_threshold = 10)."""
+def test_stereo_inertial_static_start_on_euroc(euroc_micro):
+    """Static start (issue 11) with the IMU options (MATLAB imuParameters, CameraToIMUTransform,
+    NumPosesThreshold, AlignmentFraction) on the real V1_01 micro stereo pair and IMU: the MAV
+    stands still for 4.7 s. Before the alignment a keyframe is inserted every 0.25 s
+    (ORB-SLAM3), the stereo map keeps its metric scale (fixed to 1, so gravity is observable
+    without motion) and the alignment succeeds after 10 keyframes.
+
+    Measured against vicon2gt (its gravity-aligned orientation and its biases, averaged over
+    the 95 frames): gyro bias off by 0.0017 rad/s (the bias is 0.080 rad/s; the bound 0.0025
+    rad/s is 0.14 deg/s, 3 % of the bias); gravity 0.56 deg, as expected from the
+    accelerometer bias the static window cannot separate from gravity (0.08 m/s^2 = 0.47 deg;
+    bound 1 deg, the issue's target); velocities at most 2.4 cm/s (truth < 3 mm/s; bound
+    5 cm/s); camera centres move at most 0.9 mm from the first while the official ground
+    truth moves 3.3 mm (bound 5 mm: no drift beyond the MAV's own jitter)."""
     from ferroslam.datasets import EurocSequence
+    from ferroslam.transforms import quat_to_matrix
 
     seq = EurocSequence(euroc_micro, stereo=True)
     t_imu, gyro, accel = seq.imu()
@@ -249,9 +259,32 @@ def test_stereo_object_with_imu_on_euroc(euroc_micro):
             previous = t
         assert plain.inertial_alignment() is None
         status = inertial.inertial_alignment()
-        assert status["status"] == "waiting" and status["needed"] == 10
-        np.testing.assert_array_equal(inertial.frame_trajectory()[1],
-                                      plain.frame_trajectory()[1])
+        assert status["status"] == "aligned", status
+        assert status["scale"] == 1.0 and not status["map_rescaled"]
+        assert len(status["keyframe_ids"]) == 9  # 0.9 of 10
+        vicon2gt = np.loadtxt(euroc_micro.parent / "V1_01_easy_imu_gt" / "groundtruth_vicon2gt.csv",
+                              delimiter=",")
+        during = (vicon2gt[:, 0] * 1e-9 >= seq.timestamps[0]) & \
+            (vicon2gt[:, 0] * 1e-9 <= seq.timestamps[-1])
+        assert during.sum() == len(seq)
+        gyro_error = np.linalg.norm(status["gyro_bias"] - vicon2gt[during, 11:14].mean(axis=0))
+        qw, qx, qy, qz = vicon2gt[during][0, 4:8]
+        R_W_b0 = quat_to_matrix(np.array([qx, qy, qz, qw]))
+        # The map's world is the first camera frame.
+        gravity_true = seq.T_b_c[:3, :3].T @ R_W_b0.T @ np.array([0.0, 0.0, -9.81])
+        g = status["gravity_w"]
+        gravity_deg = np.degrees(np.arccos(g @ gravity_true / np.linalg.norm(g) / 9.81))
+        speeds = np.linalg.norm(status["velocities"], axis=1)
+        _, poses, _ = inertial.frame_trajectory()
+        centres = poses[:, :3, 3]
+        drift_mm = 1e3 * np.linalg.norm(centres - centres[0], axis=1).max()
+        print(f"\nstatic start: gyro bias error {gyro_error:.5f} rad/s, gravity {gravity_deg:.2f} "
+              f"deg, speeds <= {speeds.max():.3f} m/s, centres within {drift_mm:.2f} mm")
+        assert len(poses) == len(seq)
+        assert gyro_error < 0.0025
+        assert gravity_deg < 1.0
+        assert speeds.max() < 0.05
+        assert drift_mm < 5.0
         # Samples must keep moving forward in time; the object stays usable after a refusal.
         with pytest.raises(ValueError, match="is not after the last sample added"):
             inertial.add_frame(left, right, timestamp=previous + 0.05,

@@ -113,7 +113,12 @@ pub struct AlignmentConfig {
     /// accelerometer bias is indistinguishable from gravity and is left at its prior.
     pub min_rotation_for_accel_bias_rad: f64,
     /// Minimum RMS variation of the world-frame specific force over the window, m/s^2.
+    /// Not required with [`known_scale`](Self::known_scale).
     pub min_acceleration_excitation: f64,
+    /// The poses are metric already (stereo, RGB-D): the scale is fixed to 1, as in
+    /// ORB-SLAM3's stereo-inertial initialisation. Gravity is then observable without
+    /// motion (the specific force of a resting IMU is `-g`), so a static start aligns.
+    pub known_scale: bool,
 }
 
 impl Default for AlignmentConfig {
@@ -126,6 +131,7 @@ impl Default for AlignmentConfig {
             estimate_accel_bias: false,
             min_rotation_for_accel_bias_rad: 0.35,
             min_acceleration_excitation: 0.1,
+            known_scale: false,
         }
     }
 }
@@ -208,8 +214,9 @@ pub fn align(
         .collect::<Result<Vec<_>, _>>()?;
 
     let acceleration_excitation = excitation(&keyframes, &pres);
-    if acceleration_excitation.is_nan()
-        || acceleration_excitation < config.min_acceleration_excitation
+    if !config.known_scale
+        && (acceleration_excitation.is_nan()
+            || acceleration_excitation < config.min_acceleration_excitation)
     {
         return Err(AlignmentError::NoExcitation {
             excitation_m_s2: acceleration_excitation,
@@ -226,6 +233,7 @@ pub fn align(
     let system = System {
         keyframes: &keyframes,
         pres: &pres,
+        known_scale: config.known_scale,
     };
     let g_norm = config.gravity_magnitude;
     // Free gravity first: its direction seeds the constrained refinement.
@@ -348,6 +356,8 @@ fn tangent_basis(g: &Vector3<f64>) -> DMatrix<f64> {
 struct System<'a> {
     keyframes: &'a [Keyframe],
     pres: &'a [Preintegrated],
+    /// Scale fixed to 1 (no scale unknown).
+    known_scale: bool,
 }
 
 /// One solution of [`System::solve`].
@@ -361,7 +371,7 @@ struct Solution {
 impl System<'_> {
     /// Solves for `[v_0 .. v_{N-1}, x_g, s, (b_a)]` with gravity `g = g0 + m x_g` (`m`: 3xk,
     /// k = 3 free, 2 tangent, 0 fixed) and the accelerometer bias relative to the
-    /// preintegrations' when `with_ba`.
+    /// preintegrations' when `with_ba`; without `s` (fixed to 1) for a known scale.
     fn solve(
         &self,
         g0: &Vector3<f64>,
@@ -371,7 +381,7 @@ impl System<'_> {
         let n = self.keyframes.len();
         let (g_col, k) = (3 * n, m.ncols());
         let s_col = g_col + k;
-        let ba_col = s_col + 1;
+        let ba_col = s_col + usize::from(!self.known_scale);
         let cols = ba_col + if with_ba { 3 } else { 0 };
         let rows = 6 * (n - 1);
         let mut a = DMatrix::<f64>::zeros(rows, cols);
@@ -383,13 +393,17 @@ impl System<'_> {
             let (p_row, v_row) = (6 * i, 6 * i + 3);
             let half_dt2 = 0.5 * dt * dt;
             // Position: s (c_j - c_i) - v_i dt - g dt^2/2 - R_i J_pa b_a = R_i dp + d_i - d_j.
-            a.view_mut((p_row, s_col), (3, 1))
-                .copy_from(&(kj.centre - ki.centre));
+            let mut p_rhs = r * d.delta_p + ki.lever - kj.lever + g0 * half_dt2;
+            if self.known_scale {
+                p_rhs -= kj.centre - ki.centre;
+            } else {
+                a.view_mut((p_row, s_col), (3, 1))
+                    .copy_from(&(kj.centre - ki.centre));
+            }
             a.view_mut((p_row, 3 * i), (3, 3))
                 .copy_from(&(Matrix3::identity() * -dt));
             a.view_mut((p_row, g_col), (3, k))
                 .copy_from(&(m * -half_dt2));
-            let p_rhs = r * d.delta_p + ki.lever - kj.lever + g0 * half_dt2;
             rhs.rows_mut(p_row, 3).copy_from(&p_rhs);
             // Velocity: v_j - v_i - g dt - R_i J_va b_a = R_i dv.
             a.view_mut((v_row, 3 * i), (3, 3))
@@ -409,7 +423,7 @@ impl System<'_> {
         let x = least_squares(a, rhs)?;
         let xg = x.rows(g_col, k).into_owned();
         Ok(Solution {
-            scale: x[s_col],
+            scale: if self.known_scale { 1.0 } else { x[s_col] },
             gravity: g0 + m * xg,
             accel_bias: if with_ba {
                 Vector3::new(x[ba_col], x[ba_col + 1], x[ba_col + 2])
@@ -579,5 +593,28 @@ mod tests {
             align(&bad, &T_b_c, &pres, &config),
             Err(AlignmentError::NonFinitePose { index: 4 })
         );
+    }
+
+    #[test]
+    fn known_scale_aligns_a_static_start() {
+        // A resting IMU: gravity and gyro bias are observable once the scale is known.
+        let gravity = UnitQuaternion::from_scaled_axis(Vector3::new(0.05, -0.1, 0.0))
+            * Vector3::new(0.0, 0.0, -9.81);
+        let bias = Bias::new(Vector3::new(-0.002, 0.02, 0.08), Vector3::zeros());
+        let (states, pres) = simulate(&gravity, &bias, false);
+        let T_b_c = extrinsic();
+        let poses = camera_poses(&states, &T_b_c, 1.0);
+        let config = AlignmentConfig {
+            known_scale: true,
+            ..AlignmentConfig::default()
+        };
+        let out = align(&poses, &T_b_c, &pres, &config).unwrap();
+        assert_eq!(out.scale, 1.0);
+        assert!(out.acceleration_excitation < 1e-9);
+        assert_relative_eq!(out.gravity_w, gravity, epsilon = 1e-7);
+        assert_relative_eq!(out.gyro_bias, bias.gyro, epsilon = 1e-9);
+        for v in &out.velocities {
+            assert!(v.norm() < 1e-7, "{v}");
+        }
     }
 }

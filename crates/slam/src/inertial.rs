@@ -16,10 +16,12 @@
 //! preintegrated between them ([`ferroslam_imu::alignment::align`]): gyro bias, gravity
 //! direction, scale and keyframe velocities. For a monocular map the map is then RESCALED
 //! in place to metres (keyframe translations, points, the frame trajectory and the motion
-//! model); maps with depth keep their scale (already metric; the estimate is reported).
+//! model); maps with depth keep their scale (already metric: the alignment fixes it to 1,
+//! as ORB-SLAM3's stereo-inertial initialisation does, so a static start aligns too).
 //! The world is NOT rotated: gravity is stored as `gravity_w` and `R_w_g` (gravity-aligned
 //! frame, z up, into the map's world), so poses already handed out stay valid.
-//! A failed attempt (no excitation yet, missing IMU data) is retried at the next keyframe.
+//! Until then a keyframe is inserted at least every [`INIT_KEYFRAME_INTERVAL_S`]
+//! (ORB-SLAM3). A failed attempt (no excitation yet, missing IMU data) is retried at the next keyframe.
 //!
 //! # Refinements
 //!
@@ -42,6 +44,10 @@ use crate::error::SlamError;
 /// Spans of keyframe time since the first alignment, seconds, after which the alignment is
 /// re-run over the newest keyframes of that span (ORB-SLAM3's refinements at ~5 s and ~15 s).
 pub const REFINEMENT_SPANS_S: [f64; 2] = [5.0, 15.0];
+
+/// Before the first alignment, a keyframe at least this often, seconds (ORB-SLAM3): the
+/// alignment needs poses spread over time, also while the camera barely moves.
+pub const INIT_KEYFRAME_INTERVAL_S: f64 = 0.25;
 
 pub use ferroslam_imu::{ImuMeasurement as ImuSample, ImuParams, Preintegrated};
 
@@ -195,6 +201,8 @@ struct Seen {
 #[derive(Clone, Debug)]
 pub(crate) struct Inertial {
     config: InertialConfig,
+    /// The map is metric (stereo, RGB-D): the alignment keeps its scale.
+    known_scale: bool,
     samples: Vec<ImuSample>,
     keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
     /// Every keyframe of the map, culled ones too, by id, until the last refinement (since
@@ -208,11 +216,13 @@ pub(crate) struct Inertial {
 }
 
 impl Inertial {
-    pub(crate) fn new(config: InertialConfig) -> Result<Self, SlamError> {
+    /// `known_scale` for a metric map (stereo, RGB-D).
+    pub(crate) fn new(config: InertialConfig, known_scale: bool) -> Result<Self, SlamError> {
         config.validate()?;
         let needed = config.num_poses_threshold;
         Ok(Self {
             config,
+            known_scale,
             samples: Vec::new(),
             keyframes: BTreeMap::new(),
             history: Vec::new(),
@@ -231,6 +241,11 @@ impl Inertial {
 
     pub(crate) fn status(&self) -> &AlignmentStatus {
         &self.status
+    }
+
+    /// Whether the camera-IMU alignment has succeeded for the current map.
+    pub(crate) fn is_aligned(&self) -> bool {
+        matches!(self.status, AlignmentStatus::Aligned(_))
     }
 
     /// Appends samples after the buffered ones; all or nothing.
@@ -439,6 +454,7 @@ impl Inertial {
             // `align` estimates it only once the window rotates enough to tell it from
             // gravity (not in the first ~2 s on EuRoC V1_01, but at 5 s and 15 s).
             estimate_accel_bias: true,
+            known_scale: self.known_scale,
             ..AlignmentConfig::default()
         };
         let out = align(&poses, &self.config.T_b_c, &pres, &config).map_err(|e| e.to_string())?;
@@ -555,7 +571,7 @@ mod tests {
 
     #[test]
     fn bad_samples_are_refused_and_leave_the_buffer_unchanged() {
-        let mut inertial = Inertial::new(config()).unwrap();
+        let mut inertial = Inertial::new(config(), false).unwrap();
         inertial.add(&[sample(0.0), sample(0.005)]).unwrap();
         let err = inertial.add(&[sample(0.01), sample(0.008)]).unwrap_err();
         assert!(err.to_string().contains("not after"), "{err}");
@@ -580,7 +596,7 @@ mod tests {
 
     #[test]
     fn refinements_follow_the_first_alignment_then_stop() {
-        let mut inertial = Inertial::new(config()).unwrap();
+        let mut inertial = Inertial::new(config(), false).unwrap();
         assert_eq!(inertial.next_refinement(), Some(0));
         let aligned = |refinement| {
             AlignmentStatus::Aligned(InertialAlignment {

@@ -12,7 +12,9 @@ use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
-use crate::inertial::{rescale_map, AlignmentStatus, ImuSample, Inertial, InertialConfig};
+use crate::inertial::{
+    rescale_map, AlignmentStatus, ImuSample, Inertial, InertialConfig, INIT_KEYFRAME_INTERVAL_S,
+};
 use crate::input_guard::InputGuard;
 use crate::local_mapping::{LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
@@ -214,7 +216,8 @@ impl SlamSystem {
         let start = Instant::now();
         let new_keyframe = !self.localization_only
             && self.tracker.state == TrackingState::Ok
-            && self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx);
+            && (self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx)
+                || self.inertial_keyframe_due(frame.timestamp));
         if new_keyframe {
             // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
             // frames would be tracked against a map missing the points of several keyframes
@@ -459,7 +462,7 @@ impl SlamSystem {
     /// # Errors
     /// `InvalidConfig` naming the bad value; the system is unchanged then.
     pub fn set_imu(&mut self, config: InertialConfig) -> Result<(), SlamError> {
-        self.inertial = Some(Inertial::new(config)?);
+        self.inertial = Some(Inertial::new(config, self.ctx.config.sensor.has_depth())?);
         Ok(())
     }
 
@@ -495,6 +498,16 @@ impl SlamSystem {
         kf: KeyFrameId,
     ) -> Option<(KeyFrameId, &crate::inertial::Preintegrated)> {
         self.inertial.as_ref()?.preintegrated(kf)
+    }
+
+    /// Whether a frame at `timestamp` must become a keyframe for the camera-IMU alignment
+    /// (not aligned yet and [`INIT_KEYFRAME_INTERVAL_S`] since the newest keyframe).
+    fn inertial_keyframe_due(&self, timestamp: f64) -> bool {
+        let waiting = self.inertial.as_ref().is_some_and(|i| !i.is_aligned());
+        let newest = self.map.keyframes().map(|k| k.timestamp()).reduce(f64::max);
+        waiting
+            && self.tracker.matches_inliers > 15
+            && newest.is_some_and(|t| timestamp - t >= INIT_KEYFRAME_INTERVAL_S)
     }
 
     /// Preintegrates the new keyframe's IMU and, when due, aligns camera and IMU: a
