@@ -87,7 +87,7 @@ pub fn optimize_pose(
 }
 
 #[allow(non_snake_case)]
-fn validate(
+pub(crate) fn validate(
     T_c_w: &Isometry3<f64>,
     obs: &[PoseObservation],
     k: &Intrinsics,
@@ -122,13 +122,13 @@ fn validate(
 }
 
 #[allow(non_snake_case)]
-fn chi2_of(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservation) -> Option<f64> {
+pub(crate) fn chi2_of(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservation) -> Option<f64> {
     residual::chi2(k, T_c_w, &o.p_w, &o.uv, o.u_right, o.inv_sigma2)
 }
 
 /// Cost `sum rho(chi2)` over `active`, infinite if any of them leaves the camera's domain
 /// (so such steps are rejected and the objective stays well defined).
-fn cost(
+pub(crate) fn cost(
     k: &Intrinsics,
     pose: &Isometry3<f64>,
     obs: &[PoseObservation],
@@ -146,6 +146,32 @@ fn cost(
         .sum()
 }
 
+/// Gauss-Newton system `(H, g)` of the `active` observations at `pose`: `H = sum w J^T J`,
+/// `g = sum w J^T e` with `w = inv_sigma2 * rho'(chi2)` and `J = d e / d xi` (left
+/// perturbation of `T_c_w`). Observations that leave the camera's domain are skipped.
+pub(crate) fn normal_equations(
+    k: &Intrinsics,
+    pose: &Isometry3<f64>,
+    obs: &[PoseObservation],
+    active: &[usize],
+    robust: bool,
+) -> (Matrix6<f64>, Vector6<f64>) {
+    let mut h = Matrix6::<f64>::zeros();
+    let mut g = Vector6::<f64>::zeros();
+    for &i in active {
+        let o = &obs[i];
+        // Valid by construction when the current pose was accepted with a finite cost.
+        let Some(lin) = residual::linearize(k, pose, &o.p_w, &o.uv, o.u_right) else {
+            continue;
+        };
+        let chi2 = o.inv_sigma2 * lin.e.norm_squared();
+        let w = o.inv_sigma2 * cost_and_weight(chi2, o.u_right.is_some(), robust).1;
+        h += w * lin.d_e_d_xi.transpose() * lin.d_e_d_xi;
+        g += w * lin.d_e_d_xi.transpose() * lin.e;
+    }
+    (h, g)
+}
+
 /// Levenberg-Marquardt on the 6-dof pose over the `active` observations.
 fn refine(
     start: &Isometry3<f64>,
@@ -161,19 +187,7 @@ fn refine(
     let mut current = cost(k, &pose, obs, active, robust);
     let mut damping = Damping::new(INITIAL_LAMBDA);
     for _ in 0..ITERATIONS_PER_ROUND {
-        let mut h = Matrix6::<f64>::zeros();
-        let mut g = Vector6::<f64>::zeros();
-        for &i in active {
-            let o = &obs[i];
-            // Valid by construction: the current pose was accepted with a finite cost.
-            let Some(lin) = residual::linearize(k, &pose, &o.p_w, &o.uv, o.u_right) else {
-                continue;
-            };
-            let chi2 = o.inv_sigma2 * lin.e.norm_squared();
-            let w = o.inv_sigma2 * cost_and_weight(chi2, o.u_right.is_some(), robust).1;
-            h += w * lin.d_e_d_xi.transpose() * lin.d_e_d_xi;
-            g += w * lin.d_e_d_xi.transpose() * lin.e;
-        }
+        let (h, g) = normal_equations(k, &pose, obs, active, robust);
         let d = h.diagonal().map(damping_diagonal);
         let accepted = loop {
             if damping.exhausted() {
