@@ -230,7 +230,9 @@ fn good_observations_recover_the_true_pose_and_velocity() {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let obs = s.observations(&mut rng, 150, 0, stereo);
         let initial = s.initial(&mut rng);
+        let clock = std::time::Instant::now();
         let (est, outlier) = run(&s, &initial, &obs);
+        let elapsed_ms = clock.elapsed().as_secs_f64() * 1e3;
         let (dt, dr) = pose_error(&est.T_c_w, &s.T_c_w_true);
         let dv = (est.state.v_w_b - s.truth.v_w_b).norm();
         let visual = optimize_pose(
@@ -246,7 +248,7 @@ fn good_observations_recover_the_true_pose_and_velocity() {
         let mahalanobis = xi.dot(&(visual_information(&s, &obs, 0) * xi));
         println!(
             "seed {seed} stereo {stereo}: inertial {:.3} mm {:.4} deg, dv {dv:.2e} m/s, {} inliers; \
-             visual-only {:.3} mm {:.4} deg, {} inliers; mahalanobis^2 to it {mahalanobis:.2}",
+             visual-only {:.3} mm {:.4} deg, {} inliers; mahalanobis^2 to it {mahalanobis:.2}; {elapsed_ms:.2} ms",
             dt * 1e3,
             dr.to_degrees(),
             est.num_inliers,
