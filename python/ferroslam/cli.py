@@ -108,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sequence folder: TUM RGB-D, KITTI odometry or EuRoC (ASL) layout")
     algo = run.add_argument_group("algorithm")
     algo.add_argument("--sensor", choices=SENSORS, required=True,
-                      help="camera setup: mono (any layout), rgbd (TUM), stereo (KITTI, EuRoC)")
+                      help="camera setup: mono (any layout), rgbd (TUM), stereo (KITTI, EuRoC); "
+                           "-inertial adds the IMU (EuRoC)")
     algo.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
                       help="dataset layout (default: detect)")
     algo.add_argument("--config", type=Path,
@@ -258,7 +259,7 @@ def _write_outputs(result, out: Path, name: str) -> None:
     ate = result.ate_frames
     if ate is not None and ate.alignment is not None:
         s = ate.alignment
-        align = "Sim(3)" if result.sensor == "mono" else "SE(3)"
+        align = "Sim(3)" if result.scale_free else "SE(3)"
         est, ref, title = ate.aligned, ate.reference, f"{name} ({align}-aligned to ground truth)"
         points = result.map_points @ s[:3, :3].T + s[:3, 3]
         keyframes = s @ result.keyframes.poses
@@ -280,7 +281,7 @@ def _print_summary(summary: dict, out: Path) -> None:
     metrics = summary["metrics"]
     if summary["first_initialised_frame"] is None:
         print("status          not initialised: the map never started")
-    elif summary["sensor"] == "mono":
+    elif summary["sensor"].startswith("mono"):
         print(f"initialised at  frame {summary['first_initialised_frame']}; "
               f"{100 * summary['tracked_after_init']:.1f} % of the later frames tracked, "
               f"{summary['segments']} map segment(s)")
@@ -296,6 +297,13 @@ def _print_summary(summary: dict, out: Path) -> None:
     if "rpe_frames" in metrics:
         r = metrics["rpe_frames"]
         print(f"RPE (1 frame)   {r['trans_rmse_m']:.4f} m  {r['rot_rmse_deg']:.3f} deg RMSE")
+    inertial = summary.get("inertial")
+    if inertial and inertial["status"] == "aligned":
+        print(f"IMU alignment   scale {inertial['scale']:.4f}, gyro bias "
+              f"({', '.join(f'{b:.4f}' for b in inertial['gyro_bias'])}) rad/s "
+              f"(refinement {inertial['refinement']})")
+    elif inertial:
+        print(f"IMU alignment   {inertial['status']}: {inertial.get('reason', '')}")
     for err in summary["metric_errors"]:
         print(f"note: {err}")
     print(f"results in      {out}/ (trajectory.txt, keyframes.txt, map.ply, plot.png, "

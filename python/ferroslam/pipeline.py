@@ -20,12 +20,15 @@ from .trajectory import Trajectory
 
 __all__ = ["EXTRACTOR_KEYS", "RunResult", "load_vocabulary", "make_extractor", "run_sequence"]
 
-SENSORS = ("mono", "stereo", "rgbd")
+SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
+_INERTIAL = "-inertial"
+# Options of SlamSystem.set_imu (MATLAB NumPosesThreshold, AlignmentFraction).
+IMU_KEYS = ("num_poses_threshold", "alignment_fraction", "gravity_magnitude")
 # Extractor options; the pyramid shape (scale_factor, n_levels) is passed to the core too.
 EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
 _EXTRACTOR_ONLY = ("n_features", "ini_fast", "min_fast")
 # Pipeline options that are not SlamSystem keywords.
-_PIPELINE_ONLY = ("vocabulary", "mapping_thread")
+_PIPELINE_ONLY = ("vocabulary", "mapping_thread") + IMU_KEYS
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")
 
 
@@ -41,9 +44,10 @@ class RunResult:
     ``states``: tracking state per frame; ``segments``: map segment of each trajectory pose
     (a monocular run starts a new map after it stays lost); ``init_reasons``: per frame, why
     monocular initialisation waited (``None`` otherwise); ``loops``: the loops closed (see
-    ``SlamSystem.loops``) and ``loop_stats`` what loop detection did. With ground truth: ATE (SE(3), or
-    Sim(3) over the longest segment for monocular runs), RPE and path length (metric scale;
-    not for monocular runs).
+    ``SlamSystem.loops``) and ``loop_stats`` what loop detection did; ``inertial``: the
+    camera-IMU alignment at the end (``SlamSystem.inertial_alignment``) for the ``-inertial``
+    sensors. With ground truth: ATE (SE(3), or Sim(3) over the longest segment for monocular
+    runs without an IMU alignment), RPE and path length (metric scale; not for those runs).
     """
 
     sequence: str
@@ -61,12 +65,20 @@ class RunResult:
     init_reasons: list = field(default_factory=list)
     loops: list = field(default_factory=list)
     loop_stats: dict = field(default_factory=dict)
+    inertial: Optional[dict] = None
     groundtruth: Optional[Trajectory] = None
     ate_frames: Optional[AteResult] = None
     ate_keyframes: Optional[AteResult] = None
     rpe_frames: Optional[RpeResult] = None
     path_length: Optional[PathLengthResult] = None
     metric_errors: list = field(default_factory=list)
+
+    @property
+    def scale_free(self) -> bool:
+        """Whether the trajectory's scale is arbitrary: monocular, and no IMU alignment made
+        it metric."""
+        aligned = (self.inertial or {}).get("status") == "aligned"
+        return self.sensor.startswith("mono") and not aligned
 
     @property
     def frames(self) -> int:
@@ -121,13 +133,14 @@ class RunResult:
             "keyframes": len(self.keyframes),
             "map_points": int(self.map_points.shape[0]),
             "timing_ms": timing,
+            "inertial": _jsonable(self.inertial),
             "metrics": {},
             "metric_errors": list(self.metric_errors),
         }
         for name, result in (("ate_frames", self.ate_frames), ("ate_keyframes", self.ate_keyframes)):
             if result is not None:
                 out["metrics"][name] = {
-                    "align": "sim3" if self.sensor == "mono" else "se3", "pairs": result.pairs, "scale": result.scale, "unit": "m",
+                    "align": "sim3" if self.scale_free else "se3", "pairs": result.pairs, "scale": result.scale, "unit": "m",
                     **{k: getattr(result, k) for k in ("rmse", "mean", "median", "std", "min", "max")},
                 }
         if self.rpe_frames is not None:
@@ -269,7 +282,7 @@ def load_vocabulary(spec):
 
 
 def _evaluate(result: RunResult, gt: Trajectory) -> None:
-    if result.sensor == "mono":  # scale is arbitrary, per map segment
+    if result.scale_free:  # per map segment
         cases = (
             ("ate_frames", lambda: ate(gt, _longest_segment(result), align="sim3")),
             ("ate_keyframes", lambda: ate(gt, result.keyframes, align="sim3")),
@@ -315,7 +328,11 @@ def run_sequence(
         realtime: feed frames at the pace of their timestamps, as a live camera would
             (frames are otherwise fed as fast as they are processed).
         sensor: ``"mono"``, ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs
-            ``is_stereo``, ``load_stereo(i)`` giving a rectified pair and ``baseline_m``).
+            ``is_stereo``, ``load_stereo(i)`` giving a rectified pair and ``baseline_m``),
+            each optionally ``"-inertial"`` (needs ``imu()``, ``imu_params()`` and ``T_b_c``,
+            as EuRoC has): the samples up to each frame are added before it is tracked and
+            ``config`` may hold the ``set_imu`` options ``num_poses_threshold``,
+            ``alignment_fraction``, ``gravity_magnitude``.
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
 
     Raises:
@@ -323,10 +340,8 @@ def run_sequence(
     """
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
-    if sensor not in _FEEDS:
-        raise NotImplementedError(
-            f"sensor {sensor!r} is not implemented yet (available: {', '.join(_FEEDS)})"
-        )
+    camera = sensor[: -len(_INERTIAL)] if sensor.endswith(_INERTIAL) else sensor
+    imu = _imu_stream(seq, sensor) if camera != sensor else None
     config = dict(config or {})
     if "sensor" in config:
         raise ValueError("pass the sensor as run_sequence(sensor=...), not in config")
@@ -338,24 +353,51 @@ def run_sequence(
     extractor = make_extractor(config)
     core_config = {k: v for k, v in config.items()
                    if k not in _EXTRACTOR_ONLY and k not in _PIPELINE_ONLY}
-    feed = _FEEDS[sensor](seq, extractor)
+    feed = _FEEDS[camera](seq, extractor)
     cam = seq.camera
     factory = system_factory or _default_system_factory
     system = factory(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
-                     sensor=sensor, **{**feed.system_options(), **core_config})
+                     sensor=camera, **{**feed.system_options(), **core_config})
+    if imu is not None:
+        system.set_imu(seq.imu_params(), seq.T_b_c,
+                       **{k: config[k] for k in IMU_KEYS if k in config})
     vocabulary = config.get("vocabulary", "default")
     if vocabulary:
         system.set_vocabulary(load_vocabulary(vocabulary))
     if config.get("mapping_thread"):
         system.set_mapping_thread(True)
     try:
-        return _run(seq, system, feed, n, sensor, config, progress, realtime)
+        return _run(seq, system, feed, n, sensor, config, progress, realtime, imu)
     finally:
         feed.close()
 
 
+def _imu_stream(seq, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sequence's IMU ``(t, gyro, accel)`` for an ``-inertial`` sensor."""
+    if not all(hasattr(seq, a) for a in ("imu", "imu_params", "T_b_c")):
+        raise ValueError(
+            f"sensor {sensor!r} needs an IMU: {getattr(seq, 'name', seq)} has no imu(), "
+            "imu_params() and T_b_c (EuRoC sequences have them)")
+    t, gyro, accel = seq.imu()
+    return (np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(gyro, dtype=np.float64),
+            np.ascontiguousarray(accel, dtype=np.float64))
+
+
+def _jsonable(value):
+    """``value`` with numpy arrays and scalars turned into lists and floats."""
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
 def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
-         realtime: bool) -> RunResult:
+         realtime: bool, imu) -> RunResult:
 
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
@@ -363,6 +405,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
     num_tracked = np.zeros(n, dtype=np.int64)
     bar = tqdm(range(n), disable=not progress, desc=getattr(seq, "name", "sequence"), unit="frame")
     start = time.perf_counter()
+    imu_from = 0
     for i in bar:
         if realtime:
             time.sleep(max(0.0, start + float(seq.timestamps[i] - seq.timestamps[0])
@@ -372,6 +415,11 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         t1 = time.perf_counter()
         features = feed.features(data)
         t2 = time.perf_counter()
+        if imu is not None:  # the samples since the previous frame, up to this one
+            imu_to = int(np.searchsorted(imu[0], seq.timestamps[i], side="right"))
+            if imu_to > imu_from:
+                system.add_imu(*(a[imu_from:imu_to] for a in imu))
+            imu_from = imu_to
         res = feed.track(system, float(seq.timestamps[i]), features)
         t3 = time.perf_counter()
         timings["load_ms"][i] = (t1 - t0) * 1e3
@@ -405,6 +453,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         init_reasons=init_reasons,
         loops=system.loops(),
         loop_stats=system.loop_stats(),
+        inertial=system.inertial_alignment() if imu is not None else None,
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
     )
     if getattr(seq, "has_groundtruth", False):
