@@ -95,8 +95,7 @@ pub fn inertial_bundle_adjust(
 ) -> Result<InertialBaResult, OptimError> {
     problem.validate()?;
     let lambda_ok = options.initial_lambda.is_finite() && options.initial_lambda > 0.0;
-    let tolerance_ok =
-        options.function_tolerance.is_finite() && options.function_tolerance >= 0.0;
+    let tolerance_ok = options.function_tolerance.is_finite() && options.function_tolerance >= 0.0;
     if !(lambda_ok && tolerance_ok) {
         return Err(OptimError::InvalidInput(format!(
             "initial_lambda = {} must be finite and > 0, function_tolerance = {} finite and >= 0",
@@ -111,7 +110,12 @@ pub fn inertial_bundle_adjust(
         function_tolerance: options.function_tolerance,
     };
     let all = vec![true; problem.visual.observations.len()];
-    let first = optimize(problem, &layout, &stage(options.robust_iterations, true), &all)?;
+    let first = optimize(
+        problem,
+        &layout,
+        &stage(options.robust_iterations, true),
+        &all,
+    )?;
     let mut report = BaReport {
         initial_cost: first.initial_cost,
         final_cost: first.final_cost,

@@ -3,8 +3,8 @@
 
 use crate::ba::BaProblem;
 use crate::error::OptimError;
-use ferroslam_imu::{BiasWalkFactor, ImuState, InertialFactor};
 use ferroslam_imu::Bias;
+use ferroslam_imu::{BiasWalkFactor, ImuState, InertialFactor};
 use nalgebra::{Isometry3, Vector3};
 
 /// The IMU measurement between keyframes `i` and `j` (indices into

@@ -95,6 +95,9 @@ pub(crate) struct Stage {
     pub(crate) function_tolerance: f64,
 }
 
+/// One free pose's share of a point's linearisation: column, `w J_c^T J_c`, `w J_c^T e`.
+type PoseTerm = (usize, SMatrix<f64, 6, 6>, Vector6<f64>);
+
 /// Costs before and after a stage and its iterations.
 pub(crate) struct StageReport {
     pub(crate) initial_cost: f64,
@@ -291,43 +294,42 @@ impl Context<'_> {
         let mut u = DMatrix::zeros(n, n);
         let mut g = DVector::zeros(n);
         // Per point in parallel: V, b_p, W and the point's share of the pose blocks.
-        let per_point: Vec<(PointBlocks, Vec<(usize, SMatrix<f64, 6, 6>, Vector6<f64>)>)> =
-            layout
-                .opt_points
-                .par_iter()
-                .map(|(p, obs)| {
-                    let mut blocks = PointBlocks {
-                        v: Matrix3::zeros(),
-                        b: Vector3::zeros(),
-                        w: Vec::new(),
+        let per_point: Vec<(PointBlocks, Vec<PoseTerm>)> = layout
+            .opt_points
+            .par_iter()
+            .map(|(p, obs)| {
+                let mut blocks = PointBlocks {
+                    v: Matrix3::zeros(),
+                    b: Vector3::zeros(),
+                    w: Vec::new(),
+                };
+                let mut pose_terms = Vec::new();
+                for &i in obs.iter().filter(|&&i| self.active[i]) {
+                    let o = &visual.observations[i];
+                    // None is unreachable at an accepted estimate (its cost is finite).
+                    let Some(l) = residual::linearize(
+                        &visual.intrinsics,
+                        &est.poses[o.pose],
+                        &est.points[*p],
+                        &o.uv,
+                        o.u_right,
+                    ) else {
+                        continue;
                     };
-                    let mut pose_terms = Vec::new();
-                    for &i in obs.iter().filter(|&&i| self.active[i]) {
-                        let o = &visual.observations[i];
-                        // None is unreachable at an accepted estimate (its cost is finite).
-                        let Some(l) = residual::linearize(
-                            &visual.intrinsics,
-                            &est.poses[o.pose],
-                            &est.points[*p],
-                            &o.uv,
-                            o.u_right,
-                        ) else {
-                            continue;
-                        };
-                        let chi2 = o.inv_sigma2 * l.e.norm_squared();
-                        let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
-                        let jpt = w * l.d_e_d_p_w.transpose();
-                        blocks.v += jpt * l.d_e_d_p_w;
-                        blocks.b += jpt * l.e;
-                        if let Some(c) = layout.pose_col[o.pose] {
-                            let jct = w * l.d_e_d_xi.transpose();
-                            blocks.w.push((c, jct * l.d_e_d_p_w));
-                            pose_terms.push((c, jct * l.d_e_d_xi, jct * l.e));
-                        }
+                    let chi2 = o.inv_sigma2 * l.e.norm_squared();
+                    let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
+                    let jpt = w * l.d_e_d_p_w.transpose();
+                    blocks.v += jpt * l.d_e_d_p_w;
+                    blocks.b += jpt * l.e;
+                    if let Some(c) = layout.pose_col[o.pose] {
+                        let jct = w * l.d_e_d_xi.transpose();
+                        blocks.w.push((c, jct * l.d_e_d_p_w));
+                        pose_terms.push((c, jct * l.d_e_d_xi, jct * l.e));
                     }
-                    (blocks, pose_terms)
-                })
-                .collect();
+                }
+                (blocks, pose_terms)
+            })
+            .collect();
         let mut points = Vec::with_capacity(per_point.len());
         for (blocks, pose_terms) in per_point {
             for (c, uu, b) in pose_terms {

@@ -136,7 +136,10 @@ mod tests {
     fn inertial_jacobians_over_camera_states_match_central_differences() {
         let params = ImuParams::euroc();
         let mut pre = Preintegrated::new(
-            Bias::new(Vector3::new(0.01, -0.02, 0.015), Vector3::new(0.1, 0.05, -0.08)),
+            Bias::new(
+                Vector3::new(0.01, -0.02, 0.015),
+                Vector3::new(0.1, 0.05, -0.08),
+            ),
             &params,
         )
         .unwrap();
@@ -164,7 +167,10 @@ mod tests {
         };
         let x0 = DVector::zeros(2 * STATE_DIM);
         let (r, d_i, d_j) = eval(&x0);
-        assert!(r.norm() > 0.1, "test states must be far from a zero residual");
+        assert!(
+            r.norm() > 0.1,
+            "test states must be far from a zero residual"
+        );
         let mut analytic = DMatrix::zeros(9, 2 * STATE_DIM);
         analytic.columns_mut(0, STATE_DIM).copy_from(&d_i);
         analytic.columns_mut(STATE_DIM, STATE_DIM).copy_from(&d_j);
