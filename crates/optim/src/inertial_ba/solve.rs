@@ -18,6 +18,8 @@ use ferroslam_geometry::se3;
 use ferroslam_imu::{Bias, ImuState};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, SMatrix, SVector, Vector3, Vector6};
 use rayon::prelude::*;
+use std::cmp::Ordering;
+use std::ops::AddAssign;
 
 /// Which parameters are free and where they sit in the reduced system; which points are
 /// optimised and by which observations. Built once per call, shared by the stages.
@@ -422,6 +424,9 @@ impl Context<'_> {
     }
 }
 
+/// Points per parallel task of the Schur complement (each task owns a dense `S`).
+const SCHUR_CHUNK: usize = 128;
+
 /// Solves `(H + lambda D) dx = -[g; b_p]` by eliminating the points.
 fn solve_damped(lin: &Linearization, lambda: f64) -> Result<Step, OptimError> {
     let n = lin.g.len();
@@ -441,19 +446,45 @@ fn solve_damped(lin: &Linearization, lambda: f64) -> Result<Step, OptimError> {
             vd.cholesky().map_or(Matrix3::zeros(), |c| c.inverse())
         })
         .collect();
-    // S = U - W V^-1 W^T, rhs = -g + W V^-1 b_p.
-    for (pt, vi) in lin.points.iter().zip(&v_inv) {
-        for (ca, wa) in &pt.w {
-            let y = wa * vi;
-            let mut r = rhs.fixed_rows_mut::<6>(*ca);
-            r += y * pt.b;
-            for (cb, wb) in &pt.w {
-                let mut block = s.fixed_view_mut::<6, 6>(*ca, *cb);
-                block -= y * wb.transpose();
+    // S = U - W V^-1 W^T, rhs = -g + W V^-1 b_p, per fixed chunk of points in parallel (only
+    // the upper block triangle), the chunks then summed in order (deterministic).
+    let partial: Vec<(DMatrix<f64>, DVector<f64>)> = lin
+        .points
+        .par_chunks(SCHUR_CHUNK)
+        .zip(v_inv.par_chunks(SCHUR_CHUNK))
+        .map(|(points, v_inv)| {
+            let mut s = DMatrix::zeros(n, n);
+            let mut r = DVector::zeros(n);
+            for (pt, vi) in points.iter().zip(v_inv) {
+                for (a, (ca, wa)) in pt.w.iter().enumerate() {
+                    let y = wa * vi;
+                    let mut ra = r.fixed_rows_mut::<6>(*ca);
+                    ra += y * pt.b;
+                    let mut diag = s.fixed_view_mut::<6, 6>(*ca, *ca);
+                    diag += y * wa.transpose();
+                    for (cb, wb) in &pt.w[a + 1..] {
+                        // The pair's blocks are m at (ca, cb) and m^T at (cb, ca).
+                        let m = y * wb.transpose();
+                        match ca.cmp(cb) {
+                            Ordering::Less => s.fixed_view_mut::<6, 6>(*ca, *cb).add_assign(&m),
+                            Ordering::Greater => s
+                                .fixed_view_mut::<6, 6>(*cb, *ca)
+                                .add_assign(&m.transpose()),
+                            Ordering::Equal => s
+                                .fixed_view_mut::<6, 6>(*ca, *ca)
+                                .add_assign(&(m + m.transpose())),
+                        }
+                    }
+                }
             }
-        }
+            (s, r)
+        })
+        .collect();
+    for (part_s, part_r) in &partial {
+        s -= part_s;
+        rhs += part_r;
     }
-    let s_faer = Mat::<f64>::from_fn(n, n, |r, c| s[(r, c)]);
+    let s_faer = Mat::<f64>::from_fn(n, n, |r, c| s[(r.min(c), r.max(c))]);
     let llt = s_faer.llt(Side::Lower).map_err(|e| match e {
         faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } => {
             OptimError::NotPositiveDefinite { column: index }
