@@ -137,7 +137,10 @@ def test_refinements_at_5_and_15_s_meet_the_issue_target(seq, run):
 def test_map_stays_at_the_new_scale_after_the_alignment(seq, run):
     """Frames tracked after the last alignment (rescaled map, trajectory and motion model)
     keep the scale the alignment gave the keyframes: no jump, no relapse to visual units.
-    Measured: 147 frames, Sim(3) scale 1.0170 (keyframes 1.0151), ATE 1.5 mm."""
+    Measured: 109 frames, Sim(3) scale 1.0116 (keyframes 1.0150), ATE 4.0 mm (1.6 mm
+    without local inertial BA, which runs from here on: the real IMU and vicon2gt, the truth
+    of the synthetic vision, disagree by millimetres over 0.5 s, more than the datasheet
+    noise the factors are weighted with allows)."""
     slam, snapshots = run
     frame = snapshots[-1][0]
     c_keyframes = _alignment_errors(seq, snapshots[-1])[0]
@@ -153,6 +156,32 @@ def test_map_stays_at_the_new_scale_after_the_alignment(seq, run):
     assert after.sum() > 0.8 * (len(seq) - frame)
     assert abs(ate.scale / c_keyframes - 1.0) < 0.05
     assert slam.inertial_alignment()["status"] == "aligned"
+
+
+def test_local_inertial_ba_refines_the_newest_imu_state(seq, run):
+    """After the last refinement local inertial BA (poses, velocities, biases over the newest
+    10 keyframes) runs at every keyframe. Measured at the end of the run against vicon2gt:
+    body velocity 2.3 cm/s off (of 0.58 m/s), gyro bias 0.00028 rad/s (the alignment's:
+    0.00053), accelerometer bias 0.043 m/s^2 (the alignment's: 0.013; true 0.18). Bounds:
+    about twice the measured."""
+    slam, _ = run
+    state = slam.keyframe_imu_state()
+    ids, stamps, T_w_c = slam.keyframe_trajectory()
+    assert state["keyframe_id"] == ids.max()
+    aligned = slam.inertial_alignment()
+    assert not np.allclose(state["gyro_bias"], aligned["gyro_bias"])  # BA moved it
+    _, gt_T_w_c = seq.groundtruth()
+    R, _, _ = metrics.umeyama_alignment(T_w_c[:, :3, 3], gt_T_w_c[_gt_index(seq, stamps), :3, 3],
+                                        with_scale=True)
+    i = _gt_index(seq, np.array([state["timestamp"]]))[0]
+    v_err = np.linalg.norm(R @ state["velocity"] - seq.v_w_b[i])
+    bg_err = np.linalg.norm(state["gyro_bias"] - seq.gyro_bias[i])
+    ba_err = np.linalg.norm(state["accel_bias"] - seq.acc_bias[i])
+    print(f"\nnewest keyframe state: velocity {v_err:.4f} m/s, gyro bias {bg_err:.5f} rad/s, "
+          f"accel bias {ba_err:.4f} m/s^2 off")
+    assert v_err < 0.05
+    assert bg_err < 6e-4
+    assert ba_err < 0.09
 
 
 def _imu_chunk(t0=0.0, n=10):
@@ -206,3 +235,75 @@ def test_bad_imu_input_raises_and_leaves_the_system_unchanged(seq):
         slam.add_imu(t, gyro.astype(np.float32), accel)
     slam.add_imu(t, gyro, accel)  # the rejected batches left the buffer as it was
     assert slam.inertial_alignment()["status"] == "waiting"
+
+
+DROP_START_S, DROP_S = 9.0, 1.0  # after the 5 s refinement (first alignment at ~2.5 s)
+
+
+@pytest.fixture(scope="module")
+def seq12():
+    return SyntheticStereoSequence(require_data("euroc", "V1_01_easy_imu_gt"), start_s=START_S,
+                                   duration_s=12.0)
+
+
+def _run_with_dropped_features(seq, sensor: str, imu: bool):
+    """Tracks the cut with every feature removed from the frames of a 1 s stretch."""
+    c = seq.camera
+    slam = SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor, seed=0)
+    if imu:
+        slam.set_imu(seq.imu_params(), seq.T_b_c, num_poses_threshold=10)
+    rel = seq.timestamps - seq.timestamps[0]
+    dropped = (rel >= DROP_START_S) & (rel < DROP_START_S + DROP_S)
+    states = []
+    for i in range(len(seq)):
+        if imu:
+            slam.add_imu(*seq.imu_between(i))
+        f = seq.features(i)
+        keep = slice(0, 0) if dropped[i] else slice(None)
+        if sensor == "rgbd":
+            r = slam.track_rgbd(seq.timestamps[i], f["keypoints"][keep], f["descriptors"][keep],
+                                f["depth_m"][keep])
+        else:
+            r = slam.track_mono(seq.timestamps[i], f["keypoints"][keep], f["descriptors"][keep])
+        states.append(r.state)
+    return slam, np.array(states), dropped
+
+
+@pytest.mark.parametrize("sensor, bound_m", [("rgbd", 0.1), ("mono", 0.1)])
+def test_imu_carries_tracking_through_frames_without_features(seq12, sensor, bound_m):
+    """Issue 11: vision fails for 1 s (20 frames without a single feature). Without the IMU
+    those frames are lost (no pose). With it (RGB-D-inertial, mono-inertial) each gets the
+    IMU's prediction from the last tracked frame (state ``recently_lost``), and the first
+    frame with features again finds the local map around the prediction: no relocalisation,
+    no new map segment.
+
+    The error of the predicted motion since the last tracked frame (rotated into the map by
+    that frame's pose error) grows with the square of the time, from the gravity and bias
+    errors of the alignment: measured at the end of the second 5.3 cm (RGB-D) and 5.2 cm
+    (mono, whose metric scale is itself 1.5 % off) after 0.5-0.8 m of flight. Bound 10 cm
+    (twice the measured)."""
+    slam, states, dropped = _run_with_dropped_features(seq12, sensor, imu=True)
+    assert slam.inertial_alignment()["status"] == "aligned"
+    assert set(states[dropped]) == {"recently_lost"}
+    first_after = int(np.flatnonzero(dropped)[-1]) + 1
+    assert states[first_after] == "ok"
+    assert set(slam.frame_segments()) == {0}
+    stamps, T_w_c = slam.frame_trajectory()
+    _, gt_T_w_c = seq12.groundtruth()
+    idx = _gt_index(seq12, stamps)
+    assert np.all(dropped[idx][dropped[idx]]) and dropped[idx].sum() == dropped.sum()
+    last = int(np.flatnonzero(dropped)[0]) - 1  # the last tracked frame before the stretch
+    j = int(np.flatnonzero(idx == last)[0])
+    R_align = T_w_c[j, :3, :3] @ gt_T_w_c[last, :3, :3].T
+    moved_est = T_w_c[:, :3, 3] - T_w_c[j, :3, 3]
+    moved_gt = (gt_T_w_c[idx, :3, 3] - gt_T_w_c[last, :3, 3]) @ R_align.T
+    errors = np.linalg.norm(moved_est - moved_gt, axis=1)[dropped[idx]]
+    flown = np.linalg.norm(moved_gt[dropped[idx]][-1])
+    print(f"\n{sensor}-inertial: IMU-only error after {DROP_S} s {100 * errors[-1]:.1f} cm "
+          f"(max {100 * errors.max():.1f} cm) over {flown:.2f} m of flight")
+    assert errors.max() < bound_m
+
+    plain, plain_states, _ = _run_with_dropped_features(seq12, sensor, imu=False)
+    assert set(plain_states[dropped]) == {"lost"}
+    plain_stamps, _ = plain.frame_trajectory()
+    assert not np.isin(seq12.timestamps[dropped], plain_stamps).any()

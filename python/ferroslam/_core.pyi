@@ -26,7 +26,7 @@ __all__ = [
 __version__: str
 """Version of the Rust crate the module was built from."""
 
-_State = Literal["not_initialized", "ok", "lost"]
+_State = Literal["not_initialized", "ok", "lost", "recently_lost"]
 _Sensor = Literal["mono", "stereo", "rgbd"]
 _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 
@@ -73,10 +73,12 @@ class TrackResult:
 
     @property
     def state(self) -> _State:
-        """Tracking state after this frame."""
+        """Tracking state after this frame: ``"recently_lost"`` when vision failed and the pose
+        is the IMU's prediction (aligned visual-inertial maps, at most 5 s)."""
     @property
     def T_w_c(self) -> NDArray[np.float64] | None:
-        """Camera pose in the world, (4, 4) float64, or None when the frame was not tracked."""
+        """Camera pose in the world, (4, 4) float64 (the IMU's prediction when ``recently_lost``),
+        or None when the frame was not tracked."""
     @property
     def is_keyframe(self) -> bool:
         """Whether this frame became a keyframe."""
@@ -339,6 +341,12 @@ class SlamSystem:
                 strictly increasing (also against the samples added before), gyro beyond
                 35 rad/s (deg/s?) or mean |accel| near 1 (g?); the system is unchanged then.
         """
+    def keyframe_imu_state(self) -> dict[str, Any] | None:
+        """The newest keyframe's IMU state once the camera and the IMU are aligned, else None:
+        ``{"keyframe_id", "timestamp", "velocity" (3,) m/s (body velocity in the world),
+        "gyro_bias" (3,) rad/s, "accel_bias" (3,) m/s^2}``. Refined by local inertial BA once
+        the last refinement of the alignment is done; predicted from the previous keyframe
+        before."""
     def inertial_alignment(self) -> dict[str, Any] | None:
         """The camera-IMU alignment of the current map, None without ``set_imu``. It runs
         after ``num_poses_threshold`` keyframes and again (ORB-SLAM3 style) when the keyframes

@@ -43,7 +43,8 @@ class TrackingStatus(enum.Enum):
     NOT_INITIALIZED = "not_initialized"
     """No map yet (monocular: waiting for two views with enough parallax)."""
     LOST = "lost"
-    """Fewer tracked points than the lower ``track_feature_range`` limit (``TrackingLost``)."""
+    """Fewer tracked points than the lower ``track_feature_range`` limit (``TrackingLost``);
+    with an aligned IMU the pose is then the IMU's prediction for up to 5 s."""
     SUCCESSFUL = "successful"
     """Tracked points within ``track_feature_range`` (``TrackingSuccessful``)."""
     FREQUENT_KEYFRAMES = "frequent_keyframes"
@@ -212,8 +213,10 @@ class _VSlam:
             events.append("map initialised")
         elif previous == "ok" and result.state == "lost":
             events.append("tracking lost")
-        elif previous == "lost" and result.state == "ok":
-            events.append("relocalised")
+        elif previous == "ok" and result.state == "recently_lost":
+            events.append("tracking lost, pose from the IMU")
+        elif previous in ("lost", "recently_lost") and result.state == "ok":
+            events.append("relocalised" if previous == "lost" else "tracking resumed")
         if result.is_keyframe:
             events.append(f"new keyframe ({self._system.num_keyframes} in the map)")
         loops = self._new_loops() if result.is_keyframe else []
@@ -260,7 +263,7 @@ class _VSlam:
         self._drain()
         if self._last is None or self._last.state == "not_initialized":
             return TrackingStatus.NOT_INITIALIZED
-        if self._last.state == "lost":
+        if self._last.state in ("lost", "recently_lost"):
             return TrackingStatus.LOST
         if self._last.num_tracked > self.track_feature_range[1]:
             return TrackingStatus.FREQUENT_KEYFRAMES

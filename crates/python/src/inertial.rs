@@ -1,6 +1,6 @@
 //! IMU input and the camera-IMU alignment status: numpy/Python objects <-> core types.
 
-use ferroslam_slam::{AlignmentStatus, ImuParams, ImuSample, InertialConfig};
+use ferroslam_slam::{AlignmentStatus, Bias, ImuParams, ImuSample, InertialConfig};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -121,6 +121,23 @@ pub fn samples(
 
 fn vector<'py>(py: Python<'py>, v: &Vector3<f64>) -> Bound<'py, PyArray1<f64>> {
     convert::f64_array(py, v.iter().copied().collect())
+}
+
+/// A keyframe's IMU state as a dict (see `SlamSystem.keyframe_imu_state` in the stub).
+pub fn imu_state_dict<'py>(
+    py: Python<'py>,
+    keyframe_id: u32,
+    timestamp: f64,
+    velocity: &Vector3<f64>,
+    bias: &Bias,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("keyframe_id", keyframe_id)?;
+    d.set_item("timestamp", timestamp)?;
+    d.set_item("velocity", vector(py, velocity))?;
+    d.set_item("gyro_bias", vector(py, &bias.gyro))?;
+    d.set_item("accel_bias", vector(py, &bias.accel))?;
+    Ok(d)
 }
 
 /// The alignment status as a dict (see `SlamSystem.inertial_alignment` in the stub).

@@ -21,6 +21,7 @@ fn state_name(state: TrackingState) -> &'static str {
         TrackingState::NotInitialized => "not_initialized",
         TrackingState::Ok => "ok",
         TrackingState::Lost => "lost",
+        TrackingState::RecentlyLost => "recently_lost",
     }
 }
 
@@ -133,7 +134,8 @@ pub struct PyTrackResult {
 
 #[pymethods]
 impl PyTrackResult {
-    /// "not_initialized", "ok" or "lost".
+    /// "not_initialized", "ok", "lost" or "recently_lost" (vision failed; the pose is the
+    /// IMU's prediction, aligned visual-inertial maps only).
     #[getter]
     fn state(&self) -> &'static str {
         state_name(self.inner.state)
@@ -517,7 +519,8 @@ impl PySlamSystem {
         self.engine.run(py, |s| s.reset())
     }
 
-    /// "not_initialized", "ok" or "lost".
+    /// "not_initialized", "ok", "lost" or "recently_lost" (vision failed; the pose is the
+    /// IMU's prediction, aligned visual-inertial maps only).
     #[getter]
     fn state(&mut self, py: Python<'_>) -> PyResult<&'static str> {
         self.engine.run(py, |s| state_name(s.state()))
@@ -585,6 +588,16 @@ impl PySlamSystem {
     fn inertial_alignment<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         let status = self.engine.run(py, |s| s.inertial_alignment().cloned())?;
         status.map(|s| inertial::status_dict(py, &s)).transpose()
+    }
+
+    /// The newest keyframe's IMU state once aligned, else None: ``{"keyframe_id",
+    /// "timestamp", "velocity" (3,) m/s body velocity in the world, "gyro_bias" (3,) rad/s,
+    /// "accel_bias" (3,) m/s^2}``.
+    fn keyframe_imu_state<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let state = self.engine.run(py, |s| s.keyframe_imu_state())?;
+        state
+            .map(|(id, t, v, bias)| inertial::imu_state_dict(py, id.0, t, &v, &bias))
+            .transpose()
     }
 }
 

@@ -23,6 +23,7 @@ use ferroslam_vocabulary::Vocabulary;
 
 use crate::context::Context;
 use crate::error::SlamError;
+use crate::local_inertial_ba::InertialWindow;
 use crate::local_mapping::{LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
 use crate::place_recognition::PlaceRecognition;
@@ -32,6 +33,8 @@ use crate::place_recognition::PlaceRecognition;
 pub(crate) struct KeyFrameWork {
     pub kf: KeyFrameId,
     pub new_points: Vec<MapPointId>,
+    /// The window of local inertial BA (aligned visual-inertial maps).
+    pub inertial: Option<InertialWindow>,
 }
 
 /// A snapshot and the keyframes to process in it.
@@ -58,6 +61,8 @@ pub(crate) struct Mapped {
     pub stats: LoopStats,
     /// The first error met (the job stopped there; its edits so far are in the journal).
     pub error: Option<SlamError>,
+    /// The inertial windows with the states local inertial BA found.
+    pub inertial: Vec<InertialWindow>,
 }
 
 /// Handle of the mapping thread, owned by tracking.
@@ -234,8 +239,9 @@ fn mapping_loop(
             loops: Vec::new(),
             stats: LoopStats::default(),
             error: None,
+            inertial: Vec::new(),
         };
-        for work in job.work {
+        for mut work in job.work {
             for m in work.new_points {
                 mapper.add_recent_point(m);
             }
@@ -244,7 +250,7 @@ fn mapping_loop(
             }
             let mut mapping = MappingReport::default();
             let step = mapper
-                .process_keyframe(work.kf, &mut map, ctx, &mut mapping)
+                .process_keyframe(work.kf, &mut map, ctx, &mut mapping, work.inertial.as_mut())
                 .and_then(|()| {
                     let Some(place) = place.as_mut() else {
                         return Ok(None);
@@ -256,6 +262,7 @@ fn mapping_loop(
                     closer.process_keyframe(work.kf, &mut map, ctx, place)
                 });
             mapped.reports.push((work.kf, mapping));
+            mapped.inertial.extend(work.inertial);
             match step {
                 Ok(Some(loop_closure)) => mapped.loops.push(loop_closure),
                 Ok(None) => {}

@@ -13,8 +13,10 @@ pub mod context;
 pub mod error;
 pub mod frame;
 pub mod frustum;
+pub mod imu_prediction;
 pub mod inertial;
 pub mod input_guard;
+pub mod local_inertial_ba;
 pub mod local_mapping;
 pub mod loop_closing;
 pub mod mono_init;
@@ -27,7 +29,9 @@ pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{Sensor, SlamConfig};
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
-pub use inertial::{AlignmentStatus, ImuParams, ImuSample, InertialAlignment, InertialConfig};
+pub use inertial::{
+    AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig,
+};
 pub use input_guard::InputGuard;
 pub use loop_closing::{LoopClosure, LoopStats};
 pub use system::{SlamSystem, TrackResult};

@@ -17,6 +17,7 @@ use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
 use crate::frustum::visible_point;
+use crate::local_inertial_ba::{local_inertial_bundle_adjust, InertialWindow};
 
 /// Covisible keyframes searched for new points and fusion (ORB-SLAM: 10 with depth, 20
 /// monocular, where triangulation is the only source of points).
@@ -154,18 +155,23 @@ impl LocalMapper {
         Ok(kf)
     }
 
-    /// Runs the local mapping stages for the keyframe just inserted.
-    pub fn process_keyframe(
+    /// Runs the local mapping stages for the keyframe just inserted; local BA is inertial
+    /// over `inertial` when given (an aligned visual-inertial map; its states are updated).
+    pub(crate) fn process_keyframe(
         &mut self,
         kf: KeyFrameId,
         map: &mut Map,
         ctx: &Context,
         report: &mut MappingReport,
+        inertial: Option<&mut InertialWindow>,
     ) -> Result<(), SlamError> {
         report.culled_points += self.cull_recent_points(kf, map, ctx);
         report.triangulated_points += self.create_new_points(kf, map, ctx)?;
         report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
-        report.ba_outliers += self.local_bundle_adjust(kf, map, ctx)?;
+        report.ba_outliers += match inertial {
+            Some(window) => local_inertial_bundle_adjust(kf, window, map, ctx)?,
+            None => self.local_bundle_adjust(kf, map, ctx)?,
+        };
         report.culled_keyframes += self.cull_keyframes(kf, map, ctx);
         Ok(())
     }
@@ -360,96 +366,136 @@ pub(crate) fn adjust_keyframes(
     map: &mut Map,
     ctx: &Context,
 ) -> Result<usize, SlamError> {
-    let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
-    let mut points = Vec::new();
-    let mut seen = HashSet::new();
-    for &k in local {
-        for m in map
-            .keyframe(k)
-            .into_iter()
-            .flat_map(|k| k.map_points().iter().flatten())
-        {
-            if map.map_point(*m).is_some() && seen.insert(*m) {
-                points.push(*m);
-            }
-        }
-    }
-    let mut fixed = Vec::new();
-    let mut fixed_set = HashSet::new();
-    for &m in &points {
-        for k in map.map_point(m).unwrap().observations().keys() {
-            if !local_set.contains(k) && fixed_set.insert(*k) {
-                fixed.push(*k);
-            }
-        }
-    }
-    let pose_ids: Vec<KeyFrameId> = local.iter().chain(fixed.iter()).copied().collect();
-    let pose_index: HashMap<KeyFrameId, usize> =
-        pose_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
-    let pyramid = map.pyramid();
-    let mut observations = Vec::new();
-    let mut obs_keys = Vec::new();
-    for (pi, &m) in points.iter().enumerate() {
-        for (&k, &i) in map.map_point(m).unwrap().observations() {
-            let Some(&pose) = pose_index.get(&k) else {
-                continue;
-            };
-            let f = map.keyframe(k).unwrap().features();
-            let kp = &f.keypoints[i];
-            let ur = f.u_right[i];
-            observations.push(Observation {
-                pose,
-                point: pi,
-                uv: Vector2::new(kp.x as f64, kp.y as f64),
-                u_right: (ur >= 0.0).then_some(ur as f64),
-                inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
-            });
-            obs_keys.push((m, k));
-        }
-    }
-    // The map's first keyframe fixes the gauge.
-    let origin = map.origin();
-    let mut problem = BaProblem {
-        intrinsics: ctx.intrinsics,
-        poses: pose_ids
-            .iter()
-            .map(|k| *map.keyframe(*k).unwrap().T_c_w())
-            .collect(),
-        pose_fixed: pose_ids
-            .iter()
-            .map(|k| !local_set.contains(k) || Some(*k) == origin)
-            .collect(),
-        points: points
-            .iter()
-            .map(|m| map.map_point(*m).unwrap().position())
-            .collect(),
-        observations,
-    };
+    let (mut problem, index) = LocalProblem::build(local, &[], map, ctx);
     let Ok(result) = local_bundle_adjust(&mut problem) else {
         // A numerically failed BA leaves the map as it was; the next keyframe retries.
         return Ok(0);
     };
-    for (pi, &k) in pose_ids.iter().enumerate() {
-        if !problem.pose_fixed[pi] {
-            map.set_keyframe_pose(k, problem.poses[pi])?;
+    index.apply(&problem, &result.outlier, map)
+}
+
+/// Which keyframes, points and observations of the map a local BA problem holds.
+pub(crate) struct LocalProblem {
+    /// Keyframe of each pose of the problem.
+    pub pose_ids: Vec<KeyFrameId>,
+    points: Vec<MapPointId>,
+    /// `(point, keyframe)` of each observation.
+    obs_keys: Vec<(MapPointId, KeyFrameId)>,
+}
+
+impl LocalProblem {
+    /// The BA problem over the keyframes `local` (free, except the map's origin), every
+    /// point they see, the other keyframes observing those points and `also_fixed` (fixed).
+    pub(crate) fn build(
+        local: &[KeyFrameId],
+        also_fixed: &[KeyFrameId],
+        map: &Map,
+        ctx: &Context,
+    ) -> (BaProblem, Self) {
+        let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
+        let mut points = Vec::new();
+        let mut seen = HashSet::new();
+        for &k in local {
+            for m in map
+                .keyframe(k)
+                .into_iter()
+                .flat_map(|k| k.map_points().iter().flatten())
+            {
+                if map.map_point(*m).is_some() && seen.insert(*m) {
+                    points.push(*m);
+                }
+            }
         }
-    }
-    for (pi, &m) in points.iter().enumerate() {
-        map.set_map_point_position(m, problem.points[pi])?;
-    }
-    let mut n_outliers = 0;
-    for (o, &(m, k)) in obs_keys.iter().enumerate() {
-        if result.outlier[o] && map.map_point(m).is_some() {
-            map.erase_observation(m, k);
-            n_outliers += 1;
+        let mut fixed = Vec::new();
+        let mut fixed_set = HashSet::new();
+        let observers = points
+            .iter()
+            .flat_map(|&m| map.map_point(m).unwrap().observations().keys().copied());
+        for k in also_fixed.iter().copied().chain(observers) {
+            if !local_set.contains(&k) && map.keyframe(k).is_some() && fixed_set.insert(k) {
+                fixed.push(k);
+            }
         }
-    }
-    for &m in &points {
-        if map.map_point(m).is_some() {
-            map.update_normal_and_depth(m)?;
+        let pose_ids: Vec<KeyFrameId> = local.iter().chain(fixed.iter()).copied().collect();
+        let pose_index: HashMap<KeyFrameId, usize> =
+            pose_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+        let pyramid = map.pyramid();
+        let mut observations = Vec::new();
+        let mut obs_keys = Vec::new();
+        for (pi, &m) in points.iter().enumerate() {
+            for (&k, &i) in map.map_point(m).unwrap().observations() {
+                let Some(&pose) = pose_index.get(&k) else {
+                    continue;
+                };
+                let f = map.keyframe(k).unwrap().features();
+                let kp = &f.keypoints[i];
+                let ur = f.u_right[i];
+                observations.push(Observation {
+                    pose,
+                    point: pi,
+                    uv: Vector2::new(kp.x as f64, kp.y as f64),
+                    u_right: (ur >= 0.0).then_some(ur as f64),
+                    inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
+                });
+                obs_keys.push((m, k));
+            }
         }
+        // The map's first keyframe fixes the gauge.
+        let origin = map.origin();
+        let problem = BaProblem {
+            intrinsics: ctx.intrinsics,
+            poses: pose_ids
+                .iter()
+                .map(|k| *map.keyframe(*k).unwrap().T_c_w())
+                .collect(),
+            pose_fixed: pose_ids
+                .iter()
+                .map(|k| !local_set.contains(k) || Some(*k) == origin)
+                .collect(),
+            points: points
+                .iter()
+                .map(|m| map.map_point(*m).unwrap().position())
+                .collect(),
+            observations,
+        };
+        let index = Self {
+            pose_ids,
+            points,
+            obs_keys,
+        };
+        (problem, index)
     }
-    Ok(n_outliers)
+
+    /// Writes the solved `problem` back: free poses, points, and the erasure of the
+    /// observations flagged in `outlier`; returns how many were erased.
+    pub(crate) fn apply(
+        &self,
+        problem: &BaProblem,
+        outlier: &[bool],
+        map: &mut Map,
+    ) -> Result<usize, SlamError> {
+        for (pi, &k) in self.pose_ids.iter().enumerate() {
+            if !problem.pose_fixed[pi] {
+                map.set_keyframe_pose(k, problem.poses[pi])?;
+            }
+        }
+        for (pi, &m) in self.points.iter().enumerate() {
+            map.set_map_point_position(m, problem.points[pi])?;
+        }
+        let mut n_outliers = 0;
+        for (o, &(m, k)) in self.obs_keys.iter().enumerate() {
+            if outlier[o] && map.map_point(m).is_some() {
+                map.erase_observation(m, k);
+                n_outliers += 1;
+            }
+        }
+        for &m in &self.points {
+            if map.map_point(m).is_some() {
+                map.update_normal_and_depth(m)?;
+            }
+        }
+        Ok(n_outliers)
+    }
 }
 
 /// Median depth of `kf`'s map points in its camera, metres (ORB-SLAM

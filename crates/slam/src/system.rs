@@ -12,8 +12,10 @@ use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::imu_prediction::ImuPredictor;
 use crate::inertial::{
-    rescale_map, AlignmentStatus, ImuSample, Inertial, InertialConfig, INIT_KEYFRAME_INTERVAL_S,
+    rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig,
+    INIT_KEYFRAME_INTERVAL_S,
 };
 use crate::input_guard::InputGuard;
 use crate::local_mapping::{LocalMapper, MappingReport};
@@ -86,6 +88,8 @@ pub struct SlamSystem {
     resets: usize,
     /// IMU samples, keyframe preintegrations and the camera-IMU alignment, once set.
     inertial: Option<Inertial>,
+    /// IMU-only poses for frames vision cannot localise (aligned maps).
+    predictor: ImuPredictor,
 }
 
 impl SlamSystem {
@@ -114,6 +118,7 @@ impl SlamSystem {
             guard,
             resets: 0,
             inertial: None,
+            predictor: ImuPredictor::default(),
         })
     }
 
@@ -189,9 +194,25 @@ impl SlamSystem {
                 loop_closure: None,
             });
         }
-        let tracked =
+        let mut tracked =
             self.tracker
                 .track(&mut frame, &mut self.map, &self.ctx, self.place.as_ref())?;
+        let predicted = match (tracked, self.inertial.as_ref()) {
+            (false, Some(inertial)) => self.predictor.predict(frame.timestamp, inertial),
+            _ => None,
+        };
+        if let Some(T_c_w) = predicted {
+            tracked =
+                self.tracker
+                    .track_from_prediction(&mut frame, &mut self.map, &self.ctx, T_c_w)?;
+        }
+        if let (true, Some(inertial)) = (tracked, self.inertial.as_ref()) {
+            self.predictor.record(
+                frame.timestamp,
+                &frame.T_c_w.inverse(),
+                &inertial.config().T_b_c,
+            );
+        }
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         let mut result = TrackResult {
             state: self.tracker.state,
@@ -208,6 +229,15 @@ impl SlamSystem {
             init_status: None,
             loop_closure: None,
         };
+        if !tracked && predicted.is_some() {
+            // IMU only: the predicted pose is the frame's, nothing else changes.
+            result.T_w_c = Some(frame.T_c_w.inverse());
+            if let Some(r) = self.tracker.reference_kf {
+                self.trajectory
+                    .push(frame.timestamp, &frame.T_c_w, r, &self.map);
+            }
+            return Ok(result);
+        }
         if !tracked {
             self.handle_lost(frame.timestamp);
             return Ok(result);
@@ -239,16 +269,26 @@ impl SlamSystem {
             )?;
             self.tracker.on_keyframe(frame.index, kf);
             result.is_keyframe = true;
+            let mut window = self.inertial.as_mut().and_then(|i| i.window(&self.map));
             if let Some(concurrent) = self.concurrent.as_mut() {
                 let work = KeyFrameWork {
                     kf,
                     new_points: self.mapper.take_recent_points(),
+                    inertial: window,
                 };
                 concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
                 self.index_keyframes();
             } else {
-                self.mapper
-                    .process_keyframe(kf, &mut self.map, &self.ctx, &mut report)?;
+                self.mapper.process_keyframe(
+                    kf,
+                    &mut self.map,
+                    &self.ctx,
+                    &mut report,
+                    window.as_mut(),
+                )?;
+                if let (Some(inertial), Some(window)) = (self.inertial.as_mut(), &window) {
+                    inertial.store(window);
+                }
                 // Indexed after culling, before loop detection queries it.
                 self.index_keyframes();
                 result.loop_closure = self.close_loops(kf)?;
@@ -339,6 +379,9 @@ impl SlamSystem {
         }
         let mut error = None;
         for mapped in finished {
+            if let Some(inertial) = self.inertial.as_mut() {
+                mapped.inertial.iter().for_each(|w| inertial.store(w));
+            }
             self.loops.extend(mapped.loops);
             self.loop_stats = mapped.stats;
             error = error.or(mapped.error);
@@ -449,6 +492,7 @@ impl SlamSystem {
         }
         self.trajectory.clear();
         self.lost_since = None;
+        self.predictor.clear();
         if let Some(inertial) = self.inertial.as_mut() {
             inertial.clear_map();
         }
@@ -491,6 +535,15 @@ impl SlamSystem {
         self.inertial.as_ref().map(Inertial::status)
     }
 
+    /// The newest keyframe's IMU state once aligned: `(keyframe, timestamp s, body velocity
+    /// in the world m/s, biases)`; refined by local inertial BA after the last refinement of
+    /// the alignment, predicted from the previous keyframe before.
+    pub fn keyframe_imu_state(&self) -> Option<(KeyFrameId, f64, Vector3<f64>, Bias)> {
+        let (id, velocity, bias) = self.inertial.as_ref()?.newest_state()?;
+        let timestamp = self.map.keyframe(id)?.timestamp();
+        Some((id, timestamp, velocity, bias))
+    }
+
     /// IMU preintegrated from the previous live keyframe (returned with it) to keyframe `kf`,
     /// at the biases of the alignment once there is one (zero before).
     pub fn keyframe_imu(
@@ -524,6 +577,7 @@ impl SlamSystem {
             self.trajectory
                 .rescale(s, &mut self.map, |map| rescale_map(map, s))?;
             self.tracker.rescale(s);
+            self.predictor.clear();
             alignment.map_rescaled = true;
         }
         if let Some(inertial) = self.inertial.as_mut() {

@@ -29,6 +29,9 @@ pub enum TrackingState {
     Ok,
     /// The last frame could not be localised.
     Lost,
+    /// Vision could not localise the last frame; its pose is the IMU's prediction (an
+    /// aligned visual-inertial map, for at most `imu_prediction::IMU_ONLY_MAX_S`).
+    RecentlyLost,
 }
 
 /// Minimum matches for the motion model and reference keyframe searches (ORB-SLAM).
@@ -145,6 +148,39 @@ impl Tracker {
         } else {
             self.velocity = None;
             self.state = TrackingState::Lost;
+        }
+        Ok(ok)
+    }
+
+    /// Looks for the local map around `T_c_w_predicted` (the IMU's prediction for a frame
+    /// vision could not localise otherwise, ORB-SLAM3's `RECENTLY_LOST` tracking): the
+    /// reference keyframe's neighbourhood is searched with the wide radius used after a
+    /// relocalisation. Returns whether the frame is localised; if not, the frame keeps the
+    /// predicted pose and the state becomes [`TrackingState::RecentlyLost`].
+    #[allow(non_snake_case)]
+    pub(crate) fn track_from_prediction(
+        &mut self,
+        frame: &mut Frame,
+        map: &mut Map,
+        ctx: &Context,
+        T_c_w_predicted: Isometry3<f64>,
+    ) -> Result<bool, SlamError> {
+        frame.T_c_w = T_c_w_predicted;
+        frame.clear_associations();
+        self.local_keyframes = self.reference_neighbourhood(map);
+        self.update_local_points(map);
+        self.search_local_points(frame, map, ctx, 5.0)?;
+        let found = frame.map_points.iter().flatten().count();
+        let ok = found >= MIN_SEARCH_MATCHES && {
+            optimize_frame_pose(frame, map, ctx)?;
+            discard_outliers(frame) >= MIN_POSE_INLIERS && self.track_local_map(frame, map, ctx)?
+        };
+        if ok {
+            self.state = TrackingState::Ok;
+        } else {
+            frame.T_c_w = T_c_w_predicted;
+            frame.clear_associations();
+            self.state = TrackingState::RecentlyLost;
         }
         Ok(ok)
     }
