@@ -34,8 +34,8 @@ pub mod inertial_ba;
 pub mod intrinsics;
 mod lm;
 pub mod pose;
-pub mod pose_inertial;
 pub mod pose_graph;
+pub mod pose_inertial;
 pub mod residual;
 pub mod robust;
 pub mod sim3_align;
@@ -50,9 +50,9 @@ pub use inertial_ba::{
 };
 pub use intrinsics::Intrinsics;
 pub use pose::{optimize_pose, PoseEstimate, PoseObservation};
-pub use pose_inertial::{optimize_pose_inertial, InertialLink, InertialPoseEstimate};
 pub use pose_graph::{
     optimize_pose_graph, read_g2o, PoseEdge, PoseGraph, PoseGraphOptions, PoseGraphReport,
     Se3PoseGraph, Sim3PoseGraph, SymbolicPoseGraph,
 };
+pub use pose_inertial::{optimize_pose_inertial, InertialLink, InertialPoseEstimate};
 pub use sim3_align::{optimize_sim3, Sim3AlignResult, Sim3Match, SIM3_TH2_MONO};
