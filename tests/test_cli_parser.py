@@ -53,6 +53,11 @@ def test_unknown_sensor(tmp_path, capsys):
         pipeline.run_sequence(None, {}, sensor="lidar")
 
 
+def test_inertial_sensor_needs_an_imu(tum_desk):
+    with pytest.raises(ValueError, match="sensor 'rgbd-inertial' needs an IMU: .* has no imu"):
+        pipeline.run_sequence(TumSequence(tum_desk), {}, sensor="rgbd-inertial", progress=False)
+
+
 def test_eval_parser_defaults():
     args = cli.build_parser().parse_args(["eval", "ate", "ref.txt", "est.txt"])
     assert (args.metric, args.align, args.format, args.max_diff) == ("ate", "se3", "tum", 0.01)

@@ -122,3 +122,20 @@ class _MonoOnly:
 
     def __len__(self):
         return 1
+
+
+def test_cli_stereo_inertial_run_on_euroc(euroc_micro, tmp_path, capsys):
+    """``--sensor stereo-inertial``: the EuRoC IMU goes in with the frames and the alignment
+    (static start, see tests/test_vslam.py) is in the summary and results.json."""
+    out = tmp_path / "si"
+    config = tmp_path / "si.json"
+    config.write_text(json.dumps({**EUROC_CONFIG, "num_poses_threshold": 10}))
+    assert cli_main(["run", str(euroc_micro), "--sensor", "stereo-inertial", "--config",
+                     str(config), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "tracked frames  95/95" in printed and "IMU alignment   scale 1.0000" in printed
+    summary = json.loads((out / "results.json").read_text())
+    assert summary["sensor"] == "stereo-inertial"
+    assert summary["inertial"]["status"] == "aligned"
+    assert summary["metrics"]["ate_frames"]["align"] == "se3"
+    assert summary["metrics"]["ate_frames"]["rmse"] < EUROC_ATE_BOUND_M

@@ -246,8 +246,9 @@ def seq12():
                                    duration_s=12.0)
 
 
-def _run_with_dropped_features(seq, sensor: str, imu: bool):
-    """Tracks the cut with every feature removed from the frames of a 1 s stretch."""
+def _run_with_dropped_features(seq, sensor: str, imu: bool, keep: int):
+    """Tracks the cut with all but ``keep`` features (a random subset) removed from the frames
+    of a 1 s stretch."""
     c = seq.camera
     slam = SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor, seed=0)
     if imu:
@@ -258,52 +259,62 @@ def _run_with_dropped_features(seq, sensor: str, imu: bool):
     for i in range(len(seq)):
         if imu:
             slam.add_imu(*seq.imu_between(i))
-        f = seq.features(i)
-        keep = slice(0, 0) if dropped[i] else slice(None)
+        f = seq.features(i)  # in random order
+        kept = slice(0, keep) if dropped[i] else slice(None)
         if sensor == "rgbd":
-            r = slam.track_rgbd(seq.timestamps[i], f["keypoints"][keep], f["descriptors"][keep],
-                                f["depth_m"][keep])
+            r = slam.track_rgbd(seq.timestamps[i], f["keypoints"][kept], f["descriptors"][kept],
+                                f["depth_m"][kept])
         else:
-            r = slam.track_mono(seq.timestamps[i], f["keypoints"][keep], f["descriptors"][keep])
+            r = slam.track_mono(seq.timestamps[i], f["keypoints"][kept], f["descriptors"][kept])
         states.append(r.state)
     return slam, np.array(states), dropped
 
 
-@pytest.mark.parametrize("sensor, bound_m", [("rgbd", 0.1), ("mono", 0.1)])
-def test_imu_carries_tracking_through_frames_without_features(seq12, sensor, bound_m):
-    """Issue 11: vision fails for 1 s (20 frames without a single feature). Without the IMU
-    those frames are lost (no pose). With it (RGB-D-inertial, mono-inertial) each gets the
-    IMU's prediction from the last tracked frame (state ``recently_lost``), and the first
-    frame with features again finds the local map around the prediction: no relocalisation,
-    no new map segment.
-
-    The error of the predicted motion since the last tracked frame (rotated into the map by
-    that frame's pose error) grows with the square of the time, from the gravity and bias
-    errors of the alignment: measured at the end of the second 5.3 cm (RGB-D) and 5.2 cm
-    (mono, whose metric scale is itself 1.5 % off) after 0.5-0.8 m of flight. Bound 10 cm
-    (twice the measured)."""
-    slam, states, dropped = _run_with_dropped_features(seq12, sensor, imu=True)
-    assert slam.inertial_alignment()["status"] == "aligned"
-    assert set(states[dropped]) == {"recently_lost"}
-    first_after = int(np.flatnonzero(dropped)[-1]) + 1
-    assert states[first_after] == "ok"
-    assert set(slam.frame_segments()) == {0}
+def _stretch_errors(seq, slam, dropped) -> np.ndarray:
+    """Position error (m) of the frames of the stretch in the motion since the last tracked
+    frame before it, rotated into the map by that frame's pose."""
     stamps, T_w_c = slam.frame_trajectory()
-    _, gt_T_w_c = seq12.groundtruth()
-    idx = _gt_index(seq12, stamps)
-    assert np.all(dropped[idx][dropped[idx]]) and dropped[idx].sum() == dropped.sum()
-    last = int(np.flatnonzero(dropped)[0]) - 1  # the last tracked frame before the stretch
+    _, gt_T_w_c = seq.groundtruth()
+    idx = _gt_index(seq, stamps)
+    assert dropped[idx].sum() == dropped.sum()  # every frame of the stretch has a pose
+    last = int(np.flatnonzero(dropped)[0]) - 1
     j = int(np.flatnonzero(idx == last)[0])
     R_align = T_w_c[j, :3, :3] @ gt_T_w_c[last, :3, :3].T
     moved_est = T_w_c[:, :3, 3] - T_w_c[j, :3, 3]
     moved_gt = (gt_T_w_c[idx, :3, 3] - gt_T_w_c[last, :3, 3]) @ R_align.T
-    errors = np.linalg.norm(moved_est - moved_gt, axis=1)[dropped[idx]]
-    flown = np.linalg.norm(moved_gt[dropped[idx]][-1])
-    print(f"\n{sensor}-inertial: IMU-only error after {DROP_S} s {100 * errors[-1]:.1f} cm "
-          f"(max {100 * errors.max():.1f} cm) over {flown:.2f} m of flight")
-    assert errors.max() < bound_m
+    return np.linalg.norm(moved_est - moved_gt, axis=1)[dropped[idx]]
 
-    plain, plain_states, _ = _run_with_dropped_features(seq12, sensor, imu=False)
+
+@pytest.mark.parametrize("sensor", ["rgbd", "mono"])
+def test_imu_carries_tracking_through_weak_vision(seq12, sensor):
+    """Issue 11: vision fails for 1 s (20 frames with no feature, or with only 15). Without
+    the IMU those frames are lost (no pose). With it (RGB-D-inertial, mono-inertial) each
+    frame gets the IMU's prediction from the last tracked frame (state ``recently_lost``),
+    fused with whatever matches the local map offers around it (visual-inertial motion-only
+    BA, the prediction as prior); the first full frame afterwards tracks the map again: no
+    relocalisation, no new map segment.
+
+    Measured (error of the motion since the last tracked frame, over 0.48 m of flight):
+    IMU alone 5.3 / 5.2 cm at the end of the second (RGB-D / mono; it grows with the square
+    of the time from the alignment's gravity and bias errors); with 15 features the RMS
+    over the stretch falls from 2.7 / 2.7 cm to 1.5 / 1.3 cm (max 3.1 / 2.7 cm). Bounds: 10 cm for the IMU alone
+    (twice the measured); the fused RMS below 0.75 of the IMU-only RMS."""
+    errors = {}
+    for keep in (0, 15):
+        slam, states, dropped = _run_with_dropped_features(seq12, sensor, imu=True, keep=keep)
+        assert slam.inertial_alignment()["status"] == "aligned"
+        assert set(states[dropped]) == {"recently_lost"}
+        assert states[int(np.flatnonzero(dropped)[-1]) + 1] == "ok"
+        assert set(slam.frame_segments()) == {0}
+        errors[keep] = _stretch_errors(seq12, slam, dropped)
+    rms = {k: float(np.sqrt(np.mean(e ** 2))) for k, e in errors.items()}
+    print(f"\n{sensor}-inertial, 1 s of weak vision: IMU alone {100 * errors[0][-1]:.1f} cm "
+          f"at the end (RMS {100 * rms[0]:.1f} cm); with 15 features RMS {100 * rms[15]:.1f} "
+          f"cm (max {100 * errors[15].max():.1f} cm)")
+    assert errors[0].max() < 0.1
+    assert rms[15] < 0.75 * rms[0]
+
+    plain, plain_states, _ = _run_with_dropped_features(seq12, sensor, imu=False, keep=15)
     assert set(plain_states[dropped]) == {"lost"}
     plain_stamps, _ = plain.frame_trajectory()
     assert not np.isin(seq12.timestamps[dropped], plain_stamps).any()

@@ -106,6 +106,24 @@ impl InertialFactor {
         })
     }
 
+    /// The same factor with `extra` added to the covariance (over `[r_R; r_v; r_p]`): the
+    /// uncertainty of a state the caller holds fixed, propagated into the residual (e.g. a
+    /// tracking anchor whose velocity and biases are only known to some accuracy).
+    ///
+    /// Fails with [`ImuError::SingularCovariance`] if the sum is not positive definite.
+    pub fn with_added_covariance(&self, extra: &Matrix9) -> Result<Self, ImuError> {
+        let covariance = self.preintegrated.covariance() + extra;
+        let information = Cholesky::new(0.5 * (covariance + covariance.transpose()))
+            .ok_or(ImuError::SingularCovariance {
+                dt: self.preintegrated.dt(),
+            })?
+            .inverse();
+        Ok(Self {
+            information: 0.5 * (information + information.transpose()),
+            ..self.clone()
+        })
+    }
+
     /// The preintegration this factor measures with.
     pub fn preintegrated(&self) -> &Preintegrated {
         &self.preintegrated
@@ -383,6 +401,27 @@ mod tests {
 
     fn dyn_matrix<const C: usize>(m: &SMatrix<f64, 9, C>) -> DMatrix<f64> {
         DMatrix::from_column_slice(9, C, m.as_slice())
+    }
+
+    #[test]
+    fn added_covariance_weakens_the_information() {
+        let f = factor();
+        let mut extra = Matrix9::zeros();
+        for k in 0..9 {
+            extra[(k, k)] = 1e-2;
+        }
+        let inflated = f.with_added_covariance(&extra).unwrap();
+        let expected = (f.preintegrated().covariance() + extra)
+            .try_inverse()
+            .unwrap();
+        assert_relative_eq!(*inflated.information(), expected, max_relative = 1e-8);
+        assert!(inflated.information().trace() < f.information().trace());
+        assert_eq!(inflated.preintegrated(), f.preintegrated());
+        let bad = -f.preintegrated().covariance() * 2.0;
+        assert!(matches!(
+            f.with_added_covariance(&bad),
+            Err(ImuError::SingularCovariance { .. })
+        ));
     }
 
     #[test]

@@ -86,7 +86,7 @@ pub(crate) fn local_inertial_bundle_adjust(
             i: slot[&window.keyframes[k]],
             j: slot[&window.keyframes[k + 1]],
             factor: factor.clone(),
-            bias_walk: bias_walk.clone(),
+            bias_walk: *bias_walk,
         });
     }
     let Ok(result) = inertial_bundle_adjust(&mut problem, &InertialBaOptions::default()) else {

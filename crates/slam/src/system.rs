@@ -201,10 +201,14 @@ impl SlamSystem {
             (false, Some(inertial)) => self.predictor.predict(frame.timestamp, inertial),
             _ => None,
         };
-        if let Some(T_c_w) = predicted {
-            tracked =
-                self.tracker
-                    .track_from_prediction(&mut frame, &mut self.map, &self.ctx, T_c_w)?;
+        if let (Some(prediction), Some(inertial)) = (&predicted, self.inertial.as_ref()) {
+            tracked = self.tracker.track_from_prediction(
+                &mut frame,
+                &mut self.map,
+                &self.ctx,
+                prediction,
+                &inertial.config().T_b_c,
+            )?;
         }
         if let (true, Some(inertial)) = (tracked, self.inertial.as_ref()) {
             self.predictor.record(
@@ -230,7 +234,7 @@ impl SlamSystem {
             loop_closure: None,
         };
         if !tracked && predicted.is_some() {
-            // IMU only: the predicted pose is the frame's, nothing else changes.
+            // Carried by the IMU: the frame has its pose, nothing else changes.
             result.T_w_c = Some(frame.T_c_w.inverse());
             if let Some(r) = self.tracker.reference_kf {
                 self.trajectory

@@ -10,13 +10,14 @@ use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
 use ferroslam_features::{match_brute_force, Descriptor, MatchOptions, ProjectionQuery};
 use ferroslam_geometry::pnp::{pnp_ransac, PnpRansacOptions};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
-use ferroslam_optim::{optimize_pose, PoseObservation};
+use ferroslam_optim::{optimize_pose, optimize_pose_inertial, InertialLink, PoseObservation};
 use nalgebra::{Isometry3, Point3, Vector2};
 
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
 use crate::frustum::visible_point;
+use crate::imu_prediction::ImuPrediction;
 use crate::inertial::scale_translation;
 use crate::place_recognition::PlaceRecognition;
 
@@ -152,37 +153,61 @@ impl Tracker {
         Ok(ok)
     }
 
-    /// Looks for the local map around `T_c_w_predicted` (the IMU's prediction for a frame
-    /// vision could not localise otherwise, ORB-SLAM3's `RECENTLY_LOST` tracking): the
-    /// reference keyframe's neighbourhood is searched with the wide radius used after a
-    /// relocalisation. Returns whether the frame is localised; if not, the frame keeps the
-    /// predicted pose and the state becomes [`TrackingState::RecentlyLost`].
+    /// Looks for the local map around the IMU's prediction for a frame vision could not
+    /// localise otherwise (ORB-SLAM3's `RECENTLY_LOST` tracking): the reference keyframe's
+    /// neighbourhood is searched with the wide radius used after a relocalisation. Enough
+    /// matches to track on their own: the frame is tracked (returns true). Otherwise the
+    /// few matches found are fused with the IMU (visual-inertial motion-only BA with the
+    /// prediction's inertial factor as prior; the prediction itself when there is none),
+    /// the frame takes that pose without its matches and the state becomes
+    /// [`TrackingState::RecentlyLost`].
     #[allow(non_snake_case)]
     pub(crate) fn track_from_prediction(
         &mut self,
         frame: &mut Frame,
         map: &mut Map,
         ctx: &Context,
-        T_c_w_predicted: Isometry3<f64>,
+        prediction: &ImuPrediction,
+        T_b_c: &Isometry3<f64>,
     ) -> Result<bool, SlamError> {
-        frame.T_c_w = T_c_w_predicted;
+        frame.T_c_w = prediction.T_c_w;
         frame.clear_associations();
         self.local_keyframes = self.reference_neighbourhood(map);
         self.update_local_points(map);
         self.search_local_points(frame, map, ctx, 5.0)?;
-        let found = frame.map_points.iter().flatten().count();
-        let ok = found >= MIN_SEARCH_MATCHES && {
+        let searched = frame.map_points.clone();
+        if searched.iter().flatten().count() >= MIN_SEARCH_MATCHES {
             optimize_frame_pose(frame, map, ctx)?;
-            discard_outliers(frame) >= MIN_POSE_INLIERS && self.track_local_map(frame, map, ctx)?
-        };
-        if ok {
-            self.state = TrackingState::Ok;
-        } else {
-            frame.T_c_w = T_c_w_predicted;
-            frame.clear_associations();
-            self.state = TrackingState::RecentlyLost;
+            if discard_outliers(frame) >= MIN_POSE_INLIERS
+                && self.track_local_map(frame, map, ctx)?
+            {
+                self.state = TrackingState::Ok;
+                return Ok(true);
+            }
         }
-        Ok(ok)
+        frame.clear_associations();
+        frame.T_c_w = prediction.T_c_w;
+        frame.map_points = searched;
+        let (obs, _) = frame_observations(frame, map);
+        let mut outlier = vec![false; obs.len()];
+        let link = InertialLink {
+            previous: &prediction.previous,
+            factor: &prediction.factor,
+            bias_walk: &prediction.bias_walk,
+        };
+        let fused = optimize_pose_inertial(
+            &prediction.predicted,
+            &link,
+            T_b_c,
+            &obs,
+            &ctx.intrinsics,
+            &mut outlier,
+        )?;
+        frame.T_c_w = fused.T_c_w;
+        frame.clear_associations();
+        self.matches_inliers = fused.num_inliers;
+        self.state = TrackingState::RecentlyLost;
+        Ok(false)
     }
 
     /// Keeps `frame` as the last frame, adding depth-backed temporary points (ORB-SLAM
@@ -675,6 +700,22 @@ pub fn optimize_frame_pose(
     map: &Map,
     ctx: &Context,
 ) -> Result<usize, SlamError> {
+    let (obs, index) = frame_observations(frame, map);
+    if obs.len() < 3 {
+        return Ok(0);
+    }
+    let mut outlier = vec![false; obs.len()];
+    let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.intrinsics, &mut outlier)?;
+    frame.T_c_w = estimate.T_c_w;
+    for (k, &i) in index.iter().enumerate() {
+        frame.outlier[i] = outlier[k];
+    }
+    Ok(estimate.num_inliers)
+}
+
+/// The frame's map point and temporary point matches as pose observations, with the
+/// keypoint index of each.
+fn frame_observations(frame: &Frame, map: &Map) -> (Vec<PoseObservation>, Vec<usize>) {
     let pyramid = map.pyramid();
     let mut obs = Vec::new();
     let mut index = Vec::new();
@@ -697,16 +738,7 @@ pub fn optimize_frame_pose(
         });
         index.push(i);
     }
-    if obs.len() < 3 {
-        return Ok(0);
-    }
-    let mut outlier = vec![false; obs.len()];
-    let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.intrinsics, &mut outlier)?;
-    frame.T_c_w = estimate.T_c_w;
-    for (k, &i) in index.iter().enumerate() {
-        frame.outlier[i] = outlier[k];
-    }
-    Ok(estimate.num_inliers)
+    (obs, index)
 }
 
 /// Drops the associations flagged as outliers; returns the remaining map point matches.
