@@ -10,7 +10,7 @@
 //! point steps and accepts the step iff the cost decreases (Nielsen's lambda update). A
 //! rejected step reuses the linearisation; only the damped parts are recomputed.
 
-use super::problem::BaProblem;
+use super::problem::{BaProblem, Observation};
 use super::symbolic::SymbolicBa;
 use crate::block_pattern::factorize_upper;
 use crate::error::OptimError;
@@ -238,6 +238,45 @@ type PoseBlocks<const D: usize> = (Vec<SMatrix<f64, D, D>>, Vec<SVector<f64, D>>
 /// Observations per chunk of the cost sum (fixed, so the sum's order is too).
 const COST_CHUNK: usize = 1024;
 
+/// `sum rho(chi2)` over the `active` observations at the given poses and points; infinite
+/// if one of them is no longer in front of its camera. Summed over fixed chunks in a fixed
+/// order: a parallel float sum varies run to run, and LM's accept/reject on it would make
+/// the whole SLAM run non-deterministic.
+pub(crate) fn visual_cost(
+    k: &Intrinsics,
+    observations: &[Observation],
+    active: &[bool],
+    poses: &[Isometry3<f64>],
+    points: &[Vector3<f64>],
+    robust: bool,
+) -> f64 {
+    observations
+        .par_chunks(COST_CHUNK)
+        .zip(active.par_chunks(COST_CHUNK))
+        .map(|(obs, active)| {
+            obs.iter()
+                .zip(active)
+                .filter(|(_, &a)| a)
+                .map(|(o, _)| {
+                    residual::chi2(
+                        k,
+                        &poses[o.pose],
+                        &points[o.point],
+                        &o.uv,
+                        o.u_right,
+                        o.inv_sigma2,
+                    )
+                    .map_or(f64::INFINITY, |c| {
+                        cost_and_weight(c, o.is_stereo(), robust).0
+                    })
+                })
+                .sum::<f64>()
+        })
+        .collect::<Vec<f64>>()
+        .iter()
+        .sum()
+}
+
 struct Context<'a> {
     k: Intrinsics,
     active: &'a [bool],
@@ -245,37 +284,16 @@ struct Context<'a> {
 }
 
 impl Context<'_> {
-    /// `sum rho(chi2)` over active observations at the given estimate; infinite if one of
-    /// them is no longer in front of its camera.
+    /// See [`visual_cost`].
     fn cost(&self, problem: &BaProblem, poses: &[Isometry3<f64>], points: &[Vector3<f64>]) -> f64 {
-        problem
-            .observations
-            .par_chunks(COST_CHUNK)
-            .zip(self.active.par_chunks(COST_CHUNK))
-            .map(|(obs, active)| {
-                obs.iter()
-                    .zip(active)
-                    .filter(|(_, &a)| a)
-                    .map(|(o, _)| {
-                        residual::chi2(
-                            &self.k,
-                            &poses[o.pose],
-                            &points[o.point],
-                            &o.uv,
-                            o.u_right,
-                            o.inv_sigma2,
-                        )
-                        .map_or(f64::INFINITY, |c| {
-                            cost_and_weight(c, o.is_stereo(), self.robust).0
-                        })
-                    })
-                    .sum::<f64>()
-            })
-            .collect::<Vec<f64>>()
-            // Summed in a fixed order: a parallel float sum varies run to run, and LM's
-            // accept/reject on it would make the whole SLAM run non-deterministic.
-            .iter()
-            .sum()
+        visual_cost(
+            &self.k,
+            &problem.observations,
+            self.active,
+            poses,
+            points,
+            self.robust,
+        )
     }
 
     /// Weight (`inv_sigma2` times the kernel's IRLS factor) and linearisation of observation

@@ -8,6 +8,7 @@ use super::state::{
     linearize_inertial, StateJacobian, ACCEL_BIAS, GYRO_BIAS, POSE, STATE_DIM, VEL,
 };
 use super::HUBER_DELTA_INERTIAL;
+use crate::ba::solve::visual_cost;
 use crate::error::OptimError;
 use crate::lm::{damping_diagonal, predicted_decrease, Damping};
 use crate::residual;
@@ -230,9 +231,6 @@ pub(crate) fn optimize(
     }
 }
 
-/// Observations per parallel task of the visual cost (fixed, so the sum's order is too).
-const COST_CHUNK: usize = 1024;
-
 impl Context<'_> {
     fn inertial_kernel(&self, chi2: f64) -> (f64, f64) {
         if self.robust {
@@ -248,32 +246,14 @@ impl Context<'_> {
     /// Total cost; infinite if an active observation is not in front of its camera.
     fn cost(&self, est: &Estimate) -> f64 {
         let visual = &self.problem.visual;
-        let partial: Vec<f64> = visual
-            .observations
-            .par_chunks(COST_CHUNK)
-            .zip(self.active.par_chunks(COST_CHUNK))
-            .map(|(obs, active)| {
-                obs.iter()
-                    .zip(active)
-                    .filter(|(_, &a)| a)
-                    .map(|(o, _)| {
-                        residual::chi2(
-                            &visual.intrinsics,
-                            &est.poses[o.pose],
-                            &est.points[o.point],
-                            &o.uv,
-                            o.u_right,
-                            o.inv_sigma2,
-                        )
-                        .map_or(f64::INFINITY, |c| {
-                            cost_and_weight(c, o.is_stereo(), self.robust).0
-                        })
-                    })
-                    .sum::<f64>()
-            })
-            .collect();
-        // Summed in a fixed order so that LM's accept/reject is deterministic.
-        let mut cost: f64 = partial.iter().sum();
+        let mut cost = visual_cost(
+            &visual.intrinsics,
+            &visual.observations,
+            &self.active,
+            &est.poses,
+            &est.points,
+            self.robust,
+        );
         for e in &self.problem.inertial_edges {
             let (s_i, s_j) = (
                 est.imu_state(e.i, &self.problem.T_b_c),
