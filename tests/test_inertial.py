@@ -318,3 +318,29 @@ def test_imu_carries_tracking_through_weak_vision(seq12, sensor):
     assert set(plain_states[dropped]) == {"lost"}
     plain_stamps, _ = plain.frame_trajectory()
     assert not np.isin(seq12.timestamps[dropped], plain_stamps).any()
+
+
+def test_missing_imu_falls_back_to_vision(seq12):
+    """IMU samples missing for 0.5 s (never added) before the alignment: vision tracks on,
+    the alignment reports the gap (named, with the samples around it) and waits, then
+    aligns on the 9 keyframes after it (at 3.5 s instead of 2.25 s)."""
+    c = seq12.camera
+    slam = SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor="rgbd", seed=0)
+    slam.set_imu(seq12.imu_params(), seq12.T_b_c, num_poses_threshold=10)
+    rel = seq12.timestamps - seq12.timestamps[0]
+    states, reasons, aligned_at = [], set(), None
+    for i in range(len(seq12)):
+        if not 1.0 <= rel[i] < 1.5:
+            slam.add_imu(*seq12.imu_between(i))
+        f = seq12.features(i)
+        states.append(slam.track_rgbd(seq12.timestamps[i], f["keypoints"], f["descriptors"],
+                                      f["depth_m"]).state)
+        status = slam.inertial_alignment()
+        if status["status"] == "failed":
+            reasons.add(status["reason"])
+        elif status["status"] == "aligned" and aligned_at is None:
+            aligned_at = rel[i]
+    assert states == ["ok"] * len(seq12)
+    assert reasons and all("IMU data are missing" in r and "0.505 s apart" in r for r in reasons)
+    assert aligned_at is not None and 3.0 < aligned_at < 4.0, aligned_at
+    assert min(slam.inertial_alignment()["keyframe_timestamps"]) > seq12.timestamps[0] + 1.5

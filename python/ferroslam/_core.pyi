@@ -333,7 +333,10 @@ class SlamSystem:
     ) -> None:
         """Adds IMU samples (body frame): timestamps (M,) s on the camera clock, gyro (M, 3)
         rad/s, accel (M, 3) m/s^2 specific force. Feed the samples up to each frame's time
-        before tracking it.
+        before tracking it. Where samples are missing (more than 10 sample periods apart, or
+        none up to a frame) the system falls back to vision there: the alignment waits for
+        enough keyframes with IMU throughout (``inertial_alignment()["reason"]`` names the
+        gap), and IMU prediction and inertial BA do not span it.
 
         Raises:
             TypeError: not float64 arrays.

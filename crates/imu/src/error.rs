@@ -48,6 +48,26 @@ pub enum ImuError {
         /// Last sample's timestamp, seconds (NaN when there are no samples).
         last_s: f64,
     },
+    /// Consecutive samples inside the interval are further apart than
+    /// [`crate::preintegration::MAX_GAP_PERIODS`] sample periods: readings are missing.
+    #[error(
+        "IMU samples at {before_s} s and {after_s} s are {gap_s:.3} s apart, more than {max_gap_s:.3} s: \
+         IMU data are missing inside [{start_s}, {end_s}]"
+    )]
+    Gap {
+        /// Requested start, seconds.
+        start_s: f64,
+        /// Requested end, seconds.
+        end_s: f64,
+        /// The sample before the gap, seconds.
+        before_s: f64,
+        /// The sample after the gap, seconds.
+        after_s: f64,
+        /// `after_s - before_s`.
+        gap_s: f64,
+        /// The largest spacing accepted, seconds.
+        max_gap_s: f64,
+    },
     /// A noise parameter is negative or not finite, or the rate is not positive.
     #[error("invalid IMU parameter `{name}` = {value}: {reason}")]
     InvalidParameter {

@@ -36,6 +36,11 @@ pub const VEL: Range<usize> = 3..6;
 /// Position error (m) in the preintegration covariance.
 pub const POS: Range<usize> = 6..9;
 
+/// Largest spacing of consecutive samples [`Preintegrated::between`] integrates across, in
+/// sample periods (`1 / ImuParams::rate_hz`): a few dropped readings are bridged by linear
+/// interpolation, a longer outage is missing data.
+pub const MAX_GAP_PERIODS: f64 = 10.0;
+
 /// A 9x9 matrix over `[dphi; dv; dp]`.
 pub type Matrix9 = SMatrix<f64, 9, 9>;
 
@@ -121,8 +126,9 @@ impl Preintegrated {
     /// last piece the interval end is interpolated first, as ORB-SLAM3 does.
     ///
     /// Requires finite, strictly increasing samples covering the interval
-    /// (`t_first <= start_s < end_s <= t_last`). Errors: [`ImuError::EmptyInterval`],
-    /// [`ImuError::NotCovered`] (IMU data missing for this frame), [`ImuError::NonFinite`],
+    /// (`t_first <= start_s < end_s <= t_last`), at most [`MAX_GAP_PERIODS`] sample periods
+    /// apart. Errors: [`ImuError::EmptyInterval`], [`ImuError::NotCovered`] (IMU data missing
+    /// for this frame), [`ImuError::Gap`] (readings missing inside), [`ImuError::NonFinite`],
     /// [`ImuError::OutOfOrder`], [`ImuError::InvalidParameter`]. Only the samples bracketing
     /// the interval are checked, so slicing a long stream stays cheap; call
     /// [`check_stream`] once on the whole stream to validate the rest.
@@ -187,6 +193,17 @@ impl Preintegrated {
                 end_s,
                 first_s,
                 last_s,
+            });
+        }
+        let max_gap_s = MAX_GAP_PERIODS / params.rate_hz;
+        if let Some(pair) = window.windows(2).find(|p| p[1].t_s - p[0].t_s > max_gap_s) {
+            return Err(ImuError::Gap {
+                start_s,
+                end_s,
+                before_s: pair[0].t_s,
+                after_s: pair[1].t_s,
+                gap_s: pair[1].t_s - pair[0].t_s,
+                max_gap_s,
             });
         }
         for pair in window.windows(2) {
@@ -406,6 +423,24 @@ mod tests {
             between(&[], 0.0, 0.01),
             Err(ImuError::NotCovered { .. })
         ));
+        // 200 Hz: 10 periods (50 ms) are bridged, 55 ms are missing data.
+        let long = stream(41);
+        let mut gappy: Vec<_> = long
+            .iter()
+            .filter(|m| !(0.05..0.1).contains(&m.t_s))
+            .copied()
+            .collect();
+        assert!(matches!(
+            between(&gappy, 0.01, 0.15),
+            Err(ImuError::Gap { before_s, after_s, .. }) if before_s == 0.045 && after_s == 0.1
+        ));
+        assert!(between(&gappy, 0.1, 0.15).is_ok()); // the gap is outside
+        gappy = long
+            .iter()
+            .filter(|m| !(0.05..0.09).contains(&m.t_s))
+            .copied()
+            .collect();
+        assert!(between(&gappy, 0.01, 0.15).is_ok());
     }
 
     #[test]

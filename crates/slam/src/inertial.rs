@@ -542,26 +542,34 @@ impl Inertial {
             poses.push(T_c_w.inverse());
         }
         let prior = self.bias();
-        let pres = window
-            .windows(2)
-            .map(|pair| {
-                let (a, b) = (pair[0], pair[1]);
-                Preintegrated::between(
-                    &self.samples,
-                    a.timestamp,
-                    b.timestamp,
-                    prior,
-                    &self.config.params,
-                )
-                .map_err(|e| {
-                    format!(
-                        "IMU between keyframes {} and {}: {e} (call add_imu with the \
-                         samples up to each frame before tracking it)",
-                        a.id.0, b.id.0
-                    )
-                })
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut pres = Vec::with_capacity(window.len());
+        for (k, pair) in window.windows(2).enumerate() {
+            let (a, b) = (pair[0], pair[1]);
+            match Preintegrated::between(
+                &self.samples,
+                a.timestamp,
+                b.timestamp,
+                prior,
+                &self.config.params,
+            ) {
+                Ok(pre) => pres.push(pre),
+                // IMU missing in between: the keyframes after it may still be enough.
+                Err(e) => {
+                    let after = &window[k + 1..];
+                    if after.len() >= self.config.window(self.config.num_poses_threshold) {
+                        return self.align_window(map, after);
+                    }
+                    return Err(format!(
+                        "IMU between keyframes {} and {}: {e} (call add_imu with the samples \
+                         up to each frame before tracking it; the alignment waits for {} \
+                         keyframes with IMU throughout)",
+                        a.id.0,
+                        b.id.0,
+                        self.config.window(self.config.num_poses_threshold)
+                    ));
+                }
+            }
+        }
         let config = AlignmentConfig {
             gravity_magnitude: self.config.gravity_magnitude,
             min_keyframes: 3,
