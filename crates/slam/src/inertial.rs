@@ -30,7 +30,9 @@
 //! culled) of the newest span, at the poses the map holds now and with the biases found so
 //! far as priors. The scale found is relative to the current map, so a monocular map is
 //! multiplied by it again (the trajectory stays continuous). A failed refinement keeps the
-//! previous alignment and is retried at the next keyframe. Inertial BA is not implemented.
+//! previous alignment and is retried at the next keyframe. After the last refinement the
+//! keyframes' velocities and biases are refined by local inertial BA
+//! ([`crate::local_inertial_ba`]).
 
 use std::collections::BTreeMap;
 
@@ -263,7 +265,7 @@ impl Inertial {
         }
     }
 
-    /// The buffered IMU preintegrated from `t0_s` to `t1_s` at the biases of the alignment;
+    /// The buffered IMU preintegrated from `t0_s` to `t1_s` at the newest keyframe's biases;
     /// `None` if the samples do not cover the interval.
     pub(crate) fn preintegrate(&self, t0_s: f64, t1_s: f64) -> Option<Preintegrated> {
         Preintegrated::between(&self.samples, t0_s, t1_s, self.bias(), &self.config.params).ok()

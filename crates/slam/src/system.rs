@@ -549,7 +549,7 @@ impl SlamSystem {
     }
 
     /// IMU preintegrated from the previous live keyframe (returned with it) to keyframe `kf`,
-    /// at the biases of the alignment once there is one (zero before).
+    /// at the newest keyframe's biases once aligned (zero before).
     pub fn keyframe_imu(
         &self,
         kf: KeyFrameId,
