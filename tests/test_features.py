@@ -10,7 +10,6 @@ import pytest
 
 from ferroslam.datasets import TumSequence
 from ferroslam.features import OrbExtractor, level_budgets, sample_depth
-from ferroslam import features as F
 
 
 @pytest.fixture(scope="module")
@@ -69,23 +68,31 @@ def test_count_and_even_spread(frames, extractor, index):
     assert counts[textured].min() >= cv_counts[textured].min()
 
 
-def test_spread_picks_cell_bests_first():
-    # 4 strong corners in one corner, 4 weak ones spread out: with budget 4, the spread
-    # takes the best of each quadrant rather than the 4 strongest.
-    xy = np.array([[20, 20], [21, 22], [23, 20], [25, 25],
-                   [200, 20], [20, 200], [200, 200], [110, 110]], np.float32)
-    score = np.array([90, 80, 70, 60, 10, 11, 12, 13], np.float32)
-    chosen = F._spread(xy, score, (240, 240), 4)
-    assert sorted(chosen.tolist()) == [0, 4, 5, 6]
+def test_fast_corners_equal_opencv(frames):
+    # One level, one threshold, a budget above the corner count: the core's FAST corners
+    # come out unselected, and must be OpenCV's (same pixels, scores, row-major order).
+    for gray in frames:
+        extractor = OrbExtractor(n_features=100_000, n_levels=1, ini_fast=7, min_fast=7)
+        kp, _ = extractor.detect(gray)
+        corners = cv2.FastFeatureDetector_create(7, True).detect(gray[16:-16, 16:-16])
+        xy = cv2.KeyPoint_convert(corners) + 16
+        score = np.array([c.response for c in corners], np.float32)
+        assert len(kp) == len(corners) > 1000
+        np.testing.assert_array_equal(kp[:, :2], xy)
+        np.testing.assert_array_equal(kp[:, 4], score)
 
 
 def test_orientation_matches_opencv(frames):
-    gray = frames[0]
-    orb = cv2.ORB_create(300, nlevels=1, edgeThreshold=19, scoreType=cv2.ORB_FAST_SCORE)
-    kps = orb.detect(gray)
-    xy = cv2.KeyPoint_convert(kps)
-    want = np.array([k.angle for k in kps])
-    got = F._orientation(gray, xy)
+    # OpenCV's ORB orients its own level-0 corners with the same intensity centroid.
+    orb = cv2.ORB_create(2000, nlevels=1, edgeThreshold=19, scoreType=cv2.ORB_FAST_SCORE)
+    ours = OrbExtractor(n_features=2000, n_levels=1)
+    pairs = []
+    for gray in frames:
+        theirs = {(round(k.pt[0]), round(k.pt[1])): k.angle for k in orb.detect(gray)}
+        kp, _ = ours.detect(gray)
+        pairs += [(a, theirs[(int(x), int(y))]) for x, y, _, a, _ in kp if (int(x), int(y)) in theirs]
+    assert len(pairs) > 500
+    got, want = np.array(pairs).T
     diff = np.abs((got - want + 180.0) % 360.0 - 180.0)
     assert diff.max() < 0.1  # OpenCV's fastAtan2 is approximate
 
@@ -184,3 +191,16 @@ def test_speed_report(frames, extractor):
     median = float(np.median(times))
     print(f"ORB extraction 640x480: median {median:.2f} ms")
     assert median < 100.0
+
+
+def test_core_detection_rejects_bad_input():
+    from ferroslam import _core
+
+    level = np.zeros((60, 60), np.uint8)
+    with pytest.raises(ValueError, match="one count per level"):
+        _core.detect_orb_corners([level], [10, 10], ini_fast=20, min_fast=7)
+    with pytest.raises(ValueError, match="min_fast <= ini_fast"):
+        _core.detect_orb_corners([level], [10], ini_fast=5, min_fast=7)
+    with pytest.raises(TypeError, match=r"levels\[0\] must be a 2-D uint8 array"):
+        _core.detect_orb_corners([level.astype(np.float32)], [10], ini_fast=20, min_fast=7)
+    assert _core.detect_orb_corners([level], [10], ini_fast=20, min_fast=7).shape == (0, 5)

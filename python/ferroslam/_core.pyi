@@ -20,7 +20,7 @@ else:
 
 __all__ = [
     "KeyframeDatabase", "SlamError", "SlamSystem", "TrackResult", "Vocabulary", "__version__",
-    "match_stereo",
+    "detect_orb_corners", "match_stereo",
 ]
 
 __version__: str
@@ -383,6 +383,26 @@ def match_stereo(
 
     Raises:
         TypeError / ValueError: as ``SlamSystem.track_stereo``; non-positive fx or baseline.
+    """
+
+def detect_orb_corners(
+    levels: Sequence[NDArray[np.uint8]],
+    budgets: Sequence[int],
+    *,
+    ini_fast: int,
+    min_fast: int,
+) -> NDArray[np.float32]:
+    """ORB-SLAM's keypoint detection on a pyramid (``OrbExtractor`` describes them): FAST at
+    ``min_fast``, the per-cell ``ini_fast`` fallback, the even spread to ``budgets[l]`` corners
+    on level ``l`` and the intensity-centroid orientation.
+
+    Returns ``(N, 5)`` float32 rows ``[x, y, level, angle_deg, score]`` in LEVEL pixels,
+    grouped by level; corners keep 19 level pixels from the border.
+
+    Raises:
+        TypeError: a level is not a 2-D uint8 array.
+        ValueError: empty level, one budget per level not given, thresholds not
+            ``0 < min_fast <= ini_fast``.
     """
 
 # --- Place recognition: Vocabulary and KeyframeDatabase (crates/python/src/vocabulary.rs) ---

@@ -5,38 +5,28 @@ Pipeline per frame (Mur-Artal et al., ORB-SLAM, T-RO 2015, section III-A):
 1. Image pyramid: ``n_levels`` levels, each ``scale_factor`` smaller than the previous.
 2. Feature budget per level from a geometric series, so that finer levels (more area)
    get more features; the budgets sum to ``n_features``.
-3. FAST corners per level with threshold ``min_fast``; on a grid of ~30 px cells, a cell
-   that has corners scoring ``>= ini_fast`` keeps only those (same result as running FAST
-   at ``ini_fast`` first and falling back to ``min_fast`` where it finds nothing, because
-   OpenCV's FAST score does not depend on the detection threshold).
-4. Quadtree-like spread: each corner gets the coarsest quadtree depth at which it is the
-   strongest corner of its cell; the level keeps its budget ordered by (depth, -score),
-   i.e. the best corner of every cell at the deepest fitting depth plus the strongest
-   corners of the next finer one.
-5. Orientation by intensity centroid over a circular patch of radius 15 (unblurred level),
-   then rotated BRIEF (256 bits) by OpenCV's ORB on the Gaussian-blurred pyramid.
+3. In the Rust core (``ferroslam._core.detect_orb_corners``, all levels in parallel): FAST
+   corners per level at ``min_fast``; on a grid of ~30 px cells, a cell that has corners
+   scoring ``>= ini_fast`` keeps only those; a quadtree-like spread keeps the level's budget
+   (the best corner of every cell at the deepest depth that fits, then the next strongest);
+   orientation by intensity centroid over a circular patch of radius 15.
+4. Rotated BRIEF (256 bits) by OpenCV's ORB on the Gaussian-blurred pyramid.
 
-Everything per keypoint is vectorised with numpy or done inside OpenCV.
 Keypoints are in RAW (distorted) level-0 pixel coordinates; undistortion is up to the
 consumer (the Rust core receives the distortion coefficients).
 """
 
 from __future__ import annotations
 
-import math
-from functools import lru_cache
-from operator import attrgetter
-
 import cv2
 import numpy as np
+
+from ferroslam import _core
 
 __all__ = ["OrbExtractor", "sample_depth", "level_budgets"]
 
 _EDGE = 19  # keypoints keep this distance (level pixels) from the border, as in ORB-SLAM
-_FAST_BORDER = _EDGE - 3  # FAST itself cannot fire within 3 px of the searched region
 _HALF_PATCH = 15  # radius of the orientation patch
-_CELL = 30  # cell size (level pixels) of the FAST threshold fallback grid
-_response = attrgetter("response")
 
 
 def level_budgets(n_features: int, scale_factor: float, n_levels: int) -> np.ndarray:
@@ -48,26 +38,6 @@ def level_budgets(n_features: int, scale_factor: float, n_levels: int) -> np.nda
     per = n_features * (1 - f) / (1 - f**n_levels) if n_levels > 1 else float(n_features)
     budgets = np.array([int(round(per * f**level)) for level in range(n_levels - 1)], int)
     return np.append(budgets, max(n_features - int(budgets.sum()), 0))
-
-
-def _circle_rows() -> np.ndarray:
-    """Half-widths ``umax[|v|]`` of the radius-15 circular patch for rows v = -15..15."""
-    umax = [0] * (_HALF_PATCH + 1)
-    vmax = int(math.floor(_HALF_PATCH * math.sqrt(2) / 2 + 1))
-    vmin = int(math.ceil(_HALF_PATCH * math.sqrt(2) / 2))
-    for v in range(vmax + 1):
-        umax[v] = int(round(math.sqrt(_HALF_PATCH**2 - v * v)))
-    v0 = 0
-    for v in range(_HALF_PATCH, vmin - 1, -1):  # make the circle symmetric in u and v
-        while umax[v0] == umax[v0 + 1]:
-            v0 += 1
-        umax[v] = v0
-        v0 += 1
-    return np.array([umax[abs(v)] for v in range(-_HALF_PATCH, _HALF_PATCH + 1)])
-
-
-_ROWS_V = np.arange(-_HALF_PATCH, _HALF_PATCH + 1)
-_ROWS_U = _circle_rows()
 
 
 def _validate_gray(image: np.ndarray) -> np.ndarray:
@@ -87,111 +57,6 @@ def _validate_gray(image: np.ndarray) -> np.ndarray:
     elif image.ndim != 2:
         raise ValueError(f"image must be (H, W) or (H, W, 3) BGR, got shape {image.shape}")
     return np.ascontiguousarray(image)
-
-
-def _threshold_fallback(xy: np.ndarray, score: np.ndarray, shape, ini: float) -> np.ndarray:
-    """Mask of corners kept by the per-cell ``ini_fast`` -> ``min_fast`` fallback."""
-    h, w = shape
-    width, height = w - 2 * _FAST_BORDER, h - 2 * _FAST_BORDER
-    cols, rows = max(width // _CELL, 1), max(height // _CELL, 1)
-    cw, ch = math.ceil(width / cols), math.ceil(height / rows)
-    cx = np.minimum((xy[:, 0] - _FAST_BORDER) // cw, cols - 1).astype(np.intp)
-    cy = np.minimum((xy[:, 1] - _FAST_BORDER) // ch, rows - 1).astype(np.intp)
-    cell = cy * cols + cx
-    strong = score >= ini
-    cell_has_strong = np.bincount(cell, weights=strong, minlength=rows * cols) > 0
-    return strong | ~cell_has_strong[cell]
-
-
-def _morton(q: np.ndarray) -> np.ndarray:
-    """Interleave the bits of 16-bit cell coordinates ``q (N, 2)`` = (x, y) into Z-order codes."""
-    out = np.zeros(q.shape[0], np.uint64)
-    for axis in (0, 1):
-        v = q[:, axis].astype(np.uint64)
-        v = (v | (v << np.uint64(8))) & np.uint64(0x00FF00FF)
-        v = (v | (v << np.uint64(4))) & np.uint64(0x0F0F0F0F)
-        v = (v | (v << np.uint64(2))) & np.uint64(0x33333333)
-        v = (v | (v << np.uint64(1))) & np.uint64(0x55555555)
-        out |= v << np.uint64(axis)
-    return out
-
-
-_QUAD_DEPTH = 11  # finest quadtree depth: cells below one pixel for images < 2048 px
-
-
-def _spread(xy: np.ndarray, score: np.ndarray, shape, budget: int) -> np.ndarray:
-    """Indices of ``budget`` corners spread over the level (quadtree-like, see module doc).
-
-    In Z-order every quadtree cell is a contiguous run, so the strongest corner of every
-    cell at a depth is one ``minimum.reduceat`` over score ranks: O(N) per depth, no sort.
-    """
-    n = score.shape[0]
-    if n <= budget:
-        return np.arange(n)
-    by_score = np.argsort(-score, kind="stable")
-    rank = np.empty(n, np.int64)
-    rank[by_score] = np.arange(n)  # 0 = strongest
-    extent = max(shape) - 2 * _FAST_BORDER
-    cells = 1 << _QUAD_DEPTH
-    q = np.clip((xy - _FAST_BORDER) * (cells / extent), 0, cells - 1).astype(np.int64)
-    code = _morton(q)
-    z_order = np.argsort(code, kind="stable")
-    code, rank_z = code[z_order], rank[z_order]
-    depth_of = np.full(n, _QUAD_DEPTH + 1, np.int64)  # indexed by rank
-    for depth in range(_QUAD_DEPTH + 1):
-        cell = code >> np.uint64(2 * (_QUAD_DEPTH - depth))
-        starts = np.flatnonzero(np.concatenate(([True], cell[1:] != cell[:-1])))
-        best = np.minimum.reduceat(rank_z, starts)  # strongest corner of each cell
-        depth_of[best] = np.minimum(depth_of[best], depth)
-        if starts.size >= budget:
-            break
-    chosen_ranks = np.argsort(depth_of, kind="stable")[:budget]  # by (depth, rank)
-    return by_score[chosen_ranks]
-
-
-@lru_cache(maxsize=64)
-def _orientation_stencil(width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Integral-image look-ups giving the patch moments ``(m10, m01)`` at a keypoint.
-
-    For an integral image ``ii`` of shape ``(h + 1, w + 1)`` flattened, and a keypoint
-    ``(x, y)``: ``(m10, m01) = ii.flat[y * (w + 1) + x + offsets] @ coefficients``.
-    ``m01`` sums patch rows (weight v), ``m10`` patch columns (weight u); the circular patch
-    is symmetric, so column u spans the same half-height as row u's half-width.
-    """
-    stride = width + 1
-    terms: dict[int, np.ndarray] = {}
-
-    def add(row: int, col: int, coef: np.ndarray) -> None:
-        key = row * stride + col
-        terms[key] = terms.get(key, np.zeros(2)) + coef
-
-    for v, a in zip(_ROWS_V.tolist(), _ROWS_U.tolist()):
-        # row v: rows [v, v+1), cols [-a, a+1)   -> weight v on m01
-        # col v: rows [-a, a+1), cols [v, v+1)   -> weight v on m10
-        for (r0, r1, c0, c1, k) in ((v, v + 1, -a, a + 1, 1), (-a, a + 1, v, v + 1, 0)):
-            coef = np.zeros(2)
-            coef[k] = v
-            add(r1, c1, coef)
-            add(r0, c1, -coef)
-            add(r1, c0, -coef)
-            add(r0, c0, coef)
-    keys = [k for k, c in terms.items() if np.any(c != 0)]
-    offsets, coefficients = np.array(keys, np.int64), np.array([terms[k] for k in keys])
-    offsets.flags.writeable = coefficients.flags.writeable = False
-    return offsets, coefficients
-
-
-def _orientation(level: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Intensity-centroid angle (degrees, [0, 360)) of integer keypoints ``xy`` on a level.
-
-    Keypoints must lie at least 16 px inside the level (guaranteed by the FAST border).
-    """
-    h, w = level.shape
-    integral = cv2.integral(level, sdepth=cv2.CV_32S).ravel()
-    offsets, coefficients = _orientation_stencil(w)
-    base = xy[:, 1].astype(np.int64) * (w + 1) + xy[:, 0].astype(np.int64)
-    m10, m01 = (integral[base[:, None] + offsets].astype(np.float64) @ coefficients).T
-    return np.degrees(np.arctan2(m01, m10)) % 360.0
 
 
 class OrbExtractor:
@@ -231,7 +96,6 @@ class OrbExtractor:
         self.min_fast = int(min_fast)
         self.scales = self.scale_factor ** np.arange(self.n_levels)
         self.budgets = level_budgets(self.n_features, self.scale_factor, self.n_levels)
-        self._fast = cv2.FastFeatureDetector_create(self.min_fast, True)
         self._orb = cv2.ORB_create(
             nfeatures=self.n_features,
             scaleFactor=self.scale_factor,
@@ -258,22 +122,6 @@ class OrbExtractor:
             size = (int(round(w / scale)), int(round(h / scale)))
             levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR))
         return levels
-
-    def _level_keypoints(self, level: np.ndarray, budget: int) -> tuple[np.ndarray, np.ndarray]:
-        """Selected corners ``(xy (n, 2) level px, score (n,))`` on one pyramid level."""
-        h, w = level.shape
-        empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-        if budget <= 0 or h <= 2 * _EDGE + 1 or w <= 2 * _EDGE + 1:
-            return empty
-        corners = self._fast.detect(level[_FAST_BORDER : h - _FAST_BORDER, _FAST_BORDER : w - _FAST_BORDER])
-        if not corners:
-            return empty
-        xy = cv2.KeyPoint_convert(corners).reshape(-1, 2) + np.float32(_FAST_BORDER)
-        score = np.fromiter(map(_response, corners), np.float32, len(corners))
-        keep = _threshold_fallback(xy, score, (h, w), self.ini_fast)
-        xy, score = xy[keep], score[keep]
-        chosen = _spread(xy, score, (h, w), budget)
-        return xy[chosen], score[chosen]
 
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Detect and describe ORB features.
@@ -303,21 +151,13 @@ class OrbExtractor:
         """
         gray = _validate_gray(gray)
         levels = self.pyramid(gray)
-        per_level = []
-        for octave, (level, budget) in enumerate(zip(levels, self.budgets)):
-            xy, score = self._level_keypoints(level, int(budget))
-            if score.size == 0:
-                continue
-            angle = _orientation(level, xy)
-            rows = np.empty((score.size, 5), np.float32)
-            rows[:, :2] = xy * np.float32(self.scales[octave])
-            rows[:, 2] = octave
-            rows[:, 3] = angle
-            rows[:, 4] = score
-            per_level.append(rows)
-        if not per_level:
+        kp = _core.detect_orb_corners(
+            levels, self.budgets.tolist(), ini_fast=self.ini_fast, min_fast=self.min_fast
+        )
+        if kp.shape[0] == 0:
             return np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8), levels
-        keypoints, descriptors = self._describe(gray, np.concatenate(per_level))
+        kp[:, :2] *= self.scales.astype(np.float32)[kp[:, 2].astype(np.intp), None]
+        keypoints, descriptors = self._describe(gray, kp)
         return keypoints, descriptors, levels
 
     def _describe(self, gray: np.ndarray, kp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,5 @@
-//! ORB features for the ferroslam core: descriptor and keypoint types, the scale pyramid,
+//! ORB features for the ferroslam core: ORB-SLAM's keypoint detection (FAST, even spread,
+//! orientation), descriptor and keypoint types, the scale pyramid,
 //! the keypoint grid used for radius search, and the Hamming matchers of ORB-SLAM2/3.
 //!
 //! Conventions:
@@ -13,6 +14,7 @@
 
 pub mod descriptor;
 pub mod error;
+pub mod extractor;
 pub mod grid;
 pub mod image;
 pub mod keypoint;

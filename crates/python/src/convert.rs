@@ -165,7 +165,11 @@ pub fn pyramid(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<(usize, usize
                     "{name}[{l}] is an empty image"
                 )));
             }
-            Ok((shape[1], shape[0], img.as_array().iter().copied().collect()))
+            let pixels = match img.as_slice() {
+                Ok(contiguous) => contiguous.to_vec(),
+                Err(_) => img.as_array().iter().copied().collect(),
+            };
+            Ok((shape[1], shape[0], pixels))
         })
         .collect()
 }

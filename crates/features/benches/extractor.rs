@@ -1,0 +1,79 @@
+//! ORB-SLAM keypoint detection (FAST, fallback, spread, orientation) on a seeded textured
+//! 640 x 480 image: level 0 alone and the 8-level pyramid (budgets of 1000 features).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use ferroslam_features::extractor::{
+    detect_level, detect_pyramid, fast::fast_corners, FastThresholds,
+};
+use ferroslam_features::GrayImage;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::hint::black_box;
+
+const FAST: FastThresholds = FastThresholds {
+    initial: 20,
+    min: 7,
+};
+const BUDGETS: [usize; 8] = [217, 181, 151, 126, 105, 87, 73, 60];
+
+/// Random blobs on a smooth gradient: corners everywhere, like a cluttered room.
+fn textured(w: usize, h: usize, rng: &mut ChaCha8Rng) -> Vec<u8> {
+    let mut img: Vec<f32> = (0..w * h)
+        .map(|i| ((i % w) as f32 * 0.1 + (i / w) as f32 * 0.2) % 255.0)
+        .collect();
+    for _ in 0..3000 {
+        let (cx, cy, r) = (
+            rng.random_range(0..w),
+            rng.random_range(0..h),
+            rng.random_range(2..8),
+        );
+        let value: f32 = rng.random_range(0.0..255.0);
+        for y in cy.saturating_sub(r)..(cy + r).min(h) {
+            for x in cx.saturating_sub(r)..(cx + r).min(w) {
+                img[y * w + x] = value;
+            }
+        }
+    }
+    img.into_iter().map(|v| v as u8).collect()
+}
+
+/// Bilinear halving by `scale` (enough for a benchmark pyramid).
+fn downscale(src: &[u8], w: usize, h: usize, scale: f64) -> (usize, usize, Vec<u8>) {
+    let (nw, nh) = (
+        (w as f64 / scale).round() as usize,
+        (h as f64 / scale).round() as usize,
+    );
+    let data = (0..nh)
+        .flat_map(|y| (0..nw).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            src[((y as f64 * scale) as usize).min(h - 1) * w
+                + ((x as f64 * scale) as usize).min(w - 1)]
+        })
+        .collect();
+    (nw, nh, data)
+}
+
+fn bench_extractor(c: &mut Criterion) {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let (w, h) = (640, 480);
+    let base = textured(w, h, &mut rng);
+    let levels: Vec<(usize, usize, Vec<u8>)> = (0..8)
+        .map(|l| downscale(&base, w, h, 1.2f64.powi(l)))
+        .collect();
+    let views: Vec<GrayImage<'_>> = levels
+        .iter()
+        .map(|(w, h, d)| GrayImage::new(*w, *h, d).unwrap())
+        .collect();
+    c.bench_function("fast_corners level 0 (t = 7)", |b| {
+        b.iter(|| black_box(fast_corners(&views[0], 7, 19)))
+    });
+    c.bench_function("detect_level level 0", |b| {
+        b.iter(|| black_box(detect_level(&views[0], BUDGETS[0], FAST)))
+    });
+    c.bench_function("detect_pyramid 8 levels", |b| {
+        b.iter(|| black_box(detect_pyramid(&views, &BUDGETS, FAST)))
+    });
+}
+
+criterion_group!(benches, bench_extractor);
+criterion_main!(benches);

@@ -1,0 +1,107 @@
+//! ORB-SLAM's keypoint detection on an image pyramid (its `ORBextractor` without the
+//! descriptors, which OpenCV's rotated BRIEF computes): per level, FAST at the low threshold
+//! ([`fast`]), the per-cell threshold fallback ([`threshold_fallback`]), the even spread to
+//! the level's budget ([`quadtree`]) and the intensity-centroid orientation ([`orientation`]).
+//!
+//! Coordinates are integer pixels of the level the corner was found on (x right, y down).
+
+pub mod fast;
+pub mod orientation;
+pub mod quadtree;
+pub mod threshold_fallback;
+
+use rayon::prelude::*;
+
+use crate::GrayImage;
+use orientation::CentroidPatch;
+
+/// Keypoints keep this distance (level pixels) from the border: the rotated BRIEF pattern
+/// reaches about 18 px from its centre (ORB's `edgeThreshold`, ORB-SLAM's `EDGE_THRESHOLD`).
+pub const EDGE_PX: usize = 19;
+
+/// Margin (level pixels) of the region the fallback grid and the spread cover: FAST needs
+/// 3 px around a corner, so corners `EDGE_PX` inside lie 3 px inside this region.
+const GRID_MARGIN_PX: usize = EDGE_PX - 3;
+
+/// A FAST corner on one level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Corner {
+    /// Column (level pixels).
+    pub x: u32,
+    /// Row (level pixels).
+    pub y: u32,
+    /// FAST score (see [`fast`]).
+    pub score: f32,
+}
+
+/// A selected corner with its orientation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OrientedCorner {
+    /// The corner.
+    pub corner: Corner,
+    /// Intensity-centroid orientation, degrees in `[0, 360)`.
+    pub angle_deg: f32,
+}
+
+/// FAST thresholds: every grid cell first tries `initial`, cells with no such corner fall back
+/// to `min` (ORB-SLAM's `iniThFAST` = 20 and `minThFAST` = 7).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FastThresholds {
+    /// Threshold tried first.
+    pub initial: u8,
+    /// Threshold in cells where `initial` finds nothing.
+    pub min: u8,
+}
+
+/// Up to `budget` spread, oriented corners of one pyramid level, at least [`EDGE_PX`] from
+/// its border. Levels too small to hold one give none.
+pub fn detect_level(
+    level: &GrayImage<'_>,
+    budget: usize,
+    fast: FastThresholds,
+) -> Vec<OrientedCorner> {
+    let (w, h) = (level.width(), level.height());
+    if budget == 0 || w <= 2 * EDGE_PX + 1 || h <= 2 * EDGE_PX + 1 {
+        return Vec::new();
+    }
+    let found = fast::fast_corners(level, fast.min, EDGE_PX);
+    let keep = threshold_fallback::threshold_fallback(
+        &found,
+        w,
+        h,
+        GRID_MARGIN_PX,
+        f32::from(fast.initial),
+    );
+    let corners: Vec<Corner> = found
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| *k)
+        .map(|(c, _)| *c)
+        .collect();
+    let extent = w.max(h) - 2 * GRID_MARGIN_PX;
+    let patch = CentroidPatch::default();
+    quadtree::spread(&corners, extent, GRID_MARGIN_PX, budget)
+        .into_iter()
+        .map(|i| {
+            let corner = corners[i];
+            let angle_deg = patch
+                .angle_deg(level, corner.x as usize, corner.y as usize)
+                .expect("corners lie EDGE_PX > PATCH_RADIUS inside the level");
+            OrientedCorner { corner, angle_deg }
+        })
+        .collect()
+}
+
+/// [`detect_level`] on every level of a pyramid (in parallel), `budgets[l]` for level `l`;
+/// levels without a budget get none.
+pub fn detect_pyramid(
+    levels: &[GrayImage<'_>],
+    budgets: &[usize],
+    fast: FastThresholds,
+) -> Vec<Vec<OrientedCorner>> {
+    levels
+        .par_iter()
+        .enumerate()
+        .map(|(l, level)| detect_level(level, budgets.get(l).copied().unwrap_or(0), fast))
+        .collect()
+}
