@@ -49,10 +49,11 @@ def test_no_false_loop_on_real_sequences_without_loops(case, request):
                            sensor=sensor, progress=False)
     assert with_loops.loops == []
     stats = with_loops.loop_stats
-    # Detection ran on most keyframes and found bag-of-words candidates (measured: 35 / 21 /
-    # 31 keyframes checked; rpy 24 candidates verified, KITTI 06 15; KITTI 01's forward drive
-    # yields candidates but none consistent over 3 keyframes), and every one was refused.
-    assert stats["keyframes_checked"] >= 20, stats
+    # Detection ran on every keyframe once the map held more than 10 (measured: 35 / 21 / 31
+    # checked) and found bag-of-words candidates (rpy 24 verified, KITTI 06 15; KITTI 01's
+    # forward drive yields candidates but none consistent over 3 keyframes), and every one
+    # was refused.
+    assert stats["keyframes_checked"] >= len(with_loops.keyframe_ids) - 10, stats
     assert stats["with_candidates"] >= 10, stats
     assert stats["rejected"] == stats["verified"], stats
     assert without.loop_stats["keyframes_checked"] == 0
