@@ -1,6 +1,7 @@
 //! Keyframes: a frame's features and pose, its map-point slots and its graph links.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 
 use nalgebra::{Isometry3, Vector3};
 
@@ -18,7 +19,8 @@ pub struct KeyFrame {
     pub(crate) timestamp: f64,
     pub(crate) frame_index: usize,
     pub(crate) T_c_w: Isometry3<f64>,
-    pub(crate) features: FrameFeatures,
+    /// Shared, never edited: cloning a map (for the mapping thread) does not copy it.
+    pub(crate) features: Arc<FrameFeatures>,
     /// Slot `i` holds the map point keypoint `i` observes.
     pub(crate) map_points: Vec<Option<MapPointId>>,
     /// Covisibility edges: neighbour -> number of good points both observe (symmetric).
@@ -47,7 +49,7 @@ impl KeyFrame {
             frame_index,
             T_c_w,
             map_points: vec![None; features.len()],
-            features,
+            features: Arc::new(features),
             covisibility: BTreeMap::new(),
             chosen: BTreeSet::new(),
             parent: None,

@@ -371,7 +371,7 @@ impl Codec for KeyFrame {
         e.put(&self.timestamp);
         e.put(&self.frame_index);
         e.put(&self.T_c_w);
-        e.put(&self.features);
+        e.put(self.features.as_ref());
         e.put(&self.map_points);
         e.put(&self.covisibility);
         e.put(&self.chosen);
@@ -396,7 +396,7 @@ impl Codec for KeyFrame {
             timestamp,
             frame_index,
             T_c_w,
-            features,
+            features: features.into(),
             map_points,
             covisibility: d.get()?,
             chosen: d.get()?,
