@@ -1,5 +1,7 @@
-//! ORB-SLAM keypoint detection (FAST, fallback, spread, orientation) on a seeded textured
-//! 640 x 480 image: level 0 alone and the 8-level pyramid (budgets of 1000 features).
+//! ORB-SLAM keypoint detection (FAST, fallback, spread, orientation): level 0 alone and the
+//! 8-level pyramid (budgets of 1000 features), on the first TUM fr1/rpy frame (640 x 480,
+//! from `FERROSLAM_DATA`, default `../shared/data` beside the repository) and on a seeded
+//! synthetic image of random blobs (corners everywhere, the hard case).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use ferroslam_features::extractor::{
@@ -37,6 +39,34 @@ fn textured(w: usize, h: usize, rng: &mut ChaCha8Rng) -> Vec<u8> {
     img.into_iter().map(|v| v as u8).collect()
 }
 
+/// The first TUM fr1/rpy frame in grey, when the data folder is there.
+fn tum_frame() -> Option<(usize, usize, Vec<u8>)> {
+    let data = std::env::var_os("FERROSLAM_DATA").map_or_else(
+        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+        Into::into,
+    );
+    let rgb = data.join("tum/rgbd_dataset_freiburg1_rpy/rgb");
+    let mut files: Vec<_> = std::fs::read_dir(rgb)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .collect();
+    files.sort();
+    let mut decoder = jpeg_decoder::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(files.first()?).ok()?,
+    ));
+    let pixels = decoder.decode().ok()?;
+    let info = decoder.info()?;
+    let gray = pixels
+        .chunks_exact(3)
+        .map(|p| {
+            (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])).round()
+                as u8
+        })
+        .collect();
+    Some((usize::from(info.width), usize::from(info.height), gray))
+}
+
 /// Bilinear halving by `scale` (enough for a benchmark pyramid).
 fn downscale(src: &[u8], w: usize, h: usize, scale: f64) -> (usize, usize, Vec<u8>) {
     let (nw, nh) = (
@@ -53,10 +83,7 @@ fn downscale(src: &[u8], w: usize, h: usize, scale: f64) -> (usize, usize, Vec<u
     (nw, nh, data)
 }
 
-fn bench_extractor(c: &mut Criterion) {
-    let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let (w, h) = (640, 480);
-    let base = textured(w, h, &mut rng);
+fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u8>)) {
     let levels: Vec<(usize, usize, Vec<u8>)> = (0..8)
         .map(|l| downscale(&base, w, h, 1.2f64.powi(l)))
         .collect();
@@ -64,15 +91,24 @@ fn bench_extractor(c: &mut Criterion) {
         .iter()
         .map(|(w, h, d)| GrayImage::new(*w, *h, d).unwrap())
         .collect();
-    c.bench_function("fast_corners level 0 (t = 7)", |b| {
+    c.bench_function(&format!("{name}: fast_corners level 0 (t = 7)"), |b| {
         b.iter(|| black_box(fast_corners(&views[0], 7, 19)))
     });
-    c.bench_function("detect_level level 0", |b| {
+    c.bench_function(&format!("{name}: detect_level level 0"), |b| {
         b.iter(|| black_box(detect_level(&views[0], BUDGETS[0], FAST)))
     });
-    c.bench_function("detect_pyramid 8 levels", |b| {
+    c.bench_function(&format!("{name}: detect_pyramid 8 levels"), |b| {
         b.iter(|| black_box(detect_pyramid(&views, &BUDGETS, FAST)))
     });
+}
+
+fn bench_extractor(c: &mut Criterion) {
+    match tum_frame() {
+        Some(frame) => bench_image(c, "tum", frame),
+        None => eprintln!("TUM fr1/rpy not found (set FERROSLAM_DATA): synthetic image only"),
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    bench_image(c, "synthetic", (640, 480, textured(640, 480, &mut rng)));
 }
 
 criterion_group!(benches, bench_extractor);
