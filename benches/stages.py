@@ -37,8 +37,12 @@ STAGES = (
     ("image load", "load_ms", "all"),
     ("ORB extraction (+ depth)", "extraction_ms", "all"),
     ("tracking (core)", "tracking_ms", "all"),
+    ("  matching and search", "matching_ms", "all"),
+    ("  pose optimisation", "pose_optimisation_ms", "all"),
     ("local mapping (core)", "mapping_ms", "all"),
     ("local mapping, new KFs", "mapping_ms", "keyframes"),
+    ("  local BA, new KFs", "local_ba_ms", "keyframes"),
+    ("  loop closing, new KFs", "loop_closing_ms", "keyframes"),
     ("track_* call", "track_call_ms", "all"),
     ("whole frame (no load)", "frame_ms", "all"),
 )

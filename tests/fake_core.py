@@ -22,6 +22,9 @@ class FakeTrackResult:
     num_tracked: int
     tracking_ms: float
     mapping_ms: float
+    pose_optimisation_ms: float = 0.0
+    local_ba_ms: float = 0.0
+    loop_closing_ms: float = 0.0
 
 
 class FakeSlamSystem:

@@ -57,6 +57,19 @@ def test_keyframe_and_frame_ate(rpy_run):
     assert rpe.rot_deg_rmse < RPE_ROT_BOUND_DEG
 
 
+def test_stage_timings_add_up(rpy_run):
+    # Per-stage times (issue 7's breakdown) are parts of what the core reports per frame.
+    _, result = rpy_run
+    t = result.timings
+    assert np.all(t["pose_optimisation_ms"][1:] > 0)  # every frame after the first is tracked
+    assert np.all(t["pose_optimisation_ms"] <= t["tracking_ms"])
+    np.testing.assert_allclose(t["matching_ms"] + t["pose_optimisation_ms"], t["tracking_ms"])
+    keyframes = t["local_ba_ms"] > 0
+    assert keyframes.sum() >= 20  # local BA ran for every mapped keyframe (inline mapping)
+    assert np.all(t["local_ba_ms"] + t["loop_closing_ms"] <= t["mapping_ms"])
+    assert np.all(t["loop_closing_ms"][~keyframes] == 0)
+
+
 def test_map_is_metric_and_bounded(rpy_run):
     _, result = rpy_run
     points = result.map_points

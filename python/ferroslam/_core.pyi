@@ -92,6 +92,16 @@ class TrackResult:
     def mapping_ms(self) -> float:
         """Local mapping wall time, milliseconds (0 unless a keyframe was inserted)."""
     @property
+    def pose_optimisation_ms(self) -> float:
+        """Of ``tracking_ms``, the time spent in motion-only BA, milliseconds."""
+    @property
+    def local_ba_ms(self) -> float:
+        """Of ``mapping_ms``, local BA, milliseconds (mapping inside the call; else 0)."""
+    @property
+    def loop_closing_ms(self) -> float:
+        """Of ``mapping_ms``, loop detection, verification and correction, milliseconds
+        (mapping inside the call; else 0)."""
+    @property
     def init_reason(self) -> str | None:
         """Monocular, before the map exists: why this frame did not start it (too few
         matches, degenerate pair refused by the two-view reconstruction, ...); else None."""

@@ -174,6 +174,24 @@ impl PyTrackResult {
         self.inner.mapping_ms
     }
 
+    /// Of `tracking_ms`, motion-only BA, milliseconds.
+    #[getter]
+    fn pose_optimisation_ms(&self) -> f64 {
+        self.inner.pose_optimisation_ms
+    }
+
+    /// Of `mapping_ms`, local BA, milliseconds (inline mapping; 0 without a keyframe).
+    #[getter]
+    fn local_ba_ms(&self) -> f64 {
+        self.inner.mapping.as_ref().map_or(0.0, |m| m.local_ba_ms)
+    }
+
+    /// Of `mapping_ms`, loop closing, milliseconds (inline mapping; 0 without a keyframe).
+    #[getter]
+    fn loop_closing_ms(&self) -> f64 {
+        self.inner.loop_closing_ms
+    }
+
     /// Monocular, before the map exists: why this frame did not initialise it; else None.
     #[getter]
     fn init_reason(&self) -> Option<String> {

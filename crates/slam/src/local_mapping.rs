@@ -3,6 +3,7 @@
 //! fusion of duplicates, local bundle adjustment and culling of redundant keyframes.
 
 use std::collections::{HashMap, HashSet};
+use std::time::Instant;
 
 use ferroslam_features::matcher::TH_LOW;
 use ferroslam_features::{hamming, search_for_triangulation, MatchOptions};
@@ -66,6 +67,8 @@ pub struct MappingReport {
     pub ba_outliers: usize,
     /// Keyframes removed as redundant.
     pub culled_keyframes: usize,
+    /// Wall time of local BA (visual or visual-inertial), milliseconds.
+    pub local_ba_ms: f64,
 }
 
 /// State of local mapping between keyframes.
@@ -168,10 +171,12 @@ impl LocalMapper {
         report.culled_points += self.cull_recent_points(kf, map, ctx);
         report.triangulated_points += self.create_new_points(kf, map, ctx)?;
         report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
+        let start = Instant::now();
         report.ba_outliers += match inertial {
             Some(window) => local_inertial_bundle_adjust(kf, window, map, ctx)?,
             None => self.local_bundle_adjust(kf, map, ctx)?,
         };
+        report.local_ba_ms += start.elapsed().as_secs_f64() * 1e3;
         report.culled_keyframes += self.cull_keyframes(kf, map, ctx);
         Ok(())
     }

@@ -42,6 +42,11 @@ pub struct TrackResult {
     pub tracking_ms: f64,
     /// Wall time of local mapping triggered by this frame, milliseconds.
     pub mapping_ms: f64,
+    /// Of `tracking_ms`, the time spent in motion-only BA, milliseconds.
+    pub pose_optimisation_ms: f64,
+    /// Of `mapping_ms`, loop detection, verification and correction (inline mapping only;
+    /// the mapping thread's is its own), milliseconds.
+    pub loop_closing_ms: f64,
     /// What local mapping did, when a keyframe was inserted.
     pub mapping: Option<MappingReport>,
     /// Monocular only: why this frame did not start the map (`None` once initialised).
@@ -189,6 +194,8 @@ impl SlamSystem {
                 },
                 tracking_ms: start.elapsed().as_secs_f64() * 1e3,
                 mapping_ms: 0.0,
+                pose_optimisation_ms: 0.0,
+                loop_closing_ms: 0.0,
                 mapping: None,
                 init_status,
                 loop_closure: None,
@@ -229,6 +236,8 @@ impl SlamSystem {
             },
             tracking_ms,
             mapping_ms: 0.0,
+            pose_optimisation_ms: self.tracker.take_pose_optimisation_ms(),
+            loop_closing_ms: 0.0,
             mapping: None,
             init_status: None,
             loop_closure: None,
@@ -295,7 +304,9 @@ impl SlamSystem {
                 }
                 // Indexed after culling, before loop detection queries it.
                 self.index_keyframes();
+                let loops = Instant::now();
                 result.loop_closure = self.close_loops(kf)?;
+                result.loop_closing_ms = loops.elapsed().as_secs_f64() * 1e3;
             }
             result.mapping = Some(report);
             self.update_inertial()?;

@@ -5,6 +5,7 @@
 //! found by any of them is refined against the local map.
 
 use std::collections::{HashMap, HashSet};
+use std::time::{Duration, Instant};
 
 use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
 use ferroslam_features::{match_brute_force, Descriptor, MatchOptions, ProjectionQuery};
@@ -69,6 +70,8 @@ pub struct Tracker {
     local_points: Vec<MapPointId>,
     /// Map point inliers of the last tracked frame.
     pub matches_inliers: usize,
+    /// Time spent in motion-only BA since the last [`Self::take_pose_optimisation_ms`].
+    pose_optimisation: Duration,
 }
 
 impl Default for Tracker {
@@ -84,11 +87,31 @@ impl Default for Tracker {
             local_keyframes: Vec::new(),
             local_points: Vec::new(),
             matches_inliers: 0,
+            pose_optimisation: Duration::ZERO,
         }
     }
 }
 
 impl Tracker {
+    /// Milliseconds spent in motion-only BA since the last call (the frame's share of
+    /// tracking time that is pose optimisation rather than matching).
+    pub fn take_pose_optimisation_ms(&mut self) -> f64 {
+        std::mem::take(&mut self.pose_optimisation).as_secs_f64() * 1e3
+    }
+
+    /// [`optimize_frame_pose`], timed.
+    fn optimize_pose(
+        &mut self,
+        frame: &mut Frame,
+        map: &Map,
+        ctx: &Context,
+    ) -> Result<usize, SlamError> {
+        let start = Instant::now();
+        let inliers = optimize_frame_pose(frame, map, ctx);
+        self.pose_optimisation += start.elapsed();
+        inliers
+    }
+
     /// Estimates `frame.T_c_w` against the map. Returns whether tracking succeeded; on success
     /// `frame.map_points` holds the inlier associations.
     ///
@@ -177,7 +200,7 @@ impl Tracker {
         self.search_local_points(frame, map, ctx, 5.0)?;
         let searched = frame.map_points.clone();
         if searched.iter().flatten().count() >= MIN_SEARCH_MATCHES {
-            optimize_frame_pose(frame, map, ctx)?;
+            self.optimize_pose(frame, map, ctx)?;
             if discard_outliers(frame) >= MIN_POSE_INLIERS
                 && self.track_local_map(frame, map, ctx)?
             {
@@ -195,6 +218,7 @@ impl Tracker {
             factor: &prediction.factor,
             bias_walk: &prediction.bias_walk,
         };
+        let start = Instant::now();
         let fused = optimize_pose_inertial(
             &prediction.predicted,
             &link,
@@ -202,7 +226,9 @@ impl Tracker {
             &obs,
             &ctx.intrinsics,
             &mut outlier,
-        )?;
+        );
+        self.pose_optimisation += start.elapsed();
+        let fused = fused?;
         frame.T_c_w = fused.T_c_w;
         frame.clear_associations();
         self.matches_inliers = fused.num_inliers;
@@ -296,7 +322,7 @@ impl Tracker {
         if found < MIN_SEARCH_MATCHES {
             return Ok(0);
         }
-        optimize_frame_pose(frame, map, ctx)?;
+        self.optimize_pose(frame, map, ctx)?;
         let inliers = discard_outliers(frame);
         Ok(if inliers >= MIN_POSE_INLIERS {
             inliers
@@ -361,7 +387,7 @@ impl Tracker {
                 }
             }
             frame.T_c_w = solution.T_c_w;
-            optimize_frame_pose(frame, map, ctx)?;
+            self.optimize_pose(frame, map, ctx)?;
             let inliers = discard_outliers(frame);
             if inliers >= MIN_POSE_INLIERS {
                 self.reference_kf = Some(kf);
@@ -405,7 +431,7 @@ impl Tracker {
             ctx,
             if recently_relocalised { 5.0 } else { 3.0 },
         )?;
-        optimize_frame_pose(frame, map, ctx)?;
+        self.optimize_pose(frame, map, ctx)?;
         let mut inliers = 0;
         for i in 0..frame.len() {
             let Some(m) = frame.map_points[i] else {
