@@ -52,7 +52,8 @@ SEQUENCES = {
     "kitti_stereo": ("kitti/stereo_51_frames", "stereo", 51),
     "euroc_stereo": ("euroc/V1_01_easy_micro", "stereo", None),
 }
-STAGES = ("extraction_ms", "tracking_ms", "mapping_ms", "track_call_ms", "frame_ms")
+STAGES = ("extraction_ms", "tracking_ms", "matching_ms", "pose_optimisation_ms", "mapping_ms",
+          "track_call_ms", "frame_ms")
 
 
 def _stats(values) -> dict:
