@@ -4,7 +4,7 @@
 //! (point <-> keyframe), covisibility, spanning tree (keyframe culling), point geometry and
 //! descriptor, the consistency check, and map files ([`persist`]).
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 use ferroslam_features::ScalePyramid;
 use nalgebra::{Isometry3, Vector3};
@@ -268,6 +268,21 @@ impl Map {
                 .filter(|mp| self.map_points.get(mp).is_some_and(|p| p.n_obs >= min_obs))
                 .count()
         })
+    }
+
+    /// The live points observed by `keyframes`, each once, in order of first sight (keyframe
+    /// order, then keypoint order); unknown keyframes contribute nothing.
+    pub fn points_seen_by(
+        &self,
+        keyframes: impl IntoIterator<Item = KeyFrameId>,
+    ) -> Vec<MapPointId> {
+        let mut seen = HashSet::new();
+        keyframes
+            .into_iter()
+            .filter_map(|kf| self.keyframes.get(&kf))
+            .flat_map(|frame| frame.map_points.iter().flatten().copied())
+            .filter(|mp| self.map_points.contains_key(mp) && seen.insert(*mp))
+            .collect()
     }
 
     /// The live point `id` stands for: itself if in the map, else the point it was fused

@@ -197,6 +197,25 @@ fn erasing_down_to_one_observation_removes_the_point() {
 }
 
 #[test]
+fn points_seen_by_lists_each_live_point_once_in_order_of_first_sight() {
+    let (map, _) = synthetic_map(5, 6, 300, 3);
+    let kfs = map.keyframe_ids();
+    let order = [kfs[3], kfs[1], kfs[2]];
+    let mut want: Vec<MapPointId> = Vec::new();
+    for &kf in &order {
+        let frame = map.keyframe(kf).unwrap();
+        for m in (0..frame.features().len()).filter_map(|i| frame.map_point(i)) {
+            if !want.contains(&m) {
+                want.push(m);
+            }
+        }
+    }
+    assert!(want.len() > 50);
+    let got = map.points_seen_by(order.iter().copied().chain([KeyFrameId(9999)]));
+    assert_eq!(got, want);
+}
+
+#[test]
 fn replacing_merges_observations() {
     let (mut map, mut rng) = synthetic_map(11, 5, 200, 5);
     let kfs = map.keyframe_ids();

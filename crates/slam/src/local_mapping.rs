@@ -398,19 +398,7 @@ impl LocalProblem {
         ctx: &Context,
     ) -> (BaProblem, Self) {
         let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
-        let mut points = Vec::new();
-        let mut seen = HashSet::new();
-        for &k in local {
-            for m in map
-                .keyframe(k)
-                .into_iter()
-                .flat_map(|k| k.map_points().iter().flatten())
-            {
-                if map.map_point(*m).is_some() && seen.insert(*m) {
-                    points.push(*m);
-                }
-            }
-        }
+        let points = map.points_seen_by(local.iter().copied());
         let mut fixed = Vec::new();
         let mut fixed_set = HashSet::new();
         let observers = points

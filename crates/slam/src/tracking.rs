@@ -491,16 +491,7 @@ impl Tracker {
     }
 
     fn update_local_points(&mut self, map: &Map) {
-        let mut seen = HashSet::new();
-        self.local_points.clear();
-        for &kf in &self.local_keyframes {
-            let Some(k) = map.keyframe(kf) else { continue };
-            for m in k.map_points().iter().flatten() {
-                if map.map_point(*m).is_some() && seen.insert(*m) {
-                    self.local_points.push(*m);
-                }
-            }
-        }
+        self.local_points = map.points_seen_by(self.local_keyframes.iter().copied());
     }
 
     /// Projects the local points not yet matched into the frame and searches for their

@@ -122,21 +122,9 @@ pub(crate) fn verify_loop(
             matched[i1] = Some(m2);
         }
     }
-    let mut loop_points = Vec::new();
-    let mut seen = HashSet::new();
-    for kf in
-        std::iter::once(candidate).chain(map.covisibles(candidate).into_iter().map(|(k, _)| k))
-    {
-        for m in map
-            .keyframe(kf)
-            .into_iter()
-            .flat_map(|k| k.map_points().iter().flatten())
-        {
-            if map.map_point(*m).is_some() && seen.insert(*m) {
-                loop_points.push(*m);
-            }
-        }
-    }
+    let loop_points = map.points_seen_by(
+        std::iter::once(candidate).chain(map.covisibles(candidate).into_iter().map(|(k, _)| k)),
+    );
     let already: HashSet<MapPointId> = matched.iter().flatten().copied().collect();
     let T_cw = pose_of(&S_cw);
     let center = T_cw.inverse().translation.vector;
