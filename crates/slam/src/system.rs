@@ -259,7 +259,9 @@ impl SlamSystem {
         let start = Instant::now();
         let new_keyframe = !self.localization_only
             && self.tracker.state == TrackingState::Ok
-            && (self.tracker.need_new_keyframe(&frame, &self.map, &self.ctx)
+            && (self
+                .tracker
+                .need_new_keyframe(&frame, &self.map, &self.ctx, self.mapping_idle())
                 || self.inertial_keyframe_due(frame.timestamp));
         if new_keyframe {
             // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
@@ -371,6 +373,12 @@ impl SlamSystem {
         self.concurrent
             .as_ref()
             .map(ConcurrentMapper::backlog_handle)
+    }
+
+    /// Whether local mapping can take a keyframe now: always inline (it ran inside the last
+    /// keyframe's call), with the mapping thread when it has nothing queued or in progress.
+    fn mapping_idle(&self) -> bool {
+        self.concurrent.as_ref().is_none_or(|c| c.backlog() == 0)
     }
 
     /// Waits for the mapping thread to process every queued keyframe and applies its edits

@@ -550,10 +550,22 @@ impl Tracker {
         Ok(())
     }
 
-    /// ORB-SLAM's keyframe decision (reference ratio 0.75 with depth, 0.9 monocular), with MATLAB's `TrackFeatureRange` upper limit
-    /// and `SkipMaxFrames`: a frame tracking more than `upper` points is not a keyframe unless
-    /// `skip_max_frames` frames passed since the last one.
-    pub fn need_new_keyframe(&self, frame: &Frame, map: &Map, ctx: &Context) -> bool {
+    /// ORB-SLAM's keyframe decision (reference ratio 0.75 with depth, 0.9 monocular), with
+    /// MATLAB's `TrackFeatureRange` upper limit and `SkipMaxFrames`: a frame tracking fewer
+    /// than `upper` points, or `skip_max_frames` frames after the last keyframe, is one.
+    ///
+    /// `mapping_idle` is ORB-SLAM's `c1b`: while local mapping is still busy with earlier
+    /// keyframes, the reference-ratio rule only fires when tracking is weak (`c1c`: with
+    /// depth, a quarter of the reference's points or close structure left untracked). Without
+    /// it every revisit of a mapped place adds keyframes as fast as frames come, and a long
+    /// run's map (and the time to track against it) keeps growing.
+    pub fn need_new_keyframe(
+        &self,
+        frame: &Frame,
+        map: &Map,
+        ctx: &Context,
+        mapping_idle: bool,
+    ) -> bool {
         let Some(r) = self.reference_kf else {
             return false;
         };
@@ -589,9 +601,12 @@ impl Tracker {
         };
         // MATLAB's rule (fewer tracked points than the upper limit, or SkipMaxFrames reached)
         // or ORB-SLAM's (tracking much less than the reference keyframe, or close structure
-        // left untracked); local mapping runs inline, so it is always idle here.
+        // left untracked, when mapping can take the keyframe).
         let matlab = inliers < ctx.config.track_feature_range.1 || since_kf >= max_frames;
-        let orb_slam = (inliers as f64) < ref_matches * ratio || need_close;
+        let weak =
+            ctx.config.sensor.has_depth() && ((inliers as f64) < 0.25 * ref_matches || need_close);
+        let orb_slam =
+            (mapping_idle || weak) && ((inliers as f64) < ref_matches * ratio || need_close);
         (matlab || orb_slam) && inliers > 15
     }
 }
@@ -771,4 +786,105 @@ fn discard_outliers(frame: &mut Frame) -> usize {
         }
     }
     n
+}
+
+#[cfg(test)]
+mod tests {
+    use ferroslam_features::{Keypoint, ScalePyramid};
+    use ferroslam_geometry::camera::test_cameras;
+    use ferroslam_map::FrameFeatures;
+    use nalgebra::Vector3;
+
+    use super::*;
+    use crate::config::SlamConfig;
+    use crate::frame::RgbdInput;
+
+    const N: usize = 800;
+    const FRAME: usize = 40;
+    /// The last keyframe 5 frames ago; 35 is past `skip_max_frames` (30).
+    const RECENT: usize = FRAME - 5;
+    const STALE: usize = FRAME - 35;
+
+    /// A frame of `N` far keypoints (no close structure to track) and a map whose keyframe
+    /// `r` sees `N` points, each also seen by a second keyframe with depth, so all `N` count
+    /// as the reference's tracked points.
+    fn scene() -> (Context, Map, Frame, KeyFrameId) {
+        let (_, camera) = test_cameras()
+            .into_iter()
+            .find(|(name, _)| *name == "tum_fr1")
+            .unwrap();
+        let ctx = Context::new(camera, SlamConfig::default());
+        let keypoints: Vec<Keypoint> = (0..N)
+            .map(|i| Keypoint {
+                x: 20.0 + (i % 40) as f32 * 15.0,
+                y: 20.0 + (i / 40) as f32 * 20.0,
+                octave: 0,
+                angle_deg: 0.0,
+                response: 1.0,
+            })
+            .collect();
+        let descriptors = vec![[0u8; 32]; N];
+        let (depth, u_right) = (vec![20.0f32; N], vec![100.0f32; N]);
+        let features = || {
+            FrameFeatures::new(
+                keypoints.clone(),
+                descriptors.clone(),
+                depth.clone(),
+                u_right.clone(),
+                ctx.bounds,
+            )
+            .unwrap()
+        };
+        let mut map = Map::new(ScalePyramid::new(1.2, 8).unwrap());
+        let r = map.insert_keyframe(0.0, 0, Isometry3::identity(), features());
+        let other = map.insert_keyframe(0.1, 1, Isometry3::identity(), features());
+        for i in 0..N {
+            let m = map
+                .create_map_point(Vector3::new(0.0, 0.0, 20.0), r)
+                .unwrap();
+            map.add_observation(m, r, i).unwrap();
+            map.add_observation(m, other, i).unwrap();
+        }
+        let input = RgbdInput {
+            timestamp: 1.0,
+            keypoints: &keypoints,
+            descriptors: &descriptors,
+            depth_m: &depth,
+        };
+        let frame = Frame::from_rgbd(FRAME, &input, &ctx).unwrap();
+        (ctx, map, frame, r)
+    }
+
+    fn tracker(reference: KeyFrameId, inliers: usize, last_keyframe_frame: usize) -> Tracker {
+        Tracker {
+            state: TrackingState::Ok,
+            reference_kf: Some(reference),
+            matches_inliers: inliers,
+            last_keyframe_frame,
+            ..Tracker::default()
+        }
+    }
+
+    #[test]
+    fn busy_mapping_defers_the_reference_ratio_keyframe() {
+        let (ctx, map, frame, r) = scene();
+        assert_eq!(map.tracked_points(r, 3), N);
+        // 500 of 800 (< 0.75): ORB-SLAM's ratio asks for a keyframe, if mapping can take it.
+        let ratio_only = tracker(r, 500, RECENT);
+        assert!(ratio_only.need_new_keyframe(&frame, &map, &ctx, true));
+        assert!(!ratio_only.need_new_keyframe(&frame, &map, &ctx, false));
+    }
+
+    #[test]
+    fn weak_or_stale_tracking_asks_even_while_mapping_is_busy() {
+        let (ctx, map, frame, r) = scene();
+        // Under a quarter of the reference's points (ORB-SLAM c1c, with depth).
+        assert!(tracker(r, 150, RECENT).need_new_keyframe(&frame, &map, &ctx, false));
+        // SkipMaxFrames (30) frames since the last keyframe (MATLAB's rule, ORB-SLAM c1a).
+        assert!(tracker(r, 500, STALE).need_new_keyframe(&frame, &map, &ctx, false));
+        // Strong tracking is never a keyframe, idle or not.
+        let strong = tracker(r, 700, RECENT);
+        assert!(!strong.need_new_keyframe(&frame, &map, &ctx, true));
+        assert!(!strong.need_new_keyframe(&frame, &map, &ctx, false));
+    }
 }
