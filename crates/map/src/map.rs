@@ -4,7 +4,7 @@
 //! (point <-> keyframe), covisibility, spanning tree (keyframe culling), point geometry and
 //! descriptor, the consistency check, and map files ([`persist`]).
 
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap};
 
 use ferroslam_features::ScalePyramid;
 use nalgebra::{Isometry3, Vector3};
@@ -272,16 +272,26 @@ impl Map {
 
     /// The live points observed by `keyframes`, each once, in order of first sight (keyframe
     /// order, then keypoint order); unknown keyframes contribute nothing.
+    ///
+    /// Runs for every tracked frame over the whole local map (tens of thousands of slots), so
+    /// "seen" is a bitset over point ids rather than a hash set; keyframe slots only hold live
+    /// points (see the crate invariants).
     pub fn points_seen_by(
         &self,
         keyframes: impl IntoIterator<Item = KeyFrameId>,
     ) -> Vec<MapPointId> {
-        let mut seen = HashSet::new();
+        let mut seen = vec![0u64; (self.next_map_point as usize).div_ceil(64)];
         keyframes
             .into_iter()
             .filter_map(|kf| self.keyframes.get(&kf))
             .flat_map(|frame| frame.map_points.iter().flatten().copied())
-            .filter(|mp| self.map_points.contains_key(mp) && seen.insert(*mp))
+            .filter(|mp| {
+                debug_assert!(self.map_points.contains_key(mp), "slot holds dead {mp:?}");
+                let (word, bit) = (mp.0 as usize / 64, mp.0 % 64);
+                let first = seen[word] & (1 << bit) == 0;
+                seen[word] |= 1 << bit;
+                first
+            })
             .collect()
     }
 
