@@ -2,7 +2,7 @@
 """Long-run scaling: are time and memory per frame flat when a sequence is replayed?
 
 Replays the TUM fr1/rpy frames forwards, backwards, forwards, ... (``--passes`` times)
-through one ferroslam RGB-D ``SlamSystem``; timestamps keep increasing (each replayed frame
+through one RGB-D system (ferroslam's ``SlamSystem``, or ORB-SLAM3); timestamps keep increasing (each replayed frame
 is stamped one median frame interval after the previous one), so the core sees one long
 sequence that revisits the same place. Frames are extracted once and cached, so the loop
 times only what the system does per frame (``track_rgbd``: tracking + local mapping) plus,
@@ -13,11 +13,13 @@ frame index, and with ``--plot PNG`` saves the curve with matplotlib.
 
 With ``--mapping-thread`` local mapping runs in its own thread, as live, and with
 ``--realtime`` frames are fed at the pace of their timestamps (a live camera): tracking then
-only asks for keyframes local mapping can take, as in ORB-SLAM.
+only asks for keyframes local mapping can take, as in ORB-SLAM. ``--system orbslam3`` replays
+the same frames through ORB-SLAM3 (``pyorbslam3``; its call includes ORB extraction, ours
+does not), one system per process so that the memory figures are each system's own.
 
     python benches/long_run.py [--sequence DIR] [--max-frames N] [--passes P]
-                               [--every K] [--mapping-thread] [--realtime]
-                               [--plot OUT.png] [--json OUT]
+                               [--every K] [--system {ferroslam,orbslam3}]
+                               [--mapping-thread] [--realtime] [--plot OUT.png] [--json OUT]
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -45,12 +48,68 @@ def replay_order(n: int, passes: int) -> np.ndarray:
     return np.concatenate(order)
 
 
+class FerroslamReplay:
+    """ferroslam's RGB-D ``SlamSystem`` on features extracted once (the call is tracking +
+    local mapping, ORB extraction excluded)."""
+
+    def __init__(self, seq, n: int, mapping_thread: bool):
+        from ferroslam._core import SlamSystem
+        from ferroslam.features import sample_depth
+        from ferroslam.pipeline import make_extractor
+
+        extractor = make_extractor({})
+        self.features, extraction_ms = [], []
+        for i in range(n):
+            gray, depth = seq.load_gray(i), seq.load_depth(i)
+            t0 = time.perf_counter()
+            kps, desc = extractor.detect(gray)
+            self.features.append((kps, desc, sample_depth(depth, kps)))
+            extraction_ms.append((time.perf_counter() - t0) * 1e3)
+        cam = seq.camera
+        self.system = SlamSystem(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width,
+                                 cam.height, sensor="rgbd")
+        self.system.set_mapping_thread(mapping_thread)
+        self.mode = (f"ferroslam, mapping {'thread' if mapping_thread else 'inline'}, ORB "
+                     f"extraction cached (median {np.median(extraction_ms):.1f} ms, not timed)")
+
+    def track(self, t: float, i: int) -> bool:
+        return str(self.system.track_rgbd(t, *self.features[i]).state) == "ok"
+
+    def map_size(self) -> tuple[int, int | None]:
+        kf_ids, _, _ = self.system.keyframe_trajectory()
+        return int(np.asarray(kf_ids).size), int(self.system.num_map_points)
+
+
+class OrbSlam3Replay:
+    """ORB-SLAM3 RGB-D (``pyorbslam3``) on images loaded once (the call is extraction +
+    tracking; local mapping runs in its own thread). Its map size is read through the
+    keyframe trajectory it saves; it does not expose its point count."""
+
+    def __init__(self, seq, n: int, workdir: Path):
+        import pyorbslam3 as pos
+
+        vocab = orb.export_vocabulary(workdir)
+        settings = orb.write_settings(seq, "rgbd", workdir)
+        factor = orb.PRESETS["tum"]["depth_factor"]
+        self.images = [(seq.load_gray(i), (seq.load_depth(i) * factor).astype(np.float32))
+                       for i in range(n)]
+        self.slam = pos.Slam(vocab_file=str(vocab), settings_file=str(settings),
+                             sensor=pos.Sensor.RGBD, use_viewer=False)
+        self.keyframes_file = workdir / "keyframes.txt"
+        self.mode = "ORB-SLAM3, its own mapping thread, ORB extraction inside the call"
+
+    def track(self, t: float, i: int) -> bool:
+        return self.slam.track_rgbd(*self.images[i], t).state.name == "OK"
+
+    def map_size(self) -> tuple[int, int | None]:
+        self.slam.save_keyframe_trajectory_tum(str(self.keyframes_file))
+        with open(self.keyframes_file, encoding="utf-8") as f:
+            return sum(1 for line in f if line.strip()), None
+
+
 def main(argv=None) -> int:
-    from ferroslam._core import SlamSystem
     from ferroslam._data import data_dir
     from ferroslam.datasets import open_sequence
-    from ferroslam.features import sample_depth
-    from ferroslam.pipeline import make_extractor
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sequence", type=Path,
@@ -58,8 +117,9 @@ def main(argv=None) -> int:
     parser.add_argument("--max-frames", type=int, help="frames of the sequence to replay")
     parser.add_argument("--passes", type=int, default=6, help="forward/backward passes")
     parser.add_argument("--every", type=int, default=50, help="log window, frames")
+    parser.add_argument("--system", choices=("ferroslam", "orbslam3"), default="ferroslam")
     parser.add_argument("--mapping-thread", action="store_true",
-                        help="local mapping in its own thread")
+                        help="ferroslam: local mapping in its own thread")
     parser.add_argument("--realtime", action="store_true",
                         help="feed frames at the pace of their timestamps")
     parser.add_argument("--plot", type=Path, metavar="PNG", help="save the curve (matplotlib)")
@@ -68,28 +128,17 @@ def main(argv=None) -> int:
 
     seq = open_sequence(args.sequence)
     n = min(len(seq), args.max_frames or len(seq))
-    extractor = make_extractor({})
-    features, extraction_ms = [], []
-    for i in range(n):
-        gray, depth = seq.load_gray(i), seq.load_depth(i)
-        t0 = time.perf_counter()
-        kps, desc = extractor.detect(gray)
-        features.append((kps, desc, sample_depth(depth, kps)))
-        extraction_ms.append((time.perf_counter() - t0) * 1e3)
+    workdir = Path(tempfile.mkdtemp(prefix="ferroslam_long_run_"))
+    replay = (OrbSlam3Replay(seq, n, workdir) if args.system == "orbslam3"
+              else FerroslamReplay(seq, n, args.mapping_thread))
     dt = float(np.median(np.diff(seq.timestamps[:n])))
     order = replay_order(n, args.passes)
-    cam = seq.camera
-    system = SlamSystem(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
-                        sensor="rgbd")
-    system.set_mapping_thread(args.mapping_thread)
     rss0 = orb.memory_kb()["VmRSS"]
     call_ms = np.zeros(len(order))
-    states, rows = [], []
+    tracked, rows = [], []
     t_start = float(seq.timestamps[0])
-    mode = ("mapping thread" if args.mapping_thread else "mapping inline") + (
-        ", fed in real time" if args.realtime else ", fed as fast as it goes")
-    print(f"{seq.name}: {n} frames x {args.passes} passes = {len(order)} frames, {mode}, "
-          f"ORB extraction (cached) median {np.median(extraction_ms):.1f} ms, "
+    mode = replay.mode + (", fed in real time" if args.realtime else ", fed as fast as it goes")
+    print(f"{seq.name}: {n} frames x {args.passes} passes = {len(order)} frames; {mode}; "
           f"load average {orb.load_average()}")
     head = (f"{'frames':>7} {'pass':>4} {'median ms':>9} {'p95 ms':>7} {'max ms':>7} "
             f"{'RSS MB':>7} {'ok %':>5} {'KFs':>5} {'points':>7}")
@@ -100,23 +149,22 @@ def main(argv=None) -> int:
         if args.realtime:
             time.sleep(max(0.0, clock0 + k * dt - time.perf_counter()))
         t0 = time.perf_counter()
-        res = system.track_rgbd(t_start + k * dt, *features[i])
+        tracked.append(replay.track(t_start + k * dt, i))
         call_ms[k] = (time.perf_counter() - t0) * 1e3
-        states.append(str(res.state))
         if (k + 1) % args.every == 0 or k + 1 == len(order):
             w = call_ms[k + 1 - ((k % args.every) + 1): k + 1]
-            ok = states[-len(w):].count("ok") / len(w)
-            kf_ids, _, _ = system.keyframe_trajectory()
+            ok = sum(tracked[-len(w):]) / len(w)
+            keyframes, points = replay.map_size()
             row = {"frame": k + 1, "pass": int(np.searchsorted(
                        np.cumsum([n] + [n - 1] * (args.passes - 1)), k, side="right")) + 1,
                    "median_ms": float(np.median(w)), "p95_ms": float(np.percentile(w, 95)),
                    "max_ms": float(w.max()), "rss_mb": orb.memory_kb()["VmRSS"] / 1024,
-                   "ok": ok, "keyframes": int(np.asarray(kf_ids).size),
-                   "map_points": int(np.asarray(system.map_points()).reshape(-1, 3).shape[0])}
+                   "ok": ok, "keyframes": keyframes, "map_points": points}
             rows.append(row)
             print(f"{row['frame']:>7} {row['pass']:>4} {row['median_ms']:>9.1f} "
                   f"{row['p95_ms']:>7.1f} {row['max_ms']:>7.1f} {row['rss_mb']:>7.1f} "
-                  f"{100 * ok:>5.0f} {row['keyframes']:>5} {row['map_points']:>7}", flush=True)
+                  f"{100 * ok:>5.0f} {row['keyframes']:>5} "
+                  f"{'-' if points is None else points:>7}", flush=True)
 
     frames = np.array([r["frame"] for r in rows], float)
     med = np.array([r["median_ms"] for r in rows])
@@ -132,7 +180,7 @@ def main(argv=None) -> int:
         "window_median_ms_first": float(med[0]), "window_median_ms_last": float(med[-1]),
         "slope_ms_per_1000_frames": float(slope_t), "slope_rss_mb_per_1000_frames": float(slope_m),
         "rss_second_half_growth_mb": float(rss[-1] - rss[half]) if half else float("nan"),
-        "ok_fraction": states.count("ok") / len(states), "load_end": orb.load_average(),
+        "ok_fraction": sum(tracked) / len(tracked), "load_end": orb.load_average(),
     }
     print(f"\ncall time median: first half {summary['median_ms_first_half']:.1f} ms, second half "
           f"{summary['median_ms_second_half']:.1f} ms; trend {slope_t:+.2f} ms per 1000 frames")
@@ -159,13 +207,14 @@ def main(argv=None) -> int:
         a2.plot(frames, rss, "o-")
         a2.set_ylabel("RSS MB")
         a3.plot(frames, [r["keyframes"] for r in rows], "o-", label="keyframes")
-        a3.plot(frames, [r["map_points"] / 100 for r in rows], "s-", label="map points / 100")
+        if rows[-1]["map_points"] is not None:
+            a3.plot(frames, [r["map_points"] / 100 for r in rows], "s-", label="map points / 100")
         a3.set_xlabel("frame (replayed)")
         a3.legend(loc="upper left")
         for x in np.cumsum([n] + [n - 1] * (args.passes - 1))[:-1]:
             for a in (a1, a2, a3):
                 a.axvline(x, color="0.85", lw=0.8)
-        fig.suptitle(f"ferroslam RGB-D, {seq.name} replayed {args.passes}x, {mode}")
+        fig.suptitle(f"{seq.name} replayed {args.passes}x\n{mode}", fontsize=9)
         fig.tight_layout()
         fig.savefig(args.plot, dpi=110)
         print(f"plot saved to {args.plot}")
