@@ -1,10 +1,12 @@
 //! Matcher throughput on seeded random features (640 x 480 image, 8 octaves).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use ferroslam_features::matcher::TH_LOW;
 use ferroslam_features::{
-    match_brute_force, search_by_projection, Descriptor, ImageBounds, Keypoint, KeypointGrid,
-    MatchOptions, ProjectionQuery,
+    match_brute_force, search_by_projection, search_for_triangulation, Descriptor, ImageBounds,
+    Keypoint, KeypointGrid, MatchOptions, ProjectionQuery, ScalePyramid,
 };
+use nalgebra::Matrix3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
@@ -96,5 +98,47 @@ fn bench_matching(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_matching);
+/// Local mapping's epipolar search between two keyframes of 2000 free features each (KITTI's
+/// extractor setting; seeded random features over 640 x 480, a third of them with a noisy
+/// twin in the other view; a sideways baseline, so the epipolar lines are horizontal).
+fn bench_triangulation_search(c: &mut Criterion) {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let (kps1, desc1) = features(&mut rng, 2000);
+    let (kps2, mut desc2) = features(&mut rng, 2000);
+    for i in (0..2000).step_by(3) {
+        desc2[i] = perturb(&mut rng, &desc1[i], 8);
+    }
+    let free = vec![true; 2000];
+    // F21 of a pure x translation between identical pinhole cameras: [t]x with t = (1, 0, 0),
+    // in pixels through K = [500 0 320; 0 500 240; 0 0 1].
+    let k_inv = Matrix3::new(500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0)
+        .try_inverse()
+        .unwrap();
+    let t = Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0);
+    let f21 = k_inv.transpose() * t * k_inv;
+    let sigma2 = ScalePyramid::new(1.2, 8).unwrap().sigma2;
+    let opts = MatchOptions {
+        max_distance: TH_LOW,
+        nn_ratio: None,
+        check_orientation: true,
+    };
+    c.bench_function("search_for_triangulation_2000x2000", |b| {
+        b.iter(|| {
+            search_for_triangulation(
+                black_box(&kps1),
+                &desc1,
+                &free,
+                &kps2,
+                &desc2,
+                &free,
+                &f21,
+                &sigma2,
+                None,
+                &opts,
+            )
+        })
+    });
+}
+
+criterion_group!(benches, bench_matching, bench_triangulation_search);
 criterion_main!(benches);

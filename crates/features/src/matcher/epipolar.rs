@@ -46,23 +46,28 @@ pub fn search_for_triangulation(
     let n1 = kps1.len().min(desc1.len());
     let n2 = kps2.len().min(desc2.len());
     let is_free = |flags: &[bool], i: usize| flags.get(i).copied().unwrap_or(false);
-    // View-2 candidates that pass the per-feature tests, with their level variance.
-    let candidates2: Vec<(usize, f64)> = (0..n2)
-        .filter(|&i2| is_free(free2, i2))
-        .filter_map(|i2| {
-            let kp2 = &kps2[i2];
-            let s2 = *sigma2.get(usize::from(kp2.octave))?;
-            let far_from_epipole = epipole2.is_none_or(|(ex, ey)| {
-                let (dx, dy) = (ex - f64::from(kp2.x), ey - f64::from(kp2.y));
-                dx * dx + dy * dy >= 100.0 * s2.sqrt()
-            });
-            far_from_epipole.then_some((i2, s2))
-        })
-        .collect();
+    // View-2 candidates that pass the per-feature tests, bucketed on a grid so that each
+    // epipolar line visits only the cells its acceptance band crosses.
+    let mut candidates2 = Candidates::default();
+    for i2 in (0..n2).filter(|&i2| is_free(free2, i2)) {
+        let kp2 = &kps2[i2];
+        let Some(&s2) = sigma2.get(usize::from(kp2.octave)) else {
+            continue;
+        };
+        let (x, y) = (f64::from(kp2.x), f64::from(kp2.y));
+        let far_from_epipole = epipole2.is_none_or(|(ex, ey)| {
+            let (dx, dy) = (ex - x, ey - y);
+            dx * dx + dy * dy >= 100.0 * s2.sqrt()
+        });
+        if far_from_epipole {
+            candidates2.push(i2, x, y, CHI2_1DOF_95 * s2);
+        }
+    }
+    candidates2.build_grid();
 
     let mut matches: Vec<_> = (0..n1)
         .into_par_iter()
-        .map(|i1| {
+        .map_init(Vec::new, |near, i1| {
             if !is_free(free1, i1) {
                 return None;
             }
@@ -72,16 +77,13 @@ pub fn search_for_triangulation(
             if !(norm2 > 0.0 && norm2.is_finite()) {
                 return None;
             }
+            candidates2.near_line(&line, norm2, near);
             let mut best = BestTwo::default();
-            for &(i2, s2) in &candidates2 {
+            for &k in near.iter() {
+                let i2 = candidates2.index[k];
                 let d = hamming(&desc1[i1], &desc2[i2]);
-                if d > opts.max_distance {
-                    continue;
-                }
-                let kp2 = &kps2[i2];
-                let r = line.x * f64::from(kp2.x) + line.y * f64::from(kp2.y) + line.z;
-                if r * r / norm2 < CHI2_1DOF_95 * s2 {
-                    best.push(d, i2, kp2.octave);
+                if d <= opts.max_distance {
+                    best.push(d, i2, kps2[i2].octave);
                 }
             }
             best.accept(opts.max_distance, opts.nn_ratio)
@@ -95,6 +97,125 @@ pub fn search_for_triangulation(
         .enumerate()
         .filter_map(|(i1, m)| m.map(|(i2, _)| (i1, i2)))
         .collect()
+}
+
+/// Side of a [`Candidates`] grid cell, pixels.
+const CELL_PX: f64 = 16.0;
+
+/// View-2 features eligible for matching (keypoint index, undistorted pixel, and the largest
+/// squared distance to an epipolar line that still passes: `3.84 * sigma2` of its level),
+/// bucketed on a grid of [`CELL_PX`] cells over their bounding box.
+#[derive(Default)]
+struct Candidates {
+    index: Vec<usize>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    max_r2: Vec<f64>,
+    origin: (f64, f64),
+    cols: usize,
+    rows: usize,
+    /// Candidates of cell `row * cols + col`: `items[start[cell]..start[cell + 1]]`, in
+    /// increasing order.
+    start: Vec<usize>,
+    items: Vec<usize>,
+    /// Perpendicular distance, px, beyond which no candidate passes, plus a margin for the
+    /// rounding of the normalised line.
+    band_px: f64,
+}
+
+impl Candidates {
+    fn push(&mut self, index: usize, x: f64, y: f64, max_r2: f64) {
+        self.index.push(index);
+        self.x.push(x);
+        self.y.push(y);
+        self.max_r2.push(max_r2);
+    }
+
+    fn cell_of(&self, k: usize) -> usize {
+        let col = ((self.x[k] - self.origin.0) / CELL_PX) as usize;
+        let row = ((self.y[k] - self.origin.1) / CELL_PX) as usize;
+        row.min(self.rows - 1) * self.cols + col.min(self.cols - 1)
+    }
+
+    /// Buckets the candidates (a counting sort by cell, stable, so cells list them in order).
+    fn build_grid(&mut self) {
+        let n = self.index.len();
+        if n == 0 {
+            return;
+        }
+        let fold = |v: &[f64]| {
+            v.iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                    (lo.min(x), hi.max(x))
+                })
+        };
+        let ((x0, x1), (y0, y1)) = (fold(&self.x), fold(&self.y));
+        self.origin = (x0, y0);
+        self.cols = ((x1 - x0) / CELL_PX) as usize + 1;
+        self.rows = ((y1 - y0) / CELL_PX) as usize + 1;
+        let cells: Vec<usize> = (0..n).map(|k| self.cell_of(k)).collect();
+        self.start = vec![0; self.cols * self.rows + 1];
+        for &c in &cells {
+            self.start[c + 1] += 1;
+        }
+        for c in 0..self.cols * self.rows {
+            self.start[c + 1] += self.start[c];
+        }
+        let mut next = self.start.clone();
+        self.items = vec![0; n];
+        for (k, &c) in cells.iter().enumerate() {
+            self.items[next[c]] = k;
+            next[c] += 1;
+        }
+        self.band_px = self.max_r2.iter().fold(0.0f64, |m, &r| m.max(r)).sqrt() + 1.0;
+    }
+
+    /// Fills `out` with the candidates (positions, increasing) whose squared distance to
+    /// `line` (`a x + b y + c = 0`, `norm2 = a^2 + b^2`) is below their bound: the same test,
+    /// in the same order, as a scan over all of them.
+    fn near_line(&self, line: &Vector3<f64>, norm2: f64, out: &mut Vec<usize>) {
+        out.clear();
+        if self.index.is_empty() {
+            return;
+        }
+        let norm = norm2.sqrt();
+        let (a, b, c) = (line.x / norm, line.y / norm, line.z / norm);
+        // Walk the cells along the line's major axis: across each column (row) the band
+        // spans the line's range over that column (row) widened by band / |b| (|a|).
+        let mostly_horizontal = b.abs() >= a.abs();
+        let (across, along, o_across, o_along) = if mostly_horizontal {
+            (self.cols, self.rows, self.origin.0, self.origin.1)
+        } else {
+            (self.rows, self.cols, self.origin.1, self.origin.0)
+        };
+        let (p, q) = if mostly_horizontal { (a, b) } else { (b, a) };
+        let half = self.band_px / q.abs();
+        let on_line = |t: f64| -(p * t + c) / q;
+        for i in 0..across {
+            let t0 = o_across + i as f64 * CELL_PX;
+            let (u0, u1) = (on_line(t0), on_line(t0 + CELL_PX));
+            let lo = (u0.min(u1) - half - o_along) / CELL_PX;
+            let hi = (u0.max(u1) + half - o_along) / CELL_PX;
+            if !(hi >= 0.0 && lo < along as f64) {
+                continue;
+            }
+            let (j0, j1) = (lo.max(0.0) as usize, (hi as usize).min(along - 1));
+            for j in j0..=j1 {
+                let cell = if mostly_horizontal {
+                    j * self.cols + i
+                } else {
+                    i * self.cols + j
+                };
+                for &k in &self.items[self.start[cell]..self.start[cell + 1]] {
+                    let r = line.x * self.x[k] + line.y * self.y[k] + line.z;
+                    if r * r / norm2 < self.max_r2[k] {
+                        out.push(k);
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+    }
 }
 
 #[cfg(test)]
@@ -282,5 +403,40 @@ mod tests {
             &MatchOptions::triangulation(),
         );
         assert!(got.is_empty());
+    }
+
+    /// The grid walk returns exactly what a scan over every candidate accepts, in the same
+    /// order, for lines of every direction (near-vertical ones included) and every level.
+    #[test]
+    fn grid_walk_equals_the_full_scan() {
+        let mut rng = rng(11);
+        let sigma2 = ScalePyramid::new(1.2, 8).unwrap().sigma2;
+        let mut candidates = Candidates::default();
+        for i in 0..3000 {
+            let s2 = sigma2[rng.random_range(0..8)];
+            let (x, y) = (rng.random_range(-5.0..1246.0), rng.random_range(0.0..376.0));
+            candidates.push(i, x, y, CHI2_1DOF_95 * s2);
+        }
+        candidates.build_grid();
+        let mut near = Vec::new();
+        let mut total = 0;
+        for _ in 0..2000 {
+            let angle: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+            let (a, b) = (angle.cos(), angle.sin());
+            let through = (rng.random_range(0.0..1241.0), rng.random_range(0.0..376.0));
+            let scale = rng.random_range(1e-4..1e2);
+            let line = scale * Vector3::new(a, b, -(a * through.0 + b * through.1));
+            let norm2 = line.x * line.x + line.y * line.y;
+            candidates.near_line(&line, norm2, &mut near);
+            let scan: Vec<usize> = (0..candidates.index.len())
+                .filter(|&k| {
+                    let r = line.x * candidates.x[k] + line.y * candidates.y[k] + line.z;
+                    r * r / norm2 < candidates.max_r2[k]
+                })
+                .collect();
+            assert_eq!(near, scan);
+            total += scan.len();
+        }
+        assert!(total > 20_000, "the lines must cross candidates: {total}");
     }
 }
