@@ -85,9 +85,12 @@ class OrbSlam3Replay:
     tracking; local mapping runs in its own thread). Its map size is read through the
     keyframe trajectory it saves; it does not expose its point count."""
 
-    def __init__(self, seq, n: int, workdir: Path):
+    def __init__(self, seq, n: int):
         import pyorbslam3 as pos
 
+        # The exported text vocabulary is tens of MB: removed with this object.
+        self._workdir = tempfile.TemporaryDirectory(prefix="ferroslam_long_run_")
+        workdir = Path(self._workdir.name)
         vocab = orb.export_vocabulary(workdir)
         settings = orb.write_settings(seq, "rgbd", workdir)
         factor = orb.PRESETS["tum"]["depth_factor"]
@@ -128,8 +131,7 @@ def main(argv=None) -> int:
 
     seq = open_sequence(args.sequence)
     n = min(len(seq), args.max_frames or len(seq))
-    workdir = Path(tempfile.mkdtemp(prefix="ferroslam_long_run_"))
-    replay = (OrbSlam3Replay(seq, n, workdir) if args.system == "orbslam3"
+    replay = (OrbSlam3Replay(seq, n) if args.system == "orbslam3"
               else FerroslamReplay(seq, n, args.mapping_thread))
     dt = float(np.median(np.diff(seq.timestamps[:n])))
     order = replay_order(n, args.passes)
