@@ -94,6 +94,9 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
     c.bench_function(&format!("{name}: fast_corners level 0 (t = 7)"), |b| {
         b.iter(|| black_box(fast_corners(&views[0], 7, 19)))
     });
+    c.bench_function(&format!("{name}: fast_corners level 0 (t = 20)"), |b| {
+        b.iter(|| black_box(fast_corners(&views[0], 20, 19)))
+    });
     c.bench_function(&format!("{name}: detect_level level 0"), |b| {
         b.iter(|| black_box(detect_level(&views[0], BUDGETS[0], FAST)))
     });

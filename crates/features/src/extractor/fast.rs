@@ -7,6 +7,8 @@
 //! the highest threshold at which `p` would still be a corner. A corner survives suppression
 //! when its score is strictly larger than those of its 8 neighbours (0 where no corner).
 
+use std::ops::Range;
+
 use multiversion::multiversion;
 use rayon::prelude::*;
 
@@ -33,9 +35,6 @@ const CIRCLE: [(isize, isize); 16] = [
     (-1, -3),
 ];
 
-/// Contiguous circle pixels a corner needs.
-const ARC: usize = 9;
-
 /// Pixels tested together; sized so the per-pixel loops vectorise.
 const LANES: usize = 32;
 
@@ -46,49 +45,101 @@ const LANES: usize = 32;
 /// `margin` to the border are not tested and count as non-corners for the suppression.
 pub fn fast_corners(image: &GrayImage<'_>, threshold: u8, margin: usize) -> Vec<Corner> {
     let (w, h) = (image.width(), image.height());
+    corners_in_window(image, threshold, margin, 0..w, 0..h, true)
+}
+
+/// The corners of [`fast_corners`] whose column lies in `xs` and row in `ys`: exactly those,
+/// at the cost of testing the window and a 1 px ring around it (for the suppression). Runs
+/// on the calling thread, for many small windows scanned in parallel.
+pub fn fast_corners_in(
+    image: &GrayImage<'_>,
+    threshold: u8,
+    margin: usize,
+    xs: Range<usize>,
+    ys: Range<usize>,
+) -> Vec<Corner> {
+    corners_in_window(image, threshold, margin, xs, ys, false)
+}
+
+/// [`fast_corners_in`], its rows scored in parallel when `parallel_rows`.
+fn corners_in_window(
+    image: &GrayImage<'_>,
+    threshold: u8,
+    margin: usize,
+    xs: Range<usize>,
+    ys: Range<usize>,
+    parallel_rows: bool,
+) -> Vec<Corner> {
+    let (w, h) = (image.width(), image.height());
     let margin = margin.max(3);
     if w <= 2 * margin || h <= 2 * margin {
         return Vec::new();
     }
-    let (x0, x1) = (margin, w - margin);
-    // Score rows y0 - 1 ..= y1 (the outer two stay zero) so suppression needs no bounds tests.
-    let (y0, y1) = (margin, h - margin);
-    let mut scores = vec![0u8; (y1 - y0 + 2) * w];
-    let found: Vec<Vec<usize>> = scores[w..(y1 - y0 + 1) * w]
-        .par_chunks_mut(w)
-        .enumerate()
-        .map(|(i, row)| score_row(image, y0 + i, x0, x1, threshold, row))
-        .collect();
+    // Reported window, then the tested one: 1 px more on each side, inside the margin.
+    let (rx, ry) = (
+        xs.start.max(margin)..xs.end.min(w - margin),
+        ys.start.max(margin)..ys.end.min(h - margin),
+    );
+    if rx.is_empty() || ry.is_empty() {
+        return Vec::new();
+    }
+    let (mut x0, mut x1) = (rx.start.max(margin + 1) - 1, (rx.end + 1).min(w - margin));
+    // At least a whole block of columns where the image allows, as narrower rows are scalar.
+    x1 = x1.max((x0 + LANES).min(w - margin));
+    x0 = x0.min(x1.saturating_sub(LANES).max(margin));
+    let (y0, y1) = (ry.start.max(margin + 1) - 1, (ry.end + 1).min(h - margin));
+    // Scores of columns x0 - 1 ..= x1 and rows y0 - 1 ..= y1 (the outer ring stays zero) so
+    // the suppression needs no bounds tests.
+    let stride = x1 - x0 + 2;
+    let at = |x: usize| x + 1 - x0;
+    let mut scores = vec![0u8; (y1 - y0 + 2) * stride];
+    let scored_rows = &mut scores[stride..(y1 - y0 + 1) * stride];
+    let score =
+        |(i, row): (usize, &mut [u8])| score_row(image, y0 + i, x0, x1, threshold, &mut row[1..]);
+    let found: Vec<Vec<usize>> = if parallel_rows {
+        scored_rows
+            .par_chunks_mut(stride)
+            .enumerate()
+            .map(score)
+            .collect()
+    } else {
+        scored_rows
+            .chunks_mut(stride)
+            .enumerate()
+            .map(score)
+            .collect()
+    };
     let mut corners = Vec::new();
-    for (i, xs) in found.iter().enumerate() {
-        let r = i + 1; // score row of image row y0 + i
+    for y in ry {
+        let r = y + 1 - y0; // score row of image row y
         let (above, row, below) = (
-            &scores[(r - 1) * w..r * w],
-            &scores[r * w..(r + 1) * w],
-            &scores[(r + 1) * w..(r + 2) * w],
+            &scores[(r - 1) * stride..r * stride],
+            &scores[r * stride..(r + 1) * stride],
+            &scores[(r + 1) * stride..(r + 2) * stride],
         );
-        let is_peak = |x: usize| {
-            let s = row[x];
-            s > row[x - 1]
-                && s > row[x + 1]
-                && above[x - 1..=x + 1].iter().all(|&n| s > n)
-                && below[x - 1..=x + 1].iter().all(|&n| s > n)
+        let is_peak = |c: usize| {
+            let s = row[c];
+            s > row[c - 1]
+                && s > row[c + 1]
+                && above[c - 1..=c + 1].iter().all(|&n| s > n)
+                && below[c - 1..=c + 1].iter().all(|&n| s > n)
         };
         corners.extend(
-            xs.iter()
-                .filter(|&&x| row[x] > 0 && is_peak(x))
+            found[y - y0]
+                .iter()
+                .filter(|&&x| rx.contains(&x) && is_peak(at(x)))
                 .map(|&x| Corner {
                     x: x as u32,
-                    y: (y0 + i) as u32,
-                    score: f32::from(row[x]),
+                    y: y as u32,
+                    score: f32::from(row[at(x)]),
                 }),
         );
     }
     corners
 }
 
-/// Writes the score of every corner of row `y`, columns `x0..x1`, into `out` (indexed by
-/// column; non-corners are left at 0) and returns their columns, increasing.
+/// Writes the score of every corner of row `y`, columns `x0..x1`, into `out` (`out[x - x0]`;
+/// non-corners are left at 0) and returns their columns, increasing.
 ///
 /// Compiled for AVX2 too, chosen at run time: the lanes are twice as wide.
 #[multiversion(targets("x86_64+avx2"))]
@@ -116,14 +167,27 @@ fn score_row<'a>(
             x
         };
         let n = LANES.min(x1 - start);
-        let found = if n == LANES {
-            arc_found::<LANES>(&rows, start, t)
+        let contrast = if n == LANES {
+            if !compass_candidate::<LANES>(&rows, start, t) {
+                x = start + n;
+                continue;
+            }
+            arc_contrast::<LANES>(&rows, start)
         } else {
-            std::array::from_fn(|i| i < n && arc_found::<1>(&rows, start + i, t)[0])
+            std::array::from_fn(|i| {
+                if i < n {
+                    arc_contrast::<1>(&rows, start + i)[0]
+                } else {
+                    0
+                }
+            })
         };
-        // The overlapping last block revisits columns before x: skip them.
-        for i in (x - start..n).filter(|&i| found[i]) {
-            out[start + i] = corner_score(&rows, start + i);
+        // Lanes holding a corner; the overlapping last block revisits columns before x.
+        let mut corners = lanes_above(&contrast, t) & (u32::MAX << (x - start));
+        while corners != 0 {
+            let i = corners.trailing_zeros() as usize;
+            corners &= corners - 1;
+            out[start + i - x0] = contrast[i] - 1;
             columns.push(start + i);
         }
         x = start + n;
@@ -131,69 +195,100 @@ fn score_row<'a>(
     columns
 }
 
-/// For the `N` pixels of the middle row from column `x`: whether 9 contiguous circle pixels
-/// are all brighter than `v + t` or all darker than `v - t`.
-///
-/// Such an arc holds two neighbouring compass pixels (0-4, 4-8, 8-12 or 12-0), which rejects
-/// most blocks after 4 of the 16 loads; then the longest run of brighter / darker pixels
-/// along the circle, walked twice round so no arc wraps.
+/// Bit `i` set where `values[i] > t`.
+#[inline(always)]
+fn lanes_above(values: &[u8; LANES], t: u8) -> u32 {
+    values
+        .iter()
+        .enumerate()
+        .fold(0, |mask, (i, &v)| mask | (u32::from(v > t) << i))
+}
+
+/// The circle pixel `k` (mod 16) for the `N` pixels of the middle row from column `x`.
+#[inline(always)]
+fn ring<'r, const N: usize>(rows: &[&'r [u8]; 7], x: usize, k: usize) -> &'r [u8; N] {
+    let (dx, dy) = CIRCLE[k % 16];
+    let from = (x as isize + dx) as usize;
+    rows[(dy + 3) as usize][from..from + N]
+        .try_into()
+        .expect("N pixels")
+}
+
+/// Whether any of the `N` pixels of the middle row from column `x` may be a corner at
+/// threshold `t`: an arc of 9 holds two neighbouring compass pixels (0-4, 4-8, 8-12 or 12-0)
+/// beyond the threshold on the same side, which rejects most blocks after 4 of the 16 loads.
 #[inline(always)] // into score_row's AVX2 version
-fn arc_found<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> [bool; N] {
+fn compass_candidate<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> bool {
     let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
     let bright: [u8; N] = center.map(|v| v.saturating_add(t));
     let dark: [u8; N] = center.map(|v| v.saturating_sub(t));
-    let ring = |k: usize| -> &[u8; N] {
-        let (dx, dy) = CIRCLE[k % 16];
-        let from = (x as isize + dx) as usize;
-        rows[(dy + 3) as usize][from..from + N]
-            .try_into()
-            .expect("N pixels")
-    };
     let (mut b_prev, mut d_prev) = ([false; N], [false; N]);
-    let mut candidate = false;
+    let mut candidate = [false; N];
     for k in [0, 4, 8, 12, 0] {
-        let p = ring(k);
+        let p = ring::<N>(rows, x, k);
         for i in 0..N {
             let (b, d) = (p[i] > bright[i], p[i] < dark[i]);
-            candidate |= (b & b_prev[i]) | (d & d_prev[i]);
+            candidate[i] |= (b & b_prev[i]) | (d & d_prev[i]);
             b_prev[i] = b;
             d_prev[i] = d;
         }
     }
-    if !candidate {
-        return [false; N];
-    }
-    let (mut b_run, mut d_run, mut longest) = ([0u8; N], [0u8; N], [0u8; N]);
-    for k in 0..16 + ARC - 1 {
-        let p = ring(k);
-        for i in 0..N {
-            // run + 1 where the pixel continues the arc, else 0 (branch-free for the lanes)
-            b_run[i] = (b_run[i] + 1) & u8::from(p[i] > bright[i]).wrapping_neg();
-            d_run[i] = (d_run[i] + 1) & u8::from(p[i] < dark[i]).wrapping_neg();
-            longest[i] = longest[i].max(b_run[i]).max(d_run[i]);
-        }
-    }
-    longest.map(|run| usize::from(run) >= ARC)
+    candidate.iter().any(|&c| c)
 }
 
-/// `s - 1` for the corner at column `x` of the middle row (see the module doc).
+/// For the `N` pixels of the middle row from column `x`: the largest `c` such that 9
+/// contiguous circle pixels are all at least `c` brighter, or all at least `c` darker, than
+/// the centre (0 when there is none). The pixel is a corner at threshold `t` exactly when
+/// `c > t`, and its score (see the module doc) is `c - 1`.
+///
+/// Per polarity, the saturated differences `d_k`, then minima over windows of 2, 4, 8 and 9
+/// contiguous circle pixels (indices mod 16), all lane-wise so they vectorise.
+#[inline(always)] // into score_row's AVX2 version
+fn arc_contrast<const N: usize>(rows: &[&[u8]; 7], x: usize) -> [u8; N] {
+    let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
+    let mut brighter = [[0u8; N]; 16];
+    let mut darker = [[0u8; N]; 16];
+    for k in 0..16 {
+        let p = ring::<N>(rows, x, k);
+        for i in 0..N {
+            brighter[k][i] = p[i].saturating_sub(center[i]);
+            darker[k][i] = center[i].saturating_sub(p[i]);
+        }
+    }
+    let mut best = longest_arc_minimum(&brighter);
+    let dark = longest_arc_minimum(&darker);
+    for i in 0..N {
+        best[i] = best[i].max(dark[i]);
+    }
+    best
+}
+
+/// Lane-wise maximum over the 16 arcs of 9 contiguous circle pixels of the minimum of `d`
+/// along the arc: minima over windows of 2, 4, 8, then 9 pixels (indices mod 16).
 #[inline(always)]
-fn corner_score(rows: &[&[u8]; 7], x: usize) -> u8 {
-    let v = i16::from(rows[3][x]);
-    // The circle twice, so every arc is a window; minima over windows of 2, 4, 8 then 9.
-    let circle: [i16; 16] = std::array::from_fn(|k| {
-        let (dx, dy) = CIRCLE[k];
-        i16::from(rows[(dy + 3) as usize][(x as isize + dx) as usize]) - v
-    });
-    let diff: [i16; 32] = std::array::from_fn(|k| circle[k % 16]);
-    let best_arc = |d: [i16; 32]| {
-        let m2: [i16; 31] = std::array::from_fn(|i| d[i].min(d[i + 1]));
-        let m4: [i16; 29] = std::array::from_fn(|i| m2[i].min(m2[i + 2]));
-        let m8: [i16; 25] = std::array::from_fn(|i| m4[i].min(m4[i + 4]));
-        (0..16).map(|i| m8[i].min(d[i + 8])).max().unwrap_or(0)
-    };
-    let best = best_arc(diff).max(best_arc(diff.map(|d| -d)));
-    (best - 1).clamp(0, 255) as u8
+fn longest_arc_minimum<const N: usize>(d: &[[u8; N]; 16]) -> [u8; N] {
+    #[inline(always)]
+    fn window<const N: usize>(a: &[[u8; N]; 16], b: &[[u8; N]; 16], step: usize) -> [[u8; N]; 16] {
+        let mut out = [[0u8; N]; 16];
+        for k in 0..16 {
+            let (ak, bk) = (&a[k], &b[(k + step) & 15]);
+            for i in 0..N {
+                out[k][i] = ak[i].min(bk[i]);
+            }
+        }
+        out
+    }
+    let m2 = window(d, d, 1);
+    let m4 = window(&m2, &m2, 2);
+    let m8 = window(&m4, &m4, 4);
+    let m9 = window(&m8, d, 8);
+    let mut best = [0u8; N];
+    for arc in &m9 {
+        for i in 0..N {
+            best[i] = best[i].max(arc[i]);
+        }
+    }
+    best
 }
 
 #[cfg(test)]
@@ -217,7 +312,7 @@ mod tests {
                 data[((3 + dy) * 7 + 3 + dx) as usize] = 200;
             }
             let rows: [&[u8]; 7] = std::array::from_fn(|r| &data[r * 7..r * 7 + 7]);
-            arc_found::<1>(&rows, 3, t)[0]
+            arc_contrast::<1>(&rows, 3)[0] > t
         };
         assert!(found(&(0..9).collect::<Vec<_>>(), 20));
         assert!(!found(&(0..9).collect::<Vec<_>>(), 100)); // 200 is not brighter than 100 + 100

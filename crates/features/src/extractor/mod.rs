@@ -1,6 +1,6 @@
 //! ORB-SLAM's keypoint detection on an image pyramid (its `ORBextractor` without the
-//! descriptors, which OpenCV's rotated BRIEF computes): per level, FAST at the low threshold
-//! ([`fast`]), the per-cell threshold fallback ([`threshold_fallback`]), the even spread to
+//! descriptors, which OpenCV's rotated BRIEF computes): per level, FAST ([`fast`]) at
+//! the initial threshold with the per-cell fallback to the low one ([`threshold_fallback`]), the even spread to
 //! the level's budget ([`quadtree`]) and the intensity-centroid orientation ([`orientation`]).
 //!
 //! Coordinates are integer pixels of the level the corner was found on (x right, y down).
@@ -64,20 +64,7 @@ pub fn detect_level(
     if budget == 0 || w <= 2 * EDGE_PX + 1 || h <= 2 * EDGE_PX + 1 {
         return Vec::new();
     }
-    let found = fast::fast_corners(level, fast.min, EDGE_PX);
-    let keep = threshold_fallback::threshold_fallback(
-        &found,
-        w,
-        h,
-        GRID_MARGIN_PX,
-        f32::from(fast.initial),
-    );
-    let corners: Vec<Corner> = found
-        .iter()
-        .zip(keep)
-        .filter(|(_, k)| *k)
-        .map(|(c, _)| *c)
-        .collect();
+    let corners = threshold_fallback::fallback_corners(level, fast, EDGE_PX, GRID_MARGIN_PX);
     let extent = w.max(h) - 2 * GRID_MARGIN_PX;
     let patch = CentroidPatch::default();
     quadtree::spread(&corners, extent, GRID_MARGIN_PX, budget)
