@@ -155,6 +155,22 @@ def test_input_validation(extractor):
             OrbExtractor(**kwargs)
 
 
+def test_detect_pair_equals_two_detections_and_restores_opencv_threads(frames, extractor):
+    threads = cv2.getNumThreads()
+    left, right = extractor.detect_pair(frames[0], frames[1])
+    for got, image in ((left, frames[0]), (right, frames[1])):
+        want = extractor.detect_with_pyramid(image)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert len(got[2]) == len(want[2])
+    assert cv2.getNumThreads() == threads
+    with pytest.raises(ValueError, match="dtype must be uint8"):
+        extractor.detect_pair(frames[0], frames[1].astype(np.float32))
+    with pytest.raises(ValueError, match="empty"):
+        extractor.detect_pair(np.zeros((0, 640), np.uint8), frames[1])
+    assert cv2.getNumThreads() == threads
+
+
 def test_sample_depth():
     depth = np.zeros((4, 5), np.float32)
     depth[1, 2] = 1.5

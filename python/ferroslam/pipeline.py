@@ -7,7 +7,6 @@ frame by frame, times every stage and evaluates the result against ground truth.
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
@@ -204,13 +203,10 @@ class _RgbdFeed:
     def track(system, timestamp: float, features: tuple):
         return system.track_rgbd(timestamp, *features)
 
-    def close(self) -> None:
-        pass
-
 
 class _StereoFeed:
-    """Loads a rectified pair and extracts ORB on both images at once (OpenCV releases the
-    GIL, so the two extractions run on two cores)."""
+    """Loads a rectified pair and extracts ORB on both images at once
+    (:meth:`OrbExtractor.detect_pair`)."""
 
     def __init__(self, seq, extractor: OrbExtractor) -> None:
         if not getattr(seq, "is_stereo", False):
@@ -218,7 +214,6 @@ class _StereoFeed:
                 f"{getattr(seq, 'name', seq)} is not a stereo sequence (no right images)"
             )
         self.seq, self.extractor = seq, extractor
-        self.pool = ThreadPoolExecutor(max_workers=2)
 
     def system_options(self) -> dict:
         return {"baseline": float(self.seq.baseline_m)}
@@ -227,15 +222,12 @@ class _StereoFeed:
         return self.seq.load_stereo(i)
 
     def features(self, data) -> tuple:
-        left, right = self.pool.map(self.extractor.detect_with_pyramid, data)
-        return left[0], left[1], left[2], right[0], right[1], right[2]
+        left, right = self.extractor.detect_pair(*data)
+        return (*left, *right)
 
     @staticmethod
     def track(system, timestamp: float, features: tuple):
         return system.track_stereo(timestamp, *features)
-
-    def close(self) -> None:
-        self.pool.shutdown()
 
 
 class _MonoFeed:
@@ -256,9 +248,6 @@ class _MonoFeed:
     @staticmethod
     def track(system, timestamp: float, features: tuple):
         return system.track_mono(timestamp, *features)
-
-    def close(self) -> None:
-        pass
 
 
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
@@ -370,10 +359,7 @@ def run_sequence(
         system.set_vocabulary(load_vocabulary(vocabulary))
     if config.get("mapping_thread"):
         system.set_mapping_thread(True)
-    try:
-        return _run(seq, system, feed, n, sensor, config, progress, realtime, imu)
-    finally:
-        feed.close()
+    return _run(seq, system, feed, n, sensor, config, progress, realtime, imu)
 
 
 def _imu_stream(seq, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -416,9 +416,8 @@ class StereoVSlam(_VSlam):
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
-        kl, dl, pl = self._extractor.detect_with_pyramid(left)
-        kr, dr, pr = self._extractor.detect_with_pyramid(right)
-        self._track(timestamp, "track_stereo", kl, dl, pl, kr, dr, pr, imu=imu)
+        left_features, right_features = self._extractor.detect_pair(left, right)
+        self._track(timestamp, "track_stereo", *left_features, *right_features, imu=imu)
 
 
 class RGBDVSlam(_VSlam):

@@ -13,7 +13,7 @@
 //! results of older jobs are dropped and the thread starts its next job afresh.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
@@ -24,7 +24,7 @@ use ferroslam_vocabulary::Vocabulary;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::local_inertial_ba::InertialWindow;
-use crate::local_mapping::{LocalMapper, MappingReport};
+use crate::local_mapping::{Interrupt, LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
 use crate::place_recognition::PlaceRecognition;
 
@@ -78,6 +78,8 @@ pub(crate) struct ConcurrentMapper {
     renamed: HashMap<MapPointId, MapPointId>,
     /// Keyframes queued or being processed (shared with callers asking "is it done?").
     backlog: Arc<AtomicUsize>,
+    /// Tracking waits for the job in flight (see [`Interrupt`]); cleared with each dispatch.
+    interrupt: Arc<AtomicBool>,
 }
 
 /// Keyframes local mapping may have queued or in progress when tracking wants another;
@@ -92,10 +94,11 @@ impl ConcurrentMapper {
         let (jobs, inbox) = channel::<Job>();
         let (report, done) = channel::<Mapped>();
         let backlog = Arc::new(AtomicUsize::new(0));
-        let count = Arc::clone(&backlog);
+        let interrupt = Arc::new(AtomicBool::new(false));
+        let (count, hurry) = (Arc::clone(&backlog), Arc::clone(&interrupt));
         let thread = std::thread::Builder::new()
             .name("ferroslam-mapping".into())
-            .spawn(move || mapping_loop(&ctx, inbox, report, count))
+            .spawn(move || mapping_loop(&ctx, inbox, report, count, &hurry))
             .expect("the OS refused to start the mapping thread");
         Self {
             jobs: Some(jobs),
@@ -107,7 +110,14 @@ impl ConcurrentMapper {
             queue: Vec::new(),
             renamed: HashMap::new(),
             backlog,
+            interrupt,
         }
+    }
+
+    /// Asks the job in flight to skip its remaining optional work: tracking is about to wait
+    /// for it.
+    pub(crate) fn interrupt(&self) {
+        self.interrupt.store(true, Ordering::Relaxed);
     }
 
     /// Keyframes waiting or being processed.
@@ -186,6 +196,7 @@ impl ConcurrentMapper {
             vocabulary: vocabulary.cloned(),
         };
         let n = job.work.len();
+        self.interrupt.store(false, Ordering::Relaxed);
         let sent = self.jobs.as_ref().is_some_and(|j| j.send(job).is_ok());
         if sent {
             self.in_flight = true;
@@ -212,6 +223,7 @@ fn mapping_loop(
     inbox: Receiver<Job>,
     report: Sender<Mapped>,
     backlog: Arc<AtomicUsize>,
+    interrupt: &AtomicBool,
 ) {
     let mut mapper = LocalMapper::default();
     let mut closer = LoopCloser::default();
@@ -250,7 +262,14 @@ fn mapping_loop(
             }
             let mut mapping = MappingReport::default();
             let step = mapper
-                .process_keyframe(work.kf, &mut map, ctx, &mut mapping, work.inertial.as_mut())
+                .process_keyframe(
+                    work.kf,
+                    &mut map,
+                    ctx,
+                    &mut mapping,
+                    work.inertial.as_mut(),
+                    Interrupt::on(interrupt),
+                )
                 .and_then(|()| {
                     let Some(place) = place.as_mut() else {
                         return Ok(None);

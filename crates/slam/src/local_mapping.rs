@@ -3,6 +3,7 @@
 //! fusion of duplicates, local bundle adjustment and culling of redundant keyframes.
 
 use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use ferroslam_features::matcher::TH_LOW;
@@ -69,6 +70,31 @@ pub struct MappingReport {
     pub culled_keyframes: usize,
     /// Wall time of local BA (visual or visual-inertial), milliseconds.
     pub local_ba_ms: f64,
+    /// Tracking waited for this keyframe's mapping, which stopped after triangulation (see
+    /// [`Interrupt`]).
+    pub interrupted: bool,
+}
+
+/// Tracking's request that local mapping finish soon: it waits to insert a keyframe. Local
+/// mapping then skips the rest of the current keyframe's optional work (triangulation with
+/// further neighbours, fusion, local BA, keyframe culling), as ORB-SLAM's `LocalMapping`
+/// does when `CheckNewKeyFrames()` finds a keyframe queued. Without it, tracking would wait
+/// for the whole of it (KITTI stereo: ~40 ms per keyframe, a keyframe almost every frame).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Interrupt<'a>(Option<&'a AtomicBool>);
+
+impl<'a> Interrupt<'a> {
+    /// Never requested (inline mapping: nothing waits).
+    pub(crate) const NEVER: Self = Self(None);
+
+    /// Requested once `flag` is set.
+    pub(crate) fn on(flag: &'a AtomicBool) -> Self {
+        Self(Some(flag))
+    }
+
+    fn requested(self) -> bool {
+        self.0.is_some_and(|f| f.load(Ordering::Relaxed))
+    }
 }
 
 /// State of local mapping between keyframes.
@@ -160,6 +186,7 @@ impl LocalMapper {
 
     /// Runs the local mapping stages for the keyframe just inserted; local BA is inertial
     /// over `inertial` when given (an aligned visual-inertial map; its states are updated).
+    /// Stops after triangulation when `interrupt` is requested.
     pub(crate) fn process_keyframe(
         &mut self,
         kf: KeyFrameId,
@@ -167,9 +194,14 @@ impl LocalMapper {
         ctx: &Context,
         report: &mut MappingReport,
         inertial: Option<&mut InertialWindow>,
+        interrupt: Interrupt<'_>,
     ) -> Result<(), SlamError> {
         report.culled_points += self.cull_recent_points(kf, map, ctx);
-        report.triangulated_points += self.create_new_points(kf, map, ctx)?;
+        report.triangulated_points += self.create_new_points(kf, map, ctx, interrupt)?;
+        if interrupt.requested() {
+            report.interrupted = true;
+            return Ok(());
+        }
         report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
         let start = Instant::now();
         report.ba_outliers += match inertial {
@@ -205,19 +237,24 @@ impl LocalMapper {
     /// Triangulates unmatched features of `kf` with those of its best covisible keyframes
     /// (ORB-SLAM `CreateNewMapPoints`): epipolar matching, parallax, positive depth,
     /// reprojection and scale-consistency checks. Close features with depth use it directly
-    /// when their stereo parallax beats the ray parallax.
+    /// when their stereo parallax beats the ray parallax. After the best neighbour, stops
+    /// when `interrupt` is requested.
     fn create_new_points(
         &mut self,
         kf: KeyFrameId,
         map: &mut Map,
         ctx: &Context,
+        interrupt: Interrupt<'_>,
     ) -> Result<usize, SlamError> {
         let neighbours = map.best_covisibles(kf, triangulation_neighbours(ctx.config.sensor));
         let median_depth = scene_median_depth(map, kf);
         let pyramid = map.pyramid().clone();
         let ratio_factor = 1.5 * pyramid.scale_factor;
         let mut created = 0;
-        for kf2 in neighbours {
+        for (n, kf2) in neighbours.into_iter().enumerate() {
+            if n > 0 && interrupt.requested() {
+                break;
+            }
             let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(kf2)) else {
                 continue;
             };
@@ -741,4 +778,126 @@ pub(crate) fn fuse_points_into(
         }
     }
     Ok(fused)
+}
+
+#[cfg(test)]
+mod tests {
+    use ferroslam_features::{Descriptor, Keypoint, ScalePyramid};
+    use ferroslam_geometry::camera::{PinholeCamera, RadTan};
+    use ferroslam_map::FrameFeatures;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+    use crate::config::SlamConfig;
+
+    /// Three monocular keyframes 0.2 m apart along x (`other`, `best`, `newest`), looking
+    /// along z at points 3-6 m away, each point with its own random descriptor. 60 points are
+    /// mapped in all three and 20 more in `best` and `newest`, so `best` is the newest's
+    /// best covisible; 50 unmapped points are seen by `newest` and `best`, 50 by `newest` and
+    /// `other`. Returns the context, the map and `newest`.
+    fn scene() -> (Context, Map, KeyFrameId) {
+        let camera =
+            PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
+        let config = SlamConfig {
+            sensor: Sensor::Monocular,
+            ..SlamConfig::default()
+        };
+        let ctx = Context::new(camera, config);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut point = || {
+            let z = rng.random_range(3.0..6.0);
+            let p = Vector3::new(
+                rng.random_range(-0.4..0.4) * z,
+                rng.random_range(-0.3..0.3) * z,
+                z,
+            );
+            let descriptor: Descriptor = std::array::from_fn(|_| rng.random());
+            (p, descriptor)
+        };
+        let all: Vec<_> = (0..60).map(|_| point()).collect();
+        let pair: Vec<_> = (0..20).map(|_| point()).collect();
+        let with_best: Vec<_> = (0..50).map(|_| point()).collect();
+        let with_other: Vec<_> = (0..50).map(|_| point()).collect();
+        // (centre x in metres, points seen, of which the first `mapped` are map points)
+        let views = [
+            (0.0, [&all[..], &with_other[..]].concat(), 60),
+            (0.2, [&all[..], &pair[..], &with_best[..]].concat(), 80),
+            (
+                0.4,
+                [&all[..], &pair[..], &with_best[..], &with_other[..]].concat(),
+                80,
+            ),
+        ];
+        let mut map = Map::new(ScalePyramid::new(1.2, 8).unwrap());
+        let mut keyframes = Vec::new();
+        for (n, (x, seen, _)) in views.iter().enumerate() {
+            let T_c_w = Isometry3::translation(-x, 0.0, 0.0);
+            let keypoints = seen
+                .iter()
+                .map(|(p, _)| {
+                    let uv = ctx
+                        .camera
+                        .project(&(T_c_w * Point3::from(*p)).coords)
+                        .unwrap();
+                    Keypoint {
+                        x: uv.x as f32,
+                        y: uv.y as f32,
+                        octave: 0,
+                        angle_deg: 0.0,
+                        response: 1.0,
+                    }
+                })
+                .collect();
+            let descriptors = seen.iter().map(|(_, d)| *d).collect();
+            let features =
+                FrameFeatures::new(keypoints, descriptors, Vec::new(), Vec::new(), ctx.bounds)
+                    .unwrap();
+            keyframes.push(map.insert_keyframe(n as f64, n, T_c_w, features));
+        }
+        // Map points: `all` in every view at the same index; `pair` at 60.. in the last two.
+        for (i, (p, _)) in all.iter().chain(&pair).enumerate() {
+            let seen_by = if i < 60 {
+                &keyframes[..]
+            } else {
+                &keyframes[1..]
+            };
+            let m = map.create_map_point(*p, seen_by[0]).unwrap();
+            for &kf in seen_by {
+                map.add_observation(m, kf, i).unwrap();
+            }
+            map.compute_distinctive_descriptor(m).unwrap();
+            map.update_normal_and_depth(m).unwrap();
+        }
+        for &kf in &keyframes {
+            map.update_connections(kf).unwrap();
+        }
+        let newest = keyframes[2];
+        assert_eq!(
+            map.best_covisibles(newest, 2),
+            vec![keyframes[1], keyframes[0]]
+        );
+        (ctx, map, newest)
+    }
+
+    #[test]
+    fn interrupted_mapping_triangulates_with_the_best_neighbour_only_and_skips_the_rest() {
+        let run = |interrupt: Interrupt<'_>| {
+            let (ctx, mut map, newest) = scene();
+            let mut report = MappingReport::default();
+            LocalMapper::default()
+                .process_keyframe(newest, &mut map, &ctx, &mut report, None, interrupt)
+                .unwrap();
+            map.check_consistency().unwrap();
+            report
+        };
+        let full = run(Interrupt::NEVER);
+        assert_eq!(full.triangulated_points, 100);
+        assert!(!full.interrupted && full.local_ba_ms > 0.0);
+        let waiting = AtomicBool::new(true);
+        let hurried = run(Interrupt::on(&waiting));
+        assert_eq!(hurried.triangulated_points, 50);
+        assert!(hurried.interrupted);
+        assert_eq!((hurried.local_ba_ms, hurried.fused_points), (0.0, 0));
+    }
 }

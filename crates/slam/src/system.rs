@@ -18,7 +18,7 @@ use crate::inertial::{
     INIT_KEYFRAME_INTERVAL_S,
 };
 use crate::input_guard::InputGuard;
-use crate::local_mapping::{LocalMapper, MappingReport};
+use crate::local_mapping::{Interrupt, LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
 use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
@@ -267,11 +267,12 @@ impl SlamSystem {
             // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
             // frames would be tracked against a map missing the points of several keyframes
             // (fatal for monocular maps, which only grow by triangulation), so it waits.
-            if self
+            if let Some(concurrent) = self
                 .concurrent
                 .as_ref()
-                .is_some_and(|c| c.backlog() >= MAX_QUEUED_KEYFRAMES)
+                .filter(|c| c.backlog() >= MAX_QUEUED_KEYFRAMES)
             {
+                concurrent.interrupt();
                 self.finish_mapping()?;
             }
             let mut report = MappingReport::default();
@@ -300,6 +301,7 @@ impl SlamSystem {
                     &self.ctx,
                     &mut report,
                     window.as_mut(),
+                    Interrupt::NEVER,
                 )?;
                 if let (Some(inertial), Some(window)) = (self.inertial.as_mut(), &window) {
                     inertial.store(window);

@@ -29,6 +29,19 @@ impl BestTwo {
         }
     }
 
+    /// Offers one candidate of a query whose candidates come in any order: afterwards the best
+    /// candidate and the second-best distance are those [`Self::push`] gives when offered them
+    /// by increasing index (ties of distance go to the lower index).
+    pub(super) fn push_unordered(&mut self, distance: u32, index: usize, octave: u8) {
+        match self.best {
+            Some((d, i, lvl)) if distance == d && index < i => {
+                self.second = Some((d, lvl));
+                self.best = Some((distance, index, octave));
+            }
+            _ => self.push(distance, index, octave),
+        }
+    }
+
     /// The best candidate if `best <= max_distance` and, when `ratio` is given and a second
     /// candidate exists, `best < ratio * second` (ORB-SLAM `SearchByBoW`,
     /// `SearchForInitialization`).

@@ -83,7 +83,7 @@ pub fn search_for_triangulation(
                 let i2 = candidates2.index[k];
                 let d = hamming(&desc1[i1], &desc2[i2]);
                 if d <= opts.max_distance {
-                    best.push(d, i2, kps2[i2].octave);
+                    best.push_unordered(d, i2, kps2[i2].octave);
                 }
             }
             best.accept(opts.max_distance, opts.nn_ratio)
@@ -114,13 +114,52 @@ struct Candidates {
     origin: (f64, f64),
     cols: usize,
     rows: usize,
-    /// Candidates of cell `row * cols + col`: `items[start[cell]..start[cell + 1]]`, in
-    /// increasing order.
-    start: Vec<usize>,
-    items: Vec<usize>,
+    /// For lines walked column by column (mostly horizontal): the cells in column-major order.
+    by_column: CellRuns,
+    /// For lines walked row by row: the cells in row-major order.
+    by_row: CellRuns,
     /// Perpendicular distance, px, beyond which no candidate passes, plus a margin for the
     /// rounding of the normalised line.
     band_px: f64,
+}
+
+/// The candidates copied cell after cell (a cell's in increasing order), so that the cells a
+/// line's band crosses in one column (or row) are one contiguous run.
+#[derive(Default)]
+struct CellRuns {
+    /// Candidates of cell `c` (in this order of cells): positions `start[c]..start[c + 1]`.
+    start: Vec<usize>,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    max_r2: Vec<f64>,
+    /// Position of each copy in [`Candidates`].
+    k: Vec<usize>,
+}
+
+impl CellRuns {
+    /// A stable counting sort of the candidates by `cell[k]` (`cells` cells).
+    fn new(c: &Candidates, cell: &[usize], cells: usize) -> Self {
+        let mut start = vec![0; cells + 1];
+        for &i in cell {
+            start[i + 1] += 1;
+        }
+        for i in 0..cells {
+            start[i + 1] += start[i];
+        }
+        let mut next = start.clone();
+        let mut k_of = vec![0; cell.len()];
+        for (k, &i) in cell.iter().enumerate() {
+            k_of[next[i]] = k;
+            next[i] += 1;
+        }
+        Self {
+            start,
+            x: k_of.iter().map(|&k| c.x[k]).collect(),
+            y: k_of.iter().map(|&k| c.y[k]).collect(),
+            max_r2: k_of.iter().map(|&k| c.max_r2[k]).collect(),
+            k: k_of,
+        }
+    }
 }
 
 impl Candidates {
@@ -131,13 +170,14 @@ impl Candidates {
         self.max_r2.push(max_r2);
     }
 
-    fn cell_of(&self, k: usize) -> usize {
+    /// Column and row of the cell holding candidate `k`.
+    fn cell_of(&self, k: usize) -> (usize, usize) {
         let col = ((self.x[k] - self.origin.0) / CELL_PX) as usize;
         let row = ((self.y[k] - self.origin.1) / CELL_PX) as usize;
-        row.min(self.rows - 1) * self.cols + col.min(self.cols - 1)
+        (col.min(self.cols - 1), row.min(self.rows - 1))
     }
 
-    /// Buckets the candidates (a counting sort by cell, stable, so cells list them in order).
+    /// Buckets the candidates in both cell orders.
     fn build_grid(&mut self) {
         let n = self.index.len();
         if n == 0 {
@@ -153,26 +193,17 @@ impl Candidates {
         self.origin = (x0, y0);
         self.cols = ((x1 - x0) / CELL_PX) as usize + 1;
         self.rows = ((y1 - y0) / CELL_PX) as usize + 1;
-        let cells: Vec<usize> = (0..n).map(|k| self.cell_of(k)).collect();
-        self.start = vec![0; self.cols * self.rows + 1];
-        for &c in &cells {
-            self.start[c + 1] += 1;
-        }
-        for c in 0..self.cols * self.rows {
-            self.start[c + 1] += self.start[c];
-        }
-        let mut next = self.start.clone();
-        self.items = vec![0; n];
-        for (k, &c) in cells.iter().enumerate() {
-            self.items[next[c]] = k;
-            next[c] += 1;
-        }
+        let cells: Vec<(usize, usize)> = (0..n).map(|k| self.cell_of(k)).collect();
+        let column_major: Vec<usize> = cells.iter().map(|&(c, r)| c * self.rows + r).collect();
+        let row_major: Vec<usize> = cells.iter().map(|&(c, r)| r * self.cols + c).collect();
+        self.by_column = CellRuns::new(self, &column_major, self.cols * self.rows);
+        self.by_row = CellRuns::new(self, &row_major, self.cols * self.rows);
         self.band_px = self.max_r2.iter().fold(0.0f64, |m, &r| m.max(r)).sqrt() + 1.0;
     }
 
-    /// Fills `out` with the candidates (positions, increasing) whose squared distance to
-    /// `line` (`a x + b y + c = 0`, `norm2 = a^2 + b^2`) is below their bound: the same test,
-    /// in the same order, as a scan over all of them.
+    /// Fills `out` with the candidates (positions, in no particular order) whose squared
+    /// distance to `line` (`a x + b y + c = 0`, `norm2 = a^2 + b^2`) is below their bound:
+    /// the same test as a scan over all of them.
     fn near_line(&self, line: &Vector3<f64>, norm2: f64, out: &mut Vec<usize>) {
         out.clear();
         if self.index.is_empty() {
@@ -183,10 +214,22 @@ impl Candidates {
         // Walk the cells along the line's major axis: across each column (row) the band
         // spans the line's range over that column (row) widened by band / |b| (|a|).
         let mostly_horizontal = b.abs() >= a.abs();
-        let (across, along, o_across, o_along) = if mostly_horizontal {
-            (self.cols, self.rows, self.origin.0, self.origin.1)
+        let (across, along, o_across, o_along, runs) = if mostly_horizontal {
+            (
+                self.cols,
+                self.rows,
+                self.origin.0,
+                self.origin.1,
+                &self.by_column,
+            )
         } else {
-            (self.rows, self.cols, self.origin.1, self.origin.0)
+            (
+                self.rows,
+                self.cols,
+                self.origin.1,
+                self.origin.0,
+                &self.by_row,
+            )
         };
         let (p, q) = if mostly_horizontal { (a, b) } else { (b, a) };
         let half = self.band_px / q.abs();
@@ -200,21 +243,14 @@ impl Candidates {
                 continue;
             }
             let (j0, j1) = (lo.max(0.0) as usize, (hi as usize).min(along - 1));
-            for j in j0..=j1 {
-                let cell = if mostly_horizontal {
-                    j * self.cols + i
-                } else {
-                    i * self.cols + j
-                };
-                for &k in &self.items[self.start[cell]..self.start[cell + 1]] {
-                    let r = line.x * self.x[k] + line.y * self.y[k] + line.z;
-                    if r * r / norm2 < self.max_r2[k] {
-                        out.push(k);
-                    }
+            let run = runs.start[i * along + j0]..runs.start[i * along + j1 + 1];
+            for n in run {
+                let r = line.x * runs.x[n] + line.y * runs.y[n] + line.z;
+                if r * r / norm2 < runs.max_r2[n] {
+                    out.push(runs.k[n]);
                 }
             }
         }
-        out.sort_unstable();
     }
 }
 
@@ -428,6 +464,7 @@ mod tests {
             let line = scale * Vector3::new(a, b, -(a * through.0 + b * through.1));
             let norm2 = line.x * line.x + line.y * line.y;
             candidates.near_line(&line, norm2, &mut near);
+            near.sort_unstable();
             let scan: Vec<usize> = (0..candidates.index.len())
                 .filter(|&k| {
                     let r = line.x * candidates.x[k] + line.y * candidates.y[k] + line.z;
