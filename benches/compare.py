@@ -2,14 +2,15 @@
 """Head-to-head: ferroslam against ORB-SLAM3 (the ``pyorbslam3`` wheel) on the same frames.
 
 For each sequence one worker process runs ferroslam (``ferroslam.pipeline.run_sequence``)
-and then ORB-SLAM3, fed frame by frame with every call timed, and evaluates both
+and ORB-SLAM3 in turn, ``--runs`` times each (the run with the median ATE is reported, the
+spread beside it), fed frame by frame with every call timed, and evaluates both
 trajectories with ``ferroslam.metrics.ate`` against the same ground truth (SE(3) alignment
 for stereo / RGB-D, Sim(3) for monocular). One process per sequence because ORB-SLAM3 keeps
 per-camera statics (``Frame::mbInitialComputations``) that a second camera in the same
 process would inherit; both systems of a sequence share that process.
 
     python benches/compare.py [--sequences tum_rgbd tum_mono kitti_stereo euroc_stereo]
-                              [--max-frames N] [--orb3-runs R] [--json OUT] [--workdir DIR]
+                              [--max-frames N] [--runs R] [--json OUT] [--workdir DIR]
                               [--inline-mapping] [--realtime]
 
 Needs ``pip install -e .[bench]`` (pyorbslam3) and the native module built in release mode.
@@ -65,12 +66,13 @@ def _stats(values) -> dict:
             "mean": float(np.mean(v))}
 
 
-def _both_tracking(ours_ok: np.ndarray, ours_ms: np.ndarray, run) -> dict:
+def _both_tracking(ours_ok: np.ndarray, ours_ms: np.ndarray, orb_states: list,
+                   orb_ms: np.ndarray) -> dict:
     """Median ms of each system over the frames both track (a lost system skips most work,
     so the plain medians favour the one that loses more frames)."""
-    both = ours_ok & np.array([s == "OK" for s in run.states])
+    both = ours_ok & np.array([s == "OK" for s in orb_states])
     return {"frames": int(both.sum()), "ours": _stats(ours_ms[both])["median"],
-            "orbslam3": _stats(np.asarray(run.call_ms)[both])["median"]}
+            "orbslam3": _stats(orb_ms[both])["median"]}
 
 
 def _ate(gt, traj, align: str) -> dict:
@@ -83,7 +85,24 @@ def _ate(gt, traj, align: str) -> dict:
     return {"rmse_m": float(a.rmse), "pairs": int(a.pairs), "scale": float(a.scale)}
 
 
-def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int,
+def _median_ate_run(records: list) -> int:
+    """Index of the run whose ATE is the median (failed runs count as the worst)."""
+    ates = [r["ate"]["rmse_m"] if r["ate"]["rmse_m"] is not None else float("inf")
+            for r in records]
+    return int(np.argsort(ates)[(len(ates) - 1) // 2])
+
+
+def _spread(records: list, chosen: int) -> dict:
+    """The chosen run, with every run's ATE and median ms beside it."""
+    out = dict(records[chosen])
+    out["runs"] = len(records)
+    out["ate_all_m"] = [r["ate"]["rmse_m"] for r in records]
+    out["frame_ms_median_all"] = [r["frame_ms"]["median"] for r in records]
+    out["frame_ms_p95_all"] = [r["frame_ms"]["p95"] for r in records]
+    return out
+
+
+def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
            mapping_thread: bool, realtime: bool) -> None:
     """Run both systems on one sequence and write the measurements as JSON to ``out``."""
     from ferroslam._data import data_dir
@@ -103,40 +122,37 @@ def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int,
            "realtime": realtime,
            "config": config, "settings": str(settings), "load_start": orb.load_average()}
 
-    # ferroslam
-    base = orb.memory_kb()["VmRSS"]
-    orb.reset_peak_memory()
-    t0 = time.perf_counter()
-    res = run_sequence(seq, config, max_frames=n, progress=False, sensor=sensor,
-                       realtime=realtime)
-    wall = time.perf_counter() - t0
-    peak = orb.memory_kb()["VmHWM"]
-    traj = res.trajectory
-    if sensor == "mono" and res.segments is not None and res.segments.size:
-        longest = np.bincount(res.segments).argmax()  # as the pipeline's Sim(3) ATE
-        traj = traj.subset(np.flatnonzero(res.segments == longest))
-    rec["ours"] = {
-        "tracked": res.tracked_frames, "poses": len(res.trajectory), "keyframes": len(res.keyframes),
-        "map_points": int(res.map_points.shape[0]), "wall_s": wall,
-        "frame_ms": _stats(res.timings["frame_ms"]),
-        "stages_ms": {k: _stats(res.timings[k]) for k in STAGES},
-        "ate": _ate(gt, traj, align), "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024,
-    }
-    ours_ok = np.array([st == "ok" for st in res.states])
-    ours_ms = np.asarray(res.timings["frame_ms"], np.float64)
-    del res, traj
+    def ours() -> tuple[dict, np.ndarray, np.ndarray]:
+        base = orb.memory_kb()["VmRSS"]
+        orb.reset_peak_memory()
+        t0 = time.perf_counter()
+        res = run_sequence(seq, config, max_frames=n, progress=False, sensor=sensor,
+                           realtime=realtime)
+        wall = time.perf_counter() - t0
+        peak = orb.memory_kb()["VmHWM"]
+        traj = res.trajectory
+        if sensor == "mono" and res.segments is not None and res.segments.size:
+            longest = np.bincount(res.segments).argmax()  # as the pipeline's Sim(3) ATE
+            traj = traj.subset(np.flatnonzero(res.segments == longest))
+        record = {
+            "tracked": res.tracked_frames, "poses": len(res.trajectory),
+            "keyframes": len(res.keyframes), "map_points": int(res.map_points.shape[0]),
+            "wall_s": wall, "frame_ms": _stats(res.timings["frame_ms"]),
+            "stages_ms": {k: _stats(res.timings[k]) for k in STAGES},
+            "ate": _ate(gt, traj, align), "peak_rss_mb": peak / 1024,
+            "peak_delta_mb": (peak - base) / 1024,
+        }
+        ok = np.array([st == "ok" for st in res.states])
+        return record, ok, np.asarray(res.timings["frame_ms"], np.float64)
 
-    # ORB-SLAM3: multi-threaded and not deterministic, so run it `orb3_runs` times; the
-    # reported run is the one with the median ATE, the spread is kept beside it.
-    runs = []
-    for _ in range(orb3_runs):
+    def orbslam3():
         base = orb.memory_kb()["VmRSS"]
         orb.reset_peak_memory()
         t0 = time.perf_counter()
         run = orb.run_orbslam3(seq, sensor, n, vocab, settings, realtime=realtime)
         wall = time.perf_counter() - t0
         peak = orb.memory_kb()["VmHWM"]
-        runs.append({
+        record = {
             "tracked": run.tracked_frames, "poses": len(run.trajectory), "wall_s": wall,
             "vocab_and_setup_s": run.load_s, "shutdown_s": run.shutdown_s,
             "frame_ms": _stats(run.call_ms), "ate": _ate(gt, run.trajectory, align),
@@ -144,13 +160,24 @@ def worker(name: str, max_frames, out: Path, workdir: Path, orb3_runs: int,
             "states": {s: run.states.count(s) for s in set(run.states)},
             "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024,
             "errors": run.errors,
-            "both_tracking_ms": _both_tracking(ours_ok, ours_ms, run),
-        })
-    ates = [r["ate"]["rmse_m"] if r["ate"]["rmse_m"] is not None else float("inf") for r in runs]
-    rec["orbslam3"] = dict(runs[int(np.argsort(ates)[(len(ates) - 1) // 2])])
-    rec["orbslam3"]["runs"] = len(runs)
-    rec["orbslam3"]["ate_all_m"] = [a if np.isfinite(a) else None for a in ates]
-    rec["orbslam3"]["frame_ms_median_all"] = [r["frame_ms"]["median"] for r in runs]
+        }
+        return record, run.states, np.asarray(run.call_ms, np.float64)
+
+    # Neither system is deterministic with its mapping thread, so each runs `runs` times,
+    # alternating so that a change of machine load reaches both; the run with the median ATE
+    # is reported, the spread beside it.
+    ours_runs, orb_runs = [], []
+    for _ in range(runs):
+        ours_runs.append(ours())
+        orb_runs.append(orbslam3())
+    io = _median_ate_run([r for r, _, _ in ours_runs])
+    it = _median_ate_run([r for r, _, _ in orb_runs])
+    rec["ours"] = _spread([r for r, _, _ in ours_runs], io)
+    rec["orbslam3"] = _spread([r for r, _, _ in orb_runs], it)
+    # Times: per pair of runs made one after the other, the median over the pairs.
+    both = [_both_tracking(o[1], o[2], t[1], t[2]) for o, t in zip(ours_runs, orb_runs)]
+    rec["both_tracking_ms"] = {k: float(np.median([b[k] for b in both]))
+                               for k in ("frames", "ours", "orbslam3")}
     rec["load_end"] = orb.load_average()
     out.write_text(json.dumps(rec, indent=2) + "\n", encoding="utf-8")
 
@@ -173,14 +200,15 @@ def print_table(records: list) -> None:
     print("-" * len(head))
     for r in records:
         o, t = r["ours"], r["orbslam3"]
+        med_o, med_t = np.median(o["frame_ms_median_all"]), np.median(t["frame_ms_median_all"])
         print(f"{r['sequence']:<13} {r['frames']:>6} {o['tracked']:>5}/{t['tracked']:<5} "
               f"{_cm(o['ate']):>11} {_cm(t['ate']):>11} "
               f"{_ratio(o['ate'].get('rmse_m'), t['ate'].get('rmse_m')):>7} "
-              f"{o['frame_ms']['median']:>11.1f} {t['frame_ms']['median']:>11.1f} "
-              f"{o['frame_ms']['p95']:>8.1f} {t['frame_ms']['p95']:>8.1f} "
-              f"{_ratio(o['frame_ms']['median'], t['frame_ms']['median']):>6} "
+              f"{med_o:>11.1f} {med_t:>11.1f} "
+              f"{np.median(o['frame_ms_p95_all']):>8.1f} {np.median(t['frame_ms_p95_all']):>8.1f} "
+              f"{_ratio(med_o, med_t):>6} "
               f"{o['peak_delta_mb']:>5.0f}/{t['peak_delta_mb']:<5.0f}")
-    print("\nours: per-stage median (p95) ms; ORB-SLAM3 extras")
+    print("\nours (the median-ATE run): per-stage median (p95) ms; ORB-SLAM3 extras")
     for r in records:
         o, t = r["ours"], r["orbslam3"]
         stages = "  ".join(f"{k[:-3]} {v['median']:.1f} ({v['p95']:.1f})"
@@ -190,22 +218,24 @@ def print_table(records: list) -> None:
               f"peak RSS {o['peak_rss_mb']:.0f} MB | ORB-SLAM3: setup+vocab {t['vocab_and_setup_s']:.1f} s, "
               f"wall {t['wall_s']:.1f} s, online-pose ATE {_cm(t['ate_online'])} cm, states {t['states']}, "
               f"peak RSS {t['peak_rss_mb']:.0f} MB {' '.join(t['errors'])}")
-        spread = ", ".join("fail" if a is None else f"{100 * a:.2f}" for a in t["ate_all_m"])
-        meds = ", ".join(f"{m:.1f}" for m in t["frame_ms_median_all"])
-        print(f"{'':<13} ORB-SLAM3 over {t['runs']} runs: ATE cm [{spread}], median ms [{meds}]")
+        for who, x in (("ours", o), ("ORB-SLAM3", t)):
+            spread = ", ".join("fail" if a is None else f"{100 * a:.2f}" for a in x["ate_all_m"])
+            meds = ", ".join(f"{m:.1f}" for m in x["frame_ms_median_all"])
+            print(f"{'':<13} {who} over {x['runs']} runs: ATE cm [{spread}], median ms [{meds}]")
         print(f"{'':<13} ATE pairs ours/ORB-SLAM3 {o['ate'].get('pairs')}/{t['ate'].get('pairs')}; "
               f"wall per frame incl. image loading and (ORB-SLAM3) its mapping threads and "
               f"shutdown: {1e3 * o['wall_s'] / r['frames']:.1f} / "
               f"{1e3 * (t['wall_s'] - t['vocab_and_setup_s']) / r['frames']:.1f} ms")
-        both = t["both_tracking_ms"]
-        print(f"{'':<13} median ms over the {both['frames']} frames both track: ours "
+        both = r["both_tracking_ms"]
+        print(f"{'':<13} median ms over the frames both track ({both['frames']:.0f}), median of the "
+              f"run pairs: ours "
               f"{both['ours']:.1f} / ORB-SLAM3 {both['orbslam3']:.1f} "
               f"({_ratio(both['ours'], both['orbslam3'])})")
         print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
-          "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map, the run with the median "
-          "ATE of --orb3-runs). o/t = ours / ORB-SLAM3 "
-          "(< 1: ours better/faster). ms: ours frame_ms, ORB-SLAM3 track call; peak MB: "
+          "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "
+          "with the median ATE of --runs; ms med and p95: the median over the runs). o/t = ours / "
+          "ORB-SLAM3 (< 1: ours better/faster). ms: ours frame_ms, ORB-SLAM3 track call; peak MB: "
           "VmHWM rise during each system's run.")
 
 
@@ -216,8 +246,9 @@ def main(argv=None) -> int:
     parser.add_argument("--max-frames", type=int, help="frames per sequence (default: all, TUM 300)")
     parser.add_argument("--json", type=Path, metavar="OUT", help="write all records as JSON")
     parser.add_argument("--workdir", type=Path, help="keep settings, vocabulary and logs here")
-    parser.add_argument("--orb3-runs", type=int, default=3,
-                        help="ORB-SLAM3 runs per sequence (not deterministic; median-ATE run shown)")
+    parser.add_argument("--runs", type=int, default=3,
+                        help="runs of each system per sequence, alternating (neither is "
+                             "deterministic with mapping threads; the median-ATE run is shown)")
     parser.add_argument("--inline-mapping", action="store_true",
                         help="run our local mapping inside the track call (deterministic)")
     parser.add_argument("--realtime", action="store_true",
@@ -227,7 +258,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     if args.worker:
-        worker(args.worker, args.max_frames, args.worker_out, args.workdir, args.orb3_runs,
+        worker(args.worker, args.max_frames, args.worker_out, args.workdir, args.runs,
                not args.inline_mapping, args.realtime)
         return 0
 
@@ -242,7 +273,7 @@ def main(argv=None) -> int:
         log = args.workdir / f"{name}.log"
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", name,
                "--worker-out", str(out), "--workdir", str(args.workdir)]
-        cmd += ["--orb3-runs", str(args.orb3_runs)]
+        cmd += ["--runs", str(args.runs)]
         cmd += ["--inline-mapping"] * args.inline_mapping + ["--realtime"] * args.realtime
         if args.max_frames:
             cmd += ["--max-frames", str(args.max_frames)]
