@@ -19,7 +19,7 @@ const CELL_PX: usize = 30;
 
 /// The fallback grid over the region `margin` px inside a level; the last column and row of
 /// cells also take whatever lies beyond the region.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug)]
 struct FallbackGrid {
     margin: usize,
     cols: usize,
@@ -108,12 +108,11 @@ pub fn fallback_corners(
     for c in &corners {
         empty[grid.cell_of(c.x, c.y)] = false;
     }
-    let weak: Vec<Corner> = grid
-        .windows(&empty)
-        .into_par_iter()
-        .flat_map_iter(|(xs, ys)| fast::fast_corners_in(level, fast.min, edge_px, xs, ys))
-        .collect();
-    corners.extend(weak);
+    corners.par_extend(
+        grid.windows(&empty)
+            .into_par_iter()
+            .flat_map_iter(|(xs, ys)| fast::fast_corners_in(level, fast.min, edge_px, xs, ys)),
+    );
     corners.sort_unstable_by_key(|c| (c.y, c.x));
     corners
 }
