@@ -40,15 +40,6 @@ sys.path.insert(0, str(HERE))
 import _orbslam3 as orb  # noqa: E402  (memory helpers)
 
 
-def replay_order(n: int, passes: int) -> np.ndarray:
-    """Frame indices forwards, backwards, forwards, ...; no frame repeated at a turn."""
-    order = [np.arange(n)]
-    for p in range(1, passes):
-        step = np.arange(n - 2, -1, -1) if p % 2 else np.arange(1, n)
-        order.append(step)
-    return np.concatenate(order)
-
-
 class FerroslamReplay:
     """ferroslam's RGB-D ``SlamSystem`` on features extracted once (the call is tracking +
     local mapping, ORB extraction excluded)."""
@@ -70,7 +61,8 @@ class FerroslamReplay:
         self.system = SlamSystem(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width,
                                  cam.height, sensor="rgbd", inline_mapping_s=inline_mapping_s)
         self.system.set_mapping_thread(mapping_thread)
-        inline = f"inline (busy {inline_mapping_s} s after a keyframe)" if inline_mapping_s else "inline"
+        inline = (f"inline (busy {inline_mapping_s} s after a keyframe)" if inline_mapping_s
+                  else "inline")
         self.mode = (f"ferroslam, mapping {'thread' if mapping_thread else inline}, ORB "
                      f"extraction cached (median {np.median(extraction_ms):.1f} ms, not timed)")
 
@@ -114,7 +106,7 @@ class OrbSlam3Replay:
 
 def main(argv=None) -> int:
     from ferroslam._data import data_dir
-    from ferroslam.datasets import open_sequence
+    from ferroslam.datasets import ReplayedSequence, open_sequence
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sequence", type=Path,
@@ -138,12 +130,11 @@ def main(argv=None) -> int:
     n = min(len(seq), args.max_frames or len(seq))
     replay = (OrbSlam3Replay(seq, n) if args.system == "orbslam3"
               else FerroslamReplay(seq, n, args.mapping_thread, args.inline_mapping_s))
-    dt = float(np.median(np.diff(seq.timestamps[:n])))
-    order = replay_order(n, args.passes)
+    replayed = ReplayedSequence(seq, args.passes, n)
+    order, stamps = replayed.order, replayed.timestamps
     rss0 = orb.memory_kb()["VmRSS"]
     call_ms = np.zeros(len(order))
     tracked, rows = [], []
-    t_start = float(seq.timestamps[0])
     mode = replay.mode + (", fed in real time" if args.realtime else ", fed as fast as it goes")
     print(f"{seq.name}: {n} frames x {args.passes} passes = {len(order)} frames; {mode}; "
           f"load average {orb.load_average()}")
@@ -154,9 +145,9 @@ def main(argv=None) -> int:
     clock0 = time.perf_counter()
     for k, i in enumerate(order):
         if args.realtime:
-            time.sleep(max(0.0, clock0 + k * dt - time.perf_counter()))
+            time.sleep(max(0.0, clock0 + (stamps[k] - stamps[0]) - time.perf_counter()))
         t0 = time.perf_counter()
-        tracked.append(replay.track(t_start + k * dt, i))
+        tracked.append(replay.track(float(stamps[k]), i))
         call_ms[k] = (time.perf_counter() - t0) * 1e3
         if (k + 1) % args.every == 0 or k + 1 == len(order):
             w = call_ms[k + 1 - ((k % args.every) + 1): k + 1]

@@ -16,7 +16,7 @@ import pytest
 
 from ferroslam import metrics
 from ferroslam.cli import main as cli_main
-from ferroslam.datasets import TumSequence
+from ferroslam.datasets import ReplayedSequence, TumSequence
 from ferroslam.pipeline import run_sequence
 from ferroslam.trajectory import Trajectory
 
@@ -133,27 +133,6 @@ def test_relocalises_in_the_same_map_after_a_loss(tum_rpy):
     assert result.ate_frames.rmse < FRAME_ATE_BOUND_M
 
 
-class _Replay:
-    """fr1/rpy forwards, backwards, forwards (898 frames, no frame repeated at a turn),
-    stamped one median frame interval apart: one long sequence revisiting the same room."""
-
-    def __init__(self, seq):
-        n = len(seq)
-        self.seq, self.camera, self.name = seq, seq.camera, "rpy-replayed"
-        self.order = np.concatenate([np.arange(n), np.arange(n - 2, -1, -1), np.arange(1, n)])
-        dt = float(np.median(np.diff(seq.timestamps)))
-        self.timestamps = seq.timestamps[0] + dt * np.arange(len(self.order))
-
-    def __len__(self):
-        return len(self.order)
-
-    def load_gray(self, i):
-        return self.seq.load_gray(self.order[i])
-
-    def load_depth(self, i):
-        return self.seq.load_depth(self.order[i])
-
-
 def test_inline_mapping_brake_bounds_the_map_on_revisits(tum_rpy, rpy_run):
     """A run revisiting mapped places (issue 7: time and memory per frame flat over a long
     run). Inline, mapping is done by the next frame, so ORB-SLAM's reference-ratio rule is
@@ -162,8 +141,8 @@ def test_inline_mapping_brake_bounds_the_map_on_revisits(tum_rpy, rpy_run):
     83 / 5404 with ``inline_mapping_s=0.09`` (x1.84 / x1.28; mapping busy for 3 frames after
     a keyframe, as behind the mapping thread). Over 8 passes: 212 against 115 keyframes."""
     _, first_pass = rpy_run
-    result = run_sequence(_Replay(TumSequence(tum_rpy)), {"inline_mapping_s": 0.09},
-                          progress=False)
+    replayed = ReplayedSequence(TumSequence(tum_rpy), passes=3)  # 898 frames
+    result = run_sequence(replayed, {"inline_mapping_s": 0.09}, progress=False)
     assert result.summary()["states"] == {"ok": 898}
     kf_growth = len(result.keyframes.timestamps) / len(first_pass.keyframes.timestamps)
     point_growth = len(result.map_points) / len(first_pass.map_points)

@@ -7,7 +7,15 @@ import shutil
 import numpy as np
 import pytest
 
-from ferroslam.datasets import TUM_CAMERAS, Camera, TumSequence, associate_greedy, open_sequence
+from ferroslam.datasets import (
+    TUM_CAMERAS,
+    Camera,
+    ReplayedSequence,
+    TumSequence,
+    associate_greedy,
+    open_sequence,
+    replay_order,
+)
 
 
 def _associate_py(first, second, max_difference):
@@ -157,3 +165,18 @@ def test_malformed_and_unordered_lists(tum_desk, tmp_path):
     assert not seq.has_groundtruth
     with pytest.raises(FileNotFoundError, match="groundtruth.txt"):
         seq.groundtruth()
+
+
+def test_replay_order_turns_without_repeating_a_frame():
+    np.testing.assert_array_equal(replay_order(4, 3), [0, 1, 2, 3, 2, 1, 0, 1, 2, 3])
+    np.testing.assert_array_equal(replay_order(4, 1), [0, 1, 2, 3])
+
+
+def test_replayed_sequence_serves_the_frames_on_increasing_timestamps(tum_rpy):
+    seq = TumSequence(tum_rpy)
+    replayed = ReplayedSequence(seq, passes=2, max_frames=5)
+    assert len(replayed) == 9 and replayed.camera == seq.camera
+    np.testing.assert_array_equal(replayed.order, [0, 1, 2, 3, 4, 3, 2, 1, 0])
+    assert np.all(np.diff(replayed.timestamps) > 0) and replayed.timestamps[0] == seq.timestamps[0]
+    np.testing.assert_array_equal(replayed.load_gray(6), seq.load_gray(2))
+    np.testing.assert_array_equal(replayed.load_depth(8), seq.load_depth(0))

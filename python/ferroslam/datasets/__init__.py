@@ -16,6 +16,7 @@ from typing import Union
 from ..camera import Camera, read_camera_yaml
 from .euroc import EurocFrame, EurocSequence, ImuParams, read_sensor_yaml
 from .kitti import KittiFrame, KittiSequence, read_kitti_calib
+from .replay import ReplayedSequence, replay_order
 from .tum import TUM_CAMERAS, TumFrame, TumSequence, associate_greedy
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "ImuParams",
     "KittiFrame",
     "KittiSequence",
+    "ReplayedSequence",
     "Sequence",
     "TumFrame",
     "TumSequence",
@@ -35,6 +37,7 @@ __all__ = [
     "read_camera_yaml",
     "read_kitti_calib",
     "read_sensor_yaml",
+    "replay_order",
 ]
 
 Sequence = Union[TumSequence, KittiSequence, EurocSequence]
