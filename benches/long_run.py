@@ -19,8 +19,7 @@ does not), one system per process so that the memory figures are each system's o
 
     python benches/long_run.py [--sequence DIR] [--max-frames N] [--passes P]
                                [--every K] [--system {ferroslam,orbslam3}]
-                               [--mapping-thread | --inline-mapping-s S] [--realtime]
-                               [--plot OUT.png] [--json OUT]
+                               [--mapping-thread] [--realtime] [--plot OUT.png] [--json OUT]
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ class FerroslamReplay:
     """ferroslam's RGB-D ``SlamSystem`` on features extracted once (the call is tracking +
     local mapping, ORB extraction excluded)."""
 
-    def __init__(self, seq, n: int, mapping_thread: bool, inline_mapping_s: float):
+    def __init__(self, seq, n: int, mapping_thread: bool):
         from ferroslam._core import SlamSystem
         from ferroslam.features import sample_depth
         from ferroslam.pipeline import make_extractor
@@ -59,11 +58,9 @@ class FerroslamReplay:
             extraction_ms.append((time.perf_counter() - t0) * 1e3)
         cam = seq.camera
         self.system = SlamSystem(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width,
-                                 cam.height, sensor="rgbd", inline_mapping_s=inline_mapping_s)
+                                 cam.height, sensor="rgbd")
         self.system.set_mapping_thread(mapping_thread)
-        inline = (f"inline (busy {inline_mapping_s} s after a keyframe)" if inline_mapping_s
-                  else "inline")
-        self.mode = (f"ferroslam, mapping {'thread' if mapping_thread else inline}, ORB "
+        self.mode = (f"ferroslam, mapping {'thread' if mapping_thread else 'inline'}, ORB "
                      f"extraction cached (median {np.median(extraction_ms):.1f} ms, not timed)")
 
     def track(self, t: float, i: int) -> bool:
@@ -117,9 +114,6 @@ def main(argv=None) -> int:
     parser.add_argument("--system", choices=("ferroslam", "orbslam3"), default="ferroslam")
     parser.add_argument("--mapping-thread", action="store_true",
                         help="ferroslam: local mapping in its own thread")
-    parser.add_argument("--inline-mapping-s", type=float, default=0.0, metavar="S",
-                        help="ferroslam, mapping inline: seconds mapping counts as busy after "
-                             "a keyframe (the inline_mapping_s option)")
     parser.add_argument("--realtime", action="store_true",
                         help="feed frames at the pace of their timestamps")
     parser.add_argument("--plot", type=Path, metavar="PNG", help="save the curve (matplotlib)")
@@ -129,7 +123,7 @@ def main(argv=None) -> int:
     seq = open_sequence(args.sequence)
     n = min(len(seq), args.max_frames or len(seq))
     replay = (OrbSlam3Replay(seq, n) if args.system == "orbslam3"
-              else FerroslamReplay(seq, n, args.mapping_thread, args.inline_mapping_s))
+              else FerroslamReplay(seq, n, args.mapping_thread))
     replayed = ReplayedSequence(seq, args.passes, n)
     order, stamps = replayed.order, replayed.timestamps
     rss0 = orb.memory_kb()["VmRSS"]

@@ -29,9 +29,9 @@ class FakeTrackResult:
 
 class FakeSlamSystem:
     # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
-    KNOWN = {"scale_factor", "n_levels", "track_feature_range", "skip_max_frames",
-             "inline_mapping_s", "bf", "baseline", "depth_threshold", "depth_range", "seed",
-             "loop_closure", "loop_closure_threshold"}
+    KNOWN = {"scale_factor", "n_levels", "track_feature_range", "skip_max_frames", "bf",
+             "baseline", "depth_threshold", "depth_range", "seed", "loop_closure",
+             "loop_closure_threshold"}
 
     def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
                  **config):

@@ -255,10 +255,6 @@ BAD_OPTIONS = {
                              "depth_range must be (min, max) with 0 <= min < max"),
     "skip_max_frames 0": ({"skip_max_frames": 0}, ValueError, "skip_max_frames must be >= 1"),
     "bf 0": ({"bf": 0.0}, ValueError, "bf must be a positive number"),
-    "inline_mapping_s negative": ({"inline_mapping_s": -0.1}, ValueError,
-                                  "inline_mapping_s must be a number of seconds >= 0"),
-    "inline_mapping_s nan": ({"inline_mapping_s": float("nan")}, ValueError,
-                             "inline_mapping_s must be a number of seconds >= 0"),
 }
 
 

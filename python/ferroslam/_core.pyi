@@ -47,10 +47,6 @@ class _SlamOptions(TypedDict, total=False):
     (ORB-SLAM's keyframe rules apply too)."""
     skip_max_frames: int
     """Frames after which a keyframe is inserted regardless of tracking quality, >= 1."""
-    inline_mapping_s: float
-    """With depth, mapping inline: seconds of stream time after a keyframe during which
-    local mapping counts as busy (ORB-SLAM's reference-ratio rule waits), >= 0; default 0.
-    0.09 keeps the map bounded when a run keeps revisiting the same place."""
     bf: float
     """RGB-D only: fx * baseline of the virtual right camera, pixels * metres, > 0."""
     baseline: float

@@ -72,7 +72,6 @@ fn parse_config(
             "n_levels" => config.n_levels = value.extract().map_err(wrong)?,
             "track_feature_range" => config.track_feature_range = pair(&key, &value)?,
             "skip_max_frames" => config.skip_max_frames = value.extract().map_err(wrong)?,
-            "inline_mapping_s" => config.inline_mapping_s = value.extract().map_err(wrong)?,
             "bf" => {
                 config.bf = value.extract().map_err(wrong)?;
                 bf_given = true;
@@ -88,7 +87,7 @@ fn parse_config(
             _ => {
                 return Err(PyValueError::new_err(format!(
                     "unknown option {key:?}; known: scale_factor, n_levels, track_feature_range, \
-                     skip_max_frames, inline_mapping_s, bf, baseline, depth_threshold, \
+                     skip_max_frames, bf, baseline, depth_threshold, \
                      depth_range, seed, loop_closure, loop_closure_threshold"
                 )))
             }

@@ -48,13 +48,6 @@ pub struct SlamConfig {
     pub track_feature_range: (usize, usize),
     /// Maximum number of frames between two keyframes (ORB-SLAM `mMaxFrames`).
     pub skip_max_frames: usize,
-    /// With depth and local mapping inline: stream time after a keyframe during which
-    /// mapping counts as busy, seconds, so ORB-SLAM's reference-ratio rule waits (unless
-    /// tracking is weak) as it does behind the mapping thread. 0 (default): inline mapping is
-    /// always done by the next frame, which maps most densely but lets every revisit of a
-    /// mapped place add keyframes in bursts, so a long run's map keeps growing. 0.09 (3
-    /// frames at 30 Hz, about the mapping thread's time per keyframe) keeps it bounded.
-    pub inline_mapping_s: f64,
     /// Stereo baseline times fx, in metres * pixels; the virtual right camera of RGB-D input.
     pub bf: f64,
     /// Points closer than `depth_threshold` baselines are "close" (trusted depth), metres / baseline.
@@ -79,7 +72,6 @@ impl Default for SlamConfig {
             n_levels: 8,
             track_feature_range: (30, 100),
             skip_max_frames: 30,
-            inline_mapping_s: 0.0,
             bf: 40.0,
             depth_threshold: 40.0,
             depth_range: (0.1, 8.0),
@@ -106,9 +98,6 @@ impl SlamConfig {
         }
         if self.skip_max_frames == 0 {
             return bad("skip_max_frames must be >= 1");
-        }
-        if !(self.inline_mapping_s.is_finite() && self.inline_mapping_s >= 0.0) {
-            return bad("inline_mapping_s must be a number of seconds >= 0");
         }
         if !(self.bf.is_finite() && self.bf > 0.0) {
             return bad("bf must be a positive number (fx * baseline)");

@@ -259,12 +259,10 @@ impl SlamSystem {
         let start = Instant::now();
         let new_keyframe = !self.localization_only
             && self.tracker.state == TrackingState::Ok
-            && (self.tracker.need_new_keyframe(
-                &frame,
-                &self.map,
-                &self.ctx,
-                self.mapping_idle(frame.timestamp),
-            ) || self.inertial_keyframe_due(frame.timestamp));
+            && (self
+                .tracker
+                .need_new_keyframe(&frame, &self.map, &self.ctx, self.mapping_idle())
+                || self.inertial_keyframe_due(frame.timestamp));
         if new_keyframe {
             // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
             // frames would be tracked against a map missing the points of several keyframes
@@ -285,7 +283,7 @@ impl SlamSystem {
                 self.ctx.close_depth_m,
                 &mut report,
             )?;
-            self.tracker.on_keyframe(frame.index, frame.timestamp, kf);
+            self.tracker.on_keyframe(frame.index, kf);
             result.is_keyframe = true;
             let mut window = self.inertial.as_mut().and_then(|i| i.window(&self.map));
             if let Some(concurrent) = self.concurrent.as_mut() {
@@ -379,20 +377,10 @@ impl SlamSystem {
             .map(ConcurrentMapper::backlog_handle)
     }
 
-    /// Whether local mapping can take a keyframe for a frame at `timestamp_s`: with the
-    /// mapping thread when it has nothing queued or in progress. Inline, where it ran inside
-    /// the last keyframe's call, with depth once `inline_mapping_s` of stream time has passed
-    /// since, and always monocular: a monocular map only grows by triangulation between
-    /// keyframes, and holding them back loses tracking (fr1/rpy at 0.09 s: 98 -> 68 % tracked).
-    fn mapping_idle(&self, timestamp_s: f64) -> bool {
-        match self.concurrent.as_ref() {
-            Some(c) => c.backlog() == 0,
-            None => {
-                !self.ctx.config.sensor.has_depth()
-                    || timestamp_s - self.tracker.last_keyframe_s
-                        >= self.ctx.config.inline_mapping_s
-            }
-        }
+    /// Whether local mapping can take a keyframe now: always inline (it ran inside the last
+    /// keyframe's call), with the mapping thread when it has nothing queued or in progress.
+    fn mapping_idle(&self) -> bool {
+        self.concurrent.as_ref().is_none_or(|c| c.backlog() == 0)
     }
 
     /// Waits for the mapping thread to process every queued keyframe and applies its edits
@@ -466,7 +454,7 @@ impl SlamSystem {
                     return Ok(Err(status));
                 }
             };
-        self.tracker.on_keyframe(frame.index, frame.timestamp, kf2);
+        self.tracker.on_keyframe(frame.index, kf2);
         self.tracker.state = TrackingState::Ok;
         self.tracker.matches_inliers = frame.map_points.iter().flatten().count();
         self.trajectory
@@ -497,7 +485,7 @@ impl SlamSystem {
             f64::INFINITY,
             &mut report,
         )?;
-        self.tracker.on_keyframe(frame.index, frame.timestamp, kf);
+        self.tracker.on_keyframe(frame.index, kf);
         self.tracker.state = TrackingState::Ok;
         self.tracker.matches_inliers = report.depth_points;
         self.trajectory

@@ -69,8 +69,6 @@ pub struct Tracker {
     velocity: Option<Isometry3<f64>>,
     /// Frame index of the last keyframe and of the last relocalisation.
     pub last_keyframe_frame: usize,
-    /// Timestamp of the last keyframe, seconds (`-inf` before the first).
-    pub last_keyframe_s: f64,
     last_relocalisation_frame: Option<usize>,
     local_keyframes: Vec<KeyFrameId>,
     local_points: Vec<MapPointId>,
@@ -89,7 +87,6 @@ impl Default for Tracker {
             last_T_c_r: None,
             velocity: None,
             last_keyframe_frame: 0,
-            last_keyframe_s: f64::NEG_INFINITY,
             last_relocalisation_frame: None,
             local_keyframes: Vec::new(),
             local_points: Vec::new(),
@@ -293,10 +290,9 @@ impl Tracker {
         }
     }
 
-    /// Marks the frame (index, timestamp in seconds) of a new keyframe.
-    pub fn on_keyframe(&mut self, frame_index: usize, timestamp_s: f64, kf: KeyFrameId) {
+    /// Marks the frame index of a new keyframe.
+    pub fn on_keyframe(&mut self, frame_index: usize, kf: KeyFrameId) {
         self.last_keyframe_frame = frame_index;
-        self.last_keyframe_s = timestamp_s;
         self.reference_kf = Some(kf);
     }
 
