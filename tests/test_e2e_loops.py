@@ -64,14 +64,15 @@ def test_no_false_loop_on_real_sequences_without_loops(case, request):
 # ---------------------------------------------------------------------------------------------
 # Synthetic vision on the real V1_01 flight: real revisits.
 
-VISION = VisionModel(max_range_m=3.0, pixel_sigma=1.0, max_features=700)
+# With stereo depth, tracking at 1 px noise drifts about 1 cm over the flight, too little for
+# loop closing's gain to stand out from which revisiting frames happen to become keyframes
+# (2-13 % over four keyframe-rule variants); at 1.5 px it drifts 2.9-3.1 cm.
+VISION = {
+    "mono": VisionModel(max_range_m=3.0, pixel_sigma=1.0, max_features=700),
+    "rgbd": VisionModel(max_range_m=3.0, pixel_sigma=1.5, max_features=700),
+}
 MIN_SHARED_LANDMARKS = 20
 MIN_LOOP_GAP_S = 10.0
-
-
-@pytest.fixture(scope="module")
-def flight_seq():
-    return SyntheticStereoSequence(require_data("euroc", "V1_01_easy_imu_gt"), vision=VISION)
 
 
 def _run_synthetic(seq, sensor: str, loop_closure: bool):
@@ -93,10 +94,11 @@ def _run_synthetic(seq, sensor: str, loop_closure: bool):
 
 
 @pytest.fixture(scope="module", params=["mono", "rgbd"])
-def flight_runs(request, flight_seq):
-    on = _run_synthetic(flight_seq, request.param, True)
-    off = _run_synthetic(flight_seq, request.param, False)
-    return request.param, on, off
+def flight_runs(request):
+    sensor = request.param
+    seq = SyntheticStereoSequence(require_data("euroc", "V1_01_easy_imu_gt"),
+                                  vision=VISION[sensor])
+    return sensor, seq, _run_synthetic(seq, sensor, True), _run_synthetic(seq, sensor, False)
 
 
 def _frame_at(seq, t: float) -> int:
@@ -105,10 +107,10 @@ def _frame_at(seq, t: float) -> int:
     return i
 
 
-def test_synthetic_flight_loops_only_at_true_revisits(flight_runs, flight_seq):
-    """Measured: 4 loops monocular and 4 stereo, between frames sharing 58-282 landmarks,
-    13-105 s apart."""
-    sensor, (slam, _), _ = flight_runs
+def test_synthetic_flight_loops_only_at_true_revisits(flight_runs):
+    """Measured: 4 loops monocular and 5 stereo, between frames sharing 44-282 landmarks,
+    13-106 s apart."""
+    sensor, flight_seq, (slam, _), _ = flight_runs
     loops = slam.loops()
     assert len(loops) >= 3, slam.loop_stats()
     for loop in loops:
@@ -125,15 +127,13 @@ def test_synthetic_flight_loops_only_at_true_revisits(flight_runs, flight_seq):
 
 def test_synthetic_flight_loop_closing_lowers_ate(flight_runs):
     """Measured (seed 0): mono Sim(3) ATE 1.81 cm without loop closing, 1.36 cm with it;
-    stereo SE(3) ATE 1.13 cm without, 1.05 cm with. The gain is modest because tracking
-    against the local map already re-finds most old landmarks in this room, so little drift
-    is left for loop closing to remove (with 8 m range the runs drift by 2 mm only). With
-    depth the gain depends on which revisiting frames become keyframes, as the loops are
-    detected at those: 2-13 % over four variants of the keyframe rule (1.16 -> 1.01 cm
-    before revisits stopped adding redundant keyframes), so only a gain is required there."""
-    sensor, (_, on), (_, off) = flight_runs
+    stereo SE(3) at 1.5 px noise 3.11 cm without, 2.19 cm with (landmark seeds 1 and 2:
+    2.90 -> 2.15 and 3.13 -> 2.30 cm). The gain is modest because tracking against the local
+    map already re-finds most old landmarks in this room, so little drift is left for loop
+    closing to remove (with 8 m range the runs drift by 2 mm only)."""
+    sensor, _, (_, on), (_, off) = flight_runs
     print(f"{sensor}: ATE {off.rmse * 100:.2f} cm without loop closing, "
           f"{on.rmse * 100:.2f} cm with it")
     assert on.pairs == off.pairs and on.pairs > 2700
-    assert on.rmse < (0.9 if sensor == "mono" else 1.0) * off.rmse
-    assert on.rmse < 0.02
+    assert on.rmse < 0.9 * off.rmse
+    assert on.rmse < {"mono": 0.02, "rgbd": 0.025}[sensor]
