@@ -616,11 +616,14 @@ impl Tracker {
         let matlab = inliers < ctx.config.track_feature_range.1 || since_kf >= max_frames;
         let weak =
             ctx.config.sensor.has_depth() && ((inliers as f64) < 0.25 * ref_matches || need_close);
-        let redundant = ctx.config.sensor.has_depth()
-            && (inliers_seen_by(frame, map, REDUNDANT_VIEW_KEYFRAMES) as f64)
-                >= REDUNDANT_VIEW_SHARE * inliers as f64;
-        let orb_slam = ((mapping_idle && !redundant) || weak)
-            && ((inliers as f64) < ref_matches * ratio || need_close);
+        // The redundancy count walks every inlier's point: only when it decides.
+        let views_mapped_structure = || {
+            ctx.config.sensor.has_depth()
+                && (inliers_seen_by(frame, map, REDUNDANT_VIEW_KEYFRAMES) as f64)
+                    >= REDUNDANT_VIEW_SHARE * inliers as f64
+        };
+        let orb_slam = ((inliers as f64) < ref_matches * ratio || need_close)
+            && (weak || (mapping_idle && !views_mapped_structure()));
         (matlab || orb_slam) && inliers > 15
     }
 }
