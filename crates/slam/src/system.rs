@@ -245,10 +245,7 @@ impl SlamSystem {
         if !tracked && predicted.is_some() {
             // Carried by the IMU: the frame has its pose, nothing else changes.
             result.T_w_c = Some(frame.T_c_w.inverse());
-            if let Some(r) = self.tracker.reference_kf {
-                self.trajectory
-                    .push(frame.timestamp, &frame.T_c_w, r, &self.map);
-            }
+            self.record_frame(&frame);
             return Ok(result);
         }
         if !tracked {
@@ -285,6 +282,7 @@ impl SlamSystem {
             )?;
             self.tracker.on_keyframe(frame.index, kf);
             result.is_keyframe = true;
+            self.record_frame(&frame);
             let mut window = self.inertial.as_mut().and_then(|i| i.window(&self.map));
             if let Some(concurrent) = self.concurrent.as_mut() {
                 let work = KeyFrameWork {
@@ -316,13 +314,23 @@ impl SlamSystem {
             self.update_inertial()?;
         }
         result.mapping_ms = start.elapsed().as_secs_f64() * 1e3;
-        if let Some(r) = self.tracker.reference_kf {
-            self.trajectory
-                .push(frame.timestamp, &frame.T_c_w, r, &self.map);
+        if !new_keyframe {
+            self.record_frame(&frame);
         }
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, new_keyframe);
         Ok(result)
+    }
+
+    /// Adds a tracked frame to the trajectory, anchored to its reference keyframe as the map
+    /// was when the frame was tracked: a keyframe's frame is recorded before local mapping
+    /// and loop closing move the keyframe, so that it moves with it (recorded after, it kept
+    /// its uncorrected pose: fr1/rpy with a loop closed inline, an 18.9 cm outlier).
+    fn record_frame(&mut self, frame: &Frame) {
+        if let Some(r) = self.tracker.reference_kf {
+            self.trajectory
+                .push(frame.timestamp, &frame.T_c_w, r, &self.map);
+        }
     }
 
     /// Inline loop closing for keyframe `kf` (with a vocabulary and `config.loop_closure`).
