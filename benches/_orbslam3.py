@@ -170,11 +170,11 @@ def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path,
     factor = PRESETS["tum"]["depth_factor"]
     call_ms = np.full(n, np.nan)
     states, stamps, poses = [], [], []
-    start = time.perf_counter()
+    run_start = time.perf_counter()
     for i in range(n):
         t = float(seq.timestamps[i])
         if realtime:
-            time.sleep(max(0.0, start + t - float(seq.timestamps[0]) - time.perf_counter()))
+            time.sleep(max(0.0, run_start + t - float(seq.timestamps[0]) - time.perf_counter()))
         if sensor == "rgbd":
             args = (seq.load_gray(i), (seq.load_depth(i) * factor).astype(np.float32))
             fn = slam.track_rgbd
@@ -199,12 +199,44 @@ def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path,
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "orbslam3_traj.txt"
         try:
-            slam.save_trajectory_euroc(str(out))
+            _save_trajectory_guarded(slam, out)
             final = read_euroc_trajectory(out)
         except (RuntimeError, OSError, ValueError) as err:
             errors.append(f"save_trajectory_euroc: {err}; using the per-call poses")
             final = online
     return OrbSlam3Run(call_ms, states, load_s, shutdown_s, final, online, errors)
+
+
+def _save_trajectory_guarded(slam, out: Path, timeout_s: float = 60.0) -> None:
+    """``slam.save_trajectory_euroc(out)`` in a forked child, killed after ``timeout_s``.
+
+    ORB-SLAM3 locks a stale map's mutex, holding the GIL, and never returns when every map
+    of its atlas is empty (a monocular run whose map was reset and never re-initialised:
+    ``System::SaveTrajectoryEuRoC`` has no map with keyframes to pick). The child shares the
+    finished system's memory; the parent only waits for it.
+
+    Raises:
+        RuntimeError: the save crashed, failed or timed out.
+    """
+    pid = os.fork()
+    if pid == 0:  # child: save, then leave without running any of the parent's cleanup
+        code = 1
+        try:
+            slam.save_trajectory_euroc(str(out))
+            code = 0
+        finally:
+            os._exit(code)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            if os.waitstatus_to_exitcode(status) != 0 or not out.exists():
+                raise RuntimeError(f"failed (exit status {os.waitstatus_to_exitcode(status)})")
+            return
+        time.sleep(0.05)
+    os.kill(pid, 9)
+    os.waitpid(pid, 0)
+    raise RuntimeError(f"no answer in {timeout_s:.0f} s (every map of the atlas empty?)")
 
 
 def memory_kb() -> dict:
