@@ -19,7 +19,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 
 use ferroslam_map::{KeyFrameId, Map, MapJournal, MapPointId};
-use ferroslam_vocabulary::Vocabulary;
+use ferroslam_vocabulary::{BowVector, FeatureVector, Vocabulary};
 
 use crate::context::Context;
 use crate::error::SlamError;
@@ -63,6 +63,10 @@ pub(crate) struct Mapped {
     pub error: Option<SlamError>,
     /// The inertial windows with the states local inertial BA found.
     pub inertial: Vec<InertialWindow>,
+    /// Keyframes the job indexed for place recognition (those still live at its end), with
+    /// their bags of words and feature vectors: tracking's index adopts them rather than
+    /// transforming every keyframe's descriptors again on the tracking thread.
+    pub indexed: Vec<(KeyFrameId, (BowVector, FeatureVector))>,
 }
 
 /// Handle of the mapping thread, owned by tracking.
@@ -252,7 +256,9 @@ fn mapping_loop(
             stats: LoopStats::default(),
             error: None,
             inertial: Vec::new(),
+            indexed: Vec::new(),
         };
+        let mut indexed = Vec::new();
         for mut work in job.work {
             for m in work.new_points {
                 mapper.add_recent_point(m);
@@ -274,7 +280,7 @@ fn mapping_loop(
                     let Some(place) = place.as_mut() else {
                         return Ok(None);
                     };
-                    place.sync(&map);
+                    indexed.extend(place.sync(&map));
                     if !ctx.config.loop_closure || map.keyframe(work.kf).is_none() {
                         return Ok(None);
                     }
@@ -290,6 +296,12 @@ fn mapping_loop(
                     break;
                 }
             }
+        }
+        if let Some(place) = place.as_ref() {
+            mapped.indexed = indexed
+                .into_iter()
+                .filter_map(|kf| Some((kf, place.entry(kf)?.clone())))
+                .collect();
         }
         mapped.stats = closer.stats();
         mapped.journal = map.take_journal();

@@ -12,7 +12,7 @@ use ferroslam_map::{KeyFrameId, Map};
 use ferroslam_vocabulary::{BowVector, Database, FeatureVector, Vocabulary};
 
 /// Levels above the leaves at which feature vectors group features (ORB-SLAM: 4).
-const FEATURE_LEVELS_UP: u32 = 4;
+pub const FEATURE_LEVELS_UP: u32 = 4;
 /// Covisible keyframes whose scores a candidate accumulates (ORB-SLAM: 10).
 const GROUP_SIZE: usize = 10;
 /// Keyframes retrieved from the database before grouping.
@@ -53,22 +53,39 @@ impl PlaceRecognition {
         self.vocabulary.transform(descriptors, FEATURE_LEVELS_UP).0
     }
 
-    /// Indexes keyframe `kf` of `map` (no-op if it is gone or already indexed).
-    pub fn add_keyframe(&mut self, kf: KeyFrameId, map: &Map) {
+    /// Indexes keyframe `kf` of `map` (no-op if it is gone or already indexed); whether it
+    /// was indexed now.
+    pub fn add_keyframe(&mut self, kf: KeyFrameId, map: &Map) -> bool {
         if self.bows.contains_key(&kf) {
-            return;
+            return false;
         }
-        if let Some(k) = map.keyframe(kf) {
-            let (bow, features) = self
-                .vocabulary
-                .transform(&k.features().descriptors, FEATURE_LEVELS_UP);
-            self.database.add(kf.0, &bow);
-            self.bows.insert(kf, (bow, features));
+        let Some(k) = map.keyframe(kf) else {
+            return false;
+        };
+        let entry = self
+            .vocabulary
+            .transform(&k.features().descriptors, FEATURE_LEVELS_UP);
+        self.insert(kf, entry);
+        true
+    }
+
+    /// Indexes keyframe `kf` with its bag of words and feature vector computed elsewhere (the
+    /// mapping thread's index, so that tracking does not compute them again); no-op if it is
+    /// indexed already.
+    pub fn insert(&mut self, kf: KeyFrameId, entry: (BowVector, FeatureVector)) {
+        if let std::collections::hash_map::Entry::Vacant(slot) = self.bows.entry(kf) {
+            self.database.add(kf.0, &entry.0);
+            slot.insert(entry);
         }
     }
 
-    /// Forgets the keyframes no longer live in `map` (culled) and indexes the new ones.
-    pub fn sync(&mut self, map: &Map) {
+    /// The bag of words and feature vector of an indexed keyframe.
+    pub fn entry(&self, kf: KeyFrameId) -> Option<&(BowVector, FeatureVector)> {
+        self.bows.get(&kf)
+    }
+
+    /// Forgets the keyframes no longer live in `map` (culled).
+    pub fn forget_culled(&mut self, map: &Map) {
         let gone: Vec<KeyFrameId> = self
             .bows
             .keys()
@@ -79,9 +96,16 @@ impl PlaceRecognition {
             self.database.remove(kf.0);
             self.bows.remove(&kf);
         }
-        for kf in map.keyframe_ids() {
-            self.add_keyframe(kf, map);
-        }
+    }
+
+    /// Forgets the keyframes no longer live in `map` (culled) and indexes the new ones,
+    /// which it returns.
+    pub fn sync(&mut self, map: &Map) -> Vec<KeyFrameId> {
+        self.forget_culled(map);
+        map.keyframe_ids()
+            .into_iter()
+            .filter(|&kf| self.add_keyframe(kf, map))
+            .collect()
     }
 
     /// Forgets every keyframe.

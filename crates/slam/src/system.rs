@@ -290,8 +290,8 @@ impl SlamSystem {
                     new_points: self.mapper.take_recent_points(),
                     inertial: window,
                 };
+                // The mapping thread indexes it (see `collect_mapping`).
                 concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
-                self.index_keyframes();
             } else {
                 self.mapper.process_keyframe(
                     kf,
@@ -415,11 +415,20 @@ impl SlamSystem {
             if let Some(inertial) = self.inertial.as_mut() {
                 mapped.inertial.iter().for_each(|w| inertial.store(w));
             }
+            if let Some(place) = self.place.as_mut() {
+                for (kf, entry) in mapped.indexed {
+                    if self.map.keyframe(kf).is_some() {
+                        place.insert(kf, entry);
+                    }
+                }
+            }
             self.loops.extend(mapped.loops);
             self.loop_stats = mapped.stats;
             error = error.or(mapped.error);
         }
-        self.index_keyframes();
+        if let Some(place) = self.place.as_mut() {
+            place.forget_culled(&self.map);
+        }
         error.map_or(Ok(()), Err)
     }
 
@@ -708,6 +717,12 @@ impl SlamSystem {
     /// The map (keyframes, points, covisibility).
     pub fn map(&self) -> &Map {
         &self.map
+    }
+
+    /// The bag-of-words index of the keyframes relocalisation searches (with a vocabulary).
+    /// With the mapping thread, a keyframe enters it once the thread has processed it.
+    pub fn place_recognition(&self) -> Option<&PlaceRecognition> {
+        self.place.as_ref()
     }
 
     /// Number of map resets after tracking was lost right after initialisation.

@@ -5,6 +5,7 @@
 use ferroslam_features::{Descriptor, Keypoint};
 use ferroslam_geometry::camera::{test_cameras, ImageBounds, PinholeCamera};
 use ferroslam_geometry::se3;
+use ferroslam_slam::place_recognition::FEATURE_LEVELS_UP;
 use ferroslam_slam::{RgbdInput, SlamConfig, SlamError, SlamSystem, TrackingState};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
@@ -303,4 +304,59 @@ fn concurrent_mapping_keeps_the_accuracy_of_inline_mapping() {
         .track_rgbd(&input(40.0 / 30.0, &kps, &descs, &depth))
         .unwrap();
     drop(system);
+}
+
+/// With the mapping thread, tracking's keyframe index adopts the bags of words the thread
+/// computed instead of computing them again: once mapping is done it holds every keyframe
+/// with the words its descriptors give, and relocalisation (which, with a vocabulary, only
+/// searches the keyframes the index recognises) finds a frame back at the start of the path.
+#[test]
+fn concurrent_mapping_hands_its_keyframe_index_to_relocalisation() {
+    let scene = Scene::new(5, 1500);
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let training: Vec<Vec<Descriptor>> = (0..40)
+        .step_by(8)
+        .map(|i| scene.observe(i, &mut rng, 0.0).1)
+        .collect();
+    let params = ferroslam_vocabulary::TrainParams {
+        levels: 3,
+        ..Default::default()
+    };
+    let vocabulary =
+        std::sync::Arc::new(ferroslam_vocabulary::Vocabulary::train(&training, &params).unwrap());
+    let config = SlamConfig {
+        skip_max_frames: 2,
+        ..SlamConfig::default()
+    };
+    let mut system = SlamSystem::new(scene.camera, config).unwrap();
+    system.set_vocabulary(std::sync::Arc::clone(&vocabulary));
+    system.set_concurrent_mapping(true).unwrap();
+    for i in 0..40 {
+        let (kps, descs, depth) = scene.observe(i, &mut rng, 0.0);
+        let result = system
+            .track_rgbd(&input(i as f64 / 30.0, &kps, &descs, &depth))
+            .unwrap();
+        assert_eq!(result.state, TrackingState::Ok, "frame {i}");
+    }
+    system.finish_mapping().unwrap();
+    let (map, place) = (system.map(), system.place_recognition().unwrap());
+    assert!(map.num_keyframes() > 5);
+    assert_eq!(place.len(), map.num_keyframes());
+    for kf in map.keyframe_ids() {
+        let descriptors = &map.keyframe(kf).unwrap().features().descriptors;
+        let words = vocabulary.transform(descriptors, FEATURE_LEVELS_UP);
+        assert_eq!(place.entry(kf), Some(&words), "{kf:?}");
+    }
+    let empty = input(2.0, &[], &[], &[]);
+    assert_eq!(
+        system.track_rgbd(&empty).unwrap().state,
+        TrackingState::Lost
+    );
+    let (kps, descs, depth) = scene.observe(0, &mut rng, 0.0);
+    let result = system
+        .track_rgbd(&input(2.1, &kps, &descs, &depth))
+        .unwrap();
+    assert_eq!(result.state, TrackingState::Ok);
+    let error = se3::log(&(Scene::T_w_c(0).inverse() * result.T_w_c.unwrap()));
+    assert!(error.norm() < 1e-3, "{error:?}");
 }
