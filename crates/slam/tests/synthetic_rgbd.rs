@@ -120,13 +120,29 @@ fn run(scene: &Scene, frames: usize, noise_px: f64) -> SlamSystem {
 fn run_with(scene: &Scene, frames: usize, noise_px: f64, config: SlamConfig) -> SlamSystem {
     let mut system = SlamSystem::new(scene.camera, config).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(99);
-    for i in 0..frames {
-        let (kps, descs, depth) = scene.observe(i, &mut rng, noise_px);
-        let frame = input(i as f64 / 30.0, &kps, &descs, &depth);
-        let result = system.track_rgbd(&frame).unwrap();
-        assert_eq!(result.state, TrackingState::Ok, "frame {i}");
-    }
+    track_path(&mut system, scene, frames, noise_px, &mut rng);
     system
+}
+
+/// Tracks frames `0..frames` of the path at 30 Hz, each of which must be tracked; returns how
+/// many became keyframes.
+fn track_path(
+    system: &mut SlamSystem,
+    scene: &Scene,
+    frames: usize,
+    noise_px: f64,
+    rng: &mut ChaCha8Rng,
+) -> usize {
+    let mut keyframes = 0;
+    for i in 0..frames {
+        let (kps, descs, depth) = scene.observe(i, rng, noise_px);
+        let result = system
+            .track_rgbd(&input(i as f64 / 30.0, &kps, &descs, &depth))
+            .unwrap();
+        assert_eq!(result.state, TrackingState::Ok, "frame {i}");
+        keyframes += usize::from(result.is_keyframe);
+    }
+    keyframes
 }
 
 #[test]
@@ -267,15 +283,7 @@ fn concurrent_mapping_keeps_the_accuracy_of_inline_mapping() {
     system.set_concurrent_mapping(true).unwrap();
     assert!(system.concurrent_mapping());
     let mut rng = ChaCha8Rng::seed_from_u64(99);
-    let mut keyframes = 0;
-    for i in 0..40 {
-        let (kps, descs, depth) = scene.observe(i, &mut rng, 0.5);
-        let result = system
-            .track_rgbd(&input(i as f64 / 30.0, &kps, &descs, &depth))
-            .unwrap();
-        assert_eq!(result.state, TrackingState::Ok, "frame {i}");
-        keyframes += usize::from(result.is_keyframe);
-    }
+    let keyframes = track_path(&mut system, &scene, 40, 0.5, &mut rng);
     system.finish_mapping().unwrap();
     assert_eq!(
         system
@@ -331,13 +339,7 @@ fn concurrent_mapping_hands_its_keyframe_index_to_relocalisation() {
     let mut system = SlamSystem::new(scene.camera, config).unwrap();
     system.set_vocabulary(std::sync::Arc::clone(&vocabulary));
     system.set_concurrent_mapping(true).unwrap();
-    for i in 0..40 {
-        let (kps, descs, depth) = scene.observe(i, &mut rng, 0.0);
-        let result = system
-            .track_rgbd(&input(i as f64 / 30.0, &kps, &descs, &depth))
-            .unwrap();
-        assert_eq!(result.state, TrackingState::Ok, "frame {i}");
-    }
+    track_path(&mut system, &scene, 40, 0.0, &mut rng);
     system.finish_mapping().unwrap();
     let (map, place) = (system.map(), system.place_recognition().unwrap());
     assert!(map.num_keyframes() > 5);
