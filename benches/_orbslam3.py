@@ -15,6 +15,7 @@ ORB-SLAM3's ``ORBvoc.txt`` is a separate 139 MB download.
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -234,7 +235,7 @@ def _save_trajectory_guarded(slam, out: Path, timeout_s: float = 60.0) -> None:
                 raise RuntimeError(f"failed (exit status {os.waitstatus_to_exitcode(status)})")
             return
         time.sleep(0.05)
-    os.kill(pid, 9)
+    os.kill(pid, signal.SIGKILL)
     os.waitpid(pid, 0)
     raise RuntimeError(f"no answer in {timeout_s:.0f} s (every map of the atlas empty?)")
 

@@ -7,7 +7,7 @@ use common::{gaussian, perturb, pose_error, project, random_point, K};
 use ferroslam_geometry::se3;
 use ferroslam_optim::residual::linearize;
 use ferroslam_optim::{optimize_pose, OptimError, PoseObservation};
-use nalgebra::{Isometry3, Matrix6, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix6, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -207,7 +207,7 @@ fn rounds_end_at_the_optimum_of_their_inliers() {
         let s = pose_scene(seed, 200, stereo_fraction);
         let mut outlier = vec![false; s.obs.len()];
         let est = optimize_pose(&s.T_init, &s.obs, &K, &mut outlier).unwrap();
-        let (mut h, mut g) = (Matrix6::zeros(), nalgebra::Vector6::zeros());
+        let (mut h, mut g) = (Matrix6::zeros(), Vector6::zeros());
         for (o, _) in s.obs.iter().zip(&outlier).filter(|(_, &bad)| !bad) {
             let l = linearize(&K, &est.T_c_w, &o.p_w, &o.uv, o.u_right).unwrap();
             h += o.inv_sigma2 * l.d_e_d_xi.transpose() * l.d_e_d_xi;

@@ -416,10 +416,9 @@ impl SlamSystem {
                 mapped.inertial.iter().for_each(|w| inertial.store(w));
             }
             if let Some(place) = self.place.as_mut() {
+                // Keyframes culled since (by a later job) leave again below.
                 for (kf, entry) in mapped.indexed {
-                    if self.map.keyframe(kf).is_some() {
-                        place.insert(kf, entry);
-                    }
+                    place.insert(kf, entry);
                 }
             }
             self.loops.extend(mapped.loops);
