@@ -350,6 +350,21 @@ mod tests {
     }
 
     #[test]
+    fn lane_mask_sets_the_bits_of_values_above_the_threshold() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for t in [0, 1, 7, 20, 127, 128, 200, 254, 255] {
+            for _ in 0..50 {
+                let values: [u8; LANES] = std::array::from_fn(|_| rng.random());
+                let expected = (0..LANES)
+                    .filter(|&i| values[i] > t)
+                    .fold(0u32, |mask, i| mask | 1 << i);
+                assert_eq!(lanes_above(&values, t), expected, "t = {t}, {values:?}");
+            }
+        }
+    }
+
+    #[test]
     fn margin_excludes_corners_and_flat_images_have_none() {
         let data = image(40, 40, |x, y| if (x, y) == (5, 5) { 200 } else { 100 });
         let img = GrayImage::new(40, 40, &data).unwrap();
