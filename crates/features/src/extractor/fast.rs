@@ -11,7 +11,7 @@ use std::ops::Range;
 
 use multiversion::multiversion;
 use rayon::prelude::*;
-use wide::{u8x32, CmpGt};
+use wide::u8x32;
 
 use super::Corner;
 use crate::GrayImage;
