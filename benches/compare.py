@@ -9,7 +9,7 @@ for stereo / RGB-D, Sim(3) for monocular). One process per sequence because ORB-
 per-camera statics (``Frame::mbInitialComputations``) that a second camera in the same
 process would inherit; both systems of a sequence share that process.
 
-    python benches/compare.py [--sequences tum_rgbd tum_mono kitti_stereo euroc_stereo]
+    python benches/compare.py [--sequences tum_rgbd tum_mono kitti_mono kitti_stereo euroc_stereo]
                               [--max-frames N] [--runs R] [--json OUT] [--workdir DIR]
                               [--inline-mapping] [--realtime]
 
