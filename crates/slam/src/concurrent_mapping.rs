@@ -102,13 +102,7 @@ impl ConcurrentMapper {
         let (count, hurry) = (Arc::clone(&backlog), Arc::clone(&interrupt));
         let thread = std::thread::Builder::new()
             .name("ferroslam-mapping".into())
-            .spawn(move || {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .thread_name(|i| format!("ferroslam-mapping-{i}"))
-                    .build()
-                    .expect("mapping pool");
-                pool.install(|| mapping_loop(&ctx, inbox, report, count, &hurry))
-            })
+            .spawn(move || mapping_loop(&ctx, inbox, report, count, &hurry))
             .expect("the OS refused to start the mapping thread");
         Self {
             jobs: Some(jobs),
