@@ -100,7 +100,8 @@ fn bench_matching(c: &mut Criterion) {
 
 /// Local mapping's epipolar search between two keyframes of 2000 free features each (KITTI's
 /// extractor setting; seeded random features over 640 x 480, a third of them with a noisy
-/// twin in the other view; a sideways baseline, so the epipolar lines are horizontal).
+/// twin in the other view), for a sideways baseline (horizontal epipolar lines) and a
+/// forward one (monocular driving: lines radiate from the epipole at the image centre).
 fn bench_triangulation_search(c: &mut Criterion) {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let (kps1, desc1) = features(&mut rng, 2000);
@@ -109,35 +110,41 @@ fn bench_triangulation_search(c: &mut Criterion) {
         desc2[i] = perturb(&mut rng, &desc1[i], 8);
     }
     let free = vec![true; 2000];
-    // F21 of a pure x translation between identical pinhole cameras: [t]x with t = (1, 0, 0),
-    // in pixels through K = [500 0 320; 0 500 240; 0 0 1].
+    // F21 of a pure translation t between identical pinhole cameras: K^-T [t]x K^-1, in
+    // pixels through K = [500 0 320; 0 500 240; 0 0 1].
     let k_inv = Matrix3::new(500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0)
         .try_inverse()
         .unwrap();
-    let t = Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0);
-    let f21 = k_inv.transpose() * t * k_inv;
+    let sideways = Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0);
+    let forward = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let sigma2 = ScalePyramid::new(1.2, 8).unwrap().sigma2;
     let opts = MatchOptions {
         max_distance: TH_LOW,
         nn_ratio: None,
         check_orientation: true,
     };
-    c.bench_function("search_for_triangulation_2000x2000", |b| {
-        b.iter(|| {
-            search_for_triangulation(
-                black_box(&kps1),
-                &desc1,
-                &free,
-                &kps2,
-                &desc2,
-                &free,
-                &f21,
-                &sigma2,
-                None,
-                &opts,
-            )
-        })
-    });
+    for (name, t, epipole) in [
+        ("sideways", sideways, None),
+        ("forward", forward, Some((320.0, 240.0))),
+    ] {
+        let f21 = k_inv.transpose() * t * k_inv;
+        c.bench_function(&format!("search_for_triangulation_2000x2000 {name}"), |b| {
+            b.iter(|| {
+                search_for_triangulation(
+                    black_box(&kps1),
+                    &desc1,
+                    &free,
+                    &kps2,
+                    &desc2,
+                    &free,
+                    &f21,
+                    &sigma2,
+                    epipole,
+                    &opts,
+                )
+            })
+        });
+    }
 }
 
 criterion_group!(benches, bench_matching, bench_triangulation_search);
