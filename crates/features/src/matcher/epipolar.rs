@@ -256,14 +256,15 @@ impl Candidates {
 
 impl CellRuns {
     /// Appends (in order) the candidates of positions `run` whose squared distance to `line`
-    /// is below their bound. Branch-free: every candidate is written, the count advances
-    /// past those that pass (a branch on the test mispredicts, about a fifth pass).
+    /// is below their bound. Branch-free: all are appended, then each is moved down to the
+    /// count, which advances past those that pass (a branch on the test mispredicts).
     fn scan(&self, line: &Vector3<f64>, norm2: f64, run: Range<usize>, out: &mut Vec<usize>) {
-        let mut len = out.len();
-        out.resize(len + run.len(), 0);
-        for n in run {
+        let base = out.len();
+        let mut len = base;
+        out.extend_from_slice(&self.k[run.clone()]);
+        for (j, n) in run.enumerate() {
             let r = line.x * self.x[n] + line.y * self.y[n] + line.z;
-            out[len] = self.k[n];
+            out[len] = out[base + j];
             len += usize::from(r * r / norm2 < self.max_r2[n]);
         }
         out.truncate(len);
