@@ -254,24 +254,29 @@ impl SlamSystem {
         }
         self.lost_since = None;
         let start = Instant::now();
-        let new_keyframe = !self.localization_only
+        let mut new_keyframe = !self.localization_only
             && self.tracker.state == TrackingState::Ok
             && (self
                 .tracker
                 .need_new_keyframe(&frame, &self.map, &self.ctx, self.mapping_idle())
                 || self.inertial_keyframe_due(frame.timestamp));
-        if new_keyframe {
-            // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
-            // frames would be tracked against a map missing the points of several keyframes
-            // (fatal for monocular maps, which only grow by triangulation), so it waits.
-            if let Some(concurrent) = self
-                .concurrent
-                .as_ref()
-                .filter(|c| c.backlog() >= MAX_QUEUED_KEYFRAMES)
-            {
-                concurrent.interrupt();
+        // Tracking may run ahead of mapping by at most this many keyframes: beyond, the
+        // frames would be tracked against a map missing the points of several keyframes
+        // (fatal for monocular maps, which only grow by triangulation), so it waits, or
+        // leaves the keyframe to the next frame (see `Tracker::defer_keyframe`).
+        if let Some(concurrent) = self
+            .concurrent
+            .as_ref()
+            .filter(|c| new_keyframe && c.backlog() >= MAX_QUEUED_KEYFRAMES)
+        {
+            concurrent.interrupt();
+            if self.tracker.defer_keyframe(frame.index, &self.ctx) {
+                new_keyframe = false;
+            } else {
                 self.finish_mapping()?;
             }
+        }
+        if new_keyframe {
             let mut report = MappingReport::default();
             let kf = self.mapper.insert_keyframe(
                 &mut frame,
