@@ -76,6 +76,18 @@ def _both_tracking(ours_ok: np.ndarray, ours_ms: np.ndarray, orb_states: list,
             "orbslam3": _stats(orb_ms[both])["median"]}
 
 
+def _common_ate(gt, ours, theirs, align: str) -> dict:
+    """ATE of each trajectory over only the poses both have (same timestamps): a system that
+    loses the map keeps its few easy poses, which its plain ATE would otherwise compare with
+    the other system's whole run."""
+    t_o, t_t = np.round(ours.timestamps, 6), np.round(theirs.timestamps, 6)
+    common = np.intersect1d(t_o, t_t)
+    return {"poses": int(common.size),
+            "ours": _ate(gt, ours.subset(np.flatnonzero(np.isin(t_o, common))), align)["rmse_m"],
+            "orbslam3": _ate(gt, theirs.subset(np.flatnonzero(np.isin(t_t, common))),
+                             align)["rmse_m"]}
+
+
 def _ate(gt, traj, align: str) -> dict:
     from ferroslam.metrics import ate
 
@@ -123,7 +135,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
            "realtime": realtime,
            "config": config, "settings": str(settings), "load_start": orb.load_average()}
 
-    def ours() -> tuple[dict, np.ndarray, np.ndarray]:
+    def ours() -> tuple[dict, np.ndarray, np.ndarray, Trajectory]:
         base = orb.memory_kb()["VmRSS"]
         orb.reset_peak_memory()
         t0 = time.perf_counter()
@@ -144,7 +156,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
             "peak_delta_mb": (peak - base) / 1024,
         }
         ok = np.array([st == "ok" for st in res.states])
-        return record, ok, np.asarray(res.timings["frame_ms"], np.float64)
+        return record, ok, np.asarray(res.timings["frame_ms"], np.float64), traj
 
     def orbslam3():
         base = orb.memory_kb()["VmRSS"]
@@ -162,7 +174,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
             "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024,
             "errors": run.errors,
         }
-        return record, run.states, np.asarray(run.call_ms, np.float64)
+        return record, run.states, np.asarray(run.call_ms, np.float64), run.trajectory
 
     # Neither system is deterministic with its mapping thread, so each runs `runs` times,
     # alternating so that a change of machine load reaches both; the run with the median ATE
@@ -171,14 +183,19 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     for _ in range(runs):
         ours_runs.append(ours())
         orb_runs.append(orbslam3())
-    io = _median_ate_run([r for r, _, _ in ours_runs])
-    it = _median_ate_run([r for r, _, _ in orb_runs])
-    rec["ours"] = _spread([r for r, _, _ in ours_runs], io)
-    rec["orbslam3"] = _spread([r for r, _, _ in orb_runs], it)
-    # Times: per pair of runs made one after the other, the median over the pairs.
+    io = _median_ate_run([r[0] for r in ours_runs])
+    it = _median_ate_run([r[0] for r in orb_runs])
+    rec["ours"] = _spread([r[0] for r in ours_runs], io)
+    rec["orbslam3"] = _spread([r[0] for r in orb_runs], it)
+    # Over the frames both track: per pair of runs made one after the other, the median over
+    # the pairs (a pair where either fails to align counts as NaN and is left out).
     both = [_both_tracking(o[1], o[2], t[1], t[2]) for o, t in zip(ours_runs, orb_runs)]
     rec["both_tracking_ms"] = {k: float(np.median([b[k] for b in both]))
                                for k in ("frames", "ours", "orbslam3")}
+    common = [_common_ate(gt, o[3], t[3], align) for o, t in zip(ours_runs, orb_runs)]
+    rec["both_tracking_ate_m"] = {
+        k: float(np.nanmedian([np.nan if c[k] is None else c[k] for c in common]))
+        for k in ("poses", "ours", "orbslam3")}
     rec["load_end"] = orb.load_average()
     out.write_text(json.dumps(rec, indent=2) + "\n", encoding="utf-8")
 
@@ -232,6 +249,10 @@ def print_table(records: list) -> None:
               f"run pairs: ours "
               f"{both['ours']:.1f} / ORB-SLAM3 {both['orbslam3']:.1f} "
               f"({_ratio(both['ours'], both['orbslam3'])})")
+        a = r["both_tracking_ate_m"]
+        print(f"{'':<13} ATE over the poses both have ({a['poses']:.0f}), median of the run pairs: "
+              f"ours {100 * a['ours']:.2f} / ORB-SLAM3 {100 * a['orbslam3']:.2f} cm "
+              f"({_ratio(a['ours'], a['orbslam3'])})")
         print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "
