@@ -44,7 +44,8 @@ class _SlamOptions(TypedDict, total=False):
     track_feature_range: Sequence[int]
     """(lower, upper), 0 < lower < upper (MATLAB ``TrackFeatureRange``): tracking fails
     with fewer than ``lower`` inliers; fewer than ``upper`` makes the frame a keyframe
-    (ORB-SLAM's keyframe rules apply too)."""
+    (monocular: only below 0.9 of the reference keyframe's points too, as in MATLAB's
+    monocular example; ORB-SLAM's keyframe rules apply too)."""
     skip_max_frames: int
     """Frames after which a keyframe is inserted regardless of tracking quality, >= 1."""
     bf: float

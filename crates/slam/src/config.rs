@@ -43,8 +43,9 @@ pub struct SlamConfig {
     /// Number of ORB pyramid levels.
     pub n_levels: usize,
     /// `(lower, upper)` tracked-feature limits: below `lower` tracking is lost; below `upper`
-    /// the frame becomes a keyframe (MATLAB `TrackFeatureRange`); above it, only ORB-SLAM's
-    /// rules or `skip_max_frames` make one.
+    /// the frame becomes a keyframe (MATLAB `TrackFeatureRange`; monocular, only when it also
+    /// tracks under 0.9 of its reference keyframe's points); above it, only ORB-SLAM's rules
+    /// or `skip_max_frames` make one.
     pub track_feature_range: (usize, usize),
     /// Maximum number of frames between two keyframes (ORB-SLAM `mMaxFrames`).
     pub skip_max_frames: usize,
