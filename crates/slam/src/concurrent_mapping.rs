@@ -88,9 +88,10 @@ pub(crate) struct ConcurrentMapper {
 
 /// Keyframes local mapping may have queued or in progress when tracking wants another;
 /// tracking then waits for them, or, monocular, may leave the keyframe to the next frame
-/// ([`crate::tracking::Tracker::defer_keyframe`]). ORB-SLAM instead refuses monocular keyframes while mapping
-/// is busy and queues up to 3 with depth, which loses tracking when frames come faster than
-/// real time (KITTI 06 monocular fed at full speed: 27 of 51 frames tracked).
+/// ([`crate::tracking::Tracker::defer_keyframe`]). ORB-SLAM instead refuses monocular
+/// keyframes while mapping is busy and queues up to 3 with depth, which loses tracking when
+/// frames come faster than real time (KITTI 06 monocular fed at full speed: 27 of 51 frames
+/// tracked).
 pub(crate) const MAX_QUEUED_KEYFRAMES: usize = 1;
 
 impl ConcurrentMapper {
