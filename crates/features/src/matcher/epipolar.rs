@@ -1,17 +1,19 @@
 //! Epipolar-constrained matching of unmatched features for triangulation.
 
-use super::{best_two::BestTwo, finalize, MatchOptions};
+use super::{best_two::BestTwo, finalize, pencil::PencilIndex, MatchOptions};
 use crate::{hamming, Descriptor, Keypoint};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use std::ops::Range;
 
 /// Chi-square threshold (1 DoF, 95%) on the squared point-to-epipolar-line distance,
 /// in units of the keypoint's level variance (ORB-SLAM `CheckDistEpipolarLine`).
 const CHI2_1DOF_95: f64 = 3.84;
 
 /// Matches free features of view 1 to free features of view 2 under the epipolar
-/// constraint — ORB-SLAM `SearchForTriangulation`, brute force instead of BoW nodes.
+/// constraint — ORB-SLAM `SearchForTriangulation`, but comparing every feature near the
+/// epipolar line (found through an index of the pencil of epipolar lines) rather than only
+/// those under the same vocabulary node, which drops the pairs whose descriptors fall under
+/// different nodes (fr1/rpy monocular inline, 7 feature budgets: mean ATE 2.6 -> 3.4 cm).
 ///
 /// `f21` maps view-1 pixels to view-2 epipolar lines: `x2^T F21 x1 = 0` with homogeneous
 /// undistorted pixels. A candidate `(i1, i2)` (both `free`) is kept when
@@ -47,9 +49,9 @@ pub fn search_for_triangulation(
     let n1 = kps1.len().min(desc1.len());
     let n2 = kps2.len().min(desc2.len());
     let is_free = |flags: &[bool], i: usize| flags.get(i).copied().unwrap_or(false);
-    // View-2 candidates that pass the per-feature tests, bucketed on a grid so that each
-    // epipolar line visits only the cells its acceptance band crosses.
-    let mut candidates2 = Candidates::default();
+    // View-2 candidates that pass the per-feature tests, indexed so that each epipolar line
+    // visits only those near it.
+    let mut candidates2 = PencilIndex::default();
     for i2 in (0..n2).filter(|&i2| is_free(free2, i2)) {
         let kp2 = &kps2[i2];
         let Some(&s2) = sigma2.get(usize::from(kp2.octave)) else {
@@ -64,7 +66,7 @@ pub fn search_for_triangulation(
             candidates2.push(i2, x, y, CHI2_1DOF_95 * s2);
         }
     }
-    candidates2.build_grid();
+    candidates2.build(f21);
 
     let mut matches: Vec<_> = (0..n1)
         .into_par_iter()
@@ -98,177 +100,6 @@ pub fn search_for_triangulation(
         .enumerate()
         .filter_map(|(i1, m)| m.map(|(i2, _)| (i1, i2)))
         .collect()
-}
-
-/// Side of a [`Candidates`] grid cell, pixels.
-const CELL_PX: f64 = 32.0;
-
-/// View-2 features eligible for matching (keypoint index, undistorted pixel, and the largest
-/// squared distance to an epipolar line that still passes: `3.84 * sigma2` of its level),
-/// bucketed on a grid of [`CELL_PX`] cells over their bounding box.
-#[derive(Default)]
-struct Candidates {
-    index: Vec<usize>,
-    x: Vec<f64>,
-    y: Vec<f64>,
-    max_r2: Vec<f64>,
-    origin: (f64, f64),
-    cols: usize,
-    rows: usize,
-    /// For lines walked column by column (mostly horizontal): the cells in column-major order.
-    by_column: CellRuns,
-    /// For lines walked row by row: the cells in row-major order.
-    by_row: CellRuns,
-    /// Perpendicular distance, px, beyond which no candidate passes, plus a margin for the
-    /// rounding of the normalised line.
-    band_px: f64,
-}
-
-/// The candidates copied cell after cell (a cell's in increasing order), so that the cells a
-/// line's band crosses in one column (or row) are one contiguous run.
-#[derive(Default)]
-struct CellRuns {
-    /// Candidates of cell `c` (in this order of cells): positions `start[c]..start[c + 1]`.
-    start: Vec<usize>,
-    x: Vec<f64>,
-    y: Vec<f64>,
-    max_r2: Vec<f64>,
-    /// Position of each copy in [`Candidates`].
-    k: Vec<usize>,
-}
-
-impl CellRuns {
-    /// A stable counting sort of the candidates by `cell[k]` (`cells` cells).
-    fn new(c: &Candidates, cell: &[usize], cells: usize) -> Self {
-        let mut start = vec![0; cells + 1];
-        for &i in cell {
-            start[i + 1] += 1;
-        }
-        for i in 0..cells {
-            start[i + 1] += start[i];
-        }
-        let mut next = start.clone();
-        let mut k_of = vec![0; cell.len()];
-        for (k, &i) in cell.iter().enumerate() {
-            k_of[next[i]] = k;
-            next[i] += 1;
-        }
-        Self {
-            start,
-            x: k_of.iter().map(|&k| c.x[k]).collect(),
-            y: k_of.iter().map(|&k| c.y[k]).collect(),
-            max_r2: k_of.iter().map(|&k| c.max_r2[k]).collect(),
-            k: k_of,
-        }
-    }
-}
-
-impl Candidates {
-    fn push(&mut self, index: usize, x: f64, y: f64, max_r2: f64) {
-        self.index.push(index);
-        self.x.push(x);
-        self.y.push(y);
-        self.max_r2.push(max_r2);
-    }
-
-    /// Column and row of the cell holding candidate `k`.
-    fn cell_of(&self, k: usize) -> (usize, usize) {
-        let col = ((self.x[k] - self.origin.0) / CELL_PX) as usize;
-        let row = ((self.y[k] - self.origin.1) / CELL_PX) as usize;
-        (col.min(self.cols - 1), row.min(self.rows - 1))
-    }
-
-    /// Buckets the candidates in both cell orders.
-    fn build_grid(&mut self) {
-        let n = self.index.len();
-        if n == 0 {
-            return;
-        }
-        let fold = |v: &[f64]| {
-            v.iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
-                    (lo.min(x), hi.max(x))
-                })
-        };
-        let ((x0, x1), (y0, y1)) = (fold(&self.x), fold(&self.y));
-        self.origin = (x0, y0);
-        self.cols = ((x1 - x0) / CELL_PX) as usize + 1;
-        self.rows = ((y1 - y0) / CELL_PX) as usize + 1;
-        let cells: Vec<(usize, usize)> = (0..n).map(|k| self.cell_of(k)).collect();
-        let column_major: Vec<usize> = cells.iter().map(|&(c, r)| c * self.rows + r).collect();
-        let row_major: Vec<usize> = cells.iter().map(|&(c, r)| r * self.cols + c).collect();
-        self.by_column = CellRuns::new(self, &column_major, self.cols * self.rows);
-        self.by_row = CellRuns::new(self, &row_major, self.cols * self.rows);
-        self.band_px = self.max_r2.iter().fold(0.0f64, |m, &r| m.max(r)).sqrt() + 1.0;
-    }
-
-    /// Fills `out` with the candidates (positions, in no particular order) whose squared
-    /// distance to `line` (`a x + b y + c = 0`, `norm2 = a^2 + b^2`) is below their bound:
-    /// the same test as a scan over all of them.
-    fn near_line(&self, line: &Vector3<f64>, norm2: f64, out: &mut Vec<usize>) {
-        out.clear();
-        if self.index.is_empty() {
-            return;
-        }
-        let norm = norm2.sqrt();
-        let (a, b, c) = (line.x / norm, line.y / norm, line.z / norm);
-        // Walk the cells along the line's major axis: across each column (row) the band
-        // spans the line's range over that column (row) widened by band / |b| (|a|).
-        let mostly_horizontal = b.abs() >= a.abs();
-        let (across, along, o_across, o_along, runs) = if mostly_horizontal {
-            (
-                self.cols,
-                self.rows,
-                self.origin.0,
-                self.origin.1,
-                &self.by_column,
-            )
-        } else {
-            (
-                self.rows,
-                self.cols,
-                self.origin.1,
-                self.origin.0,
-                &self.by_row,
-            )
-        };
-        let (p, q) = if mostly_horizontal { (a, b) } else { (b, a) };
-        let half = self.band_px / q.abs();
-        let on_line = |t: f64| -(p * t + c) / q;
-        for i in 0..across {
-            let t0 = o_across + i as f64 * CELL_PX;
-            let (u0, u1) = (on_line(t0), on_line(t0 + CELL_PX));
-            let lo = (u0.min(u1) - half - o_along) / CELL_PX;
-            let hi = (u0.max(u1) + half - o_along) / CELL_PX;
-            if !(hi >= 0.0 && lo < along as f64) {
-                continue;
-            }
-            let (j0, j1) = (lo.max(0.0) as usize, (hi as usize).min(along - 1));
-            runs.scan(
-                line,
-                norm2,
-                runs.start[i * along + j0]..runs.start[i * along + j1 + 1],
-                out,
-            );
-        }
-    }
-}
-
-impl CellRuns {
-    /// Appends (in order) the candidates of positions `run` whose squared distance to `line`
-    /// is below their bound. Branch-free: all are appended, then each is moved down to the
-    /// count, which advances past those that pass (a branch on the test mispredicts).
-    fn scan(&self, line: &Vector3<f64>, norm2: f64, run: Range<usize>, out: &mut Vec<usize>) {
-        let base = out.len();
-        let mut len = base;
-        out.extend_from_slice(&self.k[run.clone()]);
-        for (j, n) in run.enumerate() {
-            let r = line.x * self.x[n] + line.y * self.y[n] + line.z;
-            out[len] = out[base + j];
-            len += usize::from(r * r / norm2 < self.max_r2[n]);
-        }
-        out.truncate(len);
-    }
 }
 
 #[cfg(test)]
@@ -456,41 +287,5 @@ mod tests {
             &MatchOptions::triangulation(),
         );
         assert!(got.is_empty());
-    }
-
-    /// The grid walk returns exactly what a scan over every candidate accepts, in the same
-    /// order, for lines of every direction (near-vertical ones included) and every level.
-    #[test]
-    fn grid_walk_equals_the_full_scan() {
-        let mut rng = rng(11);
-        let sigma2 = ScalePyramid::new(1.2, 8).unwrap().sigma2;
-        let mut candidates = Candidates::default();
-        for i in 0..3000 {
-            let s2 = sigma2[rng.random_range(0..8)];
-            let (x, y) = (rng.random_range(-5.0..1246.0), rng.random_range(0.0..376.0));
-            candidates.push(i, x, y, CHI2_1DOF_95 * s2);
-        }
-        candidates.build_grid();
-        let mut near = Vec::new();
-        let mut total = 0;
-        for _ in 0..2000 {
-            let angle: f64 = rng.random_range(0.0..std::f64::consts::TAU);
-            let (a, b) = (angle.cos(), angle.sin());
-            let through = (rng.random_range(0.0..1241.0), rng.random_range(0.0..376.0));
-            let scale = rng.random_range(1e-4..1e2);
-            let line = scale * Vector3::new(a, b, -(a * through.0 + b * through.1));
-            let norm2 = line.x * line.x + line.y * line.y;
-            candidates.near_line(&line, norm2, &mut near);
-            near.sort_unstable();
-            let scan: Vec<usize> = (0..candidates.index.len())
-                .filter(|&k| {
-                    let r = line.x * candidates.x[k] + line.y * candidates.y[k] + line.z;
-                    r * r / norm2 < candidates.max_r2[k]
-                })
-                .collect();
-            assert_eq!(near, scan);
-            total += scan.len();
-        }
-        assert!(total > 20_000, "the lines must cross candidates: {total}");
     }
 }

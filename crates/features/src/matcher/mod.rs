@@ -13,6 +13,7 @@ mod best_two;
 mod brute_force;
 mod epipolar;
 mod options;
+mod pencil;
 mod projection;
 mod rotation;
 
