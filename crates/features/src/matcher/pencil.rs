@@ -46,10 +46,10 @@ struct Ring {
     run: Range<usize>,
     /// Half-width of a line's window, radians (`>= PI / 2`: the ring is scanned whole).
     half: f64,
-    /// The keys are bucketed by `floor(key / width)`, buckets as wide as a window's half,
-    /// so a window is scanned as the 2-3 whole buckets it touches; `buckets` indexes
+    /// The keys are bucketed by `floor(key * per_radian)`, buckets as wide as a window's
+    /// half, so a window is scanned as the 2-3 whole buckets it touches; `buckets` indexes
     /// `bucket_start`, one entry per bucket and one for the end.
-    width: f64,
+    per_radian: f64,
     buckets: Range<usize>,
 }
 
@@ -133,18 +133,18 @@ impl PencilIndex {
                 _ => PI,
             };
             let count = (PI / half).ceil() as usize;
-            let width = PI / count as f64;
+            let per_radian = count as f64 / PI;
             let first = self.bucket_start.len();
             let keys = &self.sorted.key[start..end];
             for b in 0..count {
-                let before = keys.partition_point(|&k| bucket_of(k, width, count) < b);
+                let before = keys.partition_point(|&k| bucket_of(k, per_radian, count) < b);
                 self.bucket_start.push(start + before);
             }
             self.bucket_start.push(end);
             self.rings.push(Ring {
                 run: start..end,
                 half,
-                width,
+                per_radian,
                 buckets: first..self.bucket_start.len(),
             });
             start = end;
@@ -239,15 +239,15 @@ impl PencilIndex {
 
     /// Positions in `sorted` of the bucket of `ring` holding `key`.
     fn bucket_run(&self, ring: &Ring, key: f64) -> Range<usize> {
-        let b = ring.buckets.start + bucket_of(key, ring.width, ring.buckets.len() - 1);
+        let b = ring.buckets.start + bucket_of(key, ring.per_radian, ring.buckets.len() - 1);
         self.bucket_start[b]..self.bucket_start[b + 1]
     }
 }
 
-/// Bucket of `key` among `count` buckets of `width` (the last one open-ended): monotone in
-/// `key`, as division by a positive width is.
-fn bucket_of(key: f64, width: f64, count: usize) -> usize {
-    ((key.max(0.0) / width) as usize).min(count - 1)
+/// Bucket of `key` among `count` buckets, `per_radian` to a radian (the last one open-ended):
+/// monotone in `key`, as multiplication by a positive number is.
+fn bucket_of(key: f64, per_radian: f64, count: usize) -> usize {
+    ((key.max(0.0) * per_radian) as usize).min(count - 1)
 }
 
 impl Sorted {
