@@ -46,9 +46,11 @@ struct Ring {
     run: Range<usize>,
     /// Half-width of a line's window, radians (`>= PI / 2`: the ring is scanned whole).
     half: f64,
-    /// The keys are bucketed by `floor(key * per_radian)`, buckets as wide as a window's
-    /// half, so a window is scanned as the 2-3 whole buckets it touches; `buckets` indexes
-    /// `bucket_start`, one entry per bucket and one for the end.
+    /// The keys are bucketed by `floor((key - from) * per_radian)`, from the ring's smallest
+    /// key, buckets as wide as a window's half (wider when the ring has fewer features than
+    /// that makes buckets), so a window is scanned as the few whole buckets it touches;
+    /// `buckets` indexes `bucket_start`, one entry per bucket and one for the end.
+    from: f64,
     per_radian: f64,
     buckets: Range<usize>,
 }
@@ -137,18 +139,28 @@ impl PencilIndex {
                 (Pencil::Through(..), r) if r > 0 => (0.5f64).powi(r as i32).asin() + ANGLE_SLACK,
                 _ => PI,
             };
-            let count = (PI / half).ceil() as usize;
-            let per_radian = count as f64 / PI;
-            let first = self.bucket_start.len();
+            // Buckets over the ring's keys only (a far epipole packs them into a sliver),
+            // and never more than features.
             let keys = &self.sorted.key[start..end];
-            for b in 0..count {
-                let before = keys.partition_point(|&k| bucket_of(k, per_radian, count) < b);
-                self.bucket_start.push(start + before);
+            let (from, span) = (keys[0], keys[keys.len() - 1] - keys[0]);
+            let count = ((span / half).ceil() as usize).clamp(1, keys.len());
+            let per_radian = count as f64 / span.max(f64::MIN_POSITIVE);
+            let first = self.bucket_start.len();
+            let mut b = 0;
+            for (j, &key) in keys.iter().enumerate() {
+                while b <= bucket_of(key - from, per_radian, count) {
+                    self.bucket_start.push(start + j);
+                    b += 1;
+                }
             }
-            self.bucket_start.push(end);
+            while b <= count {
+                self.bucket_start.push(end);
+                b += 1;
+            }
             self.rings.push(Ring {
                 run: start..end,
                 half,
+                from,
                 per_radian,
                 buckets: first..self.bucket_start.len(),
             });
@@ -244,15 +256,17 @@ impl PencilIndex {
 
     /// Positions in `sorted` of the bucket of `ring` holding `key`.
     fn bucket_run(&self, ring: &Ring, key: f64) -> Range<usize> {
-        let b = ring.buckets.start + bucket_of(key, ring.per_radian, ring.buckets.len() - 1);
+        let count = ring.buckets.len() - 1;
+        let b = ring.buckets.start + bucket_of(key - ring.from, ring.per_radian, count);
         self.bucket_start[b]..self.bucket_start[b + 1]
     }
 }
 
-/// Bucket of `key` among `count` buckets, `per_radian` to a radian (the last one open-ended):
-/// monotone in `key`, as multiplication by a positive number is.
-fn bucket_of(key: f64, per_radian: f64, count: usize) -> usize {
-    ((key.max(0.0) * per_radian) as usize).min(count - 1)
+/// Bucket of `offset` (radians past a ring's smallest key) among `count` buckets, `per_radian`
+/// to a radian, the first and last open-ended: monotone in `offset`, as multiplication by a
+/// positive number is.
+fn bucket_of(offset: f64, per_radian: f64, count: usize) -> usize {
+    ((offset.max(0.0) * per_radian) as usize).min(count - 1)
 }
 
 impl Sorted {
