@@ -341,6 +341,9 @@ mod tests {
                 Pencil::Unordered => "unordered",
             };
             assert_eq!(got_layout, layout, "{e:?}");
+            // At most one bucket per feature, however far the epipole.
+            let buckets = index.bucket_start.len() - index.rings.len();
+            assert!(buckets <= index.index.len(), "{e:?}: {buckets} buckets");
             let (mut near, mut total) = (Vec::new(), 0);
             for _ in 0..2000 {
                 // Through a random pixel, at any scale: e x p for a pencil, F21 p otherwise.
