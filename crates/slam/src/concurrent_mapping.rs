@@ -7,6 +7,8 @@
 //! journal back. Tracking replays it on its map when it next looks (before each frame, or
 //! when asked to finish), so tracking never waits for local BA. Keyframes inserted while a
 //! job runs are queued and go with the next snapshot, taken after the journal is replayed.
+//! The points a keyframe brings (triangulation and fusion) are sent ahead of its local BA,
+//! so the next frame can track them.
 //!
 //! Points created in a copy are renamed when replayed; the renaming travels with the next
 //! job so the mapping thread's list of recent points follows. A map reset bumps the epoch:
@@ -49,6 +51,14 @@ struct Job {
     vocabulary: Option<Arc<Vocabulary>>,
 }
 
+/// What the mapping thread sends back.
+enum FromMapping {
+    /// The edits so far of the job in flight: a keyframe's new points, ahead of its local BA.
+    Grown { epoch: u64, journal: MapJournal },
+    /// The job is done.
+    Done(Mapped),
+}
+
 /// What a job did.
 pub(crate) struct Mapped {
     epoch: u64,
@@ -73,13 +83,15 @@ pub(crate) struct Mapped {
 pub(crate) struct ConcurrentMapper {
     jobs: Option<Sender<Job>>,
     /// Behind a mutex only so the system stays `Sync`; only tracking reads it.
-    done: Mutex<Receiver<Mapped>>,
+    done: Mutex<Receiver<FromMapping>>,
     thread: Option<JoinHandle<()>>,
     epoch: u64,
     fresh: bool,
     in_flight: bool,
     queue: Vec<KeyFrameWork>,
     renamed: HashMap<MapPointId, MapPointId>,
+    /// Renaming of the points the job in flight sent ahead.
+    renamed_in_flight: HashMap<MapPointId, MapPointId>,
     /// Keyframes queued or being processed (shared with callers asking "is it done?").
     backlog: Arc<AtomicUsize>,
     /// Tracking waits for the job in flight (see [`Interrupt`]); cleared with each dispatch.
@@ -98,7 +110,7 @@ impl ConcurrentMapper {
     /// Starts the mapping thread.
     pub(crate) fn spawn(ctx: Context) -> Self {
         let (jobs, inbox) = channel::<Job>();
-        let (report, done) = channel::<Mapped>();
+        let (report, done) = channel::<FromMapping>();
         let backlog = Arc::new(AtomicUsize::new(0));
         let interrupt = Arc::new(AtomicBool::new(false));
         let (count, hurry) = (Arc::clone(&backlog), Arc::clone(&interrupt));
@@ -115,6 +127,7 @@ impl ConcurrentMapper {
             in_flight: false,
             queue: Vec::new(),
             renamed: HashMap::new(),
+            renamed_in_flight: HashMap::new(),
             backlog,
             interrupt,
         }
@@ -168,12 +181,20 @@ impl ConcurrentMapper {
                     done.try_recv().ok()
                 }
             };
-            let Some(mapped) = next else { break };
-            if mapped.epoch != self.epoch {
-                continue;
-            }
+            let mapped = match next {
+                None => break,
+                Some(FromMapping::Grown { epoch, journal }) => {
+                    if epoch == self.epoch {
+                        map.apply_journal_part(&journal, &mut self.renamed_in_flight);
+                    }
+                    continue;
+                }
+                Some(FromMapping::Done(mapped)) if mapped.epoch == self.epoch => mapped,
+                Some(FromMapping::Done(_)) => continue,
+            };
             self.in_flight = false;
-            self.renamed.extend(map.apply_journal(&mapped.journal));
+            map.apply_journal_part(&mapped.journal, &mut self.renamed_in_flight);
+            self.renamed.extend(self.renamed_in_flight.drain());
             out.push(mapped);
             if !self.queue.is_empty() {
                 self.dispatch(map, vocabulary);
@@ -190,6 +211,7 @@ impl ConcurrentMapper {
         self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
         self.queue.clear();
         self.renamed.clear();
+        self.renamed_in_flight.clear();
     }
 
     fn dispatch(&mut self, map: &Map, vocabulary: Option<&Arc<Vocabulary>>) {
@@ -227,7 +249,7 @@ impl Drop for ConcurrentMapper {
 fn mapping_loop(
     ctx: &Context,
     inbox: Receiver<Job>,
-    report: Sender<Mapped>,
+    report: Sender<FromMapping>,
     backlog: Arc<AtomicUsize>,
     interrupt: &AtomicBool,
 ) {
@@ -270,14 +292,25 @@ fn mapping_loop(
             }
             let mut mapping = MappingReport::default();
             let step = mapper
-                .process_keyframe(
+                .grow(
                     work.kf,
                     &mut map,
                     ctx,
                     &mut mapping,
-                    work.inertial.as_mut(),
                     Interrupt::on(interrupt),
                 )
+                .and_then(|()| {
+                    let journal = map.drain_journal();
+                    // Tracking applies it before its next frame; if it is gone, so is the job.
+                    let _ = report.send(FromMapping::Grown {
+                        epoch: job.epoch,
+                        journal,
+                    });
+                    if mapping.interrupted {
+                        return Ok(());
+                    }
+                    mapper.refine(work.kf, &mut map, ctx, &mut mapping, work.inertial.as_mut())
+                })
                 .and_then(|()| {
                     let Some(place) = place.as_mut() else {
                         return Ok(None);
@@ -308,7 +341,7 @@ fn mapping_loop(
         mapped.stats = closer.stats();
         mapped.journal = map.take_journal();
         backlog.fetch_sub(n, Ordering::SeqCst);
-        if report.send(mapped).is_err() {
+        if report.send(FromMapping::Done(mapped)).is_err() {
             return;
         }
     }

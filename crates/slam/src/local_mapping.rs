@@ -184,9 +184,8 @@ impl LocalMapper {
         Ok(kf)
     }
 
-    /// Runs the local mapping stages for the keyframe just inserted; local BA is inertial
-    /// over `inertial` when given (an aligned visual-inertial map; its states are updated).
-    /// Stops after triangulation when `interrupt` is requested.
+    /// Runs the local mapping stages for the keyframe just inserted: [`Self::grow`], then
+    /// [`Self::refine`] unless interrupted.
     pub(crate) fn process_keyframe(
         &mut self,
         kf: KeyFrameId,
@@ -196,6 +195,25 @@ impl LocalMapper {
         inertial: Option<&mut InertialWindow>,
         interrupt: Interrupt<'_>,
     ) -> Result<(), SlamError> {
+        self.grow(kf, map, ctx, report, interrupt)?;
+        if report.interrupted {
+            return Ok(());
+        }
+        self.refine(kf, map, ctx, report, inertial)
+    }
+
+    /// The stages that change which points the keyframe's neighbourhood has: culling of
+    /// recent points, triangulation, fusion with the neighbours. Stops after triangulation
+    /// (and sets `report.interrupted`) when `interrupt` is requested; then [`Self::refine`]
+    /// is skipped too.
+    pub(crate) fn grow(
+        &mut self,
+        kf: KeyFrameId,
+        map: &mut Map,
+        ctx: &Context,
+        report: &mut MappingReport,
+        interrupt: Interrupt<'_>,
+    ) -> Result<(), SlamError> {
         report.culled_points += self.cull_recent_points(kf, map, ctx);
         report.triangulated_points += self.create_new_points(kf, map, ctx, interrupt)?;
         if interrupt.requested() {
@@ -203,6 +221,20 @@ impl LocalMapper {
             return Ok(());
         }
         report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
+        Ok(())
+    }
+
+    /// The stages that refine the local map after [`Self::grow`]: local BA (inertial over
+    /// `inertial` when given: an aligned visual-inertial map; its states are updated), then
+    /// keyframe culling.
+    pub(crate) fn refine(
+        &mut self,
+        kf: KeyFrameId,
+        map: &mut Map,
+        ctx: &Context,
+        report: &mut MappingReport,
+        inertial: Option<&mut InertialWindow>,
+    ) -> Result<(), SlamError> {
         let start = Instant::now();
         report.ba_outliers += match inertial {
             Some(window) => local_inertial_bundle_adjust(kf, window, map, ctx)?,

@@ -11,6 +11,10 @@
 //!
 //! Points created in the copy get the original's next free ids when replayed; the renaming
 //! is returned so whoever holds ids of them (local mapping's recent points) can follow.
+//!
+//! A journal can also be sent in parts ([`Map::drain_journal`]), so that the original gets
+//! the points triangulated for a keyframe before local BA on the copy is done; the parts are
+//! replayed in order with one renaming ([`Map::apply_journal_part`]).
 
 use std::collections::HashMap;
 
@@ -125,6 +129,18 @@ impl Map {
         self.recorder.take().map(|r| r.journal).unwrap_or_default()
     }
 
+    /// Returns the edits recorded so far and goes on recording: the first part of a journal
+    /// sent in parts (empty if not recording).
+    pub fn drain_journal(&mut self) -> MapJournal {
+        self.recorder
+            .as_mut()
+            .map(|r| MapJournal {
+                first_new_point: r.journal.first_new_point,
+                edits: std::mem::take(&mut r.journal.edits),
+            })
+            .unwrap_or_default()
+    }
+
     /// Runs `body`, recording `edit` if this is the outermost recorded call.
     pub(super) fn journaled<R>(
         &mut self,
@@ -159,7 +175,19 @@ impl Map {
     /// keyframes or points no longer exist here are skipped. Returns the new ids of the
     /// points the copy created, `copy id -> id here`.
     pub fn apply_journal(&mut self, journal: &MapJournal) -> HashMap<MapPointId, MapPointId> {
-        let mut renamed: HashMap<MapPointId, MapPointId> = HashMap::new();
+        let mut renamed = HashMap::new();
+        self.apply_journal_part(journal, &mut renamed);
+        renamed
+    }
+
+    /// Replays one part of a journal sent in parts ([`Map::drain_journal`]), after the parts
+    /// before it. `renamed` holds the renaming of the points those parts created and gains
+    /// this part's.
+    pub fn apply_journal_part(
+        &mut self,
+        journal: &MapJournal,
+        renamed: &mut HashMap<MapPointId, MapPointId>,
+    ) {
         let first_new = journal.first_new_point;
         let id = |m: MapPointId, renamed: &HashMap<MapPointId, MapPointId>| {
             if m.0 >= first_new {
@@ -181,29 +209,29 @@ impl Map {
                 }),
                 MapEdit::SetKeyFramePose { kf, T_c_w } => self.set_keyframe_pose(kf, T_c_w),
                 MapEdit::SetMapPointPosition { mp, p_w } => {
-                    self.set_map_point_position(id(mp, &renamed), p_w)
+                    self.set_map_point_position(id(mp, renamed), p_w)
                 }
-                MapEdit::IncreaseVisible { mp, n } => self.increase_visible(id(mp, &renamed), n),
-                MapEdit::IncreaseFound { mp, n } => self.increase_found(id(mp, &renamed), n),
+                MapEdit::IncreaseVisible { mp, n } => self.increase_visible(id(mp, renamed), n),
+                MapEdit::IncreaseFound { mp, n } => self.increase_found(id(mp, renamed), n),
                 MapEdit::AddObservation { mp, kf, index } => {
-                    self.add_observation(id(mp, &renamed), kf, index)
+                    self.add_observation(id(mp, renamed), kf, index)
                 }
                 MapEdit::EraseObservation { mp, kf } => {
-                    self.erase_observation(id(mp, &renamed), kf);
+                    self.erase_observation(id(mp, renamed), kf);
                     Ok(())
                 }
                 MapEdit::SetMapPointBad { mp } => {
-                    self.set_map_point_bad(id(mp, &renamed));
+                    self.set_map_point_bad(id(mp, renamed));
                     Ok(())
                 }
                 MapEdit::ReplaceMapPoint { old, new } => {
-                    self.replace_map_point(id(old, &renamed), id(new, &renamed))
+                    self.replace_map_point(id(old, renamed), id(new, renamed))
                 }
                 MapEdit::UpdateNormalAndDepth { mp } => {
-                    self.update_normal_and_depth(id(mp, &renamed))
+                    self.update_normal_and_depth(id(mp, renamed))
                 }
                 MapEdit::ComputeDistinctiveDescriptor { mp } => {
-                    self.compute_distinctive_descriptor(id(mp, &renamed))
+                    self.compute_distinctive_descriptor(id(mp, renamed))
                 }
                 MapEdit::UpdateConnections { kf } => self.update_connections(kf),
                 MapEdit::AddLoopEdge { a, b } => self.add_loop_edge(a, b),
@@ -213,7 +241,6 @@ impl Map {
                 }
             };
         }
-        renamed
     }
 }
 
@@ -291,6 +318,56 @@ mod tests {
         assert!(map.map_point(tracking_point).is_some());
         assert!(map.keyframe(kfs[0]).unwrap().loop_edges().contains(&kfs[4]));
         map.check_consistency().unwrap();
+    }
+
+    /// A journal replayed in the parts it was drained in does what the whole journal does,
+    /// with points created in one part edited in the next.
+    #[test]
+    fn parts_replayed_in_order_equal_the_whole_journal() {
+        let (mut map, kfs) = map_with_keyframes(3, 10);
+        let old = observe_all(&mut map, &kfs[..2], 1);
+        let record = |drain: bool| {
+            let mut copy = map.clone();
+            copy.begin_journal();
+            let new = copy
+                .create_map_point(Vector3::new(1.0, 2.0, 6.0), kfs[0])
+                .unwrap();
+            copy.add_observation(new, kfs[0], 5).unwrap();
+            let first = drain.then(|| copy.drain_journal());
+            copy.add_observation(new, kfs[1], 5).unwrap();
+            copy.set_map_point_position(new, Vector3::new(1.0, 2.0, 7.0))
+                .unwrap();
+            copy.replace_map_point(old, new).unwrap();
+            (
+                new,
+                first
+                    .into_iter()
+                    .chain([copy.take_journal()])
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let (new, whole) = record(false);
+        let (_, parts) = record(true);
+        assert_eq!((whole.len(), parts.len()), (1, 2));
+        assert_eq!((parts[0].len(), parts[1].len()), (2, 3));
+
+        let mut by_parts = map.clone();
+        let mut renamed = HashMap::new();
+        for part in &parts {
+            by_parts.apply_journal_part(part, &mut renamed);
+        }
+        let renamed_whole = map.apply_journal(&whole[0]);
+        assert_eq!(renamed, renamed_whole);
+        let (a, b) = (
+            map.map_point(renamed[&new]).unwrap(),
+            by_parts.map_point(renamed[&new]).unwrap(),
+        );
+        assert_eq!(a.position(), Vector3::new(1.0, 2.0, 7.0));
+        assert_eq!(a.position(), b.position());
+        assert_eq!(a.observations(), b.observations());
+        assert_eq!(a.observations().len(), 2);
+        assert!(by_parts.map_point(old).is_none());
+        by_parts.check_consistency().unwrap();
     }
 
     #[test]
