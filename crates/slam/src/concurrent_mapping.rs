@@ -7,8 +7,8 @@
 //! journal back. Tracking replays it on its map when it next looks (before each frame, or
 //! when asked to finish), so tracking never waits for local BA. Keyframes inserted while a
 //! job runs are queued and go with the next snapshot, taken after the journal is replayed.
-//! The points a keyframe brings (triangulation and fusion) are sent ahead of its local BA,
-//! so the next frame can track them.
+//! The points a keyframe brings are sent ahead, as each covisible keyframe yields them and
+//! again after fusion, so the next frame can track them before local BA is done.
 //!
 //! Points created in a copy are renamed when replayed; the renaming travels with the next
 //! job so the mapping thread's list of recent points follows. A map reset bumps the epoch:
@@ -291,6 +291,14 @@ fn mapping_loop(
                 continue;
             }
             let mut mapping = MappingReport::default();
+            // Tracking applies what was sent before its next frame; if it is gone, so is the job.
+            let mut send_ahead = |map: &mut Map| {
+                let journal = map.drain_journal();
+                let _ = report.send(FromMapping::Grown {
+                    epoch: job.epoch,
+                    journal,
+                });
+            };
             let step = mapper
                 .grow(
                     work.kf,
@@ -298,14 +306,10 @@ fn mapping_loop(
                     ctx,
                     &mut mapping,
                     Interrupt::on(interrupt),
+                    &mut send_ahead,
                 )
                 .and_then(|()| {
-                    let journal = map.drain_journal();
-                    // Tracking applies it before its next frame; if it is gone, so is the job.
-                    let _ = report.send(FromMapping::Grown {
-                        epoch: job.epoch,
-                        journal,
-                    });
+                    send_ahead(&mut map);
                     if mapping.interrupted {
                         return Ok(());
                     }
