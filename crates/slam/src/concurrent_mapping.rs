@@ -294,6 +294,9 @@ fn mapping_loop(
             // Tracking applies what was sent before its next frame; if it is gone, so is the job.
             let mut send_ahead = |map: &mut Map| {
                 let journal = map.drain_journal();
+                if journal.is_empty() {
+                    return;
+                }
                 let _ = report.send(FromMapping::Grown {
                     epoch: job.epoch,
                     journal,

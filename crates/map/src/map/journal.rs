@@ -129,8 +129,9 @@ impl Map {
         self.recorder.take().map(|r| r.journal).unwrap_or_default()
     }
 
-    /// Returns the edits recorded so far and goes on recording: the first part of a journal
-    /// sent in parts (empty if not recording).
+    /// Returns the edits recorded since the last part and goes on recording: a part of a
+    /// journal sent in parts, the last one coming from [`Map::take_journal`] (empty if not
+    /// recording).
     pub fn drain_journal(&mut self) -> MapJournal {
         self.recorder
             .as_mut()
