@@ -8,17 +8,20 @@
 //! when asked to finish), so tracking never waits for local BA. Keyframes inserted while a
 //! job runs are queued and go with the next snapshot, taken after the journal is replayed.
 //! The points a keyframe brings are sent ahead, as each covisible keyframe yields them and
-//! again after fusion, so the next frame can track them before local BA is done.
+//! again after fusion, so the next frame can track them before local BA is done. When frames
+//! come faster than a keyframe takes to map, triangulation searches only the best covisible
+//! keyframes (see [`Interrupt`]).
 //!
 //! Points created in a copy are renamed when replayed; the renaming travels with the next
 //! job so the mapping thread's list of recent points follows. A map reset bumps the epoch:
 //! results of older jobs are dropped and the thread starts its next job afresh.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use ferroslam_map::{KeyFrameId, Map, MapJournal, MapPointId};
 use ferroslam_vocabulary::{BowVector, FeatureVector, Vocabulary};
@@ -49,6 +52,8 @@ struct Job {
     /// Renaming of the previous job's points, for the recent-point list.
     renamed: HashMap<MapPointId, MapPointId>,
     vocabulary: Option<Arc<Vocabulary>>,
+    /// Frames come faster than the last keyframe was mapped (see [`Interrupt`]).
+    hurried: bool,
 }
 
 /// What the mapping thread sends back.
@@ -96,6 +101,11 @@ pub(crate) struct ConcurrentMapper {
     backlog: Arc<AtomicUsize>,
     /// Tracking waits for the job in flight (see [`Interrupt`]); cleared with each dispatch.
     interrupt: Arc<AtomicBool>,
+    /// When tracking started the last frame, and the wall time since the frame before.
+    last_frame: Option<Instant>,
+    frame_interval: Option<Duration>,
+    /// Wall time of the last keyframe mapped unhurried, microseconds (0: none yet).
+    keyframe_mapping_us: Arc<AtomicU64>,
 }
 
 /// Keyframes local mapping may have queued or in progress when tracking wants another;
@@ -113,10 +123,15 @@ impl ConcurrentMapper {
         let (report, done) = channel::<FromMapping>();
         let backlog = Arc::new(AtomicUsize::new(0));
         let interrupt = Arc::new(AtomicBool::new(false));
-        let (count, hurry) = (Arc::clone(&backlog), Arc::clone(&interrupt));
+        let keyframe_mapping_us = Arc::new(AtomicU64::new(0));
+        let (count, hurry, mapping_us) = (
+            Arc::clone(&backlog),
+            Arc::clone(&interrupt),
+            Arc::clone(&keyframe_mapping_us),
+        );
         let thread = std::thread::Builder::new()
             .name("ferroslam-mapping".into())
-            .spawn(move || mapping_loop(&ctx, inbox, report, count, &hurry))
+            .spawn(move || mapping_loop(&ctx, inbox, report, count, &hurry, &mapping_us))
             .expect("the OS refused to start the mapping thread");
         Self {
             jobs: Some(jobs),
@@ -130,7 +145,25 @@ impl ConcurrentMapper {
             renamed_in_flight: HashMap::new(),
             backlog,
             interrupt,
+            last_frame: None,
+            frame_interval: None,
+            keyframe_mapping_us,
         }
+    }
+
+    /// Tracking starts a frame (the pace of frames decides whether mapping is hurried).
+    pub(crate) fn frame_started(&mut self) {
+        let now = Instant::now();
+        self.frame_interval = self.last_frame.map(|last| now - last);
+        self.last_frame = Some(now);
+    }
+
+    /// Whether frames come faster than local mapping processed the last keyframe it mapped
+    /// unhurried (a hurried keyframe's time would say nothing of the full work).
+    fn hurried(&self) -> bool {
+        let mapping_us = self.keyframe_mapping_us.load(Ordering::Relaxed);
+        self.frame_interval
+            .is_some_and(|interval| interval < Duration::from_micros(mapping_us))
     }
 
     /// Asks the job in flight to skip its remaining optional work: tracking is about to wait
@@ -222,6 +255,7 @@ impl ConcurrentMapper {
             work: std::mem::take(&mut self.queue),
             renamed: std::mem::take(&mut self.renamed),
             vocabulary: vocabulary.cloned(),
+            hurried: self.hurried(),
         };
         let n = job.work.len();
         self.interrupt.store(false, Ordering::Relaxed);
@@ -252,6 +286,7 @@ fn mapping_loop(
     report: Sender<FromMapping>,
     backlog: Arc<AtomicUsize>,
     interrupt: &AtomicBool,
+    keyframe_mapping_us: &AtomicU64,
 ) {
     let mut mapper = LocalMapper::default();
     let mut closer = LoopCloser::default();
@@ -302,13 +337,14 @@ fn mapping_loop(
                     journal,
                 });
             };
+            let start = Instant::now();
             let step = mapper
                 .grow(
                     work.kf,
                     &mut map,
                     ctx,
                     &mut mapping,
-                    Interrupt::on(interrupt),
+                    Interrupt::on(interrupt, job.hurried),
                     &mut send_ahead,
                 )
                 .and_then(|()| {
@@ -317,6 +353,13 @@ fn mapping_loop(
                         return Ok(());
                     }
                     mapper.refine(work.kf, &mut map, ctx, &mut mapping, work.inertial.as_mut())
+                })
+                .inspect(|()| {
+                    if job.hurried || mapping.interrupted {
+                        return;
+                    }
+                    let us = start.elapsed().as_micros().try_into().unwrap_or(u64::MAX);
+                    keyframe_mapping_us.store(us, Ordering::Relaxed);
                 })
                 .and_then(|()| {
                     let Some(place) = place.as_mut() else {
@@ -351,5 +394,30 @@ fn mapping_loop(
         if report.send(FromMapping::Done(mapped)).is_err() {
             return;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use ferroslam_geometry::camera::{PinholeCamera, RadTan};
+
+    use super::*;
+    use crate::config::SlamConfig;
+
+    #[test]
+    fn hurried_while_frames_come_faster_than_the_last_unhurried_keyframe_was_mapped() {
+        let camera =
+            PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
+        let mut mapper = ConcurrentMapper::spawn(Context::new(camera, SlamConfig::default()));
+        mapper.frame_started();
+        assert!(mapper.frame_interval.is_none() && !mapper.hurried());
+        mapper.frame_started();
+        assert!(mapper.frame_interval.is_some());
+        mapper.frame_interval = Some(Duration::from_millis(10));
+        assert!(!mapper.hurried(), "no keyframe mapped yet");
+        mapper.keyframe_mapping_us.store(20_000, Ordering::Relaxed);
+        assert!(mapper.hurried());
+        mapper.frame_interval = Some(Duration::from_millis(30));
+        assert!(!mapper.hurried());
     }
 }

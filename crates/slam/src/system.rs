@@ -173,6 +173,9 @@ impl SlamSystem {
     /// Initialises or tracks a frame, then inserts a keyframe when needed.
     fn track_frame(&mut self, mut frame: Frame, start: Instant) -> Result<TrackResult, SlamError> {
         self.frames_seen += 1;
+        if let Some(concurrent) = self.concurrent.as_mut() {
+            concurrent.frame_started();
+        }
         self.collect_mapping(false)?;
         if self.tracker.state == TrackingState::NotInitialized {
             let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
