@@ -960,25 +960,27 @@ mod tests {
         (ctx, map, newest)
     }
 
+    /// Maps the newest keyframe of [`scene`] and checks the map stays consistent.
+    fn map_newest(n_others: usize, sensor: Sensor, interrupt: Interrupt<'_>) -> MappingReport {
+        let (ctx, mut map, newest) = scene(n_others, sensor);
+        let mut report = MappingReport::default();
+        LocalMapper::default()
+            .process_keyframe(newest, &mut map, &ctx, &mut report, None, interrupt)
+            .unwrap();
+        map.check_consistency().unwrap();
+        report
+    }
+
     #[test]
     fn interrupted_mapping_triangulates_with_the_best_neighbour_only_and_skips_the_rest() {
-        let run = |interrupt: Interrupt<'_>| {
-            let (ctx, mut map, newest) = scene(1, Sensor::Monocular);
-            let mut report = MappingReport::default();
-            LocalMapper::default()
-                .process_keyframe(newest, &mut map, &ctx, &mut report, None, interrupt)
-                .unwrap();
-            map.check_consistency().unwrap();
-            report
-        };
-        let full = run(Interrupt::NEVER);
+        let full = map_newest(1, Sensor::Monocular, Interrupt::NEVER);
         assert_eq!(full.triangulated_points, 100);
         assert!(!full.interrupted && full.local_ba_ms > 0.0);
         let waiting = AtomicBool::new(true);
-        let hurried = run(Interrupt::on(&waiting, false));
-        assert_eq!(hurried.triangulated_points, 50);
-        assert!(hurried.interrupted);
-        assert_eq!((hurried.local_ba_ms, hurried.fused_points), (0.0, 0));
+        let waited_for = map_newest(1, Sensor::Monocular, Interrupt::on(&waiting, false));
+        assert_eq!(waited_for.triangulated_points, 50);
+        assert!(waited_for.interrupted);
+        assert_eq!((waited_for.local_ba_ms, waited_for.fused_points), (0.0, 0));
     }
 
     /// The points triangulated with each neighbour are handed on as soon as they exist (the
@@ -1012,15 +1014,7 @@ mod tests {
     #[test]
     fn hurried_mapping_with_depth_triangulates_with_the_best_neighbours_only() {
         let n_others = 4;
-        let run = |sensor: Sensor, interrupt: Interrupt<'_>| {
-            let (ctx, mut map, newest) = scene(n_others, sensor);
-            let mut report = MappingReport::default();
-            LocalMapper::default()
-                .process_keyframe(newest, &mut map, &ctx, &mut report, None, interrupt)
-                .unwrap();
-            map.check_consistency().unwrap();
-            report
-        };
+        let run = |sensor, interrupt| map_newest(n_others, sensor, interrupt);
         let (not_waiting, waiting) = (AtomicBool::new(false), AtomicBool::new(true));
         let every_neighbour = 50 * (n_others + 1);
         for sensor in [Sensor::Rgbd, Sensor::Monocular] {
