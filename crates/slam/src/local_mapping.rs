@@ -78,7 +78,8 @@ pub struct MappingReport {
 /// Covisible keyframes searched for new points when mapping is hurried (see [`Interrupt`]).
 /// With depth, the best 3: a keyframe's close points come from its own depth, and the
 /// further neighbours delay local BA and the next keyframe (KITTI 01 stereo fed at full
-/// speed, 6 runs each: ATE 58-61 against 64-68 cm, frame p95 46 against 61 ms). Monocular
+/// speed, 16 alternating runs each: ATE 59 against 66 cm, frame p95 44 against 53 ms; TUM
+/// fr1/rpy RGB-D unchanged). Monocular
 /// maps search them all: there the further neighbours' wider baselines hold the scale
 /// (KITTI 06 fed at full speed, 54 runs each: the best 3 alone gave 5.1 against 4.1 cm ATE
 /// over the run, though 0.84 against 0.96 cm over frames 37-40).
