@@ -79,10 +79,10 @@ pub struct MappingReport {
 /// With depth, the best 3: a keyframe's close points come from its own depth, and the
 /// further neighbours delay local BA and the next keyframe (KITTI 01 stereo fed at full
 /// speed, 16 alternating runs each: ATE 59 against 66 cm, frame p95 44 against 53 ms; TUM
-/// fr1/rpy RGB-D unchanged). Monocular
-/// maps search them all: there the further neighbours' wider baselines hold the scale
-/// (KITTI 06 fed at full speed, 54 runs each: the best 3 alone gave 5.1 against 4.1 cm ATE
-/// over the run, though 0.84 against 0.96 cm over frames 37-40).
+/// fr1/rpy RGB-D unchanged). Monocular maps search them all: there the further neighbours'
+/// wider baselines hold the scale (KITTI 06 fed at full speed, 54 runs each: the best 3
+/// alone gave 5.1 against 4.1 cm ATE over the run, though 0.84 against 0.96 cm over frames
+/// 37-40).
 fn hurried_triangulation_neighbours(sensor: Sensor) -> usize {
     if sensor.has_depth() {
         3
