@@ -8,15 +8,16 @@ Pose graph: the g2o benchmarks of ``<data>/posegraph``, ours through the
 chordal), same cost (0.5 sum r^T Omega r, full SE(3) log, gauge prior excluded). Each side is
 run ``--repeat`` times; the fastest run is reported.
 
-Bundle adjustment: a synthetic ORB-SLAM-sized local BA (15 keyframes of which 5 fixed, 3000
-points, visibility 0.375, 1 px noise; TUM fr1 intrinsics) built here with numpy and solved
-by gtsam with ``GenericProjectionFactorCal3_S2`` + Huber (delta sqrt(5.991)) for 5
-iterations, then outliers (chi2 > 5.991) dropped and 10 plain iterations, as ORB-SLAM's
-local BA and ours (``local_bundle_adjust``); the 5 fixed keyframes get 1e-6 priors (gtsam's
-``NonlinearEqualityPose3`` makes its elimination ~10x slower here). Ours is timed by
-``cargo bench -p ferroslam-optim --bench local_ba`` on the scene the Rust test helper
-generates with the same specification but its own ChaCha8 draws: the two problems have the
-same size and statistics, NOT the same numbers (the crate has no problem export).
+Local bundle adjustment, the same problem files for both: a synthetic ORB-SLAM-sized one
+(15 keyframes of which 5 fixed, 3000 points, visibility 0.375, 1 px noise; TUM fr1
+intrinsics, built here with numpy) and problems recorded from fr1/rpy runs, RGB-D (stereo
+observations) and monocular, with mapping inline and the compare bench's settings
+(``SlamSystem.record_local_ba_problems``: each problem as local mapping built it, before
+solving; ``--tum-problems`` evenly spaced ones per sensor). Ours through the
+``local_ba_solve`` example (``local_bundle_adjust``), gtsam through ``gtsam_local_ba``: the
+same schedule, ORB-SLAM's (5 Levenberg-Marquardt iterations with Huber, the chi-square
+outliers dropped, 10 plain iterations); the reported cost is ``0.5 sum inv_sigma2 |e|^2``
+over each solver's inliers, gtsam's ``error()``.
 
 BAL (Bundle Adjustment in the Large): ``<data>/ba/problem-21-11315-pre.txt.bz2`` (21 Snavely
 cameras, 11315 points, 36455 observations), the same file and start for both. Ours through
@@ -30,7 +31,7 @@ points, faer sparse Cholesky on 9x9 camera blocks, function tolerance 1e-12); gt
 
     python benches/solvers_compare.py [--data DIR] [--repeat N] [--all-inits]
                                       [--skip-pose-graph] [--skip-ba]
-                                      [--local-ba-ms MS | --run-local-ba-bench]
+                                      [--tum-frames N] [--tum-problems N]
                                       [--skip-bal] [--bal-repeat N] [--json OUT]
 """
 
@@ -39,7 +40,6 @@ from __future__ import annotations
 import argparse
 import bz2
 import json
-import re
 import subprocess
 import sys
 import tempfile
@@ -57,7 +57,6 @@ from pose_graph_compare import ROOT, data_dir, run_gtsam, run_ours  # noqa: E402
 # solvers, so its comparison uses the chordal initialisation (see posegraph/REFERENCE.md).
 PAIRS = [("smallGrid3D", "file"), ("parking-garage", "file"), ("sphere2500", "file"),
          ("torus3D", "chordal")]
-LOCAL_BA_MS_NOTED = 45.0  # criterion figure quoted in issue 7's brief (2-core machine)
 
 
 def pose_graphs(folder: Path, pairs, repeat: int) -> list:
@@ -107,6 +106,7 @@ WIDTH, HEIGHT = 640.0, 480.0
 SPEC = dict(seed=2024, poses=15, fixed=5, points=3000, visibility=0.375, pixel_sigma=1.0,
             pose_sigma_t=0.02, pose_sigma_r=0.005, point_sigma=0.05)
 CHI2_MONO = 5.991
+CHI2_STEREO = 7.815
 
 
 def _exp_so3(w: np.ndarray) -> np.ndarray:
@@ -170,79 +170,228 @@ def ba_scene(spec: dict = SPEC) -> dict:
             "points_init": pts_init, "obs": obs}
 
 
-def gtsam_local_ba(scene: dict) -> dict:
-    """ORB-SLAM-style two-stage local BA with gtsam; times cover the two LM runs only."""
+def synthetic_problem_text(scene: dict) -> str:
+    """``scene`` (from :func:`ba_scene`) in the text form ``BaProblem::from_text`` reads."""
+    lines = ["ferroslam-ba 1", f"intrinsics {K['fx']!r} {K['fy']!r} {K['cx']!r} {K['cy']!r} 0",
+             f"poses {len(scene['T_init'])}"]
+    for T, fixed in zip(scene["T_init"], scene["fixed"]):
+        w, x, y, z = _quaternion(T[:3, :3])
+        lines.append(" ".join([str(int(fixed))] + [repr(float(v)) for v in (w, x, y, z, *T[:3, 3])]))
+    lines.append(f"points {len(scene['points_init'])}")
+    lines += [" ".join(repr(float(c)) for c in p) for p in scene["points_init"]]
+    lines.append(f"observations {len(scene['obs'])}")
+    info = 1.0 / SPEC["pixel_sigma"] ** 2
+    lines += [f"{i} {j} {float(u)!r} {float(v)!r} - {info!r}" for i, j, u, v in scene["obs"]]
+    return "\n".join(lines) + "\n"
+
+
+def _quaternion(R: np.ndarray) -> tuple:
+    """Unit quaternion ``(w, x, y, z)`` of a rotation matrix, normalised to 1e-16."""
     import gtsam
 
+    q = gtsam.Rot3(R).toQuaternion()
+    v = np.array([q.w(), q.x(), q.y(), q.z()])
+    return tuple(v / np.linalg.norm(v))
+
+
+def parse_problem(text: str) -> dict:
+    """The text form of ``BaProblem::to_text`` as numpy arrays (``T_c_w`` poses)."""
+    lines = iter(text.splitlines())
+    if next(lines).strip() != "ferroslam-ba 1":
+        raise ValueError("not a ferroslam-ba 1 problem")
+    fx, fy, cx, cy, bf = (float(v) for v in next(lines).split()[1:])
+
+    def section(name: str) -> list:
+        key, n = next(lines).split()
+        if key != name:
+            raise ValueError(f"expected {name!r}, found {key!r}")
+        return [next(lines).split() for _ in range(int(n))]
+
+    poses = np.array(section("poses"), dtype=np.float64).reshape(-1, 8)
+    points = np.array(section("points"), dtype=np.float64).reshape(-1, 3)
+    obs = section("observations")
+    return {"K": dict(fx=fx, fy=fy, cx=cx, cy=cy, bf=bf),
+            "fixed": poses[:, 0] == 1.0, "q_wxyz": poses[:, 1:5], "t": poses[:, 5:8],
+            "points": points,
+            "pose": np.array([int(o[0]) for o in obs], dtype=np.int64),
+            "point": np.array([int(o[1]) for o in obs], dtype=np.int64),
+            "uv": np.array([[float(o[2]), float(o[3])] for o in obs]).reshape(-1, 2),
+            "u_right": np.array([np.nan if o[4] == "-" else float(o[4]) for o in obs]),
+            "inv_sigma2": np.array([float(o[5]) for o in obs])}
+
+
+def _chi2(prob: dict, R_c_w: np.ndarray, t_c_w: np.ndarray, p_w: np.ndarray) -> np.ndarray:
+    """``inv_sigma2 |e|^2`` of every observation (inf behind the camera), as ours computes it."""
+    K = prob["K"]
+    pc = np.einsum("nij,nj->ni", R_c_w[prob["pose"]], p_w[prob["point"]]) + t_c_w[prob["pose"]]
+    z = pc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K["fx"] * pc[:, 0] / z + K["cx"]
+        v = K["fy"] * pc[:, 1] / z + K["cy"]
+        e2 = (u - prob["uv"][:, 0]) ** 2 + (v - prob["uv"][:, 1]) ** 2
+        stereo = ~np.isnan(prob["u_right"])
+        e2 = e2 + np.where(stereo, (u - K["bf"] / z - prob["u_right"]) ** 2, 0.0)
+    chi2 = prob["inv_sigma2"] * e2
+    chi2[~(z > 0) | ~np.isfinite(chi2)] = np.inf
+    return chi2
+
+
+def gtsam_local_ba(prob: dict) -> dict:
+    """ORB-SLAM's two-stage local BA with gtsam on a parsed problem: 5 Levenberg-Marquardt
+    iterations with Huber (delta sqrt(5.991) mono, sqrt(7.815) stereo), the observations over
+    those chi-square thresholds (or behind the camera) dropped, 10 plain iterations. Fixed
+    poses, and points no free pose sees (ours leaves them as they are), get 1e-6 priors
+    (``NonlinearEqualityPose3`` makes elimination ~10x slower). Times cover the two LM runs
+    only; costs are gtsam's ``error()`` without the priors: ``0.5 sum inv_sigma2 |e|^2``."""
+    import gtsam
+
+    K = prob["K"]
     cal = gtsam.Cal3_S2(K["fx"], K["fy"], 0.0, K["cx"], K["cy"])
+    cal_stereo = gtsam.Cal3_S2Stereo(K["fx"], K["fy"], 0.0, K["cx"], K["cy"],
+                                     K["bf"] / K["fx"] if K["bf"] > 0 else 1.0)
     X = lambda i: gtsam.symbol("x", i)  # noqa: E731
     L = lambda j: gtsam.symbol("l", j)  # noqa: E731
-    sigma = gtsam.noiseModel.Isotropic.Sigma(2, SPEC["pixel_sigma"])
-    huber = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(float(np.sqrt(CHI2_MONO))), sigma)
+    stereo = ~np.isnan(prob["u_right"])
+    noise = {}
 
-    def build(noise, keep):
-        graph = gtsam.NonlinearFactorGraph()
-        for i, f in enumerate(scene["fixed"]):
-            if f:  # tight prior: NonlinearEquality is ~10x slower (constrained elimination)
-                graph.add(gtsam.PriorFactorPose3(X(i), gtsam.Pose3(np.linalg.inv(scene["T_init"][i])),
-                                                 gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
-        for k, (i, j, u, v) in enumerate(scene["obs"]):
-            if keep[k]:
-                graph.add(gtsam.GenericProjectionFactorCal3_S2(np.array([u, v]), noise, X(i), L(j), cal))
-        return graph
+    def noise_model(k: int, robust: bool):
+        key = (prob["inv_sigma2"][k], bool(stereo[k]), robust)
+        if key not in noise:
+            dim = 3 if stereo[k] else 2
+            model = gtsam.noiseModel.Isotropic.Sigma(dim, float(1.0 / np.sqrt(key[0])))
+            if robust:
+                delta = np.sqrt(CHI2_STEREO if stereo[k] else CHI2_MONO)
+                model = gtsam.noiseModel.Robust.Create(
+                    gtsam.noiseModel.mEstimator.Huber.Create(float(delta)), model)
+            noise[key] = model
+        return noise[key]
 
+    free_seen = np.zeros(len(prob["points"]), bool)
+    free_seen[prob["point"][~prob["fixed"][prob["pose"]]]] = True
+    rot = [gtsam.Rot3.Quaternion(*q) for q in prob["q_wxyz"]]
     values = gtsam.Values()
-    for i, T in enumerate(scene["T_init"]):
-        values.insert(X(i), gtsam.Pose3(np.linalg.inv(T)))  # gtsam poses are T_w_c
-    for j, p in enumerate(scene["points_init"]):
+    for i, (R, t) in enumerate(zip(rot, prob["t"])):
+        values.insert(X(i), gtsam.Pose3(R, t).inverse())  # gtsam poses are T_w_c
+    for j, p in enumerate(prob["points"]):
         values.insert(L(j), gtsam.Point3(*p))
-    keep = np.ones(len(scene["obs"]), bool)
+    tight6 = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
+    tight3 = gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)
 
-    t0 = time.perf_counter()
+    def build(robust: bool, keep: np.ndarray):
+        graph = gtsam.NonlinearFactorGraph()
+        for i in np.flatnonzero(prob["fixed"]):
+            graph.add(gtsam.PriorFactorPose3(X(int(i)), values.atPose3(X(int(i))), tight6))
+        for j in np.flatnonzero(~free_seen):
+            graph.add(gtsam.PriorFactorPoint3(L(int(j)), prob["points"][j], tight3))
+        n_priors = graph.size()
+        for k in np.flatnonzero(keep):
+            i, j = int(prob["pose"][k]), int(prob["point"][k])
+            (u, v), model = prob["uv"][k], noise_model(k, robust)
+            if stereo[k]:
+                graph.add(gtsam.GenericStereoFactor3D(
+                    gtsam.StereoPoint2(u, prob["u_right"][k], v), model, X(i), L(j), cal_stereo))
+            else:
+                graph.add(gtsam.GenericProjectionFactorCal3_S2(
+                    np.array([u, v]), model, X(i), L(j), cal))
+        return graph, n_priors
+
+    def cost(graph, n_priors, vals):
+        return graph.error(vals) - sum(graph.at(k).error(vals) for k in range(n_priors))
+
+    keep = np.ones(len(prob["pose"]), bool)
+    graph, n_priors = build(True, keep)
+    initial_cost = cost(graph, n_priors, values)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(5)
-    opt = gtsam.LevenbergMarquardtOptimizer(build(huber, keep), values, params)
+    t0 = time.perf_counter()
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     values = opt.optimize()
-    it1 = opt.iterations()
     t1 = time.perf_counter()
-    for k, (i, j, u, v) in enumerate(scene["obs"]):  # ORB-SLAM: drop chi2 > 5.991
-        cam = gtsam.PinholeCameraCal3_S2(values.atPose3(X(i)), cal)
-        try:
-            e = cam.project(values.atPoint3(L(j))) - np.array([u, v])
-            keep[k] = float(e @ e) / SPEC["pixel_sigma"] ** 2 <= CHI2_MONO
-        except RuntimeError:  # cheirality
-            keep[k] = False
+    it1 = opt.iterations()
+    poses = [values.atPose3(X(i)).inverse() for i in range(len(rot))]
+    R_c_w = np.array([p.rotation().matrix() for p in poses])
+    t_c_w = np.array([p.translation() for p in poses])
+    p_w = np.array([values.atPoint3(L(j)) for j in range(len(prob["points"]))])
+    threshold = np.where(stereo, CHI2_STEREO, CHI2_MONO)
+    keep = _chi2(prob, R_c_w, t_c_w, p_w) <= threshold
+    graph, n_priors = build(False, keep)
     params.setMaxIterations(10)
-    graph = build(sigma, keep)
     t2 = time.perf_counter()
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     values = opt.optimize()
     t3 = time.perf_counter()
-    it2 = opt.iterations()
-    pose_err = [np.linalg.norm(values.atPose3(X(i)).translation()
-                               - np.linalg.inv(T)[:3, 3]) for i, T in enumerate(scene["T_true"])
-                if not scene["fixed"][i]]
-    priors = int(scene["fixed"].sum())  # added first: factors 0..priors-1
-    cost = graph.error(values) - sum(graph.at(k).error(values) for k in range(priors))
-    # Solver time only: the Python outlier check and graph rebuild in between are left out.
-    return {"time_s": (t1 - t0) + (t3 - t2), "robust_s": t1 - t0, "plain_s": t3 - t2,
-            "iterations": it1 + it2, "final_cost": cost,
-            "inliers": int(keep.sum()), "observations": len(keep),
-            "max_pose_error_m": float(max(pose_err))}
+    iterations = it1 + opt.iterations()
+    return {"time_s": (t1 - t0) + (t3 - t2), "iterations": iterations,
+            "ms_per_iteration": 1e3 * ((t1 - t0) + (t3 - t2)) / max(iterations, 1),
+            "initial_cost": initial_cost, "final_cost": cost(graph, n_priors, values),
+            "inliers": int(keep.sum()), "observations": len(keep)}
 
 
-def run_local_ba_bench() -> float | None:
-    """Median ms of criterion's ``local_ba/local_bundle_adjust`` (builds the bench if needed)."""
-    cmd = ["cargo", "bench", "-q", "-p", "ferroslam-optim", "--bench", "local_ba", "--",
-           "local_bundle_adjust", "--noplot"]
+def run_ours_local_ba(paths: list) -> list:
+    """``local_ba_solve`` (release build) on each file: one JSON record per file."""
+    cmd = ["cargo", "run", "--release", "-q", "-p", "ferroslam-optim", "--example",
+           "local_ba_solve", "--", *map(str, paths)]
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-    m = re.search(r"local_bundle_adjust\s+time:\s+\[\S+ \S+ (\S+) (\S+)", out.stdout)
-    if out.returncode != 0 or not m:
-        print(f"cargo bench failed (exit {out.returncode}): {out.stderr[-500:]}", file=sys.stderr)
-        return None
-    value, unit = float(m.group(1)), m.group(2)
-    return value * {"s": 1e3, "ms": 1.0, "µs": 1e-3, "us": 1e-3}[unit]
+    if out.returncode != 0:
+        raise RuntimeError(f"local_ba_solve failed: {out.stderr.strip()}")
+    return [json.loads(line) for line in out.stdout.strip().splitlines()]
+
+
+TUM_SEQUENCE = "tum/rgbd_dataset_freiburg1_rpy"
+
+
+def record_tum_problems(data: Path, sensor: str, frames: int) -> list:
+    """Every local BA problem of a fr1/rpy run (mapping inline, the compare bench's settings),
+    as text, oldest first."""
+    import _orbslam3 as orb
+    from ferroslam import _core
+    from ferroslam.datasets import open_sequence
+    from ferroslam.pipeline import run_sequence
+
+    systems = []
+
+    def recording(*args, **kwargs):
+        system = _core.SlamSystem(*args, **kwargs)
+        system.record_local_ba_problems(True)
+        systems.append(system)
+        return system
+
+    seq = open_sequence(data / TUM_SEQUENCE)
+    run_sequence(seq, orb.ferroslam_config(seq, sensor), max_frames=frames, progress=False,
+                 sensor=sensor, system_factory=recording)
+    return systems[0].take_local_ba_problems()
+
+
+def local_ba(problems: dict, repeat: int, workdir: Path) -> list:
+    """Ours and gtsam on each named problem text; the fastest of ``repeat`` runs each."""
+    paths = []
+    for name, text in problems.items():
+        paths.append(workdir / f"{name}.txt")
+        paths[-1].write_text(text, encoding="utf-8")
+    ours_runs = [run_ours_local_ba(paths) for _ in range(repeat)]
+    rows = []
+    for k, (name, text) in enumerate(problems.items()):
+        prob = parse_problem(text)
+        ours = min((runs[k] for runs in ours_runs), key=lambda r: r["solve_s"])
+        g = min((gtsam_local_ba(prob) for _ in range(repeat)), key=lambda r: r["time_s"])
+        rows.append({"problem": name, "ours": ours, "gtsam": g})
+    return rows
+
+
+def print_local_ba(rows: list) -> None:
+    print("\nLocal BA, ORB-SLAM's schedule (Huber 5 it, outliers dropped, plain 10 it), the same "
+          "problem files for both; cost 0.5 sum inv_sigma2 |e|^2 over each solver's inliers:")
+    print(f"  {'problem':<22}{'poses (free)':>13}{'points':>8}{'obs (stereo)':>15}"
+          f"{'ours ms':>9}{'it':>4}{'ms/it':>7}{'gtsam ms':>10}{'it':>4}{'ms/it':>7}"
+          f"{'gtsam/ours':>11}  final cost ours / gtsam")
+    for r in rows:
+        o, g = r["ours"], r["gtsam"]
+        ms_o, ms_g = 1e3 * o["solve_s"], 1e3 * g["time_s"]
+        print(f"  {r['problem']:<22}{o['poses']:>6} ({o['free_poses']:>3}){o['points']:>9}"
+              f"{o['observations']:>8} ({o['stereo_observations']:>5})"
+              f"{ms_o:>8.1f}{o['iterations']:>4}{o['ms_per_iteration']:>7.2f}"
+              f"{ms_g:>10.1f}{g['iterations']:>4}{g['ms_per_iteration']:>7.2f}"
+              f"{ms_g / ms_o:>11.2f}  {o['final_cost']:.6g} / {g['final_cost']:.6g}")
 
 
 # ---------------------------------------------------------------- BAL
@@ -329,12 +478,11 @@ def main(argv=None) -> int:
     parser.add_argument("--all-inits", action="store_true",
                         help="every dataset from both the file and the chordal start")
     parser.add_argument("--skip-pose-graph", action="store_true", help="no pose graphs")
-    parser.add_argument("--skip-ba", action="store_true", help="no synthetic local BA")
-    ours_ba = parser.add_mutually_exclusive_group()
-    ours_ba.add_argument("--local-ba-ms", type=float,
-                         help=f"our local BA time to compare with (default {LOCAL_BA_MS_NOTED})")
-    ours_ba.add_argument("--run-local-ba-bench", action="store_true",
-                         help="measure ours now with cargo bench (compiles the bench)")
+    parser.add_argument("--skip-ba", action="store_true", help="no local BA problems")
+    parser.add_argument("--tum-frames", type=int, default=300,
+                        help="fr1/rpy frames run to record local BA problems (default 300)")
+    parser.add_argument("--tum-problems", type=int, default=5,
+                        help="recorded problems compared per sensor, evenly spaced (default 5)")
     parser.add_argument("--skip-bal", action="store_true", help="no BAL comparison")
     parser.add_argument("--bal-repeat", type=int, default=1,
                         help="gtsam runs on BAL (~1.5 min each; fastest kept)")
@@ -352,29 +500,15 @@ def main(argv=None) -> int:
         print_pose_graphs(report["pose_graph"])
 
     if not args.skip_ba:
-        scene = ba_scene()
-        runs = [gtsam_local_ba(scene) for _ in range(args.repeat)]
-        g = min(runs, key=lambda r: r["time_s"])
-        ours_ms, source = args.local_ba_ms, "given on the command line"
-        if args.run_local_ba_bench:
-            ours_ms, source = run_local_ba_bench(), "cargo bench just now"
-        if ours_ms is None:
-            ours_ms, source = LOCAL_BA_MS_NOTED, "criterion figure noted in issue 7"
-        free = int((~scene["fixed"]).sum())
-        report["local_ba"] = {"gtsam": g, "ours_ms": ours_ms, "ours_source": source,
-                              "poses": len(scene["fixed"]), "free": free,
-                              "points": len(scene["points_init"])}
-        print(f"\nLocal BA, {len(scene['fixed'])} keyframes ({free} free), "
-              f"{len(scene['points_init'])} points, {g['observations']} mono observations:")
-        print(f"  gtsam LM (Huber 5 it + plain 10 it): {1e3 * g['time_s']:.1f} ms "
-              f"(robust {1e3 * g['robust_s']:.1f}, plain {1e3 * g['plain_s']:.1f}), "
-              f"{g['iterations']} iterations, {1e3 * g['time_s'] / max(g['iterations'], 1):.1f} ms/it, "
-              f"final cost {g['final_cost']:.1f}, inliers {g['inliers']}/{g['observations']}, "
-              f"worst free-pose error {100 * g['max_pose_error_m']:.2f} cm")
-        print(f"  ours (local_bundle_adjust): {ours_ms:.1f} ms ({source}); "
-              f"gtsam / ours = {1e3 * g['time_s'] / ours_ms:.2f}")
-        print("  Same size and statistics, different random draws (no problem export from the "
-              "crate): a like-for-like size comparison, not the same numbers.")
+        problems = {"synthetic": synthetic_problem_text(ba_scene())}
+        for sensor in ("rgbd", "mono"):
+            recorded = record_tum_problems(data_dir(args.data), sensor, args.tum_frames)
+            picks = np.unique(np.linspace(0, len(recorded) - 1, args.tum_problems).round())
+            for k in picks.astype(int):
+                problems[f"fr1rpy_{sensor}_{k + 1}of{len(recorded)}"] = recorded[k]
+        with tempfile.TemporaryDirectory() as tmp:
+            report["local_ba"] = local_ba(problems, args.repeat, Path(tmp))
+        print_local_ba(report["local_ba"])
     if not args.skip_bal:
         report["bal"] = bal(data_dir(args.data) / "ba", args.repeat, args.bal_repeat)
         print_bal(report["bal"])

@@ -241,6 +241,16 @@ class SlamSystem:
         """Runs local mapping and loop closing in a thread of their own, fed with map
         snapshots (always so when ``threaded``); off again, the queued keyframes are mapped
         first. ``wait()`` waits for the mapping thread too."""
+    def record_local_ba_problems(self, on: bool) -> None:
+        """Records (``True``) each local BA problem as local mapping builds it, before solving,
+        to run other solvers on the same problems (``benches/solvers_compare.py``); ``False``
+        stops and drops the record. Raises ``ValueError`` while the mapping thread runs (and
+        ``set_mapping_thread(True)`` does while recording)."""
+    def take_local_ba_problems(self) -> list[str]:
+        """The local BA problems recorded since the last call, oldest first, as text:
+        ``ferroslam-ba 1``, ``intrinsics fx fy cx cy bf``, ``poses n`` then per pose
+        ``fixed qw qx qy qz tx ty tz`` (``T_c_w``), ``points m`` then ``x y z``,
+        ``observations k`` then ``pose point u v u_right|- inv_sigma2`` (pixels)."""
     @property
     def mapping_thread(self) -> bool:
         """Whether local mapping and loop closing run in a thread of their own."""

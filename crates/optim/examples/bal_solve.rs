@@ -13,19 +13,10 @@ use ferroslam_optim::OptimError;
 use std::process::ExitCode;
 use std::time::Instant;
 
+mod common;
+
 fn main() -> ExitCode {
-    let files: Vec<String> = std::env::args().skip(1).collect();
-    if files.is_empty() {
-        eprintln!("usage: bal_solve FILE[.bz2]...");
-        return ExitCode::FAILURE;
-    }
-    for file in &files {
-        if let Err(e) = solve(file) {
-            eprintln!("{file}: {e}");
-            return ExitCode::FAILURE;
-        }
-    }
-    ExitCode::SUCCESS
+    common::solve_each_file("bal_solve FILE[.bz2]...", solve)
 }
 
 fn solve(file: &str) -> Result<(), OptimError> {

@@ -402,6 +402,25 @@ impl PySlamSystem {
             .map_err(to_py)
     }
 
+    /// Records (`True`) each local BA problem as local mapping builds it, before solving;
+    /// `False` stops and drops the record. Mapping must run inline.
+    fn record_local_ba_problems(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.engine
+            .run(py, move |s| s.record_local_ba_problems(on))?
+            .map_err(to_py)
+    }
+
+    /// The local BA problems recorded since the last call, oldest first, each in the text
+    /// form `BaProblem::to_text` writes.
+    fn take_local_ba_problems(&mut self, py: Python<'_>) -> PyResult<Vec<String>> {
+        self.engine.run(py, |s| {
+            s.take_local_ba_problems()
+                .iter()
+                .map(|p| p.to_text())
+                .collect()
+        })
+    }
+
     /// Whether local mapping and loop closing run in a thread of their own.
     #[getter]
     fn mapping_thread(&mut self, py: Python<'_>) -> PyResult<bool> {

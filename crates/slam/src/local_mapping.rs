@@ -132,12 +132,35 @@ impl<'a> Interrupt<'a> {
 pub struct LocalMapper {
     /// Points created recently and not yet proven (ORB-SLAM `mlpRecentAddedMapPoints`).
     recent_points: Vec<MapPointId>,
+    /// While recording, every local BA problem as built, before it is solved.
+    recorded_problems: Option<Vec<BaProblem>>,
 }
 
 impl LocalMapper {
-    /// Forgets everything (after a map reset).
+    /// Forgets the map's points (after a map reset); a recording goes on.
     pub fn reset(&mut self) {
-        *self = Self::default();
+        self.recent_points.clear();
+    }
+
+    /// Starts (`true`) or stops recording each local BA problem before it is solved; stopping
+    /// drops what was recorded.
+    pub(crate) fn record_problems(&mut self, on: bool) {
+        if on != self.recorded_problems.is_some() {
+            self.recorded_problems = on.then(Vec::new);
+        }
+    }
+
+    /// Whether local BA problems are being recorded.
+    pub(crate) fn is_recording(&self) -> bool {
+        self.recorded_problems.is_some()
+    }
+
+    /// The problems recorded since the last call.
+    pub(crate) fn take_recorded_problems(&mut self) -> Vec<BaProblem> {
+        self.recorded_problems
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// Registers a point created outside local mapping (monocular initialisation) for culling.
@@ -416,14 +439,14 @@ impl LocalMapper {
     /// Local BA over `kf` and its covisible keyframes, with the other keyframes that see
     /// their points held fixed; rejected observations are erased from the map.
     pub(crate) fn local_bundle_adjust(
-        &self,
+        &mut self,
         kf: KeyFrameId,
         map: &mut Map,
         ctx: &Context,
     ) -> Result<usize, SlamError> {
         let mut local: Vec<KeyFrameId> = vec![kf];
         local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
-        adjust_keyframes(&local, map, ctx)
+        adjust_keyframes(&local, map, ctx, self.recorded_problems.as_mut())
     }
 
     /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close
@@ -480,13 +503,18 @@ impl LocalMapper {
 /// Bundle adjustment of the keyframes `local` (the map's origin stays fixed) and every point
 /// they see, with the other keyframes observing those points held fixed; ORB-SLAM's robust
 /// then plain schedule. Rejected observations are erased from the map; returns their number.
-/// Local BA passes a keyframe and its covisible keyframes, global BA every keyframe.
+/// Local BA passes a keyframe and its covisible keyframes, global BA every keyframe. The
+/// problem, before solving, is pushed to `record` if given.
 pub(crate) fn adjust_keyframes(
     local: &[KeyFrameId],
     map: &mut Map,
     ctx: &Context,
+    record: Option<&mut Vec<BaProblem>>,
 ) -> Result<usize, SlamError> {
     let (mut problem, index) = LocalProblem::build(local, &[], map, ctx);
+    if let Some(record) = record {
+        record.push(problem.clone());
+    }
     let Ok(result) = local_bundle_adjust(&mut problem) else {
         // A numerically failed BA leaves the map as it was; the next keyframe retries.
         return Ok(0);

@@ -5,6 +5,7 @@ use std::time::Instant;
 use ferroslam_features::ScalePyramid;
 use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{KeyFrameId, Map};
+use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
 
 use crate::concurrent_mapping::{ConcurrentMapper, KeyFrameWork, MAX_QUEUED_KEYFRAMES};
@@ -357,6 +358,30 @@ impl SlamSystem {
         Ok(closed)
     }
 
+    /// Records (`true`) each local BA problem as local mapping builds it, before solving, for
+    /// running other solvers on the same problems (`benches/solvers_compare.py`); `false`
+    /// stops and drops the record. Mapping must run inline.
+    ///
+    /// # Errors
+    /// [`SlamError::InvalidConfig`] while the mapping thread runs.
+    pub fn record_local_ba_problems(&mut self, on: bool) -> Result<(), SlamError> {
+        if on && self.concurrent.is_some() {
+            return Err(SlamError::InvalidConfig(
+                "local BA problems are recorded with mapping inline only: stop the mapping \
+                 thread first"
+                    .to_owned(),
+            ));
+        }
+        self.mapper.record_problems(on);
+        Ok(())
+    }
+
+    /// The local BA problems recorded since the last call (see
+    /// [`Self::record_local_ba_problems`]), oldest first.
+    pub fn take_local_ba_problems(&mut self) -> Vec<BaProblem> {
+        self.mapper.take_recorded_problems()
+    }
+
     /// Runs local mapping and loop closing in a thread of their own (`true`) or inline in
     /// each call (`false`, the default: deterministic). Concurrent mapping works on copies of
     /// the map and its edits are replayed here before each frame (see
@@ -369,6 +394,13 @@ impl SlamSystem {
             return Ok(());
         }
         if on {
+            if self.mapper.is_recording() {
+                return Err(SlamError::InvalidConfig(
+                    "local BA problems are recorded with mapping inline only: stop recording \
+                     before starting the mapping thread"
+                        .to_owned(),
+                ));
+            }
             // Points created since the last keyframe (monocular initialisation) go with the
             // next keyframe to the thread.
             self.concurrent = Some(ConcurrentMapper::spawn(self.ctx.clone()));

@@ -10,6 +10,7 @@ mod local;
 mod problem;
 pub(crate) mod solve;
 mod symbolic;
+mod text;
 
 pub use local::{
     local_bundle_adjust, LocalBaResult, LOCAL_BA_PLAIN_ITERATIONS, LOCAL_BA_ROBUST_ITERATIONS,

@@ -116,7 +116,7 @@ impl LoopCloser {
             let graph = correction::correct_loop(kf, &found, map, ctx)?;
             // ORB-SLAM runs global BA in its own thread; here it runs inline, in order.
             let all: Vec<KeyFrameId> = map.keyframe_ids();
-            adjust_keyframes(&all, map, ctx)?;
+            adjust_keyframes(&all, map, ctx, None)?;
             let after = map.keyframe(kf).map(|k| k.camera_center());
             let loop_closure = LoopClosure {
                 current: kf,
