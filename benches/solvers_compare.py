@@ -503,6 +503,9 @@ def main(argv=None) -> int:
         problems = {"synthetic": synthetic_problem_text(ba_scene())}
         for sensor in ("rgbd", "mono"):
             recorded = record_tum_problems(data_dir(args.data), sensor, args.tum_frames)
+            if not recorded:
+                parser.error(f"no local BA in {args.tum_frames} fr1/rpy frames ({sensor}): "
+                             "raise --tum-frames")
             picks = np.unique(np.linspace(0, len(recorded) - 1, args.tum_problems).round())
             for k in picks.astype(int):
                 problems[f"fr1rpy_{sensor}_{k + 1}of{len(recorded)}"] = recorded[k]
