@@ -227,14 +227,21 @@ impl PencilIndex {
                     // Whole buckets: those holding the window's ends and any between.
                     let (lo, hi) = (phi - half, phi + half);
                     let at = |key: f64| self.bucket_run(ring, key);
-                    if lo < 0.0 {
-                        s.scan(line, norm2, at(lo + PI).start..run.end, out);
-                        s.scan(line, norm2, run.start..at(hi).end, out);
+                    let (from, to) = if lo < 0.0 {
+                        (at(lo + PI).start, at(hi).end)
                     } else if hi > PI {
-                        s.scan(line, norm2, at(lo).start..run.end, out);
-                        s.scan(line, norm2, run.start..at(hi - PI).end, out);
+                        (at(lo).start, at(hi - PI).end)
                     } else {
                         s.scan(line, norm2, at(lo).start..at(hi).end, out);
+                        continue;
+                    };
+                    // A window across key 0 wraps from the ring's end to its start; its ends
+                    // share a bucket when the ring has few.
+                    if to >= from {
+                        s.scan(line, norm2, run, out);
+                    } else {
+                        s.scan(line, norm2, from..run.end, out);
+                        s.scan(line, norm2, run.start..to, out);
                     }
                 }
             }
@@ -385,5 +392,26 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A window across direction 0 in a ring of one bucket (here, of one feature) visits
+    /// each feature once.
+    #[test]
+    fn a_wrapping_window_scans_a_small_ring_once() {
+        let mut index = PencilIndex::default();
+        // Lines through the epipole (100, 100); features alone in their rings on either
+        // side of it along the horizontal, and one off it.
+        index.push(0, 900.0, 100.5, 4.0);
+        index.push(1, 130.0, 140.0, 4.0);
+        index.push(2, 60.0, 100.0, 4.0);
+        let e = Vector3::new(100.0, 100.0, 1.0);
+        let m = Matrix3::new(0.3, 0.1, 0.2, -0.4, 0.9, 0.1, 0.2, 0.5, 0.7);
+        index.build(&(e.cross_matrix() * m));
+        assert!(matches!(index.pencil, Pencil::Through(..)));
+        let line = e.cross(&Vector3::new(900.0, 100.2, 1.0));
+        let mut near = Vec::new();
+        index.near_line(&line, line.x * line.x + line.y * line.y, &mut near);
+        near.sort_unstable();
+        assert_eq!(near, vec![0, 2]);
     }
 }
