@@ -106,9 +106,10 @@ def _median_ate_run(records: list) -> int:
 
 
 def _spread(records: list, chosen: int) -> dict:
-    """The chosen run, with every run's ATE and median ms beside it."""
+    """The chosen run, with every run's tracked frames, ATE and median ms beside it."""
     out = dict(records[chosen])
     out["runs"] = len(records)
+    out["tracked_all"] = [r["tracked"] for r in records]
     out["ate_all_m"] = [r["ate"]["rmse_m"] for r in records]
     out["frame_ms_median_all"] = [r["frame_ms"]["median"] for r in records]
     out["frame_ms_p95_all"] = [r["frame_ms"]["p95"] for r in records]
@@ -193,6 +194,9 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     rec["both_tracking_ms"] = {k: float(np.median([b[k] for b in both]))
                                for k in ("frames", "ours", "orbslam3")}
     common = [_common_ate(gt, o[3], t[3], align) for o, t in zip(ours_runs, orb_runs)]
+    rec["both_tracking_ate_all_m"] = [
+        [None if c[k] is None else float(c[k]) for k in ("poses", "ours", "orbslam3")]
+        for c in common]
     rec["both_tracking_ate_m"] = {
         k: float(np.nanmedian([np.nan if c[k] is None else c[k] for c in common]))
         for k in ("poses", "ours", "orbslam3")}
@@ -208,6 +212,13 @@ def _ratio(a, b) -> str:
 
 def _cm(a: dict) -> str:
     return "fail" if a.get("rmse_m") is None else f"{a['rmse_m'] * 100:.2f}"
+
+
+def _pairs_won(pairs: list) -> str:
+    """``k of n``: the run pairs (``[poses, ours, orbslam3]`` ATE over the poses both have)
+    where ours is lower; pairs that failed to align are left out."""
+    valid = [(o, t) for _, o, t in pairs if o is not None and t is not None]
+    return f"{sum(o < t for o, t in valid)} of {len(valid)}"
 
 
 def print_table(records: list) -> None:
@@ -239,7 +250,9 @@ def print_table(records: list) -> None:
         for who, x in (("ours", o), ("ORB-SLAM3", t)):
             spread = ", ".join("fail" if a is None else f"{100 * a:.2f}" for a in x["ate_all_m"])
             meds = ", ".join(f"{m:.1f}" for m in x["frame_ms_median_all"])
-            print(f"{'':<13} {who} over {x['runs']} runs: ATE cm [{spread}], median ms [{meds}]")
+            tracked = ", ".join(str(n) for n in x["tracked_all"])
+            print(f"{'':<13} {who} over {x['runs']} runs: tracked [{tracked}], ATE cm [{spread}], "
+                  f"median ms [{meds}]")
         print(f"{'':<13} ATE pairs ours/ORB-SLAM3 {o['ate'].get('pairs')}/{t['ate'].get('pairs')}; "
               f"wall per frame incl. image loading and (ORB-SLAM3) its mapping threads and "
               f"shutdown: {1e3 * o['wall_s'] / r['frames']:.1f} / "
@@ -252,7 +265,8 @@ def print_table(records: list) -> None:
         a = r["both_tracking_ate_m"]
         print(f"{'':<13} ATE over the poses both have ({a['poses']:.0f}), median of the run pairs: "
               f"ours {100 * a['ours']:.2f} / ORB-SLAM3 {100 * a['orbslam3']:.2f} cm "
-              f"({_ratio(a['ours'], a['orbslam3'])})")
+              f"({_ratio(a['ours'], a['orbslam3'])}); ours better in "
+              f"{_pairs_won(r['both_tracking_ate_all_m'])} pairs")
         print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "
