@@ -191,6 +191,8 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     # Over the frames both track: per pair of runs made one after the other, the median over
     # the pairs (a pair where either fails to align counts as NaN and is left out).
     both = [_both_tracking(o[1], o[2], t[1], t[2]) for o, t in zip(ours_runs, orb_runs)]
+    rec["both_tracking_ms_all"] = [[float(b[k]) for k in ("frames", "ours", "orbslam3")]
+                                   for b in both]
     rec["both_tracking_ms"] = {k: float(np.median([b[k] for b in both]))
                                for k in ("frames", "ours", "orbslam3")}
     common = [_common_ate(gt, o[3], t[3], align) for o, t in zip(ours_runs, orb_runs)]
@@ -214,11 +216,18 @@ def _cm(a: dict) -> str:
     return "fail" if a.get("rmse_m") is None else f"{a['rmse_m'] * 100:.2f}"
 
 
-def _pairs_won(pairs: list) -> str:
-    """``k of n``: the run pairs (``[poses, ours, orbslam3]`` ATE over the poses both have)
-    where ours is lower; pairs that failed to align are left out."""
-    valid = [(o, t) for _, o, t in pairs if o is not None and t is not None]
-    return f"{sum(o < t for o, t in valid)} of {len(valid)}"
+def _per_pair(pairs: list) -> str:
+    """Run pairs (``[count, ours, orbslam3]`` over what both have; the counts differ from pair
+    to pair, so the two medians may come from different pairs): the median of ours / theirs
+    and in how many pairs ours is lower. Pairs with a missing or non-finite value are left
+    out."""
+    valid = [(o, t) for _, o, t in pairs
+             if o is not None and t is not None and np.isfinite(o) and np.isfinite(t) and t > 0]
+    if not valid:
+        return "no valid pair"
+    ratio = float(np.median([o / t for o, t in valid]))
+    return f"per pair: ratio median {ratio:.2f}, ours lower in {sum(o < t for o, t in valid)} " \
+           f"of {len(valid)}"
 
 
 def print_table(records: list) -> None:
@@ -261,12 +270,11 @@ def print_table(records: list) -> None:
         print(f"{'':<13} median ms over the frames both track ({both['frames']:.0f}), median of the "
               f"run pairs: ours "
               f"{both['ours']:.1f} / ORB-SLAM3 {both['orbslam3']:.1f} "
-              f"({_ratio(both['ours'], both['orbslam3'])})")
+              f"({_ratio(both['ours'], both['orbslam3'])}); {_per_pair(r['both_tracking_ms_all'])}")
         a = r["both_tracking_ate_m"]
         print(f"{'':<13} ATE over the poses both have ({a['poses']:.0f}), median of the run pairs: "
               f"ours {100 * a['ours']:.2f} / ORB-SLAM3 {100 * a['orbslam3']:.2f} cm "
-              f"({_ratio(a['ours'], a['orbslam3'])}); ours better in "
-              f"{_pairs_won(r['both_tracking_ate_all_m'])} pairs")
+              f"({_ratio(a['ours'], a['orbslam3'])}); {_per_pair(r['both_tracking_ate_all_m'])}")
         print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "

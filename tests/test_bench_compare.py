@@ -1,0 +1,24 @@
+"""The head-to-head bench's summary of run pairs (``benches/compare.py``)."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benches"))
+
+import compare  # noqa: E402
+
+
+def test_per_pair_takes_the_median_ratio_and_counts_wins_pair_by_pair():
+    # [count, ours, theirs]: pair by pair ours is lower in two of three (ratios 0.5, 0.8,
+    # 1.5), though the median of ours (0.8) is above the median of theirs (0.6).
+    pairs = [[4, 0.3, 0.6], [7, 0.8, 1.0], [4, 0.9, 0.6]]
+    assert compare._per_pair(pairs) == "per pair: ratio median 0.80, ours lower in 2 of 3"
+
+
+def test_per_pair_leaves_out_pairs_that_failed():
+    pairs = [[4, None, 0.6], [0, math.nan, math.nan], [4, 0.2, 0.0], [4, 0.3, 0.2]]
+    assert compare._per_pair(pairs) == "per pair: ratio median 1.50, ours lower in 0 of 1"
+    assert compare._per_pair([[0, None, None]]) == "no valid pair"
