@@ -33,6 +33,17 @@ impl<T> Csr<T> {
         }
     }
 
+    /// The rows in order, each given by its items.
+    pub(crate) fn from_rows<R: IntoIterator<Item = T>>(rows: impl IntoIterator<Item = R>) -> Self {
+        let mut offsets = vec![0];
+        let mut items = Vec::new();
+        for row in rows {
+            items.extend(row);
+            offsets.push(items.len());
+        }
+        Self { offsets, items }
+    }
+
     pub(crate) fn row(&self, r: usize) -> &[T] {
         &self.items[self.range(r)]
     }

@@ -432,11 +432,11 @@ pub(crate) fn solve_damped<const D: usize>(
                 for t in sym.point_terms.row(p) {
                     subtract_outer(
                         &mut values,
-                        &col_start[t.column],
-                        D * t.slot,
+                        &col_start[t.column as usize],
+                        D * t.slot as usize,
                         t.diagonal,
-                        &y[t.a],
-                        &w[t.b],
+                        &y[t.a as usize],
+                        &w[t.b as usize],
                     );
                 }
             }

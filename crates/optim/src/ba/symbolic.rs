@@ -18,13 +18,15 @@ use faer::sparse::SymbolicSparseColMat;
 /// One term `-Y_a W_b^T` of the Schur complement of a point: its observations at positions
 /// `a` and `b` of its [`SymbolicBa::point_obs`] row come from free poses `fa <= fb`; the
 /// term lands in block `slot` of block column `column = fb` (`diagonal` iff `fa == fb`).
+/// 32-bit fields (poses and a point's observations number far fewer than 2^32) halve the
+/// list the numeric phase walks every iteration.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SchurTerm {
-    pub(crate) column: usize,
-    pub(crate) slot: usize,
+    pub(crate) column: u32,
+    pub(crate) slot: u32,
     pub(crate) diagonal: bool,
-    pub(crate) a: usize,
-    pub(crate) b: usize,
+    pub(crate) a: u32,
+    pub(crate) b: u32,
 }
 
 /// Most point chunks the numeric phase splits the points into (each chunk accumulates its
@@ -133,21 +135,21 @@ impl SymbolicBa {
             .map(|&i| free_index[incidence[i].0])
             .collect();
 
-        // Block pattern: per block column b, the sorted block rows a <= b.
-        let nfree = free_poses.len();
-        let mut block_rows: Vec<Vec<usize>> = (0..nfree).map(|b| vec![b]).collect();
         // Per point: (position in its row, free index) of its observations by free poses.
-        let (point_obs_ref, entry_free_ref) = (&point_obs, &entry_free);
-        let free_entries = |p: usize| {
-            let (point_obs, entry_free) = (point_obs_ref, entry_free_ref);
+        let entry_free_ref = &entry_free;
+        let free_entries = Csr::from_rows((0..opt_points.len()).map(|p| {
+            let entry_free = entry_free_ref;
             let start = point_obs.range(p).start;
             point_obs
                 .range(p)
                 .filter_map(move |e| entry_free[e].map(|f| (e - start, f)))
-        };
+        }));
+        // Block pattern: per block column b, the sorted block rows a <= b.
+        let nfree = free_poses.len();
+        let mut block_rows: Vec<Vec<usize>> = (0..nfree).map(|b| vec![b]).collect();
         for p in 0..opt_points.len() {
-            for (_, fa) in free_entries(p) {
-                for (_, fb) in free_entries(p) {
+            for &(_, fa) in free_entries.row(p) {
+                for &(_, fb) in free_entries.row(p) {
                     if fa < fb {
                         block_rows[fb].push(fa);
                     }
@@ -158,26 +160,23 @@ impl SymbolicBa {
             rows.sort_unstable();
             rows.dedup();
         }
-        let mut terms = Vec::new();
-        for p in 0..opt_points.len() {
-            for (a, fa) in free_entries(p) {
-                for (b, fb) in free_entries(p) {
-                    if fa <= fb {
+        let point_terms = Csr::from_rows((0..opt_points.len()).map(|p| {
+            let entries = free_entries.row(p);
+            let block_rows = &block_rows;
+            entries.iter().flat_map(move |&(a, fa)| {
+                entries
+                    .iter()
+                    .filter(move |&&(_, fb)| fa <= fb)
+                    .map(move |&(b, fb)| SchurTerm {
+                        column: fb as u32,
                         // Present by construction of block_rows.
-                        let slot = block_rows[fb].binary_search(&fa).unwrap_or(0);
-                        let term = SchurTerm {
-                            column: fb,
-                            slot,
-                            diagonal: fa == fb,
-                            a,
-                            b,
-                        };
-                        terms.push((p, term));
-                    }
-                }
-            }
-        }
-        let point_terms = Csr::from_pairs(opt_points.len(), terms);
+                        slot: block_rows[fb].binary_search(&fa).unwrap_or(0) as u32,
+                        diagonal: fa == fb,
+                        a: a as u32,
+                        b: b as u32,
+                    })
+            })
+        }));
 
         // block_rows[b] ends with b itself: the diagonal block.
         let above: Vec<&[usize]> = block_rows.iter().map(|r| &r[..r.len() - 1]).collect();
