@@ -31,6 +31,10 @@ REAL_RUNS = {
     "kitti06_mono": ("kitti_mono", "mono", {"n_features": 2000}),
     "kitti01_stereo": ("kitti_stereo", "stereo", {"n_features": 2000, "depth_threshold": 35}),
 }
+# Keyframes whose bag-of-words query found candidates, at least (measured 33 / 11 / 4; KITTI
+# 01 had 11 before keyframes with depth stopped triangulating with neighbours that bring few
+# points: its map has fewer points, 2625 against 2889).
+MIN_WITH_CANDIDATES = {"tum_rpy_rgbd": 20, "kitti06_mono": 10, "kitti01_stereo": 3}
 
 
 def _open(fixture_path, name: str, sensor: str):
@@ -54,7 +58,7 @@ def test_no_false_loop_on_real_sequences_without_loops(case, request):
     # forward drive yields candidates but none consistent over 3 keyframes), and every one
     # was refused.
     assert stats["keyframes_checked"] >= len(with_loops.keyframe_ids) - 10, stats
-    assert stats["with_candidates"] >= 10, stats
+    assert stats["with_candidates"] >= MIN_WITH_CANDIDATES[case], stats
     assert stats["rejected"] == stats["verified"], stats
     assert without.loop_stats["keyframes_checked"] == 0
     np.testing.assert_array_equal(with_loops.trajectory.poses, without.trajectory.poses)

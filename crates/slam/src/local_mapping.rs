@@ -91,6 +91,19 @@ fn hurried_triangulation_neighbours(sensor: Sensor) -> usize {
     }
 }
 
+/// With depth, covisible keyframes always searched for new points; past them, the search
+/// stops after the first that brings fewer than [`MIN_POINTS_TO_SEARCH_ON`] (neighbours come
+/// by decreasing covisibility; the further ones bring a few points each, a keyframe's close
+/// points come from its own depth, and each search costs about as much as the best's). Mapping inline, KITTI 01 stereo: ATE 66.8 -> 57.4 cm and 16.7 -> 12.1 ms
+/// per keyframe; fr1/rpy RGB-D 2.73 -> 2.67 cm; EuRoC unchanged; thresholds 3 to 20 all gave
+/// 57-59 cm and 2.67 cm. Fed at full speed, 10 alternating runs: KITTI 01 median ATE 60.2 ->
+/// 58.1 cm; fr1/rpy (8 runs) 2.69 -> 2.76, mean 2.74 both. Monocular maps search on: there
+/// the further neighbours' wider baselines hold the scale (KITTI 06 inline 3.97 -> 4.03 cm
+/// with 5, 4.30 with 10; fed at full speed, 12 runs, 3.95 -> 5.83 cm with 10).
+const ALWAYS_SEARCHED_WITH_DEPTH: usize = 2;
+/// See [`ALWAYS_SEARCHED_WITH_DEPTH`].
+const MIN_POINTS_TO_SEARCH_ON: usize = 5;
+
 /// What tells local mapping to finish a keyframe sooner (concurrent mapping).
 ///
 /// Tracking waits to insert a keyframe ([`Self::requested`]): local mapping then skips the
@@ -326,7 +339,9 @@ impl LocalMapper {
     /// (ORB-SLAM `CreateNewMapPoints`): epipolar matching, parallax, positive depth,
     /// reprojection and scale-consistency checks. Close features with depth use it directly
     /// when their stereo parallax beats the ray parallax. After the best neighbour, stops
-    /// when `interrupt` is requested; searches fewer neighbours when it is hurried. Calls
+    /// when `interrupt` is requested; searches fewer neighbours when it is hurried; with
+    /// depth, stops after a neighbour that brought few points (see
+    /// [`ALWAYS_SEARCHED_WITH_DEPTH`]). Calls
     /// `points_added` after each neighbour that brought points, so the best neighbours'
     /// points, most of them, can be used before the search ends.
     fn create_new_points(
@@ -419,7 +434,13 @@ impl LocalMapper {
                 }
                 new_points.push((p_w, i1, i2));
             }
+            let last = sensor.has_depth()
+                && n >= ALWAYS_SEARCHED_WITH_DEPTH
+                && new_points.len() < MIN_POINTS_TO_SEARCH_ON;
             if new_points.is_empty() {
+                if last {
+                    break;
+                }
                 continue;
             }
             for (p_w, i1, i2) in new_points {
@@ -432,6 +453,9 @@ impl LocalMapper {
                 created += 1;
             }
             points_added(map);
+            if last {
+                break;
+            }
         }
         Ok(created)
     }
@@ -897,14 +921,20 @@ mod tests {
     use super::*;
     use crate::config::SlamConfig;
 
-    /// Keyframes `others` (`n_others` of them, 0.2 m apart along x), `best` 0.2 m
+    /// [`scene_sharing`] with 50 points shared with each of `n_others` other keyframes.
+    fn scene(n_others: usize, sensor: Sensor) -> (Context, Map, KeyFrameId) {
+        scene_sharing(&vec![50; n_others], sensor)
+    }
+
+    /// Keyframes `others` (`shared.len()` of them, 0.2 m apart along x), `best` 0.2 m
     /// further and `newest` 0.2 m further still, looking along z at points 3-6 m away, each
     /// point with its own random descriptor. 60 points are mapped in every keyframe and 20
     /// more in `best` and `newest`, so `best` is the newest's best covisible; 50 unmapped
-    /// points are seen by `newest` and `best`, and 50 more by `newest` and each other
-    /// keyframe. With a depth `sensor`, every feature has its depth (all close). Returns the
-    /// context, the map and `newest`.
-    fn scene(n_others: usize, sensor: Sensor) -> (Context, Map, KeyFrameId) {
+    /// points are seen by `newest` and `best`, and `shared[j]` more by `newest` and other
+    /// keyframe `j`. With a depth `sensor`, every feature has its depth (all close). Returns
+    /// the context, the map and `newest`.
+    fn scene_sharing(shared: &[usize], sensor: Sensor) -> (Context, Map, KeyFrameId) {
+        let n_others = shared.len();
         let camera =
             PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
         let config = SlamConfig {
@@ -927,8 +957,9 @@ mod tests {
         let all: Vec<_> = (0..60).map(|_| point()).collect();
         let pair: Vec<_> = (0..20).map(|_| point()).collect();
         let with_best: Vec<_> = (0..50).map(|_| point()).collect();
-        let with_others: Vec<Vec<_>> = (0..n_others)
-            .map(|_| (0..50).map(|_| point()).collect())
+        let with_others: Vec<Vec<_>> = shared
+            .iter()
+            .map(|&n| (0..n).map(|_| point()).collect())
             .collect();
         // (centre x in metres, points seen)
         let mut views: Vec<(f64, Vec<_>)> = with_others
@@ -1058,5 +1089,23 @@ mod tests {
         let waited_for = run(Sensor::Rgbd, Interrupt::on(&waiting, true));
         assert_eq!(waited_for.triangulated_points, 50);
         assert!(waited_for.interrupted);
+    }
+
+    /// With depth, the search for new points goes past the best two neighbours only while
+    /// each brings enough; a monocular keyframe searches them all. The other keyframes tie in
+    /// covisibility and come in the order they were made, after `best`.
+    #[test]
+    fn with_depth_the_search_stops_at_a_neighbour_that_brings_few_points() {
+        let shared = [50, 3, 50, 50];
+        let all: usize = 50 + shared.iter().sum::<usize>();
+        for (sensor, expected) in [(Sensor::Rgbd, 50 + 50 + 3), (Sensor::Monocular, all)] {
+            let (ctx, mut map, newest) = scene_sharing(&shared, sensor);
+            let mut report = MappingReport::default();
+            LocalMapper::default()
+                .process_keyframe(newest, &mut map, &ctx, &mut report, None, Interrupt::NEVER)
+                .unwrap();
+            map.check_consistency().unwrap();
+            assert_eq!(report.triangulated_points, expected, "{sensor:?}");
+        }
     }
 }
