@@ -91,15 +91,16 @@ fn hurried_triangulation_neighbours(sensor: Sensor) -> usize {
     }
 }
 
-/// With depth, covisible keyframes always searched for new points; past them, the search
-/// stops after the first that brings fewer than [`MIN_POINTS_TO_SEARCH_ON`] (neighbours come
-/// by decreasing covisibility; the further ones bring a few points each, a keyframe's close
-/// points come from its own depth, and each search costs about as much as the best's). Mapping inline, KITTI 01 stereo: ATE 66.8 -> 57.4 cm and 16.7 -> 12.1 ms
-/// per keyframe; fr1/rpy RGB-D 2.73 -> 2.67 cm; EuRoC unchanged; thresholds 3 to 20 all gave
-/// 57-59 cm and 2.67 cm. Fed at full speed, 10 alternating runs: KITTI 01 median ATE 60.2 ->
-/// 58.1 cm; fr1/rpy (8 runs) 2.69 -> 2.76, mean 2.74 both. Monocular maps search on: there
-/// the further neighbours' wider baselines hold the scale (KITTI 06 inline 3.97 -> 4.03 cm
-/// with 5, 4.30 with 10; fed at full speed, 12 runs, 3.95 -> 5.83 cm with 10).
+/// Covisible keyframes a keyframe with depth always searches for new points. Past them, its
+/// search stops after the first neighbour that brings fewer than [`MIN_POINTS_TO_SEARCH_ON`]:
+/// neighbours come by decreasing covisibility, the further ones bring a few points each (a
+/// keyframe's close points come from its own depth), and each search costs about as much as
+/// the best's. Mapping inline: KITTI 01 stereo ATE 66.8 -> 57.4 cm and 16.7 -> 12.1 ms per
+/// keyframe; fr1/rpy RGB-D 2.73 -> 2.67 cm; EuRoC unchanged; thresholds from 3 to 20 all gave
+/// 57-59 cm and 2.67 cm. Fed at full speed (alternating runs): KITTI 01 median ATE 60.2 ->
+/// 58.1 cm over 10 runs each; fr1/rpy 2.76 -> 2.75 cm over 12. Monocular maps search on:
+/// there the further neighbours' wider baselines hold the scale (KITTI 06 inline 3.97 ->
+/// 4.03 cm with 5, 4.30 cm with 10; fed at full speed with 10, 3.95 -> 5.83 cm over 12 runs).
 const ALWAYS_SEARCHED_WITH_DEPTH: usize = 2;
 /// See [`ALWAYS_SEARCHED_WITH_DEPTH`].
 const MIN_POINTS_TO_SEARCH_ON: usize = 5;
