@@ -438,22 +438,18 @@ impl LocalMapper {
             let last = sensor.has_depth()
                 && n >= ALWAYS_SEARCHED_WITH_DEPTH
                 && new_points.len() < MIN_POINTS_TO_SEARCH_ON;
-            if new_points.is_empty() {
-                if last {
-                    break;
+            if !new_points.is_empty() {
+                for (p_w, i1, i2) in new_points {
+                    let m = map.create_map_point(p_w, kf)?;
+                    map.add_observation(m, kf, i1)?;
+                    map.add_observation(m, kf2, i2)?;
+                    map.compute_distinctive_descriptor(m)?;
+                    map.update_normal_and_depth(m)?;
+                    self.recent_points.push(m);
+                    created += 1;
                 }
-                continue;
+                points_added(map);
             }
-            for (p_w, i1, i2) in new_points {
-                let m = map.create_map_point(p_w, kf)?;
-                map.add_observation(m, kf, i1)?;
-                map.add_observation(m, kf2, i2)?;
-                map.compute_distinctive_descriptor(m)?;
-                map.update_normal_and_depth(m)?;
-                self.recent_points.push(m);
-                created += 1;
-            }
-            points_added(map);
             if last {
                 break;
             }
