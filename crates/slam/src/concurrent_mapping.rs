@@ -288,25 +288,57 @@ fn mapping_loop(
     interrupt: &AtomicBool,
     keyframe_mapping_us: &AtomicU64,
 ) {
-    let mut mapper = LocalMapper::default();
-    let mut closer = LoopCloser::default();
-    let mut place: Option<PlaceRecognition> = None;
+    let mut state = MappingState::default();
     for job in inbox {
+        let n = job.work.len();
+        // On a thread of rayon's pool: a job runs hundreds of small parallel loops (each local
+        // BA iteration several), each otherwise handed to the pool and waited for.
+        let mapped = rayon::scope(|_| state.run(job, ctx, &report, interrupt, keyframe_mapping_us));
+        backlog.fetch_sub(n, Ordering::SeqCst);
+        if report.send(FromMapping::Done(mapped)).is_err() {
+            return;
+        }
+    }
+}
+
+/// What the mapping thread keeps from one job to the next.
+#[derive(Default)]
+struct MappingState {
+    mapper: LocalMapper,
+    closer: LoopCloser,
+    place: Option<PlaceRecognition>,
+}
+
+impl MappingState {
+    /// Local mapping and loop closing of the job's keyframes, in order; sends each
+    /// keyframe's new points ahead as they are made (`report`).
+    fn run(
+        &mut self,
+        job: Job,
+        ctx: &Context,
+        report: &Sender<FromMapping>,
+        interrupt: &AtomicBool,
+        keyframe_mapping_us: &AtomicU64,
+    ) -> Mapped {
+        let Self {
+            mapper,
+            closer,
+            place,
+        } = self;
         // A stale job (the epoch moved on) is still processed; its result is dropped.
         if job.fresh {
             mapper.reset();
             closer.reset_map();
-            place = None;
+            *place = None;
         }
-        match (&job.vocabulary, &place) {
+        match (&job.vocabulary, &*place) {
             (Some(v), Some(p)) if Arc::ptr_eq(v, p.vocabulary()) => {}
-            (Some(v), _) => place = Some(PlaceRecognition::new(Arc::clone(v))),
-            (None, _) => place = None,
+            (Some(v), _) => *place = Some(PlaceRecognition::new(Arc::clone(v))),
+            (None, _) => *place = None,
         }
         mapper.rename_recent_points(&job.renamed);
         let mut map = job.map;
         map.begin_journal();
-        let n = job.work.len();
         let mut mapped = Mapped {
             epoch: job.epoch,
             journal: MapJournal::default(),
@@ -390,10 +422,7 @@ fn mapping_loop(
         }
         mapped.stats = closer.stats();
         mapped.journal = map.take_journal();
-        backlog.fetch_sub(n, Ordering::SeqCst);
-        if report.send(FromMapping::Done(mapped)).is_err() {
-            return;
-        }
+        mapped
     }
 }
 

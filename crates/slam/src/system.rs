@@ -302,14 +302,17 @@ impl SlamSystem {
                 // The mapping thread indexes it (see `collect_mapping`).
                 concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
             } else {
-                self.mapper.process_keyframe(
-                    kf,
-                    &mut self.map,
-                    &self.ctx,
-                    &mut report,
-                    window.as_mut(),
-                    Interrupt::NEVER,
-                )?;
+                // In the pool, as the mapping thread's jobs (see `mapping_loop`).
+                rayon::scope(|_| {
+                    self.mapper.process_keyframe(
+                        kf,
+                        &mut self.map,
+                        &self.ctx,
+                        &mut report,
+                        window.as_mut(),
+                        Interrupt::NEVER,
+                    )
+                })?;
                 if let (Some(inertial), Some(window)) = (self.inertial.as_mut(), &window) {
                     inertial.store(window);
                 }

@@ -30,7 +30,8 @@ pub struct LocalBaResult {
 /// then observations with `chi2` above threshold or behind their camera are dropped and
 /// [`LOCAL_BA_PLAIN_ITERATIONS`] iterations run without kernel; finally every observation is
 /// classified. Either stage stops early once an iteration lowers the cost by less than a
-/// relative `1e-5`. The symbolic analysis is built once and shared by both stages.
+/// relative `1e-5`. The symbolic analysis is built once and shared by both stages. Runs on a
+/// thread of rayon's pool (see [`super::bundle_adjust`]).
 ///
 /// With zero free poses or zero observations nothing moves (the classification is still
 /// returned). Points with no observation by a free pose are not optimised.
@@ -38,6 +39,10 @@ pub struct LocalBaResult {
 /// # Errors
 /// As [`SymbolicBa::new`] and [`super::bundle_adjust`].
 pub fn local_bundle_adjust(problem: &mut BaProblem) -> Result<LocalBaResult, OptimError> {
+    rayon::scope(|_| local_bundle_adjust_in_pool(problem))
+}
+
+fn local_bundle_adjust_in_pool(problem: &mut BaProblem) -> Result<LocalBaResult, OptimError> {
     let symbolic = SymbolicBa::new(problem)?;
     let robust = BaOptions {
         max_iterations: LOCAL_BA_ROBUST_ITERATIONS,

@@ -75,13 +75,17 @@ pub struct BaReport {
 /// [`BaProblem::validate`] error; [`OptimError::NotPositiveDefinite`] if the damped reduced
 /// system could not be factorised at any damping; [`OptimError::Solver`] on solver failure.
 /// On error the problem is left at the last accepted estimate.
+///
+/// Runs on a thread of rayon's pool: an iteration makes several small parallel loops, and
+/// each one started from outside the pool is handed to its threads and waited for (the 30
+/// local BA problems recorded on KITTI 06: 279 -> 233 ms).
 pub fn bundle_adjust(
     problem: &mut BaProblem,
     symbolic: &SymbolicBa,
     options: &BaOptions,
 ) -> Result<BaReport, OptimError> {
     let all = vec![true; problem.observations.len()];
-    bundle_adjust_masked(problem, symbolic, options, &all)
+    rayon::scope(|_| bundle_adjust_masked(problem, symbolic, options, &all))
 }
 
 /// [`bundle_adjust`] over the observations with `use_obs[i] == true` only (ORB-SLAM's edge
