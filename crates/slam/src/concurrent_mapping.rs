@@ -289,11 +289,22 @@ fn mapping_loop(
     keyframe_mapping_us: &AtomicU64,
 ) {
     let mut state = MappingState::default();
+    // Jobs run on a thread pool of their own: a job runs hundreds of small parallel loops
+    // (each local BA iteration several), each otherwise handed to a pool and waited for; and
+    // in tracking's pool they would queue ahead of tracking's own (idle threads steal work
+    // before taking new jobs).
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(rayon::current_num_threads())
+        .thread_name(|i| format!("ferroslam-mapping-{i}"))
+        .build()
+        .ok();
     for job in inbox {
         let n = job.work.len();
-        // On a thread of rayon's pool: a job runs hundreds of small parallel loops (each local
-        // BA iteration several), each otherwise handed to the pool and waited for.
-        let mapped = rayon::scope(|_| state.run(job, ctx, &report, interrupt, keyframe_mapping_us));
+        let run = || state.run(job, ctx, &report, interrupt, keyframe_mapping_us);
+        let mapped = match &pool {
+            Some(pool) => pool.install(run),
+            None => run(),
+        };
         backlog.fetch_sub(n, Ordering::SeqCst);
         if report.send(FromMapping::Done(mapped)).is_err() {
             return;
