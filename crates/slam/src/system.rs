@@ -302,7 +302,8 @@ impl SlamSystem {
                 // The mapping thread indexes it (see `collect_mapping`).
                 concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
             } else {
-                // In the pool, as the mapping thread's jobs (see `mapping_loop`).
+                // Inside rayon's global pool, as the mapping thread's jobs run in a pool of
+                // their own (see `mapping_loop`).
                 rayon::scope(|_| {
                     self.mapper.process_keyframe(
                         kf,

@@ -30,8 +30,8 @@ pub struct LocalBaResult {
 /// then observations with `chi2` above threshold or behind their camera are dropped and
 /// [`LOCAL_BA_PLAIN_ITERATIONS`] iterations run without kernel; finally every observation is
 /// classified. Either stage stops early once an iteration lowers the cost by less than a
-/// relative `1e-5`. The symbolic analysis is built once and shared by both stages. Runs on a
-/// thread of rayon's pool (see [`super::bundle_adjust`]).
+/// relative `1e-5`. The symbolic analysis is built once and shared by both stages. Runs inside
+/// a rayon pool (see [`super::bundle_adjust`]).
 ///
 /// With zero free poses or zero observations nothing moves (the classification is still
 /// returned). Points with no observation by a free pose are not optimised.

@@ -76,9 +76,9 @@ pub struct BaReport {
 /// system could not be factorised at any damping; [`OptimError::Solver`] on solver failure.
 /// On error the problem is left at the last accepted estimate.
 ///
-/// Runs on a thread of rayon's pool: an iteration makes several small parallel loops, and
-/// each one started from outside the pool is handed to its threads and waited for (the 30
-/// local BA problems recorded on KITTI 06: 279 -> 233 ms).
+/// Runs inside a rayon pool, the caller's or else the global one: an iteration makes several
+/// small parallel loops, and each one started from outside a pool is handed to its threads
+/// and waited for (the 30 local BA problems recorded on KITTI 06: 279 -> 233 ms).
 pub fn bundle_adjust(
     problem: &mut BaProblem,
     symbolic: &SymbolicBa,
