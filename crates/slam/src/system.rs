@@ -302,18 +302,14 @@ impl SlamSystem {
                 // The mapping thread indexes it (see `collect_mapping`).
                 concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
             } else {
-                // Inside rayon's global pool, as the mapping thread's jobs run in a pool of
-                // their own (see `mapping_loop`).
-                rayon::scope(|_| {
-                    self.mapper.process_keyframe(
-                        kf,
-                        &mut self.map,
-                        &self.ctx,
-                        &mut report,
-                        window.as_mut(),
-                        Interrupt::NEVER,
-                    )
-                })?;
+                self.mapper.process_keyframe(
+                    kf,
+                    &mut self.map,
+                    &self.ctx,
+                    &mut report,
+                    window.as_mut(),
+                    Interrupt::NEVER,
+                )?;
                 if let (Some(inertial), Some(window)) = (self.inertial.as_mut(), &window) {
                     inertial.store(window);
                 }

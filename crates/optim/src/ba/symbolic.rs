@@ -136,10 +136,8 @@ impl SymbolicBa {
             .collect();
 
         // Per point: (position in its row, free index) of its observations by free poses.
-        let entry_free_ref = &entry_free;
         let free_entries = Csr::from_rows((0..opt_points.len()).map(|p| {
-            let entry_free = entry_free_ref;
-            let start = point_obs.range(p).start;
+            let (entry_free, start) = (&entry_free, point_obs.range(p).start);
             point_obs
                 .range(p)
                 .filter_map(move |e| entry_free[e].map(|f| (e - start, f)))
