@@ -111,12 +111,20 @@ def export_vocabulary(out_dir: Path) -> Path:
 
 
 def read_euroc_trajectory(path: Path) -> Trajectory:
-    """ORB-SLAM3's ``SaveTrajectoryEuRoC`` file (``ns tx ty tz qx qy qz qw``) as T_w_c."""
+    """ORB-SLAM3's ``SaveTrajectoryEuRoC`` file (``ns tx ty tz qx qy qz qw``) as T_w_c, one
+    pose per timestamp.
+
+    ORB-SLAM3 records a frame it failed to track as a copy of the last recorded frame: same
+    timestamp, same pose (``Tracking::Track`` pushes ``mlFrameTimes.back()`` and
+    ``mlRelativeFramePoses.back()``). The copies say nothing about the lost frames, and kept
+    they would weigh the last tracked pose once per lost frame in an ATE: the first row of
+    each timestamp is kept.
+    """
     rows = np.loadtxt(path, ndmin=2)
     if rows.size == 0:
         return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-    order = np.argsort(rows[:, 0], kind="stable")
-    rows = rows[order]
+    _, first = np.unique(rows[:, 0], return_index=True)
+    rows = rows[first]
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     x, y, z, w = rows[:, 4], rows[:, 5], rows[:, 6], rows[:, 7]
     n = np.sqrt(x * x + y * y + z * z + w * w)
@@ -142,7 +150,7 @@ class OrbSlam3Run:
     states: list
     load_s: float
     shutdown_s: float
-    trajectory: Trajectory            # final (after shutdown), biggest map, lost frames skipped
+    trajectory: Trajectory            # final (after shutdown), biggest map, one pose per frame
     online: Trajectory                # poses returned by each call (pose_valid frames)
     errors: list = field(default_factory=list)
 

@@ -22,3 +22,20 @@ def test_per_pair_leaves_out_pairs_that_failed():
     pairs = [[4, None, 0.6], [0, math.nan, math.nan], [4, 0.2, 0.0], [4, 0.3, 0.2]]
     assert compare._per_pair(pairs) == "per pair: ratio median 1.50, ours lower in 0 of 1"
     assert compare._per_pair([[0, None, None]]) == "no valid pair"
+
+
+def test_orbslam3_trajectory_keeps_one_pose_per_frame(tmp_path):
+    # ORB-SLAM3 writes each lost frame as a copy of the last tracked one (same nanosecond
+    # stamp and pose): the copies are dropped, so an ATE weighs each tracked frame once.
+    import _orbslam3
+
+    rows = ["2000000000 1 0 0 0 0 0 1", "1000000000 0 0 0 0 0 0 1",
+            "2000000000 1 0 0 0 0 0 1", "2000000000 1 0 0 0 0 0 1",
+            "3000000000 2 0 0 0 0 0.7071067811865476 0.7071067811865476"]
+    path = tmp_path / "traj.txt"
+    path.write_text("\n".join(rows) + "\n")
+    traj = _orbslam3.read_euroc_trajectory(path)
+    assert traj.timestamps.tolist() == [1.0, 2.0, 3.0]
+    assert [p[0, 3] for p in traj.poses] == [0.0, 1.0, 2.0]
+    # A quarter turn about z: the rotation maps x to y.
+    assert abs(traj.poses[2][1, 0] - 1.0) < 1e-12
