@@ -45,10 +45,28 @@ def family(seq) -> str:
     raise ValueError(f"no ORB-SLAM3 preset for {type(seq).__name__}")
 
 
-def ferroslam_config(seq, sensor: str) -> dict:
-    """ferroslam run options matching the ORB-SLAM3 settings (features, ThDepth, bf)."""
-    p = PRESETS[family(seq)]
-    config = {"n_features": p["n_features"], "ini_fast": p["ini_fast"], "min_fast": p["min_fast"]}
+EXTRACTOR_KEYS = ("n_features", "ini_fast", "min_fast")
+
+
+def _preset(seq, extractor: Optional[dict]) -> dict:
+    """The preset of ``seq``'s family with the ORB extractor options in ``extractor``
+    (keys of :data:`EXTRACTOR_KEYS`) replaced.
+
+    Raises:
+        ValueError: a key that is not an extractor option.
+    """
+    extractor = extractor or {}
+    unknown = set(extractor) - set(EXTRACTOR_KEYS)
+    if unknown:
+        raise ValueError(f"unknown extractor options {sorted(unknown)}; known: {EXTRACTOR_KEYS}")
+    return {**PRESETS[family(seq)], **{k: int(v) for k, v in extractor.items()}}
+
+
+def ferroslam_config(seq, sensor: str, extractor: Optional[dict] = None) -> dict:
+    """ferroslam run options matching the ORB-SLAM3 settings (features, ThDepth, bf), with the
+    extractor options in ``extractor`` replaced (see :func:`_preset`)."""
+    p = _preset(seq, extractor)
+    config = {k: p[k] for k in EXTRACTOR_KEYS}
     if sensor in ("rgbd", "stereo"):
         config["depth_threshold"] = p["th_depth"]
     if sensor == "rgbd":
@@ -61,13 +79,14 @@ def _f(x: float) -> str:
     return repr(float(x))
 
 
-def write_settings(seq, sensor: str, out_dir: Path) -> Path:
+def write_settings(seq, sensor: str, out_dir: Path, extractor: Optional[dict] = None) -> Path:
     """Write an ORB-SLAM3 v1.0 settings file for ``seq`` and ``sensor`` into ``out_dir``.
 
-    ``sensor``: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (the loader's rectified pair).
+    ``sensor``: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (the loader's rectified pair);
+    ``extractor`` replaces ORB extractor options (see :func:`_preset`).
     """
     fam = family(seq)
-    p = PRESETS[fam]
+    p = _preset(seq, extractor)
     cam = seq.camera
     dist = np.asarray(cam.dist, dtype=np.float64).reshape(-1)
     fps = int(round(1.0 / float(np.median(np.diff(seq.timestamps)))))

@@ -11,7 +11,7 @@ process would inherit; both systems of a sequence share that process.
 
     python benches/compare.py [--sequences tum_rgbd tum_mono kitti_mono kitti_stereo euroc_stereo]
                               [--max-frames N] [--runs R] [--json OUT] [--workdir DIR]
-                              [--inline-mapping] [--realtime]
+                              [--inline-mapping] [--realtime] [--extractor JSON]
 
 Needs ``pip install -e .[bench]`` (pyorbslam3) and the native module built in release mode.
 ORB-SLAM3 uses ferroslam's shipped vocabulary exported as DBoW2 text and settings files
@@ -38,6 +38,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -117,8 +118,9 @@ def _spread(records: list, chosen: int) -> dict:
 
 
 def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
-           mapping_thread: bool, realtime: bool) -> None:
-    """Run both systems on one sequence and write the measurements as JSON to ``out``."""
+           mapping_thread: bool, realtime: bool, extractor: Optional[dict] = None) -> None:
+    """Run both systems on one sequence and write the measurements as JSON to ``out``;
+    ``extractor`` replaces ORB extractor options of both (``_orbslam3.EXTRACTOR_KEYS``)."""
     from ferroslam._data import data_dir
     from ferroslam.datasets import open_sequence
     from ferroslam.pipeline import run_sequence
@@ -130,8 +132,8 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     align = "sim3" if sensor == "mono" else "se3"
     gt = Trajectory(*seq.groundtruth())
     vocab = orb.export_vocabulary(workdir)
-    settings = orb.write_settings(seq, sensor, workdir)
-    config = {**orb.ferroslam_config(seq, sensor), "mapping_thread": mapping_thread}
+    settings = orb.write_settings(seq, sensor, workdir, extractor)
+    config = {**orb.ferroslam_config(seq, sensor, extractor), "mapping_thread": mapping_thread}
     rec = {"sequence": name, "path": folder, "sensor": sensor, "frames": n, "align": align,
            "realtime": realtime,
            "config": config, "settings": str(settings), "load_start": orb.load_average()}
@@ -252,6 +254,8 @@ def print_table(records: list) -> None:
         stages = "  ".join(f"{k[:-3]} {v['median']:.1f} ({v['p95']:.1f})"
                            for k, v in o["stages_ms"].items())
         print(f"{r['sequence']:<13} {stages}")
+        extractor = {k: r["config"][k] for k in orb.EXTRACTOR_KEYS}
+        print(f"{'':<13} extractor (both): {extractor}")
         print(f"{'':<13} ours: {o['keyframes']} KFs, {o['map_points']} points, wall {o['wall_s']:.1f} s, "
               f"peak RSS {o['peak_rss_mb']:.0f} MB | ORB-SLAM3: setup+vocab {t['vocab_and_setup_s']:.1f} s, "
               f"wall {t['wall_s']:.1f} s, online-pose ATE {_cm(t['ate_online'])} cm, states {t['states']}, "
@@ -297,13 +301,16 @@ def main(argv=None) -> int:
                         help="run our local mapping inside the track call (deterministic)")
     parser.add_argument("--realtime", action="store_true",
                         help="feed frames at the pace of their timestamps")
+    parser.add_argument("--extractor", type=json.loads, metavar="JSON",
+                        help="ORB extractor options for both systems, replacing the "
+                             "sequence's preset, e.g. '{\"n_features\": 1100, \"ini_fast\": 19}'")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     if args.worker:
         worker(args.worker, args.max_frames, args.worker_out, args.workdir, args.runs,
-               not args.inline_mapping, args.realtime)
+               not args.inline_mapping, args.realtime, args.extractor)
         return 0
 
     tmp = None
@@ -319,6 +326,8 @@ def main(argv=None) -> int:
                "--worker-out", str(out), "--workdir", str(args.workdir)]
         cmd += ["--runs", str(args.runs)]
         cmd += ["--inline-mapping"] * args.inline_mapping + ["--realtime"] * args.realtime
+        if args.extractor:
+            cmd += ["--extractor", json.dumps(args.extractor)]
         if args.max_frames:
             cmd += ["--max-frames", str(args.max_frames)]
         print(f"running {name} ... (log {log})", flush=True)

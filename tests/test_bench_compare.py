@@ -1,10 +1,13 @@
-"""The head-to-head bench's summary of run pairs (``benches/compare.py``)."""
+"""The head-to-head bench (``benches/compare.py``): its summary of run pairs, the ORB-SLAM3
+trajectory it reads and the extractor options it gives both systems."""
 
 from __future__ import annotations
 
 import math
 import sys
 from pathlib import Path
+
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benches"))
 
@@ -39,3 +42,19 @@ def test_orbslam3_trajectory_keeps_one_pose_per_frame(tmp_path):
     assert [p[0, 3] for p in traj.poses] == [0.0, 1.0, 2.0]
     # A quarter turn about z: the rotation maps x to y.
     assert abs(traj.poses[2][1, 0] - 1.0) < 1e-12
+
+
+def test_extractor_options_reach_both_systems(tmp_path, tum_desk):
+    import _orbslam3
+    from ferroslam.datasets import open_sequence
+
+    seq = open_sequence(tum_desk)
+    extractor = {"n_features": 1100, "ini_fast": 19}
+    config = _orbslam3.ferroslam_config(seq, "rgbd", extractor)
+    assert (config["n_features"], config["ini_fast"], config["min_fast"]) == (1100, 19, 7)
+    settings = _orbslam3.write_settings(seq, "rgbd", tmp_path, extractor).read_text()
+    assert "ORBextractor.nFeatures: 1100\n" in settings
+    assert "ORBextractor.iniThFAST: 19\n" in settings
+    assert "ORBextractor.minThFAST: 7\n" in settings
+    with pytest.raises(ValueError, match="unknown extractor options \\['nfeatures'\\]"):
+        _orbslam3.ferroslam_config(seq, "rgbd", {"nfeatures": 1100})
