@@ -296,7 +296,10 @@ mod tests {
 
     fn system() -> SlamSystem {
         let (_, camera) = test_cameras().into_iter().next().unwrap();
-        let config = SlamConfig::for_sensor(Sensor::Monocular);
+        let config = SlamConfig {
+            sensor: Sensor::Monocular,
+            ..SlamConfig::default()
+        };
         SlamSystem::new(camera, config).unwrap()
     }
 
