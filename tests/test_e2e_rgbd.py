@@ -20,11 +20,14 @@ from ferroslam.datasets import ReplayedSequence, TumSequence
 from ferroslam.pipeline import run_sequence
 from ferroslam.trajectory import Trajectory
 
-# Measured: keyframe ATE 2.61 cm, all-frame ATE 2.73 cm (SE(3) alignment, 300 frames).
-# ORB-SLAM3 RGB-D on the same frames: 2.9 cm; the issue's ORB-SLAM2-class target is < 2 cm,
-# which this build does not reach yet.
-KEYFRAME_ATE_BOUND_M = 0.035
-FRAME_ATE_BOUND_M = 0.035
+# Measured: all-frame ATE 2.64 cm, keyframe ATE 3.42 cm (SE(3) alignment, 300 frames). The
+# RGB-D keyframe limit of 250 tracked points made 55 keyframes instead of 45, more of them at
+# fast rotations, whose poses err most: all-frame ATE 2.73 -> 2.64 cm, keyframe ATE 2.61 ->
+# 3.42 cm (over five extractor settings, all-frame 3.13 -> 2.46 cm and keyframe 2.92 -> 3.01
+# cm on average). ORB-SLAM3 RGB-D on the same frames: 2.5-2.7 cm; the issue's
+# ORB-SLAM2-class target is < 2 cm, which this build does not reach yet.
+KEYFRAME_ATE_BOUND_M = 0.042
+FRAME_ATE_BOUND_M = 0.033
 # Measured: 0.53 deg RMSE per frame, of which GT association alone (up to 5 ms at 50 deg/s)
 # accounts for ~0.25; 1.5 deg before the quaternion-drift fix, so this bound catches it.
 RPE_ROT_BOUND_DEG = 0.8
@@ -136,7 +139,7 @@ class _BlankStretch:
 
 def test_relocalises_in_the_same_map_after_a_loss(tum_rpy):
     """Measured: lost on the 10 blank frames, relocalised (bag-of-words candidates, PnP) at
-    the first real frame, in the same map (no reset), all-frame ATE 2.8 cm."""
+    the first real frame, in the same map (no reset), all-frame ATE 2.7 cm."""
     result = run_sequence(_BlankStretch(TumSequence(tum_rpy)), {}, progress=False)
     states = result.states
     assert states[100:110] == ["lost"] * 10
@@ -148,8 +151,8 @@ def test_relocalises_in_the_same_map_after_a_loss(tum_rpy):
 
 def test_revisits_add_few_keyframes(tum_rpy, rpy_run):
     """A run revisiting mapped places (issue 7: time and memory per frame flat over a long
-    run), inline, where mapping is always idle for the next frame. Measured against the 44
-    keyframes / 4184 points of the first pass: 75 / 5480 after three passes (x1.70 / x1.31).
+    run), inline, where mapping is always idle for the next frame. Measured against the 55
+    keyframes / 5364 points of the first pass: 94 / 6743 after three passes (x1.71 / x1.26).
     Before frames viewing mapped structure stopped making keyframes the revisits added them
     in bursts: 109 / 8140 (x2.42 / x1.92), and 212 keyframes after 8 passes against 94 now."""
     _, first_pass = rpy_run

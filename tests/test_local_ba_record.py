@@ -44,8 +44,8 @@ def test_every_local_ba_of_an_rgbd_run_is_recorded_before_solving(tum_rpy):
     result, system = _recorded_run(tum_rpy, 60)
     problems = system.take_local_ba_problems()
     # Every keyframe after the first is mapped inline and runs one local BA (none was culled
-    # in these 60 frames: 11 keyframes).
-    assert len(result.keyframe_ids) == 11
+    # in these 60 frames: 19 keyframes).
+    assert len(result.keyframe_ids) == 19
     assert len(problems) == len(result.keyframe_ids) - 1
     assert system.take_local_ba_problems() == []
     for text in problems:

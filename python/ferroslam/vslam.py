@@ -71,7 +71,8 @@ class _VSlam:
 
     Keyword options (MATLAB property names in brackets): ``scale_factor`` (ScaleFactor),
     ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints), ``track_feature_range``
-    (TrackFeatureRange), ``skip_max_frames`` (SkipMaxFrames), ``loop_closure_threshold``
+    (TrackFeatureRange; MATLAB's (30, 100) by default, (30, 250) for RGB-D, where keyframes
+    made at 100 tracked points left poses centimetres off), ``skip_max_frames`` (SkipMaxFrames), ``loop_closure_threshold``
     (LoopClosureThreshold: matched points a loop needs; ``loop_closure=False`` turns loop
     closing off), ``vocabulary`` (the bag of words used to relocalise and detect loops:
     ``"default"`` ships with the package; a file path or a ``ferroslam._core.Vocabulary``;
@@ -83,6 +84,7 @@ class _VSlam:
     """
 
     _sensor = ""
+    _track_feature_range = (30, 100)  # the core's default for the sensor
 
     def __init__(
         self,
@@ -91,7 +93,7 @@ class _VSlam:
         scale_factor: float = 1.2,
         num_levels: int = 8,
         max_num_points: int = 1000,
-        track_feature_range: Sequence[int] = (30, 100),
+        track_feature_range: Optional[Sequence[int]] = None,
         skip_max_frames: int = 20,
         loop_closure_threshold: int = 40,
         loop_closure: bool = True,
@@ -112,6 +114,8 @@ class _VSlam:
             raise ValueError(f"verbose must be 0, 1, 2 or 3, got {verbose!r}")
         if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
             raise ValueError(f"frame_rate_hz must be positive, got {frame_rate_hz!r}")
+        if track_feature_range is None:
+            track_feature_range = self._track_feature_range
         lower, upper = (int(v) for v in track_feature_range)
         self.intrinsics = intrinsics
         self.scale_factor = float(scale_factor)
@@ -426,6 +430,7 @@ class RGBDVSlam(_VSlam):
     ``depth_range`` (metres) count as missing."""
 
     _sensor = "rgbd"
+    _track_feature_range = (30, 250)
 
     def __init__(self, intrinsics: Camera, depth_scale_factor: float = 1.0, *,
                  depth_range: Sequence[float] = (0.1, 8.0), **options: Any) -> None:

@@ -54,16 +54,9 @@ fn parse_config(
     fx: f64,
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<SlamConfig> {
-    let mut config = SlamConfig {
-        sensor,
-        ..SlamConfig::default()
-    };
+    let mut config = SlamConfig::for_sensor(sensor);
     let mut baseline: Option<f64> = None;
     let mut bf_given = false;
-    if sensor == Sensor::Stereo {
-        // Stereo depth has no sensor range: disparity already bounds it.
-        config.depth_range = (0.0, f64::INFINITY);
-    }
     for (key, value) in options.map(|o| o.iter()).into_iter().flatten() {
         let key: String = key.extract()?;
         let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));

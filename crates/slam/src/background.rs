@@ -296,10 +296,7 @@ mod tests {
 
     fn system() -> SlamSystem {
         let (_, camera) = test_cameras().into_iter().next().unwrap();
-        let config = SlamConfig {
-            sensor: Sensor::Monocular,
-            ..SlamConfig::default()
-        };
+        let config = SlamConfig::for_sensor(Sensor::Monocular);
         SlamSystem::new(camera, config).unwrap()
     }
 

@@ -935,9 +935,8 @@ mod tests {
         let camera =
             PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
         let config = SlamConfig {
-            sensor,
             depth_threshold: 100.0,
-            ..SlamConfig::default()
+            ..SlamConfig::for_sensor(sensor)
         };
         let ctx = Context::new(camera, config);
         let mut rng = ChaCha8Rng::seed_from_u64(3);

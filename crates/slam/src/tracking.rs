@@ -883,10 +883,7 @@ mod tests {
             .into_iter()
             .find(|(name, _)| *name == "tum_fr1")
             .unwrap();
-        let config = SlamConfig {
-            sensor,
-            ..SlamConfig::default()
-        };
+        let config = SlamConfig::for_sensor(sensor);
         let ctx = Context::new(camera, config);
         let keypoints: Vec<Keypoint> = (0..N)
             .map(|i| Keypoint {
@@ -964,11 +961,11 @@ mod tests {
 
     #[test]
     fn monocular_upper_limit_needs_the_reference_ratio() {
-        // 95 tracked points, under the upper limit (100), against a reference seeing 100.
-        let upper = SlamConfig::default().track_feature_range.1;
-        assert_eq!(upper, 100);
+        // 95 tracked points, under the upper limit (100 monocular, 250 RGB-D), against a
+        // reference seeing 100.
         for sensor in [Sensor::Monocular, Sensor::Rgbd] {
             let (ctx, map, frame, r) = scene_with(sensor, 100);
+            assert!(95 < ctx.config.track_feature_range.1);
             let near_reference = tracker(r, 95, RECENT);
             let expected = sensor.has_depth(); // MATLAB's bare limit, with depth only
             assert_eq!(

@@ -33,10 +33,7 @@ fn run(
     frames: usize,
 ) -> SlamSystem {
     let scene = landmarks(3);
-    let config = SlamConfig {
-        sensor: Sensor::Monocular,
-        ..SlamConfig::default()
-    };
+    let config = SlamConfig::for_sensor(Sensor::Monocular);
     let mut system = SlamSystem::new(camera, config).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(8);
     for i in 0..frames {
