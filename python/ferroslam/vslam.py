@@ -72,15 +72,15 @@ class _VSlam:
     Keyword options (MATLAB property names in brackets): ``scale_factor`` (ScaleFactor),
     ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints), ``track_feature_range``
     (TrackFeatureRange; MATLAB's (30, 100) by default, (30, 250) for RGB-D, where keyframes
-    made at 100 tracked points left poses centimetres off), ``skip_max_frames`` (SkipMaxFrames), ``loop_closure_threshold``
-    (LoopClosureThreshold: matched points a loop needs; ``loop_closure=False`` turns loop
-    closing off), ``vocabulary`` (the bag of words used to relocalise and detect loops:
+    made at 100 tracked points left poses centimetres off), ``skip_max_frames``
+    (SkipMaxFrames), ``loop_closure_threshold`` (LoopClosureThreshold: matched points a loop
+    needs; ``loop_closure=False`` turns loop closing off), ``vocabulary`` (the bag of words used to relocalise and detect loops:
     ``"default"`` ships with the package; a file path or a ``ferroslam._core.Vocabulary``;
     ``None`` for none; CustomBagOfFeatures), ``verbose``
     (Verbose: 1 prints stages and loop closures, 2 also logs every frame, the initial map and
     each loop closure's data to a file in the temporary folder, 3 adds each new keyframe's
-    pose before local BA and the keyframe poses after it), ``frame_rate_hz`` (timestamps when none are
-    given), ``seed``.
+    pose before local BA and the keyframe poses after it), ``frame_rate_hz`` (timestamps when
+    none are given), ``seed``.
     """
 
     _sensor = ""
