@@ -282,6 +282,11 @@ def test_good_options_and_dist_lengths(camera):
                             depth_range=np.array([0.2, 5.0]), skip_max_frames=10, bf=40.0,
                             depth_threshold=35.0, seed=7)
         assert system.state == "not_initialized" and system.num_resets == 0
+        assert system.track_feature_range == (20, 200)
+    # Without the option, each sensor's default: MATLAB's (30, 100), (30, 250) with RGB-D.
+    for sensor, default in (("mono", (30, 100)), ("rgbd", (30, 250))):
+        system = SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor)
+        assert system.track_feature_range == default
 
 
 @pytest.mark.parametrize(

@@ -309,6 +309,10 @@ class SlamSystem:
     def sensor(self) -> _Sensor:
         """The sensor the system was created for."""
     @property
+    def track_feature_range(self) -> tuple[int, int]:
+        """(lower, upper) tracked-point limits in use: the option given, else the sensor's
+        default ((30, 100); (30, 250) for RGB-D)."""
+    @property
     def state(self) -> _State:
         """Current tracking state."""
     @property

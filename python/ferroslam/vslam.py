@@ -74,9 +74,9 @@ class _VSlam:
     (TrackFeatureRange; MATLAB's (30, 100) by default, (30, 250) for RGB-D, where keyframes
     made at 100 tracked points left poses centimetres off), ``skip_max_frames``
     (SkipMaxFrames), ``loop_closure_threshold`` (LoopClosureThreshold: matched points a loop
-    needs; ``loop_closure=False`` turns loop closing off), ``vocabulary`` (the bag of words used to relocalise and detect loops:
-    ``"default"`` ships with the package; a file path or a ``ferroslam._core.Vocabulary``;
-    ``None`` for none; CustomBagOfFeatures), ``verbose``
+    needs; ``loop_closure=False`` turns loop closing off), ``vocabulary`` (the bag of words
+    used to relocalise and detect loops: ``"default"`` ships with the package; a file path or
+    a ``ferroslam._core.Vocabulary``; ``None`` for none; CustomBagOfFeatures), ``verbose``
     (Verbose: 1 prints stages and loop closures, 2 also logs every frame, the initial map and
     each loop closure's data to a file in the temporary folder, 3 adds each new keyframe's
     pose before local BA and the keyframe poses after it), ``frame_rate_hz`` (timestamps when
@@ -84,7 +84,6 @@ class _VSlam:
     """
 
     _sensor = ""
-    _track_feature_range = (30, 100)  # the core's default for the sensor
 
     def __init__(
         self,
@@ -114,14 +113,10 @@ class _VSlam:
             raise ValueError(f"verbose must be 0, 1, 2 or 3, got {verbose!r}")
         if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
             raise ValueError(f"frame_rate_hz must be positive, got {frame_rate_hz!r}")
-        if track_feature_range is None:
-            track_feature_range = self._track_feature_range
-        lower, upper = (int(v) for v in track_feature_range)
         self.intrinsics = intrinsics
         self.scale_factor = float(scale_factor)
         self.num_levels = _positive_int("num_levels", num_levels)
         self.max_num_points = _positive_int("max_num_points", max_num_points)
-        self.track_feature_range = (lower, upper)
         self.skip_max_frames = _positive_int("skip_max_frames", skip_max_frames)
         self.loop_closure_threshold = _positive_int("loop_closure_threshold",
                                                     loop_closure_threshold)
@@ -131,16 +126,20 @@ class _VSlam:
         self._extractor = OrbExtractor(n_features=self.max_num_points,
                                        scale_factor=self.scale_factor, n_levels=self.num_levels)
         from ._core import SlamSystem
+        # Left to the core when not given: its default depends on the sensor.
+        range_option = {} if track_feature_range is None else {
+            "track_feature_range": tuple(int(v) for v in track_feature_range)}
 
         c = intrinsics
         self._system = SlamSystem(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=self._sensor,
             threaded=bool(threaded),
             scale_factor=self.scale_factor, n_levels=self.num_levels,
-            track_feature_range=self.track_feature_range, skip_max_frames=self.skip_max_frames,
+            skip_max_frames=self.skip_max_frames,
             loop_closure=bool(loop_closure), loop_closure_threshold=self.loop_closure_threshold,
-            seed=seed, **(core_options or {}),
+            seed=seed, **range_option, **(core_options or {}),
         )
+        self.track_feature_range: tuple[int, int] = self._system.track_feature_range
         if vocabulary is not None:
             from .pipeline import load_vocabulary
 
@@ -430,7 +429,6 @@ class RGBDVSlam(_VSlam):
     ``depth_range`` (metres) count as missing."""
 
     _sensor = "rgbd"
-    _track_feature_range = (30, 250)
 
     def __init__(self, intrinsics: Camera, depth_scale_factor: float = 1.0, *,
                  depth_range: Sequence[float] = (0.1, 8.0), **options: Any) -> None:

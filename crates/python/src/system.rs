@@ -214,6 +214,7 @@ impl PyTrackResult {
 pub struct PySlamSystem {
     engine: Engine,
     sensor: Sensor,
+    track_feature_range: (usize, usize),
 }
 
 #[pymethods]
@@ -267,6 +268,7 @@ impl PySlamSystem {
         let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
             .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
         let config = parse_config(sensor, fx, options)?;
+        let track_feature_range = config.track_feature_range;
         let system = SlamSystem::new(camera, config).map_err(to_py)?;
         let engine = if threaded {
             let guard = system.input_guard();
@@ -277,7 +279,11 @@ impl PySlamSystem {
         } else {
             Engine::Inline(Box::new(system))
         };
-        Ok(Self { engine, sensor })
+        Ok(Self {
+            engine,
+            sensor,
+            track_feature_range,
+        })
     }
 
     /// Tracks one RGB-D frame (queues it in threaded mode and returns None).
@@ -430,6 +436,12 @@ impl PySlamSystem {
     #[getter]
     fn sensor(&self) -> &'static str {
         self.sensor.name()
+    }
+
+    /// (lower, upper) tracked-point limits in use: the option given, else the sensor's default.
+    #[getter]
+    fn track_feature_range(&self) -> (usize, usize) {
+        self.track_feature_range
     }
 
     /// Map segment of each frame of frame_trajectory(), (N,) uint32: a monocular system
