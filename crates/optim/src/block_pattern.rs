@@ -8,6 +8,24 @@ use faer::Side;
 
 use crate::error::OptimError;
 
+/// The free poses among `fixed` flags: their indices, increasing, and per pose its rank
+/// among them (`None` for a fixed pose). Free poses are the block rows and columns of the
+/// reduced system.
+pub(crate) fn number_free_poses(fixed: &[bool]) -> (Vec<usize>, Vec<Option<usize>>) {
+    let mut free_poses = Vec::new();
+    let free_index = fixed
+        .iter()
+        .enumerate()
+        .map(|(i, &fixed)| {
+            (!fixed).then(|| {
+                free_poses.push(i);
+                free_poses.len() - 1
+            })
+        })
+        .collect();
+    (free_poses, free_index)
+}
+
 /// Upper-triangular CSC pattern of a symmetric matrix of `dim` x `dim` blocks, and its
 /// symbolic Cholesky factorisation (`None` for an empty matrix).
 ///

@@ -10,7 +10,7 @@
 
 use super::csr::Csr;
 use super::problem::BaProblem;
-use crate::block_pattern::block_upper_pattern;
+use crate::block_pattern::{block_upper_pattern, number_free_poses};
 use crate::error::OptimError;
 use faer::sparse::linalg::solvers::SymbolicLlt;
 use faer::sparse::SymbolicSparseColMat;
@@ -94,17 +94,7 @@ impl SymbolicBa {
         incidence: Vec<(usize, usize)>,
         dim: usize,
     ) -> Result<Self, OptimError> {
-        let mut free_poses = Vec::new();
-        let free_index: Vec<Option<usize>> = pose_fixed
-            .iter()
-            .enumerate()
-            .map(|(i, &fixed)| {
-                (!fixed).then(|| {
-                    free_poses.push(i);
-                    free_poses.len() - 1
-                })
-            })
-            .collect();
+        let (free_poses, free_index) = number_free_poses(pose_fixed);
         let mut seen_by_free = vec![false; num_points];
         for &(pose, point) in &incidence {
             if free_index[pose].is_some() {

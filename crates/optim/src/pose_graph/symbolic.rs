@@ -9,7 +9,7 @@
 
 use super::group::PoseGroup;
 use super::problem::PoseGraph;
-use crate::block_pattern::{block_upper_pattern, factorize_upper};
+use crate::block_pattern::{block_upper_pattern, factorize_upper, number_free_poses};
 use crate::error::OptimError;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::SymbolicSparseColMat;
@@ -63,17 +63,7 @@ impl SymbolicPoseGraph {
         incidence: &[(usize, usize)],
         dim: usize,
     ) -> Result<Self, OptimError> {
-        let mut free_poses = Vec::new();
-        let free_index: Vec<Option<usize>> = fixed
-            .iter()
-            .enumerate()
-            .map(|(i, &fixed)| {
-                (!fixed).then(|| {
-                    free_poses.push(i);
-                    free_poses.len() - 1
-                })
-            })
-            .collect();
+        let (free_poses, free_index) = number_free_poses(fixed);
         let nfree = free_poses.len();
         let free_pair = |&(i, j): &(usize, usize)| match (free_index[i], free_index[j]) {
             (Some(a), Some(b)) if a != b => Some((a.min(b), a.max(b))),
