@@ -1,6 +1,8 @@
 //! Seeded synthetic scenes shared by the integration tests and the benchmark.
 #![allow(dead_code, non_snake_case)]
 
+pub mod flight;
+
 use ferroslam_geometry::se3;
 use ferroslam_optim::residual::linearize;
 use ferroslam_optim::{BaProblem, Intrinsics, Observation};
