@@ -296,8 +296,12 @@ fn mapping_loop(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(rayon::current_num_threads())
         .thread_name(|i| format!("ferroslam-mapping-{i}"))
+        .start_handler(|_| yield_to_tracking())
         .build()
         .ok();
+    // Only now: `current_num_threads` above may start rayon's global pool, whose threads
+    // (tracking's) would inherit this thread's priority.
+    yield_to_tracking();
     for job in inbox {
         let n = job.work.len();
         let run = || state.run(job, ctx, &report, interrupt, keyframe_mapping_us);
@@ -310,6 +314,17 @@ fn mapping_loop(
             return;
         }
     }
+}
+
+/// Gives the calling mapping thread the lowest CPU priority (nice 19 on Linux), so that
+/// tracking, the part that must keep up with the camera, and its helper threads get a core
+/// as soon as they want one; mapping takes the time they leave. At equal priority a tracking
+/// helper waits for the mapping thread's time slice to end. Fed at full speed, builds
+/// alternating, 15 runs each: fr1/rpy monocular frame median 9.36 -> 8.54 ms, p95 17.9 ->
+/// 15.5 ms; KITTI 06 monocular 13.5 -> 13.0 ms, p95 19.8 -> 19.0 ms. Best effort: where the OS
+/// refuses, mapping keeps the priority it has.
+fn yield_to_tracking() {
+    let _ = thread_priority::set_current_thread_priority(thread_priority::ThreadPriority::Min);
 }
 
 /// What the mapping thread keeps from one job to the next.
@@ -459,5 +474,51 @@ mod tests {
         assert!(mapper.hurried());
         mapper.frame_interval = Some(Duration::from_millis(30));
         assert!(!mapper.hurried());
+    }
+
+    /// Nice value of thread `tid` of this process, and its name (`/proc`, Linux).
+    #[cfg(target_os = "linux")]
+    fn nice_and_name(tid: &str) -> Option<(i32, String)> {
+        let stat = std::fs::read_to_string(format!("/proc/self/task/{tid}/stat")).ok()?;
+        // fields after the parenthesised name: state is field 3, nice field 19
+        let nice = stat
+            .rsplit_once(')')?
+            .1
+            .split_whitespace()
+            .nth(16)?
+            .parse()
+            .ok()?;
+        let name = std::fs::read_to_string(format!("/proc/self/task/{tid}/comm")).ok()?;
+        Some((nice, name.trim().to_owned()))
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn mapping_threads_run_at_the_lowest_priority_and_trackings_pool_does_not() {
+        let camera =
+            PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
+        let _mapper = ConcurrentMapper::spawn(Context::new(camera, SlamConfig::default()));
+        // the mapping thread and its pool's threads, once started
+        let wanted = 1 + rayon::current_num_threads();
+        let lowest = || {
+            std::fs::read_dir("/proc/self/task")
+                .unwrap()
+                .filter_map(|e| nice_and_name(e.ok()?.file_name().to_str()?))
+                .filter(|(nice, name)| *nice == 19 && name.starts_with("ferroslam-mapp"))
+                .count()
+        };
+        let start = Instant::now();
+        while lowest() < wanted && start.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(lowest(), wanted);
+        // rayon's global pool (tracking's parallel loops) keeps the default priority, even
+        // when the mapping thread was the first to use rayon
+        let global: Vec<i32> = rayon::broadcast(|_| {
+            let tid = std::fs::read_link("/proc/thread-self").unwrap();
+            let tid = tid.file_name().unwrap().to_str().unwrap().to_owned();
+            nice_and_name(&tid).unwrap().0
+        });
+        assert!(global.iter().all(|&nice| nice == 0), "{global:?}");
     }
 }
