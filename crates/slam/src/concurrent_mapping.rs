@@ -508,17 +508,24 @@ mod tests {
                 .count()
         };
         let start = Instant::now();
+        // at least: other tests of this binary may run mappers of their own meanwhile
         while lowest() < wanted && start.elapsed() < Duration::from_secs(10) {
             std::thread::sleep(Duration::from_millis(5));
         }
-        assert_eq!(lowest(), wanted);
-        // rayon's global pool (tracking's parallel loops) keeps the default priority, even
-        // when the mapping thread was the first to use rayon
-        let global: Vec<i32> = rayon::broadcast(|_| {
+        assert!(lowest() >= wanted, "{} of {wanted}", lowest());
+        // rayon's global pool (tracking's parallel loops) keeps the priority of the threads
+        // that use it, even when the mapping thread was the first to use rayon
+        let own_nice = || {
             let tid = std::fs::read_link("/proc/thread-self").unwrap();
-            let tid = tid.file_name().unwrap().to_str().unwrap().to_owned();
-            nice_and_name(&tid).unwrap().0
-        });
-        assert!(global.iter().all(|&nice| nice == 0), "{global:?}");
+            nice_and_name(tid.file_name().unwrap().to_str().unwrap())
+                .unwrap()
+                .0
+        };
+        let test_thread = own_nice();
+        let global: Vec<i32> = rayon::broadcast(|_| own_nice());
+        assert!(
+            global.iter().all(|&n| n == test_thread),
+            "{global:?} vs {test_thread}"
+        );
     }
 }
