@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -292,3 +295,41 @@ def load_average() -> Optional[tuple]:
         return os.getloadavg()
     except OSError:
         return None
+
+
+
+
+@contextmanager
+def cpus_kept_busy(enabled: bool = True):
+    """While the block runs, one ``SCHED_IDLE`` busy-loop process per CPU, so that no CPU
+    ever idles (Linux only; a no-op when not ``enabled``).
+
+    For virtual machines whose host packs the vCPUs of a guest that idles onto fewer
+    physical cores (measured with ``benches/cpu_packing.py``): a process that sleeps between
+    frames then gets one core's worth of two threads. The spinners take no time from the
+    measured threads, which always preempt them, and make the guest's 2 vCPUs behave as 2
+    dedicated cores for both systems alike.
+
+    Yields:
+        The busy-loop processes (none when not ``enabled``).
+
+    Raises:
+        OSError: ``SCHED_IDLE`` not available (not Linux).
+    """
+    if not enabled:
+        yield []
+        return
+    if not hasattr(os, "SCHED_IDLE"):
+        raise OSError("keeping the CPUs busy needs Linux's SCHED_IDLE scheduling class")
+    spinners = []
+    try:
+        for _ in range(os.cpu_count() or 1):
+            spinners.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
+            # The lowest class: it runs only when no other thread wants the CPU.
+            os.sched_setscheduler(spinners[-1].pid, os.SCHED_IDLE, os.sched_param(0))
+        time.sleep(0.5)  # the host has unpacked the vCPUs by then (cpu_packing.py)
+        yield spinners
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()

@@ -12,6 +12,7 @@ process would inherit; both systems of a sequence share that process.
     python benches/compare.py [--sequences tum_rgbd tum_mono kitti_mono kitti_stereo euroc_stereo]
                               [--max-frames N] [--runs R] [--json OUT] [--workdir DIR]
                               [--inline-mapping] [--realtime] [--extractor JSON]
+                              [--keep-cpus-busy]
 
 Needs ``pip install -e .[bench]`` (pyorbslam3) and the native module built in release mode.
 ORB-SLAM3 uses ferroslam's shipped vocabulary exported as DBoW2 text and settings files
@@ -24,7 +25,9 @@ local mapping and loop closing run in their own thread, as ORB-SLAM3's do, unles
 tracking; its local mapping and loop closing run in background threads that compete for
 the same cores). Frames go to both systems as fast as they take them, or at the pace of
 their timestamps with ``--realtime`` (a live camera: mapping threads then have the time
-between frames, as in ORB-SLAM's own examples). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
+between frames, as in ORB-SLAM's own examples). ``--keep-cpus-busy`` runs one idle-priority
+busy loop per CPU meanwhile, for virtual machines whose host packs an idling guest's vCPUs
+onto fewer cores (``benches/cpu_packing.py`` tells). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
 each system (``/proc/self/clear_refs``), minus the RSS at its start.
 """
 
@@ -118,9 +121,11 @@ def _spread(records: list, chosen: int) -> dict:
 
 
 def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
-           mapping_thread: bool, realtime: bool, extractor: Optional[dict] = None) -> None:
+           mapping_thread: bool, realtime: bool, extractor: Optional[dict] = None,
+           keep_cpus_busy: bool = False) -> None:
     """Run both systems on one sequence and write the measurements as JSON to ``out``;
-    ``extractor`` replaces ORB extractor options of both (``_orbslam3.EXTRACTOR_KEYS``)."""
+    ``extractor`` replaces ORB extractor options of both (``_orbslam3.EXTRACTOR_KEYS``);
+    ``keep_cpus_busy`` runs both inside ``_orbslam3.cpus_kept_busy``."""
     from ferroslam._data import data_dir
     from ferroslam.datasets import open_sequence
     from ferroslam.pipeline import run_sequence
@@ -135,7 +140,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     settings = orb.write_settings(seq, sensor, workdir, extractor)
     config = {**orb.ferroslam_config(seq, sensor, extractor), "mapping_thread": mapping_thread}
     rec = {"sequence": name, "path": folder, "sensor": sensor, "frames": n, "align": align,
-           "realtime": realtime,
+           "realtime": realtime, "cpus_kept_busy": keep_cpus_busy,
            "config": config, "settings": str(settings), "load_start": orb.load_average()}
 
     def ours() -> tuple[dict, np.ndarray, np.ndarray, Trajectory]:
@@ -183,9 +188,10 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     # alternating so that a change of machine load reaches both; the run with the median ATE
     # is reported, the spread beside it.
     ours_runs, orb_runs = [], []
-    for _ in range(runs):
-        ours_runs.append(ours())
-        orb_runs.append(orbslam3())
+    with orb.cpus_kept_busy(keep_cpus_busy):
+        for _ in range(runs):
+            ours_runs.append(ours())
+            orb_runs.append(orbslam3())
     io = _median_ate_run([r[0] for r in ours_runs])
     it = _median_ate_run([r[0] for r in orb_runs])
     rec["ours"] = _spread([r[0] for r in ours_runs], io)
@@ -279,7 +285,8 @@ def print_table(records: list) -> None:
         print(f"{'':<13} ATE over the poses both have ({a['poses']:.0f}), median of the run pairs: "
               f"ours {100 * a['ours']:.2f} / ORB-SLAM3 {100 * a['orbslam3']:.2f} cm "
               f"({_ratio(a['ours'], a['orbslam3'])}); {_per_pair(r['both_tracking_ate_all_m'])}")
-        print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}")
+        busy = "; CPUs kept busy" if r.get("cpus_kept_busy") else ""
+        print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}{busy}")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "
           "with the median ATE of --runs; ms med and p95: the median over the runs). o/t = ours / "
@@ -304,13 +311,16 @@ def main(argv=None) -> int:
     parser.add_argument("--extractor", type=json.loads, metavar="JSON",
                         help="ORB extractor options for both systems, replacing the "
                              "sequence's preset, e.g. '{\"n_features\": 1100, \"ini_fast\": 19}'")
+    parser.add_argument("--keep-cpus-busy", action="store_true",
+                        help="one idle-priority busy loop per CPU during the runs, so that a "
+                             "virtual machine's host does not pack the vCPUs")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     if args.worker:
         worker(args.worker, args.max_frames, args.worker_out, args.workdir, args.runs,
-               not args.inline_mapping, args.realtime, args.extractor)
+               not args.inline_mapping, args.realtime, args.extractor, args.keep_cpus_busy)
         return 0
 
     tmp = None
@@ -326,6 +336,7 @@ def main(argv=None) -> int:
                "--worker-out", str(out), "--workdir", str(args.workdir)]
         cmd += ["--runs", str(args.runs)]
         cmd += ["--inline-mapping"] * args.inline_mapping + ["--realtime"] * args.realtime
+        cmd += ["--keep-cpus-busy"] * args.keep_cpus_busy
         if args.extractor:
             cmd += ["--extractor", json.dumps(args.extractor)]
         if args.max_frames:

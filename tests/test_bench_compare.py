@@ -4,6 +4,7 @@ trajectory it reads and the extractor options it gives both systems."""
 from __future__ import annotations
 
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -58,3 +59,17 @@ def test_extractor_options_reach_both_systems(tmp_path, tum_desk):
     assert "ORBextractor.minThFAST: 7\n" in settings
     with pytest.raises(ValueError, match="unknown extractor options \\['nfeatures'\\]"):
         _orbslam3.ferroslam_config(seq, "rgbd", {"nfeatures": 1100})
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="SCHED_IDLE is Linux's")
+def test_cpus_kept_busy_runs_one_idle_priority_spinner_per_cpu_and_stops_them():
+    import _orbslam3
+
+    with _orbslam3.cpus_kept_busy() as spinners:
+        assert len(spinners) == os.cpu_count()
+        for spinner in spinners:
+            assert spinner.poll() is None
+            assert os.sched_getscheduler(spinner.pid) == os.SCHED_IDLE
+    assert all(spinner.poll() is not None for spinner in spinners)
+    with _orbslam3.cpus_kept_busy(False) as none:
+        assert none == []
