@@ -306,9 +306,10 @@ def cpus_kept_busy(enabled: bool = True):
 
     For virtual machines whose host packs the vCPUs of a guest that idles onto fewer
     physical cores (measured with ``benches/cpu_packing.py``): a process that sleeps between
-    frames then gets one core's worth of two threads. The spinners take no time from the
-    measured threads, which always preempt them, and make the guest's 2 vCPUs behave as 2
-    dedicated cores for both systems alike.
+    frames then gets one core's worth of two threads. Inside the guest the measured threads
+    always preempt the spinners, but the host still sees two busy vCPUs: on the machine of
+    ``docs/benchmarks.md`` bursty monocular runs got faster with them and sustained stereo
+    ones slower, for both systems, so it is a sensitivity check, not a cleaner measurement.
 
     Yields:
         The busy-loop processes (none when not ``enabled``).

@@ -26,8 +26,9 @@ tracking; its local mapping and loop closing run in background threads that comp
 the same cores). Frames go to both systems as fast as they take them, or at the pace of
 their timestamps with ``--realtime`` (a live camera: mapping threads then have the time
 between frames, as in ORB-SLAM's own examples). ``--keep-cpus-busy`` runs one idle-priority
-busy loop per CPU meanwhile, for virtual machines whose host packs an idling guest's vCPUs
-onto fewer cores (``benches/cpu_packing.py`` tells). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
+busy loop per CPU meanwhile, a sensitivity check for virtual machines whose host packs an
+idling guest's vCPUs onto fewer cores (``benches/cpu_packing.py`` tells; see
+``_orbslam3.cpus_kept_busy``). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
 each system (``/proc/self/clear_refs``), minus the RSS at its start.
 """
 
