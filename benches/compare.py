@@ -28,8 +28,10 @@ their timestamps with ``--realtime`` (a live camera: mapping threads then have t
 between frames, as in ORB-SLAM's own examples). ``--keep-cpus-busy`` runs one idle-priority
 busy loop per CPU meanwhile, a sensitivity check for virtual machines whose host packs an
 idling guest's vCPUs onto fewer cores (``benches/cpu_packing.py`` tells; see
-``_orbslam3.cpus_kept_busy``). Image loading is excluded from both. Peak memory: ``VmHWM`` reset before
-each system (``/proc/self/clear_refs``), minus the RSS at its start.
+``_orbslam3.cpus_kept_busy``); each sequence's record carries the speedup of two threads over
+one measured at its start (``cpu_packing.two_thread_speedups``). Image loading is excluded
+from both. Peak memory: ``VmHWM`` reset before each system (``/proc/self/clear_refs``), minus
+the RSS at its start.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import _orbslam3 as orb  # noqa: E402
+import cpu_packing  # noqa: E402
 
 # name: (folder under the data dir, sensor, default frame limit)
 SEQUENCES = {
@@ -190,6 +193,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     # is reported, the spread beside it.
     ours_runs, orb_runs = [], []
     with orb.cpus_kept_busy(keep_cpus_busy):
+        rec["two_thread_speedup"] = cpu_packing.two_thread_speedups()
         for _ in range(runs):
             ours_runs.append(ours())
             orb_runs.append(orbslam3())
@@ -288,6 +292,11 @@ def print_table(records: list) -> None:
               f"({_ratio(a['ours'], a['orbslam3'])}); {_per_pair(r['both_tracking_ate_all_m'])}")
         busy = "; CPUs kept busy" if r.get("cpus_kept_busy") else ""
         print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}{busy}")
+        if "two_thread_speedup" in r:  # benches/cpu_packing.py
+            sp = r["two_thread_speedup"]
+            print(f"{'':<13} two threads against one at the start: {sp['back_to_back']:.2f}x "
+                  f"back to back, {sp['after_10ms_idle']:.2f}x after 10 ms idle (about 1: no "
+                  "second core, packed or busy)")
     print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "
           "with the median ATE of --runs; ms med and p95: the median over the runs). o/t = ours / "

@@ -56,6 +56,23 @@ def speedup(sleep_s: float, repeats: int, second: ThreadPoolExecutor) -> tuple[f
     return float(np.median(serial)) * 1e3, float(np.median(parallel)) * 1e3
 
 
+def two_thread_speedups(repeats: int = 20) -> dict:
+    """Speedup of two threads over one, back to back and after 10 ms of idling: the machine
+    state a measurement ran in (``compare.py`` records it). Holds OpenCV's pool to one
+    thread meanwhile."""
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with ThreadPoolExecutor(1) as second:
+            out = {}
+            for key, sleep_s in (("back_to_back", 0.0), ("after_10ms_idle", 0.010)):
+                one, two = speedup(sleep_s, repeats, second)
+                out[key] = one / two
+            return out
+    finally:
+        cv2.setNumThreads(cv_threads)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=60)
