@@ -297,8 +297,6 @@ def load_average() -> Optional[tuple]:
         return None
 
 
-
-
 @contextmanager
 def cpus_kept_busy(enabled: bool = True):
     """While the block runs, one ``SCHED_IDLE`` busy-loop process per CPU, so that no CPU
