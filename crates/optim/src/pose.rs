@@ -151,9 +151,7 @@ pub(crate) fn cost(
         .sum()
 }
 
-/// Gauss-Newton system `(H, g)` of the `active` observations at `pose`: `H = sum w J^T J`,
-/// `g = sum w J^T e` with `w = inv_sigma2 * rho'(chi2)` and `J = d e / d xi` (left
-/// perturbation of `T_c_w`). Observations that leave the camera's domain are skipped.
+/// Gauss-Newton system `(H, g)` of the `active` observations at `pose` (see [`Evaluation`]).
 pub(crate) fn normal_equations(
     k: &Intrinsics,
     pose: &Isometry3<f64>,
@@ -161,20 +159,51 @@ pub(crate) fn normal_equations(
     active: &[usize],
     robust: bool,
 ) -> (Matrix6<f64>, Vector6<f64>) {
-    let mut h = Matrix6::<f64>::zeros();
-    let mut g = Vector6::<f64>::zeros();
+    let at = evaluate(k, pose, obs, active, robust);
+    (at.h, at.g)
+}
+
+/// Cost and Gauss-Newton system of the `active` observations at one pose.
+struct Evaluation {
+    /// `sum rho(chi2)`, infinite if any of them leaves the camera's domain (so such steps are
+    /// rejected and the objective stays well defined).
+    cost: f64,
+    /// `H = sum w J^T J` over the observations in the domain, with `w = inv_sigma2 *
+    /// rho'(chi2)` and `J = d e / d xi` (left perturbation of `T_c_w`).
+    h: Matrix6<f64>,
+    /// `g = sum w J^T e`.
+    g: Vector6<f64>,
+}
+
+/// [`Evaluation`] at `pose`, in one pass: Levenberg-Marquardt needs each candidate's cost,
+/// and the accepted candidate's system is the next iteration's (separate passes for the two
+/// projected every point twice per iteration).
+fn evaluate(
+    k: &Intrinsics,
+    pose: &Isometry3<f64>,
+    obs: &[PoseObservation],
+    active: &[usize],
+    robust: bool,
+) -> Evaluation {
+    let mut at = Evaluation {
+        cost: 0.0,
+        h: Matrix6::zeros(),
+        g: Vector6::zeros(),
+    };
     for &i in active {
         let o = &obs[i];
-        // Valid by construction when the current pose was accepted with a finite cost.
-        let Some(lin) = residual::linearize(k, pose, &o.p_w, &o.uv, o.u_right) else {
+        let Some((e, j)) = residual::linearize_pose(k, pose, &o.p_w, &o.uv, o.u_right) else {
+            at.cost = f64::INFINITY;
             continue;
         };
-        let chi2 = o.inv_sigma2 * lin.e.norm_squared();
-        let w = o.inv_sigma2 * cost_and_weight(chi2, o.u_right.is_some(), robust).1;
-        h += w * lin.d_e_d_xi.transpose() * lin.d_e_d_xi;
-        g += w * lin.d_e_d_xi.transpose() * lin.e;
+        let chi2 = o.inv_sigma2 * e.norm_squared();
+        let (rho, weight) = cost_and_weight(chi2, o.u_right.is_some(), robust);
+        at.cost += rho;
+        let w = o.inv_sigma2 * weight;
+        at.h += w * j.transpose() * j;
+        at.g += w * j.transpose() * e;
     }
-    (h, g)
+    at
 }
 
 /// Levenberg-Marquardt on the 6-dof pose over the `active` observations.
@@ -189,10 +218,10 @@ fn refine(
     if active.is_empty() {
         return pose;
     }
-    let mut current = cost(k, &pose, obs, active, robust);
+    let mut current = evaluate(k, &pose, obs, active, robust);
     let mut damping = Damping::new(INITIAL_LAMBDA);
     for _ in 0..ITERATIONS_PER_ROUND {
-        let (h, g) = normal_equations(k, &pose, obs, active, robust);
+        let (h, g) = (current.h, current.g);
         let d = h.diagonal().map(damping_diagonal);
         let accepted = loop {
             if damping.exhausted() {
@@ -209,20 +238,20 @@ fn refine(
             };
             let dx = chol.solve(&(-g));
             let candidate = se3::retract(&dx, &pose);
-            let new_cost = cost(k, &candidate, obs, active, robust);
+            let at = evaluate(k, &candidate, obs, active, robust);
             let predicted = predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
-            let actual = current - new_cost;
+            let actual = current.cost - at.cost;
             if actual > 0.0 && predicted > 0.0 {
                 damping.accept(actual / predicted);
-                break Some((candidate, new_cost, actual));
+                break Some((candidate, at, actual));
             }
             damping.reject();
         };
-        let Some((candidate, new_cost, actual)) = accepted else {
+        let Some((candidate, at, actual)) = accepted else {
             break;
         };
         pose = candidate;
-        current = new_cost;
+        current = at;
         if actual <= DECREASE_TOLERANCE {
             break;
         }

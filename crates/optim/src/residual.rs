@@ -79,6 +79,27 @@ pub fn linearize(
     uv: &Vector2<f64>,
     u_right: Option<f64>,
 ) -> Option<Linearization> {
+    let (e, d_e_d_xi) = linearize_pose(k, T_c_w, p_w, uv, u_right)?;
+    // The translation block of d e / d xi is d e / d p_c.
+    let d_e_d_p_c = d_e_d_xi.fixed_view::<3, 3>(0, 0);
+    let r_c_w = T_c_w.rotation.to_rotation_matrix().into_inner();
+    Some(Linearization {
+        e,
+        d_e_d_xi,
+        d_e_d_p_w: d_e_d_p_c * r_c_w,
+    })
+}
+
+/// The residual and `d e / d xi` of [`linearize`], without the point Jacobian (motion-only
+/// BA); `None` exactly when [`residual`] is `None`.
+#[allow(non_snake_case)]
+pub(crate) fn linearize_pose(
+    k: &Intrinsics,
+    T_c_w: &Isometry3<f64>,
+    p_w: &Vector3<f64>,
+    uv: &Vector2<f64>,
+    u_right: Option<f64>,
+) -> Option<(Vector3<f64>, Matrix3x6<f64>)> {
     let p_c = T_c_w.transform_point(&Point3::from(*p_w)).coords;
     let (pred, mut d_pred_d_p_c) = predict(k, &p_c)?;
     let e = error_of(&pred, uv, u_right);
@@ -97,12 +118,7 @@ pub fn linearize(
     d_p_c_d_xi
         .fixed_view_mut::<3, 3>(0, 3)
         .copy_from(&(-so3::hat(&p_c)));
-    let r_c_w = T_c_w.rotation.to_rotation_matrix().into_inner();
-    Some(Linearization {
-        e,
-        d_e_d_xi: d_e_d_p_c * d_p_c_d_xi,
-        d_e_d_p_w: d_e_d_p_c * r_c_w,
-    })
+    Some((e, d_e_d_p_c * d_p_c_d_xi))
 }
 
 /// `inv_sigma2 * |e|^2` of an observation, `None` where [`residual`] is `None`.

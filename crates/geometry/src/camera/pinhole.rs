@@ -210,8 +210,10 @@ impl PinholeCamera {
     pub fn undistort_pixel(&self, uv_distorted: &Vector2<f64>) -> Vector2<f64> {
         let target = self.normalize(uv_distorted);
         let mut x = target;
+        // The distortion (and its Jacobian) at `x`, reused from the step that reached it.
+        let mut at_x = self.distortion.distort(&x);
         for _ in 0..20 {
-            let (xd, jacobian) = self.distortion.distort(&x);
+            let (xd, jacobian) = at_x;
             let residual = xd - target;
             let Some(step) = jacobian.lu().solve(&residual) else {
                 break;
@@ -220,16 +222,17 @@ impl PinholeCamera {
             // polynomial can fold over).
             let mut scale = 1.0;
             let mut next = x - step;
-            while scale > 1e-3
-                && (self.distortion.distort(&next).0 - target).norm() > residual.norm()
-            {
+            let mut at_next = self.distortion.distort(&next);
+            while scale > 1e-3 && (at_next.0 - target).norm() > residual.norm() {
                 scale *= 0.5;
                 next = x - step * scale;
+                at_next = self.distortion.distort(&next);
             }
             if !next.iter().all(|v| v.is_finite()) {
                 break;
             }
             x = next;
+            at_x = at_next;
             if step.norm() * scale < 1e-15 {
                 break;
             }
