@@ -1038,9 +1038,12 @@ mod tests {
         (ctx, map, newest)
     }
 
-    /// Maps the newest keyframe of [`scene`] and checks the map stays consistent.
-    fn map_newest(n_others: usize, sensor: Sensor, interrupt: Interrupt<'_>) -> MappingReport {
-        let (ctx, mut map, newest) = scene(n_others, sensor);
+    /// Maps the newest keyframe of a scene ([`scene_spaced`]) and checks the map stays
+    /// consistent.
+    fn map_newest(
+        (ctx, mut map, newest): (Context, Map, KeyFrameId),
+        interrupt: Interrupt<'_>,
+    ) -> MappingReport {
         let mut report = MappingReport::default();
         LocalMapper::default()
             .process_keyframe(newest, &mut map, &ctx, &mut report, None, interrupt)
@@ -1051,11 +1054,11 @@ mod tests {
 
     #[test]
     fn interrupted_mapping_triangulates_with_the_best_neighbour_only_and_skips_the_rest() {
-        let full = map_newest(1, Sensor::Monocular, Interrupt::NEVER);
+        let full = map_newest(scene(1, Sensor::Monocular), Interrupt::NEVER);
         assert_eq!(full.triangulated_points, 100);
         assert!(!full.interrupted && full.local_ba_ms > 0.0);
         let waiting = AtomicBool::new(true);
-        let waited_for = map_newest(1, Sensor::Monocular, Interrupt::on(&waiting, false));
+        let waited_for = map_newest(scene(1, Sensor::Monocular), Interrupt::on(&waiting, false));
         assert_eq!(waited_for.triangulated_points, 50);
         assert!(waited_for.interrupted);
         assert_eq!((waited_for.local_ba_ms, waited_for.fused_points), (0.0, 0));
@@ -1092,7 +1095,7 @@ mod tests {
     #[test]
     fn hurried_mapping_with_depth_triangulates_with_the_best_neighbours_only() {
         let n_others = 4;
-        let run = |sensor, interrupt| map_newest(n_others, sensor, interrupt);
+        let run = |sensor, interrupt| map_newest(scene(n_others, sensor), interrupt);
         let (not_waiting, waiting) = (AtomicBool::new(false), AtomicBool::new(true));
         let every_neighbour = 50 * (n_others + 1);
         for sensor in [Sensor::Rgbd, Sensor::Monocular] {
@@ -1117,12 +1120,7 @@ mod tests {
         let shared = [50, 3, 50, 50];
         let all: usize = 50 + shared.iter().sum::<usize>();
         for (sensor, expected) in [(Sensor::Rgbd, 50 + 50 + 3), (Sensor::Monocular, all)] {
-            let (ctx, mut map, newest) = scene_sharing(&shared, sensor);
-            let mut report = MappingReport::default();
-            LocalMapper::default()
-                .process_keyframe(newest, &mut map, &ctx, &mut report, None, Interrupt::NEVER)
-                .unwrap();
-            map.check_consistency().unwrap();
+            let report = map_newest(scene_sharing(&shared, sensor), Interrupt::NEVER);
             assert_eq!(report.triangulated_points, expected, "{sensor:?}");
         }
     }
@@ -1134,18 +1132,8 @@ mod tests {
     #[test]
     fn monocular_pairs_under_the_median_depths_parallax_baseline_triangulate_nothing() {
         for (spacing_m, expected) in [(0.07, 0), (0.2, 50)] {
-            let (ctx, mut map, newest) = scene_spaced(&[], Sensor::Monocular, spacing_m);
-            let mut report = MappingReport::default();
-            LocalMapper::default()
-                .grow(
-                    newest,
-                    &mut map,
-                    &ctx,
-                    &mut report,
-                    Interrupt::NEVER,
-                    &mut |_| {},
-                )
-                .unwrap();
+            let scene = scene_spaced(&[], Sensor::Monocular, spacing_m);
+            let report = map_newest(scene, Interrupt::NEVER);
             assert_eq!(report.triangulated_points, expected, "{spacing_m} m");
         }
     }
