@@ -1,7 +1,7 @@
 """The bundled sample and ``ferroslam demo`` (real core, real frames: no shared data needed).
 
 Measured on this build (2-core machine): RGB-D 90/90 frames tracked, ATE 2.27 cm (SE(3)),
-14.9 ms per frame median; monocular initialised at frame 2, 88/90 tracked, ATE 2.93 cm
+14.9 ms per frame median; monocular initialised at frame 2, 88/90 tracked, ATE 2.83 cm
 (Sim(3)). Bounds sit ~30 % above.
 """
 
