@@ -131,54 +131,22 @@ pub(crate) fn chi2_of(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservatio
     residual::chi2(k, T_c_w, &o.p_w, &o.uv, o.u_right, o.inv_sigma2)
 }
 
-/// Cost `sum rho(chi2)` over `active`, infinite if any of them leaves the camera's domain
-/// (so such steps are rejected and the objective stays well defined).
-pub(crate) fn cost(
-    k: &Intrinsics,
-    pose: &Isometry3<f64>,
-    obs: &[PoseObservation],
-    active: &[usize],
-    robust: bool,
-) -> f64 {
-    active
-        .iter()
-        .map(|&i| {
-            let o = &obs[i];
-            chi2_of(k, pose, o).map_or(f64::INFINITY, |c| {
-                cost_and_weight(c, o.u_right.is_some(), robust).0
-            })
-        })
-        .sum()
-}
-
-/// Gauss-Newton system `(H, g)` of the `active` observations at `pose` (see [`Evaluation`]).
-pub(crate) fn normal_equations(
-    k: &Intrinsics,
-    pose: &Isometry3<f64>,
-    obs: &[PoseObservation],
-    active: &[usize],
-    robust: bool,
-) -> (Matrix6<f64>, Vector6<f64>) {
-    let at = evaluate(k, pose, obs, active, robust);
-    (at.h, at.g)
-}
-
 /// Cost and Gauss-Newton system of the `active` observations at one pose.
-struct Evaluation {
+pub(crate) struct Evaluation {
     /// `sum rho(chi2)`, infinite if any of them leaves the camera's domain (so such steps are
     /// rejected and the objective stays well defined).
-    cost: f64,
+    pub(crate) cost: f64,
     /// `H = sum w J^T J` over the observations in the domain, with `w = inv_sigma2 *
     /// rho'(chi2)` and `J = d e / d xi` (left perturbation of `T_c_w`).
-    h: Matrix6<f64>,
+    pub(crate) h: Matrix6<f64>,
     /// `g = sum w J^T e`.
-    g: Vector6<f64>,
+    pub(crate) g: Vector6<f64>,
 }
 
 /// [`Evaluation`] at `pose`, in one pass: Levenberg-Marquardt needs each candidate's cost,
 /// and the accepted candidate's system is the next iteration's (separate passes for the two
 /// projected every point twice per iteration).
-fn evaluate(
+pub(crate) fn evaluate(
     k: &Intrinsics,
     pose: &Isometry3<f64>,
     obs: &[PoseObservation],

@@ -193,7 +193,8 @@ pub fn optimize_pose_inertial(
         }
     }
     let inliers: Vec<usize> = (0..obs.len()).filter(|&i| !outlier[i]).collect();
-    let (information, _) = problem.normal_equations(&x, &inliers, false);
+    let (_, visual) = problem.evaluate(&x, &inliers, false);
+    let (information, _) = problem.normal_equations(&x, &visual);
     Ok(InertialPoseEstimate {
         T_c_w: x.T_c_w,
         state: problem.body_state(&x),
@@ -293,29 +294,27 @@ impl Problem<'_> {
         (r, j)
     }
 
-    /// Total cost: visual `sum rho(chi2)` over `active` plus the inertial and bias-walk
-    /// `chi2`; infinite when a term is undefined, so such steps are rejected.
-    fn cost(&self, x: &State, active: &[usize], robust: bool) -> f64 {
+    /// Total cost at `x`: visual `sum rho(chi2)` over `active` plus the inertial and
+    /// bias-walk `chi2`; infinite when a term is undefined, so such steps are rejected. With
+    /// the visual part's evaluation, whose system [`Self::normal_equations`] takes.
+    fn evaluate(&self, x: &State, active: &[usize], robust: bool) -> (f64, pose::Evaluation) {
         let link = self.link;
         let r = link.factor.residual(link.previous, &self.body_state(x));
         let inertial = r.dot(&(link.factor.information() * r));
         let walk = link.bias_walk.chi2(&link.previous.bias, &x.bias);
-        let total = pose::cost(self.k, &x.T_c_w, self.obs, active, robust) + inertial + walk;
-        if total.is_nan() {
-            f64::INFINITY
-        } else {
-            total
-        }
+        let visual = pose::evaluate(self.k, &x.T_c_w, self.obs, active, robust);
+        let total = visual.cost + inertial + walk;
+        (if total.is_nan() { f64::INFINITY } else { total }, visual)
     }
 
-    /// Gauss-Newton system `(H, g)` of the whole cost at `x`, step `(H + lambda D) dx = -g`.
-    fn normal_equations(&self, x: &State, active: &[usize], robust: bool) -> (Matrix15, Vector15) {
+    /// Gauss-Newton system `(H, g)` of the whole cost at `x` (`visual`: [`Self::evaluate`]'s
+    /// at `x`), step `(H + lambda D) dx = -g`.
+    fn normal_equations(&self, x: &State, visual: &pose::Evaluation) -> (Matrix15, Vector15) {
         let mut h = Matrix15::zeros();
         let mut g = Vector15::zeros();
-        let (hv, gv) = pose::normal_equations(self.k, &x.T_c_w, self.obs, active, robust);
         h.fixed_view_mut::<6, 6>(POSE.start, POSE.start)
-            .copy_from(&hv);
-        g.fixed_rows_mut::<6>(POSE.start).copy_from(&gv);
+            .copy_from(&visual.h);
+        g.fixed_rows_mut::<6>(POSE.start).copy_from(&visual.g);
         let (r, j) = self.inertial(x);
         let omega = self.link.factor.information();
         h += j.transpose() * omega * j;
@@ -333,12 +332,12 @@ impl Problem<'_> {
     /// Levenberg-Marquardt over the 15 dimensions with the visual observations `active`.
     fn refine(&self, start: State, active: &[usize], robust: bool) -> Result<State, OptimError> {
         let mut x = start;
-        let mut current = self.cost(&x, active, robust);
+        let (mut current, mut visual) = self.evaluate(&x, active, robust);
         let mut damping = Damping::new(INITIAL_LAMBDA);
         for _ in 0..ITERATIONS_PER_ROUND {
-            let (h, g) = self.normal_equations(&x, active, robust);
+            let (h, g) = self.normal_equations(&x, &visual);
             let d = h.diagonal().map(damping_diagonal);
-            let mut candidate = x;
+            let mut candidate = (x, None);
             let accepted = damping.find_step(
                 |lambda| {
                     let hd = h + Matrix15::from_diagonal(&(lambda * d));
@@ -351,17 +350,20 @@ impl Problem<'_> {
                     Ok((dx, predicted))
                 },
                 |(dx, predicted)| {
-                    candidate = x.retract(dx);
-                    let new_cost = self.cost(&candidate, active, robust);
+                    let moved = x.retract(dx);
+                    let (new_cost, at) = self.evaluate(&moved, active, robust);
+                    candidate = (moved, Some(at));
                     (current - new_cost, *predicted, new_cost)
                 },
             )?;
-            let Some(new_cost) = accepted else {
+            // The last step tried is the accepted one: its visual system is the next one's.
+            let (Some(new_cost), (moved, Some(at))) = (accepted, candidate) else {
                 break;
             };
             let actual = current - new_cost;
-            x = candidate;
+            x = moved;
             current = new_cost;
+            visual = at;
             if actual <= RELATIVE_TOLERANCE * new_cost.max(f64::MIN_POSITIVE) {
                 break;
             }
