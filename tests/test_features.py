@@ -97,15 +97,57 @@ def test_orientation_matches_opencv(frames):
     assert diff.max() < 0.1  # OpenCV's fastAtan2 is approximate
 
 
-def test_descriptors_match_opencv_on_same_keypoints(frames, extractor):
-    gray = frames[3]
-    kp, desc = extractor.detect(gray)
-    picked = np.arange(0, len(kp), 17)  # every octave
-    cv_kps = [cv2.KeyPoint(float(x), float(y), 31 * 1.2 ** o, float(a), float(r), int(o))
-              for x, y, o, a, r in kp[picked]]
+def test_descriptors_equal_opencv_orb_bit_for_bit(frames, extractor):
+    """Our BRIEF (Rust core, OpenCV's tests read off cv2.ORB) against cv2.ORB.compute on the
+    whole image, which builds and smooths its own pyramid: every keypoint, every bit."""
     orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)
-    _, cv_desc = orb.compute(gray, cv_kps)
-    np.testing.assert_array_equal(desc[picked], cv_desc)
+    for gray in frames:
+        kp, desc = extractor.detect(gray)
+        cv_kps = [cv2.KeyPoint(float(x), float(y), 31 * 1.2 ** o, float(a), float(r), int(o))
+                  for x, y, o, a, r in kp]
+        kept, cv_desc = orb.compute(gray, cv_kps)
+        assert len(kept) == len(kp) > 900
+        np.testing.assert_array_equal(desc, cv_desc)
+
+
+def test_brief_tests_read_off_opencv():
+    from ferroslam._brief import opencv_brief_tests
+
+    tests = opencv_brief_tests()
+    assert tests.shape == (256, 4) and tests.dtype == np.int32
+    # ORB's learned tests lie in its 31 x 31 patch, and no test compares a pixel with itself.
+    assert np.abs(tests).max() <= 15
+    assert np.all(np.any(tests[:, :2] != tests[:, 2:], axis=1))
+    # Each test, alone, on an image dark at its first pixel and bright at its second: the
+    # descriptor of an unrotated corner there sets that test's bit.
+    orb = cv2.ORB_create(nlevels=1, edgeThreshold=19, patchSize=31)
+    for i in (0, 77, 255):
+        image = np.full((80, 80), 128, np.uint8)
+        x1, y1, x2, y2 = tests[i] + 40
+        image[y1, x1], image[y2, x2] = 0, 255
+        _, d = orb.compute(image, [cv2.KeyPoint(40.0, 40.0, 31.0, 0.0)])
+        assert np.unpackbits(d[0], bitorder="little")[i] == 1
+
+
+def test_brief_pattern_rejects_bad_input():
+    from ferroslam import _core
+    from ferroslam._brief import opencv_brief_tests
+
+    with pytest.raises(ValueError, match=r"shape \(256, 4\)"):
+        _core.BriefPattern(np.zeros((255, 4), np.int32))
+    with pytest.raises(ValueError, match="not in \\[-31, 31\\]"):
+        _core.BriefPattern(np.full((256, 4), 40, np.int32))
+    with pytest.raises(TypeError, match="tests must be an int32"):
+        _core.BriefPattern(np.zeros((256, 4), np.float64))
+    brief = _core.BriefPattern(opencv_brief_tests())
+    level = np.zeros((60, 60), np.uint8)
+    with pytest.raises(ValueError, match="row 0 has no level 0 or lies closer to its border"):
+        brief.describe([level], np.array([[5, 30, 0, 0, 1]], np.float32))
+    with pytest.raises(ValueError, match="row 0 has no level 1"):
+        brief.describe([level], np.array([[30, 30, 1, 0, 1]], np.float32))
+    with pytest.raises(ValueError, match="must be non-negative integers"):
+        brief.describe([level], np.array([[30.5, 30, 0, 0, 1]], np.float32))
+    assert brief.describe([level], np.array([[30, 30, 0, 45, 1]], np.float32)).shape == (1, 32)
 
 
 def test_rotation_invariance(frames, extractor):

@@ -19,8 +19,8 @@ else:
     from typing_extensions import Unpack
 
 __all__ = [
-    "KeyframeDatabase", "SlamError", "SlamSystem", "TrackResult", "Vocabulary", "__version__",
-    "detect_orb_corners", "match_stereo",
+    "BriefPattern", "KeyframeDatabase", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
+    "__version__", "detect_orb_corners", "match_stereo",
 ]
 
 __version__: str
@@ -429,6 +429,37 @@ def detect_orb_corners(
         ValueError: empty level, one budget per level not given, thresholds not
             ``0 < min_fast <= ini_fast``.
     """
+
+@final
+class BriefPattern:
+    """ORB's rotated BRIEF with given tests (``OrbExtractor`` passes OpenCV's, read off
+    ``cv2.ORB`` by ``ferroslam._brief``, so that the descriptors are OpenCV's bit for bit).
+
+    Args:
+        tests: ``(256, 4)`` int32 rows ``[x1, y1, x2, y2]`` (pixels, x right, y down, each
+            in [-31, 31]): bit ``k`` of byte ``i`` is ``I(x1, y1) < I(x2, y2)`` of row
+            ``8 i + k``, the offsets turned by the keypoint's angle.
+
+    Raises:
+        TypeError: ``tests`` is not an int32 array.
+        ValueError: not ``(256, 4)``, or an offset outside [-31, 31].
+    """
+
+    def __new__(cls, tests: NDArray[np.int32]) -> BriefPattern: ...
+    def describe(
+        self, smoothed: Sequence[NDArray[np.uint8]], keypoints: NDArray[np.float32]
+    ) -> NDArray[np.uint8]:
+        """Descriptors ``(N, 32)`` uint8 of ``keypoints`` (``(N, 5)`` float32 rows ``[x, y,
+        level, angle_deg, score]`` in LEVEL pixels, as ``detect_orb_corners`` gives them) on
+        ``smoothed``, the pyramid's levels each smoothed as ORB smooths them (7 x 7 Gaussian,
+        sigma 2); all keypoints in parallel.
+
+        Raises:
+            TypeError: a level is not a 2-D uint8 array, keypoints not float32.
+            ValueError: keypoints not ``(N, 5)``; a level, x or y not a non-negative integer
+                or the angle not finite; a keypoint on a missing level or closer to its
+                level's border than the tests reach.
+        """
 
 # --- Place recognition: Vocabulary and KeyframeDatabase (crates/python/src/vocabulary.rs) ---
 

@@ -10,12 +10,14 @@ Pipeline per frame (Mur-Artal et al., ORB-SLAM, T-RO 2015, section III-A):
    scoring ``>= ini_fast`` keeps only those; a quadtree-like spread keeps the level's budget
    (the best corner of every cell at the deepest depth that fits, then the next strongest);
    orientation by intensity centroid over a circular patch of radius 15.
-4. Rotated BRIEF (256 bits) by OpenCV's ORB on each level of that pyramid, Gaussian-blurred.
+4. Rotated BRIEF (256 bits) in the Rust core (``_core.BriefPattern``, all keypoints in
+   parallel) on each level smoothed as OpenCV's ORB smooths it, with OpenCV's tests
+   (:mod:`ferroslam._brief` reads them off ``cv2.ORB``).
 
 The pyramid is resized with ``INTER_LINEAR_EXACT``, as OpenCV's ORB builds its own, so the
-descriptors equal ``cv2.ORB.compute`` on the whole image bit for bit without OpenCV building
-a second pyramid (ORB-SLAM resizes with ``INTER_LINEAR``; its levels differ by 1-3 grey
-levels, enough to change 3 descriptor bits in 256 on average).
+descriptors equal ``cv2.ORB.compute`` on the whole image bit for bit (ORB-SLAM resizes with
+``INTER_LINEAR``; its levels differ by 1-3 grey levels, enough to change 3 descriptor bits
+in 256 on average).
 
 Keypoints are in RAW (distorted) level-0 pixel coordinates; undistortion is up to the
 consumer (the Rust core receives the distortion coefficients).
@@ -24,20 +26,18 @@ consumer (the Rust core receives the distortion coefficients).
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor, wait
-from itertools import repeat
 
 import cv2
 import numpy as np
 
 from ferroslam import _core
+from ferroslam._brief import opencv_brief_tests
 
 __all__ = ["OrbExtractor", "sample_depth", "level_budgets"]
 
-_EDGE = 19  # keypoints keep this distance (level pixels) from the border, as in ORB-SLAM
-_HALF_PATCH = 15  # radius of the orientation patch
-# Levels described on the calling thread when the others go to a second one: at scale 1.2
-# levels 0-1 hold 55 % of the pyramid's pixels and of its keypoints.
-_FINE_LEVELS = 2
+# ORB's smoothing before BRIEF: 7 x 7 Gaussian, sigma 2, separable (``cv2.GaussianBlur``
+# rounds differently and changes 0.2 bits per descriptor against ``cv2.ORB``).
+_SMOOTHING = cv2.getGaussianKernel(7, 2)
 
 
 def level_budgets(n_features: int, scale_factor: float, n_levels: int) -> np.ndarray:
@@ -107,17 +107,7 @@ class OrbExtractor:
         self.min_fast = int(min_fast)
         self.scales = self.scale_factor ** np.arange(self.n_levels)
         self.budgets = level_budgets(self.n_features, self.scale_factor, self.n_levels)
-        # Describes one pyramid level at a time (keypoints in level pixels).
-        self._orb = cv2.ORB_create(
-            nfeatures=self.n_features,
-            nlevels=1,
-            edgeThreshold=_EDGE,
-            firstLevel=0,
-            WTA_K=2,
-            scoreType=cv2.ORB_FAST_SCORE,
-            patchSize=2 * _HALF_PATCH + 1,
-            fastThreshold=self.min_fast,
-        )
+        self._brief = _core.BriefPattern(opencv_brief_tests())
         self._second_thread: ThreadPoolExecutor | None = None
 
     def __repr__(self) -> str:
@@ -160,11 +150,9 @@ class OrbExtractor:
         """As :meth:`detect`, also returning the pyramid the corners were found on.
 
         Stereo matching refines disparities on these levels (ORB-SLAM correlates patches on
-        the keypoint's level). The coarser levels are described on a second thread while
-        the calling one describes the finer ones (OpenCV releases the GIL; TUM frame: 5.6
-        -> 5.0 ms).
+        the keypoint's level).
         """
-        return self._detect(gray, split_levels=True)
+        return self._detect(gray)
 
     def detect_pair(
         self, left: np.ndarray, right: np.ndarray
@@ -175,8 +163,7 @@ class OrbExtractor:
 
         OpenCV's own thread pool is held to one thread meanwhile: the two extractions fill two
         cores, and its workers would only contend with them (KITTI stereo, 2 cores: frame
-        median 36 -> 33 ms). For the same reason each image's levels are described on its
-        own thread.
+        median 36 -> 33 ms).
 
         Raises:
             ValueError: as :meth:`detect`, for either image.
@@ -184,9 +171,9 @@ class OrbExtractor:
         cv_threads = cv2.getNumThreads()
         cv2.setNumThreads(1)
         try:
-            right_job = self._worker().submit(self._detect, right, False)
+            right_job = self._worker().submit(self._detect, right)
             try:
-                left_features = self._detect(left, False)
+                left_features = self._detect(left)
             finally:
                 wait([right_job])  # never leave the right image's extraction running
             return left_features, right_job.result()
@@ -194,14 +181,12 @@ class OrbExtractor:
             cv2.setNumThreads(cv_threads)
 
     def _worker(self) -> ThreadPoolExecutor:
-        """The second thread of :meth:`detect_pair` and of split describing."""
+        """The second thread of :meth:`detect_pair`."""
         if self._second_thread is None:
             self._second_thread = ThreadPoolExecutor(1, thread_name_prefix="ferroslam-orb")
         return self._second_thread
 
-    def _detect(
-        self, gray: np.ndarray, split_levels: bool
-    ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    def _detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
         gray = _validate_gray(gray)
         levels = self.pyramid(gray)
         kp = _core.detect_orb_corners(
@@ -209,45 +194,16 @@ class OrbExtractor:
         )
         if kp.shape[0] == 0:
             return np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8), levels
-        descriptors = self._describe(levels, kp, split_levels)
+        descriptors = self._describe(levels, kp)
         kp[:, :2] *= self.scales.astype(np.float32)[kp[:, 2].astype(np.intp), None]
         return kp, descriptors, levels
 
-    def _describe(self, levels: list[np.ndarray], kp: np.ndarray, split_levels: bool) -> np.ndarray:
-        """Descriptors of ``kp`` (level pixels, rows grouped by octave), one OpenCV call per
-        level, which blurs that level only; levels from :data:`_FINE_LEVELS` on are described
-        on the second thread when ``split_levels``."""
-        octaves = kp[:, 2].astype(np.intp)
-        bounds = np.searchsorted(octaves, np.arange(len(levels) + 1))
-        descriptors = np.empty((kp.shape[0], 32), np.uint8)
-
-        def describe(level_range: range) -> None:
-            for level in level_range:
-                a, b = bounds[level], bounds[level + 1]
-                if a == b:
-                    continue
-                rows = kp[a:b]
-                cv_kps = list(map(cv2.KeyPoint, rows[:, 0].tolist(), rows[:, 1].tolist(),
-                                  repeat(2.0 * _HALF_PATCH + 1, b - a), rows[:, 3].tolist()))
-                cv_kps, level_descriptors = self._orb.compute(levels[level], cv_kps)
-                # Selected corners keep >= 19 level pixels from the border, so OpenCV keeps
-                # them all, in order.
-                if level_descriptors is None or len(cv_kps) != b - a:
-                    raise RuntimeError("OpenCV ORB dropped keypoints: border handling disagrees")
-                descriptors[a:b] = level_descriptors
-
-        fine = range(min(_FINE_LEVELS, len(levels)))
-        coarse = range(fine.stop, len(levels))
-        if split_levels and coarse:
-            coarse_job = self._worker().submit(describe, coarse)
-            try:
-                describe(fine)
-            finally:
-                wait([coarse_job])
-            coarse_job.result()
-        else:
-            describe(range(len(levels)))
-        return descriptors
+    def _describe(self, levels: list[np.ndarray], kp: np.ndarray) -> np.ndarray:
+        """Descriptors of ``kp`` (level pixels): each level smoothed by OpenCV as its ORB
+        smooths it, then all keypoints described in parallel in the Rust core."""
+        smoothed = [cv2.sepFilter2D(level, -1, _SMOOTHING, _SMOOTHING,
+                                    borderType=cv2.BORDER_REFLECT_101) for level in levels]
+        return self._brief.describe(smoothed, kp)
 
 
 def sample_depth(depth_m: np.ndarray, keypoints: np.ndarray) -> np.ndarray:

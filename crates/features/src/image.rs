@@ -41,6 +41,11 @@ impl<'a> GrayImage<'a> {
         self.height
     }
 
+    /// All pixels, row-major (`pixels()[y * width + x]`).
+    pub fn pixels(&self) -> &'a [u8] {
+        self.data
+    }
+
     /// Row `y` from column `x0` on, `len` pixels; `None` when any of it lies outside.
     pub fn row_span(&self, x0: isize, y: isize, len: usize) -> Option<&'a [u8]> {
         if x0 < 0 || y < 0 || y as usize >= self.height || x0 as usize + len > self.width {

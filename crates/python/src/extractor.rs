@@ -1,8 +1,9 @@
 //! `detect_orb_corners`: ORB-SLAM's per-level keypoint detection, for the Python extractor.
 
+use ferroslam_features::extractor::brief::{BriefPattern, BriefTest};
 use ferroslam_features::extractor::{detect_pyramid, FastThresholds};
 use numpy::ndarray::Array2;
-use numpy::PyArray2;
+use numpy::{PyArray2, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -59,4 +60,98 @@ pub fn detect_orb_corners<'py>(
         row.iter_mut().zip(values).for_each(|(o, v)| *o = v);
     }
     Ok(PyArray2::from_owned_array(py, rows))
+}
+
+/// ORB's rotated BRIEF with a given set of 256 tests (`OrbExtractor` reads OpenCV's off
+/// `cv2.ORB`, so that the descriptors are OpenCV's bit for bit).
+#[pyclass(name = "BriefPattern", module = "ferroslam._core", frozen)]
+pub struct PyBriefPattern(BriefPattern);
+
+#[pymethods]
+impl PyBriefPattern {
+    /// `tests`: `(256, 4)` int32 rows `[x1, y1, x2, y2]`, bit `k` of byte `i` being
+    /// `I(x1, y1) < I(x2, y2)` of row `8 i + k` (offsets in pixels, at most 31 from the centre).
+    #[new]
+    fn new(tests: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let arr: PyReadonlyArray2<'_, i32> =
+            convert::array(tests, "tests", "an int32 (256, 4) array")?;
+        let a = arr.as_array();
+        if a.shape() != [256, 4] {
+            return Err(PyValueError::new_err(format!(
+                "tests must have shape (256, 4), got {:?}",
+                a.shape()
+            )));
+        }
+        let offset = |v: i32| {
+            i8::try_from(v)
+                .ok()
+                .filter(|o| o.unsigned_abs() <= 31)
+                .ok_or_else(|| {
+                    PyValueError::new_err(format!("test offset {v} is not in [-31, 31]"))
+                })
+        };
+        let mut tests = [BriefTest {
+            first: [0; 2],
+            second: [0; 2],
+        }; 256];
+        for (test, row) in tests.iter_mut().zip(a.rows()) {
+            *test = BriefTest {
+                first: [offset(row[0])?, offset(row[1])?],
+                second: [offset(row[2])?, offset(row[3])?],
+            };
+        }
+        Ok(Self(BriefPattern::new(&tests)))
+    }
+
+    /// Descriptors `(N, 32)` uint8 of `keypoints` (`(N, 5)` float32 rows `[x, y, level,
+    /// angle_deg, score]` in LEVEL pixels, as `detect_orb_corners` gives them) on the
+    /// `smoothed` pyramid (each level Gaussian-smoothed as ORB smooths it).
+    fn describe<'py>(
+        &self,
+        py: Python<'py>,
+        smoothed: &Bound<'py, PyAny>,
+        keypoints: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<u8>>> {
+        let pixels = convert::pyramid(smoothed, "smoothed")?;
+        let views = convert::views(&pixels).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let kp: PyReadonlyArray2<'_, f32> =
+            convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
+        let kp = kp.as_array();
+        if kp.ncols() != 5 {
+            return Err(PyValueError::new_err(format!(
+                "keypoints must have shape (N, 5), got {:?}",
+                kp.shape()
+            )));
+        }
+        let pixel = |v: f32| (v.is_finite() && v >= 0.0 && v.fract() == 0.0).then_some(v as usize);
+        let corners = kp
+            .rows()
+            .into_iter()
+            .enumerate()
+            .map(
+                |(i, r)| match (pixel(r[2]), pixel(r[0]), pixel(r[1]), r[3].is_finite()) {
+                    (Some(l), Some(x), Some(y), true) => Ok((l, x, y, r[3])),
+                    _ => Err(PyValueError::new_err(format!(
+                        "keypoints row {i}: level, x and y must be non-negative integers and the \
+                     angle finite, got {:?}",
+                        r.to_vec()
+                    ))),
+                },
+            )
+            .collect::<PyResult<Vec<_>>>()?;
+        let described = py.detach(|| self.0.describe_all(&views, &corners));
+        let mut out = Array2::<u8>::zeros((corners.len(), 32));
+        for (i, (mut row, d)) in out.rows_mut().into_iter().zip(described).enumerate() {
+            let d = d.ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "keypoints row {i} has no level {} or lies closer to its border than the \
+                     pattern reaches ({:.1} px)",
+                    corners[i].0,
+                    self.0.reach_px()
+                ))
+            })?;
+            row.iter_mut().zip(d).for_each(|(o, v)| *o = v);
+        }
+        Ok(PyArray2::from_owned_array(py, out))
+    }
 }

@@ -6,6 +6,7 @@
 //!
 //! Coordinates are integer pixels of the level the corner was found on (x right, y down).
 
+pub mod brief;
 pub mod fast;
 pub mod orientation;
 pub mod quadtree;
