@@ -142,7 +142,8 @@ pub fn f64_array<'py>(py: Python<'py>, values: Vec<f64>) -> Bound<'py, PyArray1<
 }
 
 /// An image pyramid given as a sequence of 2-D uint8 arrays: `(width, height, pixels)` per
-/// level, pixels copied row-major (numpy views need not be contiguous).
+/// level, pixels copied row-major (numpy views need not be contiguous, and the callers read
+/// them with the GIL released, when Python code could write to the arrays).
 pub fn pyramid(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<(usize, usize, Vec<u8>)>> {
     let levels: Vec<Bound<'_, PyAny>> = obj.extract().map_err(|_| {
         PyTypeError::new_err(format!(

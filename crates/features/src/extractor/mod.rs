@@ -1,8 +1,7 @@
-//! ORB-SLAM's keypoint detection on an image pyramid (its `ORBextractor` without the
-//! descriptors, which OpenCV's rotated BRIEF computes): per level, FAST ([`fast`]) at the
+//! ORB-SLAM's `ORBextractor` on an image pyramid: per level, FAST ([`fast`]) at the
 //! initial threshold with the per-cell fallback to the low one ([`threshold_fallback`]), the
 //! even spread to the level's budget ([`quadtree`]) and the intensity-centroid orientation
-//! ([`orientation`]).
+//! ([`orientation`]); then the rotated BRIEF descriptors ([`brief`]) on the smoothed levels.
 //!
 //! Coordinates are integer pixels of the level the corner was found on (x right, y down).
 
