@@ -1,4 +1,5 @@
-//! `detect_orb_corners`: ORB-SLAM's per-level keypoint detection, for the Python extractor.
+//! The Python extractor's core: `detect_orb_corners` (ORB-SLAM's per-level keypoint detection)
+//! and `BriefPattern` (the rotated BRIEF descriptors).
 
 use ferroslam_features::extractor::brief::{BriefPattern, BriefTest};
 use ferroslam_features::extractor::{detect_pyramid, FastThresholds};

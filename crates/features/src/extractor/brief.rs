@@ -54,7 +54,8 @@ impl BriefPattern {
     }
 
     /// The descriptor of the corner at pixel `(x, y)` of `smoothed` with orientation
-    /// `angle_deg`; `None` when a rotated test pixel falls outside the image.
+    /// `angle_deg`; `None` when the corner lies closer to the border than the tests reach
+    /// (at any angle).
     pub fn describe(
         &self,
         smoothed: &GrayImage<'_>,
