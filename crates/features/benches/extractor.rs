@@ -1,9 +1,11 @@
 //! ORB-SLAM keypoint detection (FAST, fallback, spread, orientation): level 0 alone and the
-//! 8-level pyramid (budgets of 1000 features), on the first TUM fr1/rpy frame (640 x 480,
-//! from `FERROSLAM_DATA`, default `../shared/data` beside the repository) and on a seeded
-//! synthetic image of random blobs (corners everywhere, the hard case).
+//! 8-level pyramid (budgets of 1000 features), then rotated BRIEF of the pyramid's corners
+//! (seeded random tests: OpenCV's come from `cv2.ORB` at run time), on the first TUM fr1/rpy
+//! frame (640 x 480, from `FERROSLAM_DATA`, default `../shared/data` beside the repository)
+//! and on a seeded synthetic image of random blobs (corners everywhere, the hard case).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use ferroslam_features::extractor::brief::{BriefPattern, BriefTest};
 use ferroslam_features::extractor::{
     detect_level, detect_pyramid, fast::fast_corners, FastThresholds,
 };
@@ -102,6 +104,26 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
     });
     c.bench_function(&format!("{name}: detect_pyramid 8 levels"), |b| {
         b.iter(|| black_box(detect_pyramid(&views, &BUDGETS, FAST)))
+    });
+    let corners: Vec<(usize, usize, usize, f32)> = detect_pyramid(&views, &BUDGETS, FAST)
+        .iter()
+        .enumerate()
+        .flat_map(|(l, level)| {
+            level
+                .iter()
+                .map(move |c| (l, c.corner.x as usize, c.corner.y as usize, c.angle_deg))
+        })
+        .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut offset = || [rng.random_range(-13..=13), rng.random_range(-13..=13)];
+    let tests = std::array::from_fn(|_| BriefTest {
+        first: offset(),
+        second: offset(),
+    });
+    let brief = BriefPattern::new(&tests);
+    let n = corners.len();
+    c.bench_function(&format!("{name}: BRIEF describe_all ({n} corners)"), |b| {
+        b.iter(|| black_box(brief.describe_all(&views, &corners)))
     });
 }
 
