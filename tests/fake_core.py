@@ -29,9 +29,11 @@ class FakeTrackResult:
 
 class FakeSlamSystem:
     # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
-    KNOWN = {"scale_factor", "n_levels", "track_feature_range", "skip_max_frames", "bf",
-             "baseline", "depth_threshold", "depth_range", "seed", "loop_closure",
-             "loop_closure_threshold"}
+    KNOWN = {"n_features", "ini_fast", "min_fast", "scale_factor", "n_levels",
+             "track_feature_range", "skip_max_frames", "bf", "baseline", "depth_threshold",
+             "depth_range", "seed", "loop_closure", "loop_closure_threshold"}
+    EXTRACTOR_DEFAULTS = {"n_features": 1000, "ini_fast": 20, "min_fast": 7,
+                          "scale_factor": 1.2, "n_levels": 8}
 
     def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
                  **config):
@@ -47,6 +49,10 @@ class FakeSlamSystem:
         self.T_map_gt[:3, 3] = [0.5, -1.0, 2.0]
         self.stamps, self.poses, self.kf = [], [], []
         self.calls = []
+
+    @property
+    def options(self) -> dict:
+        return {**self.EXTRACTOR_DEFAULTS, **self.config}
 
     def track_rgbd(self, timestamp, keypoints, descriptors, depth_m):
         assert keypoints.dtype == np.float32 and keypoints.shape[1] == 5

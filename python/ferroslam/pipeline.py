@@ -22,10 +22,11 @@ __all__ = ["EXTRACTOR_KEYS", "RunResult", "load_vocabulary", "make_extractor", "
 SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
 _INERTIAL = "-inertial"
 # Options of SlamSystem.set_imu (MATLAB NumPosesThreshold, AlignmentFraction).
-IMU_KEYS = ("num_poses_threshold", "alignment_fraction", "gravity_magnitude")
-# Extractor options; the pyramid shape (scale_factor, n_levels) is passed to the core too.
+IMU_KEYS = ("num_poses_threshold", "alignment_fraction", "gravity_magnitude",
+            "imu_time_offset_s")
+# The extractor's options among the core's (SlamSystem.options holds them all, defaults
+# included: the ORB budget follows the image width).
 EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
-_EXTRACTOR_ONLY = ("n_features", "ini_fast", "min_fast")
 # Pipeline options that are not SlamSystem keywords.
 _PIPELINE_ONLY = ("vocabulary", "mapping_thread") + IMU_KEYS
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "matching_ms", "pose_optimisation_ms",
@@ -163,7 +164,8 @@ class RunResult:
 
 
 def make_extractor(config: dict) -> OrbExtractor:
-    """ORB extractor from the extractor keys of a run configuration."""
+    """ORB extractor from the extractor keys of a configuration (``SlamSystem.options``;
+    keys left out take ``OrbExtractor``'s defaults)."""
     return OrbExtractor(**{k: config[k] for k in EXTRACTOR_KEYS if k in config})
 
 
@@ -181,12 +183,13 @@ def _default_system_factory(*args, **kwargs):
 class _RgbdFeed:
     """Loads colour + depth, extracts ORB, samples depth at the keypoints."""
 
-    def __init__(self, seq, extractor: OrbExtractor) -> None:
+    def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
             raise ValueError(
                 f"{getattr(seq, 'name', seq)} has no depth images: use sensor 'stereo' or 'mono'"
             )
-        self.seq, self.extractor = seq, extractor
+        self.seq = seq
+        self.extractor: Optional[OrbExtractor] = None  # set once the system's options are known
 
     def system_options(self) -> dict:
         return {}
@@ -208,12 +211,13 @@ class _StereoFeed:
     """Loads a rectified pair and extracts ORB on both images at once
     (:meth:`OrbExtractor.detect_pair`)."""
 
-    def __init__(self, seq, extractor: OrbExtractor) -> None:
+    def __init__(self, seq) -> None:
         if not getattr(seq, "is_stereo", False):
             raise ValueError(
                 f"{getattr(seq, 'name', seq)} is not a stereo sequence (no right images)"
             )
-        self.seq, self.extractor = seq, extractor
+        self.seq = seq
+        self.extractor: Optional[OrbExtractor] = None
 
     def system_options(self) -> dict:
         return {"baseline": float(self.seq.baseline_m)}
@@ -233,8 +237,9 @@ class _StereoFeed:
 class _MonoFeed:
     """Loads one grey image per frame and extracts ORB."""
 
-    def __init__(self, seq, extractor: OrbExtractor) -> None:
-        self.seq, self.extractor = seq, extractor
+    def __init__(self, seq) -> None:
+        self.seq = seq
+        self.extractor: Optional[OrbExtractor] = None
 
     def system_options(self) -> dict:
         return {}
@@ -309,8 +314,9 @@ def run_sequence(
     Args:
         seq: a dataset sequence (``len``, ``load_gray(i)``, ``load_depth(i)``, ``timestamps``,
             ``camera``, ``has_groundtruth``, ``groundtruth()``), e.g. ``TumSequence``.
-        config: keyword options for ``SlamSystem`` (unknown keys: ``ValueError`` from the
-            core) plus the extractor options (``n_features``, ``ini_fast``, ``min_fast``) and
+        config: keyword options for ``SlamSystem``, the extractor's among them (unknown
+            keys: ``ValueError`` from the core; the rest take the defaults of the sensor and
+            image width, ``ferroslam._core.default_options``) and
             ``vocabulary`` (``"default"``: the shipped one; a vocabulary file; ``None`` for
             none): lost frames relocalise against the keyframes they resemble; and
             ``mapping_thread`` (``True``: local mapping and loop closing run in their own
@@ -323,9 +329,10 @@ def run_sequence(
         sensor: ``"mono"``, ``"rgbd"`` (needs ``load_depth``) or ``"stereo"`` (needs
             ``is_stereo``, ``load_stereo(i)`` giving a rectified pair and ``baseline_m``),
             each optionally ``"-inertial"`` (needs ``imu()``, ``imu_params()`` and ``T_b_c``,
-            as EuRoC has): the samples up to each frame are added before it is tracked and
-            ``config`` may hold the ``set_imu`` options ``num_poses_threshold``,
-            ``alignment_fraction``, ``gravity_magnitude``.
+            as EuRoC has): the samples up to each frame, and the first one after it when it
+            is less than an IMU period later, are added before it is tracked; ``config`` may
+            hold the ``set_imu`` options ``num_poses_threshold``, ``alignment_fraction``,
+            ``gravity_magnitude`` and ``imu_time_offset_s`` (``t_imu = t_cam + offset``).
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
 
     Raises:
@@ -343,14 +350,13 @@ def run_sequence(
         if int(max_frames) != max_frames or max_frames < 1:
             raise ValueError(f"max_frames must be a positive integer, got {max_frames}")
         n = min(n, int(max_frames))
-    extractor = make_extractor(config)
-    core_config = {k: v for k, v in config.items()
-                   if k not in _EXTRACTOR_ONLY and k not in _PIPELINE_ONLY}
-    feed = _FEEDS[camera](seq, extractor)
+    core_config = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY}
+    feed = _FEEDS[camera](seq)
     cam = seq.camera
     factory = system_factory or _default_system_factory
     system = factory(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
                      sensor=camera, **{**feed.system_options(), **core_config})
+    feed.extractor = make_extractor(system.options)
     if imu is not None:
         system.set_imu(seq.imu_params(), seq.T_b_c,
                        **{k: config[k] for k in IMU_KEYS if k in config})
@@ -371,6 +377,18 @@ def _imu_stream(seq, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     t, gyro, accel = seq.imu()
     return (np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(gyro, dtype=np.float64),
             np.ascontiguousarray(accel, dtype=np.float64))
+
+
+def imu_batch_end(stamps: np.ndarray, frame_s: float, period_s: float,
+                  offset_s: float = 0.0) -> int:
+    """End (exclusive) of the IMU samples to add before the frame at ``frame_s``: every
+    sample up to the frame and the first one after it when it is at most ``period_s`` later
+    (the core then interpolates the frame's pose instead of extrapolating it, as ORB-SLAM3).
+    ``stamps`` on the IMU clock, ``t_imu = t_cam + offset_s``."""
+    end = int(np.searchsorted(stamps, frame_s + offset_s, side="right"))
+    if end < len(stamps) and stamps[end] - offset_s - frame_s <= period_s:
+        end += 1
+    return end
 
 
 def _jsonable(value):
@@ -396,6 +414,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
     bar = tqdm(range(n), disable=not progress, desc=getattr(seq, "name", "sequence"), unit="frame")
     start = time.perf_counter()
     imu_from = 0
+    imu_period_s = 1.0 / float(seq.imu_params().rate_hz) if imu is not None else 0.0
     for i in bar:
         if realtime:
             time.sleep(max(0.0, start + float(seq.timestamps[i] - seq.timestamps[0])
@@ -405,8 +424,9 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         t1 = time.perf_counter()
         features = feed.features(data)
         t2 = time.perf_counter()
-        if imu is not None:  # the samples since the previous frame, up to this one
-            imu_to = int(np.searchsorted(imu[0], seq.timestamps[i], side="right"))
+        if imu is not None:
+            imu_to = imu_batch_end(imu[0], float(seq.timestamps[i]), imu_period_s,
+                                   float(config.get("imu_time_offset_s", 0.0)))
             if imu_to > imu_from:
                 system.add_imu(*(a[imu_from:imu_to] for a in imu))
             imu_from = imu_to

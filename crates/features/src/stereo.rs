@@ -1,8 +1,8 @@
 //! Stereo matching of ORB features on a rectified pair (ORB-SLAM2 `Frame::ComputeStereoMatches`).
 //!
 //! For each left keypoint: candidates are right keypoints in the same row band (+-2 px scaled by
-//! the candidate's pyramid level), within one octave and the disparity range `[0, fx)` (depth
-//! above one baseline); the best Hamming distance under `(TH_HIGH + TH_LOW) / 2` wins. Its
+//! the candidate's pyramid level), within one octave and the disparity range
+//! `[MIN_DISPARITY_PX, fx)` (depth above one baseline); the best Hamming distance under `(TH_HIGH + TH_LOW) / 2` wins. Its
 //! column is refined by sum-of-absolute-differences correlation of an 11x11 patch on the
 //! keypoint's pyramid level over +-5 level pixels, then a parabola fit through the best three
 //! costs. Matches whose SAD cost exceeds 1.5 x 1.4 x the median are dropped.
@@ -22,6 +22,12 @@ use rayon::prelude::*;
 const PATCH_HALF: isize = 5;
 /// Search range of the SAD refinement around the descriptor match, level pixels.
 const SEARCH_HALF: isize = 5;
+/// Least disparity of a match, level-0 pixels. ORB-SLAM keeps disparities down to 0 (as
+/// 0.01 px): points hundreds of kilometres away (KITTI 01: 259 km), and a pair whose right
+/// image is the left one matches every keypoint at 0 and "tracks". The parabola-refined
+/// disparity is good to a few tenths of a pixel, so below one pixel depth is unknown to
+/// within a factor of two; depth stays below `bf / 1 px` (KITTI 386 m, EuRoC 50 m).
+pub const MIN_DISPARITY_PX: f64 = 1.0;
 
 /// One side of a rectified stereo pair: keypoints, their descriptors and the image pyramid
 /// (level `l` is the image scaled by `1 / scale[l]`, unblurred, as used for detection).
@@ -47,7 +53,8 @@ pub struct StereoMatch {
 /// Matches every left keypoint into the right image; `None` where no reliable match exists.
 ///
 /// `bf` is `fx * baseline` (pixels * metres) and `fx` the focal length in pixels; the
-/// disparity search covers `[0, fx)`, i.e. depths beyond one baseline. Entries with
+/// disparity search covers `[MIN_DISPARITY_PX, fx)`, i.e. depths from one baseline to
+/// `bf / MIN_DISPARITY_PX`. Entries with
 /// mismatched lengths, non-finite coordinates or octaves beyond the pyramid are left
 /// unmatched (never a panic).
 pub fn match_stereo(
@@ -101,7 +108,7 @@ fn match_one(
     {
         return None;
     }
-    let (min_d, max_d) = (0.0, fx);
+    let (min_d, max_d) = (MIN_DISPARITY_PX, fx);
     let (u_l, min_u, max_u) = (kp.x as f64, kp.x as f64 - max_d, kp.x as f64 - min_d);
     if max_u < 0.0 {
         return None;
@@ -118,15 +125,10 @@ fn match_one(
         }
     }
     let (_, j) = best.filter(|&(d, _)| d < (TH_HIGH + TH_LOW) / 2)?;
-    let (mut u_r, sad) = refine_by_correlation(left, right, kp, right.keypoints[j].x, pyramid)?;
-    let mut disparity = u_l - u_r;
+    let (u_r, sad) = refine_by_correlation(left, right, kp, right.keypoints[j].x, pyramid)?;
+    let disparity = u_l - u_r;
     if !(min_d..max_d).contains(&disparity) {
         return None;
-    }
-    if disparity <= 0.0 {
-        // ORB-SLAM keeps zero-disparity matches as very far points.
-        disparity = 0.01;
-        u_r = u_l - 0.01;
     }
     let m = StereoMatch {
         u_right: u_r as f32,
@@ -339,6 +341,26 @@ mod tests {
             assert_eq!(pair.run(&l, &[r], 50.0), vec![None], "{r:?}");
         }
         assert!(pair.run(&l, &[keypoint(70.0, 31.9, 1)], 50.0)[0].is_some());
+    }
+
+    #[test]
+    fn disparities_under_a_pixel_are_unmatched() {
+        // The right image is the left one: every match would sit at zero disparity.
+        let l = [keypoint(80.0, 30.0, 0), keypoint(100.0, 25.0, 0)];
+        let shifted = |d: f32| l.map(|k| keypoint(k.x - d, k.y, 0));
+        assert!(Pair::new(0.0)
+            .run(&l, &shifted(0.0), 50.0)
+            .iter()
+            .all(Option::is_none));
+        // Half a pixel: too far to tell; one and a half: matched, depth bf / d.
+        assert!(Pair::new(0.5)
+            .run(&l, &shifted(0.5), 50.0)
+            .iter()
+            .all(Option::is_none));
+        for m in Pair::new(1.5).run(&l, &shifted(1.5), 50.0) {
+            let m = m.expect("matched at 1.5 px");
+            assert!((m.depth_m - 50.0 / 1.5).abs() < 5.0, "{m:?}");
+        }
     }
 
     #[test]

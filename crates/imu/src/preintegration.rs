@@ -125,10 +125,16 @@ impl Preintegrated {
     /// interval this is ORB-SLAM3's average of consecutive samples; at a partial first or
     /// last piece the interval end is interpolated first, as ORB-SLAM3 does.
     ///
-    /// Requires finite, strictly increasing samples covering the interval
-    /// (`t_first <= start_s < end_s <= t_last`), at most [`MAX_GAP_PERIODS`] sample periods
-    /// apart. Errors: [`ImuError::EmptyInterval`], [`ImuError::NotCovered`] (IMU data missing
-    /// for this frame), [`ImuError::Gap`] (readings missing inside), [`ImuError::NonFinite`],
+    /// An end the samples do not reach is extrapolated, as ORB-SLAM3 does: the last sample
+    /// (the first one for the start) is held to it. A camera and an IMU that are not
+    /// hardware-synchronised sample a few microseconds to a period apart, so the sample
+    /// after a frame time is often not there yet when the frame is tracked. The stretch held
+    /// counts as a gap: at most [`MAX_GAP_PERIODS`] sample periods.
+    ///
+    /// Requires finite, strictly increasing samples at most [`MAX_GAP_PERIODS`] sample
+    /// periods apart, reaching that close to both ends of the interval. Errors:
+    /// [`ImuError::EmptyInterval`], [`ImuError::NotCovered`] (IMU data missing for this
+    /// frame), [`ImuError::Gap`] (readings missing inside), [`ImuError::NonFinite`],
     /// [`ImuError::OutOfOrder`], [`ImuError::InvalidParameter`]. Only the samples bracketing
     /// the interval are checked, so slicing a long stream stays cheap; call
     /// [`check_stream`] once on the whole stream to validate the rest.
@@ -183,19 +189,23 @@ impl Preintegrated {
             },
             other => other,
         })?;
-        let (first_s, last_s) = match (window.first(), window.last()) {
-            (Some(a), Some(b)) => (a.t_s, b.t_s),
-            _ => (f64::NAN, f64::NAN),
-        };
-        if !(first_s <= start_s && last_s >= end_s) {
+        let max_gap_s = MAX_GAP_PERIODS / params.rate_hz;
+        let (Some(first), Some(last)) = (window.first(), window.last()) else {
             return Err(ImuError::NotCovered {
                 start_s,
                 end_s,
-                first_s,
-                last_s,
+                first_s: f64::NAN,
+                last_s: f64::NAN,
+            });
+        };
+        if first.t_s - start_s > max_gap_s || end_s - last.t_s > max_gap_s {
+            return Err(ImuError::NotCovered {
+                start_s,
+                end_s,
+                first_s: first.t_s,
+                last_s: last.t_s,
             });
         }
-        let max_gap_s = MAX_GAP_PERIODS / params.rate_hz;
         if let Some(pair) = window.windows(2).find(|p| p[1].t_s - p[0].t_s > max_gap_s) {
             return Err(ImuError::Gap {
                 start_s,
@@ -205,6 +215,14 @@ impl Preintegrated {
                 gap_s: pair[1].t_s - pair[0].t_s,
                 max_gap_s,
             });
+        }
+        let held = |m: &ImuMeasurement, dt: f64| Step {
+            dt,
+            gyro: m.gyro_rad_s,
+            accel: m.accel_m_s2,
+        };
+        if first.t_s > start_s {
+            pre.step(held(first, (first.t_s.min(end_s)) - start_s));
         }
         for pair in window.windows(2) {
             let (m0, m1) = (&pair[0], &pair[1]);
@@ -220,6 +238,9 @@ impl Preintegrated {
                     accel,
                 });
             }
+        }
+        if last.t_s < end_s {
+            pre.step(held(last, end_s - last.t_s.max(start_s)));
         }
         Ok(pre)
     }
@@ -411,14 +432,18 @@ mod tests {
                 Err(ImuError::EmptyInterval { .. })
             ));
         }
+        // The samples span [0, 0.05] s at 200 Hz: ends up to 10 periods (50 ms) beyond are
+        // extrapolated, further ones are missing data.
         assert!(matches!(
-            between(&m, 0.01, 0.06),
+            between(&m, 0.01, 0.1001),
             Err(ImuError::NotCovered { last_s, .. }) if last_s == 0.05
         ));
         assert!(matches!(
-            between(&m, -0.001, 0.02),
-            Err(ImuError::NotCovered { .. })
+            between(&m, -0.0501, 0.02),
+            Err(ImuError::NotCovered { first_s, .. }) if first_s == 0.0
         ));
+        assert!(between(&m, 0.01, 0.1).is_ok());
+        assert!(between(&m, -0.05, 0.02).is_ok());
         assert!(matches!(
             between(&[], 0.0, 0.01),
             Err(ImuError::NotCovered { .. })
@@ -441,6 +466,48 @@ mod tests {
             .copied()
             .collect();
         assert!(between(&gappy, 0.01, 0.15).is_ok());
+    }
+
+    #[test]
+    fn ends_beyond_the_samples_hold_the_nearest_sample() {
+        // Unsynchronised clocks: the samples fall 3 us after the frame times (0, 0.05 s).
+        let shifted = |n| -> Vec<_> {
+            stream(n)
+                .into_iter()
+                .map(|mut s| {
+                    s.t_s += 3e-6;
+                    s
+                })
+                .collect()
+        };
+        // The sample after the end time (0.050003 s) is not there yet.
+        let m = shifted(10);
+        let pre = between(&m, 0.0, 0.05).unwrap();
+        assert_relative_eq!(pre.dt(), 0.05, epsilon = 1e-15);
+        // 3 us of the first sample, the 9 pieces between samples, 0.005 s - 3 us of the last.
+        assert_eq!(pre.num_steps(), 11);
+        let held_last = so3::exp(&(m[9].gyro_rad_s * (0.05 - m[9].t_s)));
+        let interpolated = between(&m, 0.0, m[9].t_s).unwrap();
+        assert_relative_eq!(
+            pre.delta().delta_r,
+            interpolated.delta().delta_r * held_last,
+            epsilon = 1e-14
+        );
+        // With the sample after the end there, the last stretch is interpolated instead.
+        let interpolated_end = between(&shifted(11), 0.0, 0.05).unwrap();
+        assert_eq!(interpolated_end.num_steps(), 11);
+        let midpoint_s = 0.5 * (m[9].t_s + 0.05);
+        let gyro_mid = Vector3::new(0.1, -0.2, midpoint_s - 3e-6); // gyro z = unshifted time
+        assert_relative_eq!(
+            interpolated_end.delta().delta_r,
+            interpolated.delta().delta_r * so3::exp(&(gyro_mid * (0.05 - m[9].t_s))),
+            epsilon = 1e-14
+        );
+        // One sample inside the interval: held back to the start and on to the end.
+        let one = [m[3]];
+        let pre = between(&one, 0.012, 0.02).unwrap();
+        assert_relative_eq!(pre.dt(), 0.008, epsilon = 1e-15);
+        assert_eq!(pre.num_steps(), 2);
     }
 
     #[test]

@@ -81,11 +81,13 @@ pub fn inertial_config(
     num_poses_threshold: usize,
     alignment_fraction: f64,
     gravity_magnitude: f64,
+    imu_time_offset_s: f64,
 ) -> PyResult<InertialConfig> {
     let mut config = InertialConfig::new(imu_params(params)?, rigid_transform(T_b_c, "T_b_c")?);
     config.num_poses_threshold = num_poses_threshold;
     config.alignment_fraction = alignment_fraction;
     config.gravity_magnitude = gravity_magnitude;
+    config.imu_time_offset_s = imu_time_offset_s;
     Ok(config)
 }
 

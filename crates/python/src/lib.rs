@@ -4,6 +4,7 @@
 //! reaches Python; errors are translated in one place, [`errors`].
 #![allow(non_snake_case)]
 
+mod config;
 mod convert;
 mod errors;
 mod extractor;
@@ -19,6 +20,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SlamError", m.py().get_type::<errors::SlamError>())?;
     m.add_class::<system::PySlamSystem>()?;
     m.add_class::<system::PyTrackResult>()?;
+    m.add_function(wrap_pyfunction!(config::default_options, m)?)?;
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
     m.add_function(wrap_pyfunction!(extractor::detect_orb_corners, m)?)?;
     m.add_class::<extractor::PyBriefPattern>()?;

@@ -2,15 +2,15 @@
 
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
 use ferroslam_slam::{
-    BackgroundSlam, InputGuard, OwnedFrame, Sensor, SlamConfig, SlamSystem, TrackResult,
-    TrackingState,
+    BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamSystem, TrackResult, TrackingState,
 };
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyNotImplementedError, PyTypeError, PyValueError};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use crate::config;
 use crate::convert;
 use crate::errors::to_py;
 use crate::inertial;
@@ -23,90 +23,6 @@ fn state_name(state: TrackingState) -> &'static str {
         TrackingState::Lost => "lost",
         TrackingState::RecentlyLost => "recently_lost",
     }
-}
-
-/// A two-element sequence (tuple, list or array) as a pair.
-fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(
-    key: &str,
-    value: &Bound<'py, PyAny>,
-) -> PyResult<(T, T)> {
-    let items: Vec<T> = value.extract().map_err(|e| {
-        PyTypeError::new_err(format!("option {key}: expected a pair of numbers: {e}"))
-    })?;
-    match items[..] {
-        [a, b] => Ok((a, b)),
-        _ => Err(PyValueError::new_err(format!(
-            "option {key}: expected 2 values, got {}",
-            items.len()
-        ))),
-    }
-}
-
-/// Sensors the core can track.
-const SENSORS: [Sensor; 3] = [Sensor::Monocular, Sensor::Stereo, Sensor::Rgbd];
-
-/// Reads the keyword options into a config; unknown names are an error, not ignored.
-///
-/// A stereo system needs `baseline` (metres) and derives `bf = fx * baseline` from it; an
-/// RGB-D system takes the virtual baseline as `bf` directly (ORB-SLAM's setting).
-fn parse_config(
-    sensor: Sensor,
-    fx: f64,
-    options: Option<&Bound<'_, PyDict>>,
-) -> PyResult<SlamConfig> {
-    let mut config = SlamConfig::for_sensor(sensor);
-    let mut baseline: Option<f64> = None;
-    let mut bf_given = false;
-    for (key, value) in options.map(|o| o.iter()).into_iter().flatten() {
-        let key: String = key.extract()?;
-        let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));
-        match key.as_str() {
-            "scale_factor" => config.scale_factor = value.extract().map_err(wrong)?,
-            "n_levels" => config.n_levels = value.extract().map_err(wrong)?,
-            "track_feature_range" => config.track_feature_range = pair(&key, &value)?,
-            "skip_max_frames" => config.skip_max_frames = value.extract().map_err(wrong)?,
-            "bf" => {
-                config.bf = value.extract().map_err(wrong)?;
-                bf_given = true;
-            }
-            "baseline" => baseline = Some(value.extract().map_err(wrong)?),
-            "depth_threshold" => config.depth_threshold = value.extract().map_err(wrong)?,
-            "depth_range" => config.depth_range = pair(&key, &value)?,
-            "seed" => config.seed = value.extract().map_err(wrong)?,
-            "loop_closure" => config.loop_closure = value.extract().map_err(wrong)?,
-            "loop_closure_threshold" => {
-                config.loop_closure_threshold = value.extract().map_err(wrong)?
-            }
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                    "unknown option {key:?}; known: scale_factor, n_levels, track_feature_range, \
-                     skip_max_frames, bf, baseline, depth_threshold, \
-                     depth_range, seed, loop_closure, loop_closure_threshold"
-                )))
-            }
-        }
-    }
-    match (sensor, baseline) {
-        (Sensor::Stereo, Some(b)) if b.is_finite() && b > 0.0 && !bf_given => config.bf = fx * b,
-        (Sensor::Stereo, Some(b)) if !bf_given => {
-            return Err(PyValueError::new_err(format!(
-                "option baseline: must be a positive number of metres, got {b}"
-            )))
-        }
-        (Sensor::Stereo, _) => {
-            return Err(PyValueError::new_err(
-                "sensor 'stereo' needs baseline=<metres> (and no bf: it is fx * baseline)",
-            ))
-        }
-        (_, Some(_)) => {
-            return Err(PyValueError::new_err(format!(
-                "option baseline applies to sensor 'stereo', not {:?} (RGB-D uses bf)",
-                sensor.name()
-            )))
-        }
-        _ => {}
-    }
-    Ok(config)
 }
 
 /// `(timestamps (N,), T_w_c (N, 4, 4))` of tracked frames, as numpy arrays.
@@ -213,8 +129,8 @@ impl PyTrackResult {
 #[pyclass(name = "SlamSystem", module = "ferroslam._core")]
 pub struct PySlamSystem {
     engine: Engine,
-    sensor: Sensor,
-    track_feature_range: (usize, usize),
+    /// The configuration the system was built with.
+    config: SlamConfig,
 }
 
 #[pymethods]
@@ -234,12 +150,7 @@ impl PySlamSystem {
         threaded: bool,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let Some(sensor) = SENSORS.iter().copied().find(|s| s.name() == sensor) else {
-            let names: Vec<_> = SENSORS.iter().map(|s| s.name()).collect();
-            return Err(PyNotImplementedError::new_err(format!(
-                "sensor {sensor:?} is not implemented yet (available: {names:?})"
-            )));
-        };
+        let sensor = config::sensor(sensor)?;
         let d: [f64; 5] = match dist.len() {
             0 => [0.0; 5],
             4 => [dist[0], dist[1], dist[2], dist[3], 0.0],
@@ -267,9 +178,8 @@ impl PySlamSystem {
         let (width, height) = (size("width", width)?, size("height", height)?);
         let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
             .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
-        let config = parse_config(sensor, fx, options)?;
-        let track_feature_range = config.track_feature_range;
-        let system = SlamSystem::new(camera, config).map_err(to_py)?;
+        let config = config::parse(sensor, fx, width, options)?;
+        let system = SlamSystem::new(camera, config.clone()).map_err(to_py)?;
         let engine = if threaded {
             let guard = system.input_guard();
             Engine::Background {
@@ -279,11 +189,7 @@ impl PySlamSystem {
         } else {
             Engine::Inline(Box::new(system))
         };
-        Ok(Self {
-            engine,
-            sensor,
-            track_feature_range,
-        })
+        Ok(Self { engine, config })
     }
 
     /// Tracks one RGB-D frame (queues it in threaded mode and returns None).
@@ -435,13 +341,20 @@ impl PySlamSystem {
     /// The sensor this system was created for: "mono", "stereo" or "rgbd".
     #[getter]
     fn sensor(&self) -> &'static str {
-        self.sensor.name()
+        self.config.sensor.name()
     }
 
     /// (lower, upper) tracked-point limits in use: the option given, else the sensor's default.
     #[getter]
     fn track_feature_range(&self) -> (usize, usize) {
-        self.track_feature_range
+        self.config.track_feature_range
+    }
+
+    /// Every option in use, as a dict of keyword options: those given, the defaults of the
+    /// sensor and image width for the rest (see `ferroslam._core.default_options`).
+    #[getter]
+    fn options<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        config::options_dict(py, &self.config)
     }
 
     /// Map segment of each frame of frame_trajectory(), (N,) uint32: a monocular system
@@ -587,9 +500,10 @@ impl PySlamSystem {
     }
 
     /// Sets the IMU: noise model `params` (an ImuParams or a dict), `T_b_c` (4, 4) camera
-    /// pose in the body frame, and the alignment knobs (MATLAB NumPosesThreshold,
-    /// AlignmentFraction).
-    #[pyo3(signature = (params, T_b_c, *, num_poses_threshold = 20, alignment_fraction = 0.9, gravity_magnitude = 9.81))]
+    /// pose in the body frame, the alignment knobs (MATLAB NumPosesThreshold,
+    /// AlignmentFraction) and the IMU clock's offset (`t_imu = t_cam + imu_time_offset_s`).
+    #[pyo3(signature = (params, T_b_c, *, num_poses_threshold = 20, alignment_fraction = 0.9, gravity_magnitude = 9.81, imu_time_offset_s = 0.0))]
+    #[allow(clippy::too_many_arguments)]
     fn set_imu(
         &mut self,
         py: Python<'_>,
@@ -598,6 +512,7 @@ impl PySlamSystem {
         num_poses_threshold: usize,
         alignment_fraction: f64,
         gravity_magnitude: f64,
+        imu_time_offset_s: f64,
     ) -> PyResult<()> {
         let config = inertial::inertial_config(
             params,
@@ -605,6 +520,7 @@ impl PySlamSystem {
             num_poses_threshold,
             alignment_fraction,
             gravity_magnitude,
+            imu_time_offset_s,
         )?;
         self.engine
             .run(py, move |s| s.set_imu(config))?

@@ -1,4 +1,5 @@
-//! Tuning knobs of the SLAM system, with ORB-SLAM2/3 RGB-D defaults.
+//! Tuning knobs of the SLAM system and their defaults, per sensor and image size: the one
+//! place every front end (the CLI, `run_sequence`, the vSLAM objects) reads them from.
 
 use crate::error::SlamError;
 
@@ -38,6 +39,13 @@ impl Sensor {
 pub struct SlamConfig {
     /// Camera setup.
     pub sensor: Sensor,
+    /// ORB keypoints extracted per image (ORB-SLAM `nFeatures`; MATLAB `MaxNumPoints`); the
+    /// default depends on the image width, see [`default_n_features`].
+    pub n_features: usize,
+    /// FAST threshold tried first in every cell of the extractor's grid (ORB-SLAM `iniThFAST`).
+    pub ini_fast: u8,
+    /// FAST threshold of the cells where `ini_fast` finds no corner (ORB-SLAM `minThFAST`).
+    pub min_fast: u8,
     /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`).
     pub scale_factor: f64,
     /// Number of ORB pyramid levels.
@@ -68,6 +76,24 @@ pub struct SlamConfig {
 /// `track_feature_range` with an RGB-D sensor, see [`SlamConfig::for_sensor`].
 pub const RGBD_TRACK_FEATURE_RANGE: (usize, usize) = (30, 250);
 
+/// ORB keypoints per image column of the default budget. ORB-SLAM's settings keep about
+/// this density across cameras: 1000 features at 640 px wide (TUM), 1200 at 752 (EuRoC),
+/// 2000 at 1241 (KITTI). Wider images see more of the scene, and far, slow-moving features
+/// are what tracking at speed keeps; the image height does not change the choices.
+const FEATURES_PER_COLUMN: f64 = 1000.0 / 640.0;
+/// Bounds of the default budget: below 500 keypoints a stereo or RGB-D map cannot start
+/// (see [`crate::SlamSystem`]'s initialisation rule); above 2000, ORB-SLAM's largest setting,
+/// extraction and matching time grow faster than tracking gains.
+const DEFAULT_FEATURES_RANGE: (usize, usize) = (500, 2000);
+
+/// The default ORB budget for images `width_px` wide: [`FEATURES_PER_COLUMN`] per column,
+/// rounded to a hundred, within [`DEFAULT_FEATURES_RANGE`] (640 px: 1000, 752: 1200,
+/// 1241: 1900).
+pub fn default_n_features(width_px: u32) -> usize {
+    let n = (f64::from(width_px) * FEATURES_PER_COLUMN / 100.0).round() as usize * 100;
+    n.clamp(DEFAULT_FEATURES_RANGE.0, DEFAULT_FEATURES_RANGE.1)
+}
+
 impl Default for SlamConfig {
     /// [`SlamConfig::for_sensor`] of an RGB-D sensor (build other sensors' configurations
     /// from `for_sensor`: some defaults depend on the sensor).
@@ -91,9 +117,15 @@ impl SlamConfig {
     /// (2.86 cm on average with 150, 2.61 with 200, 2.54 with 300); 37-47 keyframes become
     /// 55-69. Stereo keeps 100: on KITTI 01 a keyframe is made
     /// almost every frame already (250: 51 keyframes in 51 frames, ATE 57.4 -> 58.1 cm).
+    ///
+    /// The extractor budget is that of a 640 px wide image; [`Self::for_camera`] sizes it to
+    /// the camera.
     pub fn for_sensor(sensor: Sensor) -> Self {
         Self {
             sensor,
+            n_features: default_n_features(640),
+            ini_fast: 20,
+            min_fast: 7,
             scale_factor: 1.2,
             n_levels: 8,
             track_feature_range: if sensor == Sensor::Rgbd {
@@ -114,12 +146,27 @@ impl SlamConfig {
             loop_closure_threshold: 40,
         }
     }
+
+    /// The defaults for `sensor` with images `width_px` wide: [`Self::for_sensor`] with the
+    /// extractor budget of [`default_n_features`].
+    pub fn for_camera(sensor: Sensor, width_px: u32) -> Self {
+        Self {
+            n_features: default_n_features(width_px),
+            ..Self::for_sensor(sensor)
+        }
+    }
 }
 
 impl SlamConfig {
     /// Checks every field, naming the first invalid one.
     pub fn validate(&self) -> Result<(), SlamError> {
         let bad = |what: &str| Err(SlamError::InvalidConfig(what.to_owned()));
+        if self.n_features == 0 {
+            return bad("n_features must be >= 1");
+        }
+        if !(0 < self.min_fast && self.min_fast <= self.ini_fast && self.ini_fast < 255) {
+            return bad("ini_fast and min_fast must satisfy 0 < min_fast <= ini_fast < 255");
+        }
         if !(self.scale_factor.is_finite() && self.scale_factor > 1.0) {
             return bad("scale_factor must be > 1");
         }
@@ -153,5 +200,55 @@ impl SlamConfig {
     /// Depth below which a point is close enough to trust its measured depth, metres.
     pub fn close_depth_m(&self, fx: f64) -> f64 {
         self.bf * self.depth_threshold / fx
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_budget_follows_the_image_width() {
+        assert_eq!(default_n_features(640), 1000);
+        assert_eq!(default_n_features(752), 1200);
+        assert_eq!(default_n_features(1241), 1900);
+        assert_eq!(default_n_features(1226), 1900);
+        assert_eq!(default_n_features(160), 500);
+        assert_eq!(default_n_features(4096), 2000);
+        let kitti = SlamConfig::for_camera(Sensor::Stereo, 1241);
+        assert_eq!(kitti.n_features, 1900);
+        assert_eq!(
+            SlamConfig {
+                n_features: 1000,
+                ..kitti
+            },
+            SlamConfig::for_sensor(Sensor::Stereo)
+        );
+    }
+
+    #[test]
+    fn extractor_settings_are_validated() {
+        let ok = SlamConfig::for_sensor(Sensor::Monocular);
+        assert!(ok.validate().is_ok());
+        for bad in [
+            SlamConfig {
+                n_features: 0,
+                ..ok.clone()
+            },
+            SlamConfig {
+                min_fast: 0,
+                ..ok.clone()
+            },
+            SlamConfig {
+                min_fast: 21,
+                ..ok.clone()
+            },
+            SlamConfig {
+                ini_fast: 255,
+                ..ok.clone()
+            },
+        ] {
+            assert!(matches!(bad.validate(), Err(SlamError::InvalidConfig(_))));
+        }
     }
 }

@@ -69,10 +69,15 @@ pub struct InertialConfig {
     pub alignment_fraction: f64,
     /// Magnitude of gravity, m/s^2.
     pub gravity_magnitude: f64,
+    /// Constant offset of the IMU clock to the camera clock, seconds: a sample stamped
+    /// `t_imu` was measured at camera time `t_imu - imu_time_offset_s` (Kalibr's
+    /// `timeshift_cam_imu`, `t_imu = t_cam + shift`). Samples are moved to the camera clock as
+    /// they are added.
+    pub imu_time_offset_s: f64,
 }
 
 impl InertialConfig {
-    /// The defaults: 20 keyframes, 0.9 of them, |g| = 9.81 m/s^2.
+    /// The defaults: 20 keyframes, 0.9 of them, |g| = 9.81 m/s^2, clocks in step.
     pub fn new(params: ImuParams, T_b_c: Isometry3<f64>) -> Self {
         Self {
             params,
@@ -80,6 +85,7 @@ impl InertialConfig {
             num_poses_threshold: 20,
             alignment_fraction: 0.9,
             gravity_magnitude: 9.81,
+            imu_time_offset_s: 0.0,
         }
     }
 
@@ -118,6 +124,12 @@ impl InertialConfig {
             return bad(format!(
                 "imu: gravity_magnitude = {} must be positive",
                 self.gravity_magnitude
+            ));
+        }
+        if !self.imu_time_offset_s.is_finite() {
+            return bad(format!(
+                "imu: imu_time_offset_s = {} must be a finite number of seconds",
+                self.imu_time_offset_s
             ));
         }
         Ok(())
@@ -283,6 +295,20 @@ impl Inertial {
     /// batch or against the last sample added) or units that look like deg/s or g.
     pub(crate) fn add(&mut self, samples: &[ImuSample]) -> Result<(), SlamError> {
         let invalid = |e: ImuError| SlamError::InvalidInput(format!("add_imu: {e}"));
+        let offset_s = self.config.imu_time_offset_s;
+        let shifted: Vec<ImuSample>;
+        let samples = if offset_s == 0.0 {
+            samples
+        } else {
+            shifted = samples
+                .iter()
+                .map(|s| ImuSample {
+                    t_s: s.t_s - offset_s,
+                    ..*s
+                })
+                .collect();
+            &shifted
+        };
         check_stream(samples).map_err(invalid)?;
         check_units(samples).map_err(invalid)?;
         if let (Some(last), Some(first)) = (self.samples.last(), samples.first()) {
@@ -688,6 +714,25 @@ mod tests {
         let mut c = config();
         c.params.rate_hz = -1.0;
         assert!(c.validate().is_err());
+        let mut c = config();
+        c.imu_time_offset_s = f64::INFINITY;
+        assert!(
+            matches!(c.validate(), Err(SlamError::InvalidConfig(m)) if m.contains("imu_time_offset_s"))
+        );
+    }
+
+    #[test]
+    fn samples_move_to_the_camera_clock() {
+        // The IMU clock runs 12 ms ahead: t_imu = t_cam + 0.012.
+        let mut c = config();
+        c.imu_time_offset_s = 0.012;
+        let mut inertial = Inertial::new(c, false).unwrap();
+        inertial.add(&[sample(1.012), sample(1.017)]).unwrap();
+        let stamps: Vec<f64> = inertial.samples.iter().map(|s| s.t_s).collect();
+        assert!((stamps[0] - 1.0).abs() < 1e-12 && (stamps[1] - 1.005).abs() < 1e-12);
+        // Order is checked on the camera clock too.
+        let err = inertial.add(&[sample(1.016)]).unwrap_err();
+        assert!(err.to_string().contains("last sample added"), "{err}");
     }
 
     #[test]

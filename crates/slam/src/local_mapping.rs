@@ -658,6 +658,7 @@ impl LocalProblem {
                 n_outliers += 1;
             }
         }
+        self.drop_points_beyond_the_scene(map);
         for &m in &self.points {
             if map.map_point(m).is_some() {
                 map.update_normal_and_depth(m)?;
@@ -665,7 +666,35 @@ impl LocalProblem {
         }
         Ok(n_outliers)
     }
+
+    /// Marks bad the points bundle adjustment left farther from their reference keyframe
+    /// than [`MAX_SCENE_DEPTH_RATIO`] times that keyframe's scene median depth.
+    fn drop_points_beyond_the_scene(&self, map: &mut Map) {
+        let mut medians: HashMap<KeyFrameId, Option<f64>> = HashMap::new();
+        for &m in &self.points {
+            let Some(p) = map.map_point(m) else { continue };
+            let (reference, position) = (p.reference_keyframe(), p.position());
+            let Some(centre) = map.keyframe(reference).map(|k| k.camera_center()) else {
+                continue;
+            };
+            let median = *medians
+                .entry(reference)
+                .or_insert_with(|| scene_median_depth(map, reference));
+            if median.is_some_and(|d| (position - centre).norm() > MAX_SCENE_DEPTH_RATIO * d) {
+                map.set_map_point_bad(m);
+            }
+        }
+    }
 }
+
+/// Largest distance of a point from its reference keyframe after bundle adjustment, in that
+/// keyframe's scene median depths. Points seen along nearly parallel rays (a monocular pair
+/// at a short baseline, a static stereo rig's points seen without disparity) are barely
+/// constrained in depth, and BA can slide them out to hundreds of times the scene (KITTI 01
+/// monocular: 64 000 map units against a median of 1; EuRoC V1_01 stereo-inertial: 822 m
+/// in a room). Stereo points within `bf / MIN_DISPARITY_PX` stay (KITTI: 386 m against a
+/// median of about 16 m).
+const MAX_SCENE_DEPTH_RATIO: f64 = 40.0;
 
 /// Median depth of `kf`'s map points in its camera, metres (ORB-SLAM
 /// `ComputeSceneMedianDepth`); `None` without points in front of it.

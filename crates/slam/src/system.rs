@@ -23,7 +23,7 @@ use crate::local_mapping::{Interrupt, LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
 use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
-use crate::tracking::{Tracker, TrackingState, MIN_INIT_FEATURES};
+use crate::tracking::{Tracker, TrackingState, MIN_INIT_DEPTH_POINTS, MIN_INIT_KEYPOINTS};
 use crate::trajectory::Trajectory;
 use ferroslam_vocabulary::Vocabulary;
 use std::sync::Arc;
@@ -524,11 +524,14 @@ impl SlamSystem {
         Ok(Ok(T_w_c))
     }
 
-    /// Creates the map from the first frame with enough depth (ORB-SLAM `StereoInitialization`):
-    /// the camera is the world origin and every feature with depth becomes a map point.
+    /// Creates the map from the first frame with [`MIN_INIT_KEYPOINTS`] keypoints, of which at
+    /// least [`MIN_INIT_DEPTH_POINTS`] have depth (ORB-SLAM `StereoInitialization` asks for the
+    /// keypoints only): the camera is the world origin and every feature with depth becomes a
+    /// map point.
     fn initialise(&mut self, mut frame: Frame) -> Result<Option<Isometry3<f64>>, SlamError> {
         let with_depth = frame.features.depth.iter().filter(|&&z| z > 0.0).count();
-        if with_depth < MIN_INIT_FEATURES {
+        if frame.features.keypoints.len() < MIN_INIT_KEYPOINTS || with_depth < MIN_INIT_DEPTH_POINTS
+        {
             return Ok(None);
         }
         frame.T_c_w = Isometry3::identity();

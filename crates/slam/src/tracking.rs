@@ -45,8 +45,13 @@ const STRONG_POSE_INLIERS: usize = 50;
 const RETRY_SEARCH_MATCHES: usize = 100;
 /// Minimum inliers after pose optimisation before the local map refinement.
 const MIN_POSE_INLIERS: usize = 10;
-/// Features with depth needed to create the first RGB-D keyframe.
-pub const MIN_INIT_FEATURES: usize = 500;
+/// Keypoints a stereo or RGB-D frame needs to start the map (ORB-SLAM: more than 500); of
+/// them, those with depth become its points.
+pub const MIN_INIT_KEYPOINTS: usize = 500;
+/// Of those, keypoints with depth the first keyframe needs: as many points as a monocular
+/// initial map needs (`mono_init`); fewer cannot be tracked (a pair whose right image is
+/// the left one has none).
+pub const MIN_INIT_DEPTH_POINTS: usize = 100;
 /// Local keyframes kept for local-map tracking.
 const MAX_LOCAL_KEYFRAMES: usize = 80;
 /// A frame with depth whose inliers are at least this share of points already observed by
