@@ -107,7 +107,9 @@ def test_run_sequence_with_fake_core(tum_rpy):
 
     result = pipeline.run_sequence(seq, {"n_features": 800, "ini_fast": 25, "seed": 1},
                                    max_frames=12, progress=False, system_factory=factory)
-    assert created[0].config == {"seed": 1}  # n_features and ini_fast stay in Python
+    # The extractor options go to the core, which owns every option; the extractor is built
+    # from what the core holds.
+    assert created[0].config == {"n_features": 800, "ini_fast": 25, "seed": 1}
     assert created[0].calls == pytest.approx(seq.timestamps[:12].tolist())
     assert result.frames == 12 and result.tracked_frames == 11
     assert result.states[0] == "not_initialized"

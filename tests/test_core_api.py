@@ -237,7 +237,7 @@ def test_zero_depth_never_initialises(camera, frames):
 
 BAD_OPTIONS = {
     "unknown name": ({"n_feature": 1000}, ValueError,
-                     'unknown option "n_feature"; known: scale_factor'),
+                     'unknown option "n_feature"; known: n_features'),
     "scale_factor 0.9": ({"scale_factor": 0.9}, ValueError, "scale_factor must be > 1"),
     "scale_factor NaN": ({"scale_factor": float("nan")}, ValueError, "scale_factor must be > 1"),
     "n_levels 0": ({"n_levels": 0}, ValueError, "n_levels must be in 1..=32"),

@@ -36,10 +36,24 @@ def test_plot_map_writes_png_with_equal_axes(tmp_path):
     assert ax.name == "3d"
     spans = [np.ptp(lim) for lim in (ax.get_xlim(), ax.get_ylim(), ax.get_zlim())]
     np.testing.assert_allclose(spans, spans[0], rtol=1e-9)
-    assert spans[0] >= np.ptp(points[:, 0])
-    # 500 points drawn, keyframe line present.
-    assert ax.collections[0].get_offsets().shape[0] == 500
+    assert spans[0] >= np.ptp(np.percentile(points[:, 0], [1, 99]))
+    # The points inside the view are drawn (those beyond the 1st-99th percentiles of x may
+    # not be), keyframe line present.
+    inside = np.all(np.abs(points - np.mean([ax.get_xlim(), ax.get_ylim(), ax.get_zlim()],
+                                            axis=1)) <= spans[0] / 2, axis=1)
+    assert 490 <= inside.sum() == ax.collections[0].get_offsets().shape[0]
     assert len(ax.lines) == 1
+
+
+def test_plot_map_view_ignores_a_stray_far_point():
+    # KITTI 01 once mapped a point 259 km away: the view must still show the map.
+    rng = np.random.default_rng(1)
+    points = np.vstack([rng.normal(size=(999, 3)) * 10.0, [[259e3, 0.0, 0.0]]])
+    ax = plot_map(points, _circle_poses(20))
+    assert np.ptp(ax.get_xlim()) < 100.0
+    drawn = ax.collections[0].get_offsets()
+    assert 980 <= drawn.shape[0] < 1000 and np.abs(drawn).max() < 100.0
+    assert f"{1000 - drawn.shape[0]} beyond the view" in ax.collections[0].get_label()
 
 
 def test_plot_map_into_given_axes_and_subsamples(tmp_path):

@@ -20,7 +20,7 @@ else:
 
 __all__ = [
     "BriefPattern", "KeyframeDatabase", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
-    "__version__", "detect_orb_corners", "match_stereo",
+    "__version__", "default_options", "detect_orb_corners", "match_stereo",
 ]
 
 __version__: str
@@ -33,10 +33,19 @@ _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 class _SlamOptions(TypedDict, total=False):
     """Keyword options of ``SlamSystem``; any other name raises ``ValueError``.
 
-    Omitted options take ORB-SLAM2/3 defaults (``SlamConfig::default()`` in
-    ``crates/slam/src/config.rs``).
+    Omitted options take the defaults of the sensor and image width
+    (:func:`default_options`, ``SlamConfig::for_camera`` in ``crates/slam/src/config.rs``).
     """
 
+    n_features: int
+    """ORB keypoints per image, >= 1 (ORB-SLAM ``nFeatures``); default 1000 per 640 px of
+    image width, rounded to a hundred, within 500..=2000. The extractor's option: the core
+    holds it so that every front end reads one default."""
+    ini_fast: int
+    """FAST threshold tried first in every extractor cell (default 20)."""
+    min_fast: int
+    """FAST threshold of cells where ``ini_fast`` finds nothing, 0 < min_fast <= ini_fast <
+    255 (default 7)."""
     scale_factor: float
     """Scale between ORB pyramid levels, > 1."""
     n_levels: int
@@ -313,6 +322,10 @@ class SlamSystem:
         """(lower, upper) tracked-point limits in use: the option given, else the sensor's
         default ((30, 100); (30, 250) for RGB-D)."""
     @property
+    def options(self) -> dict[str, Any]:
+        """Every option in use, as keyword options (a stereo ``baseline`` as ``bf``): those
+        given, the defaults of the sensor and image width for the rest."""
+    @property
     def state(self) -> _State:
         """Current tracking state."""
     @property
@@ -333,6 +346,7 @@ class SlamSystem:
         num_poses_threshold: int = 20,
         alignment_fraction: float = 0.9,
         gravity_magnitude: float = 9.81,
+        imu_time_offset_s: float = 0.0,
     ) -> None:
         """Sets the IMU; from now on the camera-IMU alignment runs once the map has had
         ``num_poses_threshold`` keyframes (MATLAB NumPosesThreshold; culled ones count), on
@@ -344,6 +358,9 @@ class SlamSystem:
                 ``gyroscope_noise_density``, ``gyroscope_random_walk``,
                 ``accelerometer_noise_density``, ``accelerometer_random_walk``, ``rate_hz``.
             T_b_c: (4, 4) float64 camera pose in the body (IMU) frame (EuRoC ``T_BS``).
+            imu_time_offset_s: the IMU clock's offset to the camera's, seconds: a sample
+                stamped ``t_imu`` was measured at camera time ``t_imu - imu_time_offset_s``
+                (Kalibr's ``timeshift_cam_imu``, ``t_imu = t_cam + shift``).
 
         Raises:
             TypeError: missing parameter, wrong dtype.
@@ -356,10 +373,12 @@ class SlamSystem:
         gyro: NDArray[np.float64],
         accel: NDArray[np.float64],
     ) -> None:
-        """Adds IMU samples (body frame): timestamps (M,) s on the camera clock, gyro (M, 3)
-        rad/s, accel (M, 3) m/s^2 specific force. Feed the samples up to each frame's time
-        before tracking it. Where samples are missing (more than 10 sample periods apart, or
-        none up to a frame) the system falls back to vision there: the alignment waits for
+        """Adds IMU samples (body frame): timestamps (M,) s on the IMU clock (moved to the
+        camera's by ``imu_time_offset_s``), gyro (M, 3) rad/s, accel (M, 3) m/s^2 specific
+        force. Feed the samples up to each frame's time before tracking it, and the first one
+        after it if it is there: the last stretch before the frame is then interpolated,
+        else the last sample is held to the frame time (as ORB-SLAM3). Where samples are
+        missing (more than 10 sample periods apart, or ending more than that before a frame) the system falls back to vision there: the alignment waits for
         enough keyframes with IMU throughout (``inertial_alignment()["reason"]`` names the
         gap), and IMU prediction and inertial BA do not span it.
 
@@ -390,6 +409,16 @@ class SlamSystem:
         "keyframe_ids" (K,) uint32, "keyframe_timestamps" (K,), "velocities" (K, 3) m/s in the
         world, "timestamp", "acceleration_excitation" m/s^2}``.
         """
+
+def default_options(sensor: _Sensor, width: int) -> dict[str, Any]:
+    """The options a ``SlamSystem`` of ``sensor`` for images ``width`` pixels wide uses when
+    given none, as keyword options (``n_features`` follows the width: 1000 at 640 px, 1200 at
+    752, 1900 at 1241). The CLI, ``run_sequence`` and the vSLAM objects all read these.
+
+    Raises:
+        ValueError: width not positive.
+        NotImplementedError: unknown sensor.
+    """
 
 def match_stereo(
     left_keypoints: NDArray[np.float32],

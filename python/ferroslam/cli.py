@@ -207,7 +207,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     config = _load_config(args.config)
     if args.seed is not None:
         config["seed"] = args.seed
-    seq = open_sequence(args.path, args.format)
+    seq = open_sequence(args.path, args.format, sensor=args.sensor)
     out = args.out if args.out is not None else Path("out") / seq.name
     return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent)
 

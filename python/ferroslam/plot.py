@@ -137,6 +137,12 @@ def _draw_top_and_side(fig: Figure, rows: int, cols: int, est: Trajectory,
     _draw_view(fig.add_subplot(rows, cols, 2), est, ref, wide, side, "side view")
 
 
+# Percentiles of the map points, per axis, that the map view spans, and its margin around
+# them and the keyframes.
+_ROBUST_PERCENTILES = (1.0, 99.0)
+_VIEW_MARGIN = 1.25
+
+
 def plot_map(
     points: np.ndarray,
     keyframe_poses: np.ndarray,
@@ -147,7 +153,10 @@ def plot_map(
 ) -> Any:
     """3-D scatter of map points with the keyframe camera centres joined as a trajectory.
 
-    Axes are scaled equally (a cube around the data), so distances look right.
+    Axes are scaled equally (a cube around the data), so distances look right. The cube
+    spans the keyframes and the 1st to 99th percentile of the points on each axis, with a
+    quarter more room, so a few stray far points do not shrink the map to a dot; points
+    outside it are not drawn (the legend counts them).
 
     Args:
         points: ``(N, 3)`` map point positions in the world (metres), ``N`` may be 0.
@@ -175,17 +184,23 @@ def plot_map(
         raise ValueError("ax must be a 3-D axes (add_subplot(..., projection='3d'))")
     shown = xyz[:: max(1, -(-len(xyz) // max_points))]  # ceil(N / max_points)
     centres = poses[:, :3, 3]
+    bulk = np.percentile(shown, _ROBUST_PERCENTILES, axis=0) if len(shown) else shown
+    everything = np.concatenate([bulk, centres])
+    if len(everything):
+        middle = (everything.max(0) + everything.min(0)) / 2.0
+        half = max(_VIEW_MARGIN * np.ptp(everything, axis=0).max() / 2.0, 1e-3)
+        inside = np.all(np.abs(shown - middle) <= half, axis=1)
+        outside = len(shown) - int(inside.sum())
+        shown = shown[inside]
     if len(shown):
         ax.scatter(*shown.T, s=1.0, c="0.25", alpha=0.6, depthshade=False,
-                   label=f"map points ({len(xyz)})")
+                   label=f"map points ({len(xyz)}"
+                   + (f", {outside} beyond the view)" if outside else ")"))
     if len(centres):
         ax.plot(*centres.T, "-", color="tab:blue", lw=1.2, label=f"keyframes ({len(centres)})")
         ax.scatter(*centres.T, s=8.0, color="tab:blue", depthshade=False)
         ax.scatter(*centres[0], s=30.0, color="tab:green", depthshade=False, label="first")
-    everything = np.concatenate([shown, centres])
     if len(everything):
-        middle = (everything.max(0) + everything.min(0)) / 2.0
-        half = max(np.ptp(everything, axis=0).max() / 2.0, 1e-3)
         ax.set_xlim(middle[0] - half, middle[0] + half)
         ax.set_ylim(middle[1] - half, middle[1] + half)
         ax.set_zlim(middle[2] - half, middle[2] + half)

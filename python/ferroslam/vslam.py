@@ -32,7 +32,7 @@ from typing import Any, Optional, Sequence, TextIO, Union
 import numpy as np
 
 from .camera import Camera
-from .features import OrbExtractor, sample_depth
+from .features import sample_depth
 
 __all__ = ["MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
 
@@ -69,8 +69,10 @@ class _VSlam:
     ``threaded`` (default True): tracking and mapping in a background thread; False processes
     each frame inside ``add_frame``.
 
-    Keyword options (MATLAB property names in brackets): ``scale_factor`` (ScaleFactor),
-    ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints), ``track_feature_range``
+    Keyword options (MATLAB property names in brackets; left out, the core's defaults for the
+    sensor and image width, ``ferroslam._core.default_options``, apply): ``scale_factor``
+    (ScaleFactor), ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints: 1000 ORB
+    features at 640 px wide, 1200 at 752, 1900 at 1241), ``track_feature_range``
     (TrackFeatureRange; MATLAB's (30, 100) by default, (30, 250) for RGB-D, where keyframes
     made at 100 tracked points left poses centimetres off), ``skip_max_frames``
     (SkipMaxFrames), ``loop_closure_threshold`` (LoopClosureThreshold: matched points a loop
@@ -80,7 +82,10 @@ class _VSlam:
     (Verbose: 1 prints stages and loop closures, 2 also logs every frame, the initial map and
     each loop closure's data to a file in the temporary folder, 3 adds each new keyframe's
     pose before local BA and the keyframe poses after it), ``frame_rate_hz`` (timestamps when
-    none are given), ``seed``.
+    none are given), ``seed``. With an IMU: ``imu`` (noise parameters),
+    ``camera_to_imu_transform``, ``num_poses_threshold``, ``alignment_fraction`` and
+    ``imu_time_offset_s`` (the IMU clock's offset, ``t_imu = t_cam + imu_time_offset_s``, as
+    Kalibr's ``timeshift_cam_imu``).
     """
 
     _sensor = ""
@@ -89,12 +94,12 @@ class _VSlam:
         self,
         intrinsics: Camera,
         *,
-        scale_factor: float = 1.2,
-        num_levels: int = 8,
-        max_num_points: int = 1000,
+        scale_factor: Optional[float] = None,
+        num_levels: Optional[int] = None,
+        max_num_points: Optional[int] = None,
         track_feature_range: Optional[Sequence[int]] = None,
-        skip_max_frames: int = 20,
-        loop_closure_threshold: int = 40,
+        skip_max_frames: Optional[int] = None,
+        loop_closure_threshold: Optional[int] = None,
         loop_closure: bool = True,
         frame_rate_hz: float = 30.0,
         threaded: bool = True,
@@ -105,6 +110,7 @@ class _VSlam:
         camera_to_imu_transform: Optional[np.ndarray] = None,
         num_poses_threshold: int = 20,
         alignment_fraction: float = 0.9,
+        imu_time_offset_s: float = 0.0,
         core_options: Optional[dict] = None,
     ) -> None:
         if not isinstance(intrinsics, Camera):
@@ -114,32 +120,36 @@ class _VSlam:
         if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
             raise ValueError(f"frame_rate_hz must be positive, got {frame_rate_hz!r}")
         self.intrinsics = intrinsics
-        self.scale_factor = float(scale_factor)
-        self.num_levels = _positive_int("num_levels", num_levels)
-        self.max_num_points = _positive_int("max_num_points", max_num_points)
-        self.skip_max_frames = _positive_int("skip_max_frames", skip_max_frames)
-        self.loop_closure_threshold = _positive_int("loop_closure_threshold",
-                                                    loop_closure_threshold)
         self.frame_rate_hz = float(frame_rate_hz)
         self.verbose = verbose
-        # The extractor and the core validate the rest and name what is wrong.
-        self._extractor = OrbExtractor(n_features=self.max_num_points,
-                                       scale_factor=self.scale_factor, n_levels=self.num_levels)
+        # MATLAB's names for the core's options; those not given are left to the core.
+        given = {"scale_factor": scale_factor, "n_levels": num_levels,
+                 "n_features": max_num_points, "skip_max_frames": skip_max_frames,
+                 "loop_closure_threshold": loop_closure_threshold,
+                 "track_feature_range": (None if track_feature_range is None
+                                         else tuple(int(v) for v in track_feature_range))}
+        for name, key in (("num_levels", "n_levels"), ("max_num_points", "n_features"),
+                          ("skip_max_frames", "skip_max_frames"),
+                          ("loop_closure_threshold", "loop_closure_threshold")):
+            if given[key] is not None:
+                given[key] = _positive_int(name, given[key])
         from ._core import SlamSystem
-        # Left to the core when not given: its default depends on the sensor.
-        range_option = {} if track_feature_range is None else {
-            "track_feature_range": tuple(int(v) for v in track_feature_range)}
+        from .pipeline import make_extractor
 
         c = intrinsics
         self._system = SlamSystem(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=self._sensor,
-            threaded=bool(threaded),
-            scale_factor=self.scale_factor, n_levels=self.num_levels,
-            skip_max_frames=self.skip_max_frames,
-            loop_closure=bool(loop_closure), loop_closure_threshold=self.loop_closure_threshold,
-            seed=seed, **range_option, **(core_options or {}),
+            threaded=bool(threaded), loop_closure=bool(loop_closure), seed=seed,
+            **{k: v for k, v in given.items() if v is not None}, **(core_options or {}),
         )
+        options = self._system.options
+        self.scale_factor: float = options["scale_factor"]
+        self.num_levels: int = options["n_levels"]
+        self.max_num_points: int = options["n_features"]
+        self.skip_max_frames: int = options["skip_max_frames"]
+        self.loop_closure_threshold: int = options["loop_closure_threshold"]
         self.track_feature_range: tuple[int, int] = self._system.track_feature_range
+        self._extractor = make_extractor(options)
         if vocabulary is not None:
             from .pipeline import load_vocabulary
 
@@ -151,7 +161,8 @@ class _VSlam:
                                  "the IMU (body) frame, e.g. EuRoC's T_BS")
             self._system.set_imu(imu, np.asarray(camera_to_imu_transform, dtype=np.float64),
                                  num_poses_threshold=num_poses_threshold,
-                                 alignment_fraction=alignment_fraction)
+                                 alignment_fraction=alignment_fraction,
+                                 imu_time_offset_s=imu_time_offset_s)
         self._frames = 0
         self._processed = 0
         self._last_timestamp: Optional[float] = None
@@ -388,8 +399,10 @@ class MonoVSlam(_VSlam):
                   imu: Optional[Sequence[np.ndarray]] = None) -> None:
         """Adds a grey ``(H, W)`` or BGR ``(H, W, 3)`` uint8 image (raw, distorted: the
         intrinsics' distortion is applied to the keypoints). ``timestamp`` in seconds defaults
-        to the frame count divided by ``frame_rate_hz``. ``imu``: the IMU samples up to this
-        frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``."""
+        to the frame count divided by ``frame_rate_hz``. ``imu``: the IMU samples since the previous
+        frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``: those up to this
+        frame's time and, if there, the first one after it (at most one IMU period later: the
+        frame is then interpolated, not extrapolated)."""
         keypoints, descriptors = self._extractor.detect(image)
         self._track(timestamp, "track_mono", keypoints, descriptors, imu=imu)
 

@@ -63,11 +63,14 @@ def detect_format(path: Union[str, Path]) -> str:
     raise ValueError(f"cannot detect the dataset layout of {path} (expected {_EXPECTED})")
 
 
-def open_sequence(path: Union[str, Path], format: str = "auto", **kwargs) -> Sequence:
+def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str = "",
+                  **kwargs) -> Sequence:
     """Open a sequence folder as ``TumSequence``, ``KittiSequence`` or ``EurocSequence``.
 
     ``format`` is ``"auto"`` (see :func:`detect_format`), ``"tum"``, ``"kitti"`` or
-    ``"euroc"``; ``kwargs`` go to the loader (e.g. ``stereo=False``).
+    ``"euroc"``; ``kwargs`` go to the loader (e.g. ``stereo=False``). With a monocular
+    ``sensor`` (``"mono"``, ``"mono-inertial"``) only what it reads is needed: no depth list
+    (TUM), no right images (KITTI, EuRoC).
 
     Raises ``FileNotFoundError`` for a missing folder and ``ValueError`` for an unknown
     format or layout.
@@ -80,4 +83,6 @@ def open_sequence(path: Union[str, Path], format: str = "auto", **kwargs) -> Seq
         format = detect_format(path)
     if format not in _LOADERS:
         raise ValueError(f"unknown dataset format {format!r} (use auto, {', '.join(_LOADERS)})")
+    if sensor.startswith("mono"):
+        kwargs.setdefault("with_depth" if format == "tum" else "stereo", False)
     return _LOADERS[format](path, **kwargs)
