@@ -14,8 +14,8 @@ ORB-SLAM3's ``ORBvoc.txt`` is a separate 139 MB download.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -49,6 +49,13 @@ def family(seq) -> str:
 
 
 EXTRACTOR_KEYS = ("n_features", "ini_fast", "min_fast")
+INERTIAL = "-inertial"
+
+
+def camera_sensor(sensor: str) -> str:
+    """The camera part of ``sensor``: ``"stereo-inertial"`` -> ``"stereo"``; the camera
+    settings and the ORB options do not depend on the IMU."""
+    return sensor.removesuffix(INERTIAL)
 
 
 def _preset(seq, extractor: Optional[dict]) -> dict:
@@ -70,6 +77,7 @@ def ferroslam_config(seq, sensor: str, extractor: Optional[dict] = None) -> dict
     extractor options in ``extractor`` replaced (see :func:`_preset`)."""
     p = _preset(seq, extractor)
     config = {k: p[k] for k in EXTRACTOR_KEYS}
+    sensor = camera_sensor(sensor)
     if sensor in ("rgbd", "stereo"):
         config["depth_threshold"] = p["th_depth"]
     if sensor == "rgbd":
@@ -85,11 +93,13 @@ def _f(x: float) -> str:
 def write_settings(seq, sensor: str, out_dir: Path, extractor: Optional[dict] = None) -> Path:
     """Write an ORB-SLAM3 v1.0 settings file for ``seq`` and ``sensor`` into ``out_dir``.
 
-    ``sensor``: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (the loader's rectified pair);
-    ``extractor`` replaces ORB extractor options (see :func:`_preset`).
+    ``sensor``: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (the loader's rectified pair), each
+    optionally ``"-inertial"`` (adds :func:`_imu_settings`); ``extractor`` replaces ORB
+    extractor options (see :func:`_preset`).
     """
     fam = family(seq)
     p = _preset(seq, extractor)
+    inertial, sensor = sensor.endswith(INERTIAL), camera_sensor(sensor)
     cam = seq.camera
     dist = np.asarray(cam.dist, dtype=np.float64).reshape(-1)
     fps = int(round(1.0 / float(np.median(np.diff(seq.timestamps)))))
@@ -109,6 +119,8 @@ def write_settings(seq, sensor: str, out_dir: Path, extractor: Optional[dict] = 
     lines += [f"ORBextractor.nFeatures: {p['n_features']}", "ORBextractor.scaleFactor: 1.2",
               "ORBextractor.nLevels: 8", f"ORBextractor.iniThFAST: {p['ini_fast']}",
               f"ORBextractor.minThFAST: {p['min_fast']}"]
+    if inertial:
+        lines += _imu_settings(seq)
     # The viewer is off, but ORB-SLAM3 still parses these.
     lines += ["Viewer.KeyFrameSize: 0.05", "Viewer.KeyFrameLineWidth: 1.0",
               "Viewer.GraphLineWidth: 0.9", "Viewer.PointSize: 2.0", "Viewer.CameraSize: 0.08",
@@ -116,9 +128,38 @@ def write_settings(seq, sensor: str, out_dir: Path, extractor: Optional[dict] = 
               "Viewer.ViewpointZ: -1.8", "Viewer.ViewpointF: 500.0"]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"orbslam3_{fam}_{sensor}.yaml"
+    path = out_dir / f"orbslam3_{fam}_{sensor}{INERTIAL * inertial}.yaml"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
+
+
+def T_imu_c(seq) -> np.ndarray:
+    """ORB-SLAM3's ``Tbc``: the pose of the camera whose images it gets (``seq.T_b_c``) in
+    the IMU frame, its "body" (EuRoC's body frame is the IMU's, but say so)."""
+    return np.linalg.inv(seq.imu_params().T_b_imu) @ seq.T_b_c
+
+
+def _imu_settings(seq) -> list:
+    """The IMU keys of ORB-SLAM3's EuRoC settings from ``seq.imu_params()`` (continuous-time
+    noise densities and random walks, as ORB-SLAM3 expects) and ``Tbc`` (:func:`T_imu_c`)."""
+    imu = seq.imu_params()
+    data = ", ".join(_f(v) for v in T_imu_c(seq).reshape(-1))
+    return ["Tbc: !!opencv-matrix", "   rows: 4", "   cols: 4", "   dt: f",
+            f"   data: [{data}]",
+            f"IMU.NoiseGyro: {_f(imu.gyroscope_noise_density)}",
+            f"IMU.NoiseAcc: {_f(imu.accelerometer_noise_density)}",
+            f"IMU.GyroWalk: {_f(imu.gyroscope_random_walk)}",
+            f"IMU.AccWalk: {_f(imu.accelerometer_random_walk)}",
+            f"IMU.Frequency: {int(round(imu.rate_hz))}",  # an integer, or ORB-SLAM3 refuses
+            # ORB-SLAM3's default, written out: keyframes are inserted while lost.
+            "IMU.InsertKFsWhenLost: 1"]
+
+
+def imu_bounds(imu_t: np.ndarray, frame_t: np.ndarray) -> np.ndarray:
+    """Sample ranges for the frames: frame ``i`` gets the samples ``bounds[i]:bounds[i + 1]``,
+    those in (frame ``i - 1``, frame ``i``] (the first frame every sample up to it: ORB-SLAM3
+    drops those before the previous frame itself), as ORB-SLAM3's track calls want."""
+    return np.concatenate(([0], np.searchsorted(imu_t, frame_t, side="right")))
 
 
 def export_vocabulary(out_dir: Path) -> Path:
@@ -171,9 +212,12 @@ class OrbSlam3Run:
     call_ms: np.ndarray
     states: list
     load_s: float
-    shutdown_s: float
     trajectory: Trajectory            # final (after shutdown), biggest map, one pose per frame
     online: Trajectory                # poses returned by each call (pose_valid frames)
+    imu_initialized: bool             # inertial sensors: the IMU initialised by the last frame
+    peak_rss_kb: int                  # VmHWM of the run's process after the last frame
+    peak_delta_kb: int                # ... minus its RSS before ORB-SLAM3 was created
+    shutdown_s: float = float("nan")  # shutdown + trajectory save; NaN when it never answered
     errors: list = field(default_factory=list)
 
     @property
@@ -182,92 +226,141 @@ class OrbSlam3Run:
 
 
 def run_orbslam3(seq, sensor: str, n: int, vocab: Path, settings: Path,
-                 realtime: bool = False) -> OrbSlam3Run:
+                 realtime: bool = False, track_timeout_s: float = 1800.0,
+                 shutdown_timeout_s: float = 120.0) -> OrbSlam3Run:
     """Feed frames ``0..n`` of ``seq`` to ORB-SLAM3 one by one, timing only the track call
-    (at the pace of their timestamps with ``realtime``).
+    (at the pace of their timestamps with ``realtime``), in a forked child process.
 
     Image loading (and TUM depth scaling to raw units) happens outside the timed region, as
     ferroslam's ``frame_ms`` excludes loading. ORB-SLAM3's local mapping and loop closing
     run in their own threads, so a call's time is extraction + tracking only.
+
+    The child sends the per-frame results after the last frame, then shuts ORB-SLAM3 down
+    and sends its final trajectory (``SaveTrajectoryEuRoC``). The second step can hang,
+    holding the GIL so that no thread can time it out: ORB-SLAM3 locks a stale map's mutex
+    and never returns when every map of its atlas is empty (a monocular run whose map was
+    reset and never re-initialised), and mono-inertial runs that reset their map hang in
+    ``shutdown``. A child that does not answer within ``shutdown_timeout_s`` is killed and
+    the per-call poses stand in for the final trajectory, with the failure in ``errors``.
+
+    Raises:
+        RuntimeError: the child failed or did not finish tracking within ``track_timeout_s``.
     """
+    ctx = multiprocessing.get_context("fork")  # the child inherits seq; nothing is pickled in
+    receiver, sender = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_orbslam3_child,
+                        args=(sender, seq, sensor, n, vocab, settings, realtime), daemon=True)
+    child.start()
+    sender.close()
+    try:
+        run = _receive(receiver, track_timeout_s, "tracking")
+        if isinstance(run, str):
+            raise RuntimeError(f"ORB-SLAM3 tracking failed: {run}")
+        try:
+            shutdown_s, final = _receive(receiver, shutdown_timeout_s, "shutdown and save")
+        except RuntimeError as err:
+            run.errors.append(f"{err}; using the per-call poses")
+        else:
+            run.shutdown_s = shutdown_s
+            if isinstance(final, str):
+                run.errors.append(f"save_trajectory_euroc: {final}; using the per-call poses")
+            else:
+                run.trajectory = Trajectory(*final)
+        return run
+    finally:
+        child.kill()
+        child.join()
+
+
+def _receive(conn, timeout_s: float, what: str):
+    """The next message on ``conn``.
+
+    Raises:
+        RuntimeError: none within ``timeout_s``, or the child died first.
+    """
+    if not conn.poll(timeout_s):
+        raise RuntimeError(f"ORB-SLAM3 {what}: no answer in {timeout_s:.0f} s")
+    try:
+        return conn.recv()
+    except EOFError:
+        raise RuntimeError(f"ORB-SLAM3 {what}: the process died") from None
+
+
+def _orbslam3_child(conn, seq, sensor, n, vocab, settings, realtime) -> None:
+    """:func:`run_orbslam3`'s child: sends the :class:`OrbSlam3Run` (or an error message),
+    then ``(shutdown_s, (timestamps, T_w_c) or an error message)``."""
     import pyorbslam3 as pos
 
+    try:
+        slam, run = _track(pos, seq, sensor, n, vocab, settings, realtime)
+    except Exception as err:  # noqa: BLE001 - reported to the parent, which raises
+        conn.send(f"{type(err).__name__}: {err}")
+        return
+    conn.send(run)
+    t0 = time.perf_counter()
+    slam.shutdown()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "orbslam3_traj.txt"
+        try:
+            slam.save_trajectory_euroc(str(out))
+            final = read_euroc_trajectory(out)
+            if sensor.endswith(INERTIAL):  # ORB-SLAM3 saves the IMU's pose T_w_imu then
+                final = Trajectory(final.timestamps, final.poses @ T_imu_c(seq))
+            message = (final.timestamps, final.poses)
+        except (RuntimeError, OSError, ValueError) as err:
+            message = str(err)
+    conn.send((time.perf_counter() - t0, message))
+
+
+def _track(pos, seq, sensor, n, vocab, settings, realtime):
+    """Create ORB-SLAM3 and track frames ``0..n``: ``(slam, OrbSlam3Run)`` whose final
+    trajectory is still the per-call poses."""
     kind = {"mono": pos.Sensor.MONOCULAR, "rgbd": pos.Sensor.RGBD,
-            "stereo": pos.Sensor.STEREO}[sensor]
+            "stereo": pos.Sensor.STEREO, "mono-inertial": pos.Sensor.IMU_MONOCULAR,
+            "stereo-inertial": pos.Sensor.IMU_STEREO}[sensor]
+    base = memory_kb()["VmRSS"]
+    reset_peak_memory()
     t0 = time.perf_counter()
     slam = pos.Slam(vocab_file=str(vocab), settings_file=str(settings), sensor=kind,
                     use_viewer=False)
     load_s = time.perf_counter() - t0
+    imu = None
+    if sensor.endswith(INERTIAL):
+        imu_t, gyro, accel = seq.imu()
+        samples = np.column_stack((imu_t, gyro, accel))
+        bounds = imu_bounds(imu_t, np.asarray(seq.timestamps[:n], dtype=np.float64))
     factor = PRESETS["tum"]["depth_factor"]
     call_ms = np.full(n, np.nan)
     states, stamps, poses = [], [], []
     run_start = time.perf_counter()
+    camera = camera_sensor(sensor)
     for i in range(n):
         t = float(seq.timestamps[i])
         if realtime:
             time.sleep(max(0.0, run_start + t - float(seq.timestamps[0]) - time.perf_counter()))
-        if sensor == "rgbd":
+        if camera == "rgbd":
             args = (seq.load_gray(i), (seq.load_depth(i) * factor).astype(np.float32))
             fn = slam.track_rgbd
-        elif sensor == "stereo":
+        elif camera == "stereo":
             args = seq.load_stereo(i)
             fn = slam.track_stereo
         else:
             args = (seq.load_gray(i),)
             fn = slam.track_monocular
+        if sensor.endswith(INERTIAL):
+            imu = samples[bounds[i]:bounds[i + 1]]
         start = time.perf_counter()
-        res = fn(*args, t)
+        res = fn(*args, t, imu=imu)
         call_ms[i] = (time.perf_counter() - start) * 1e3
         states.append(res.state.name)
         if res.pose_valid and res.pose_wc is not None:
             stamps.append(t)
             poses.append(np.asarray(res.pose_wc, dtype=np.float64))
-    t0 = time.perf_counter()
-    slam.shutdown()
-    shutdown_s = time.perf_counter() - t0
+    peak = memory_kb()["VmHWM"]
     online = Trajectory(np.asarray(stamps), np.asarray(poses).reshape(-1, 4, 4))
-    errors = []
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "orbslam3_traj.txt"
-        try:
-            _save_trajectory_guarded(slam, out)
-            final = read_euroc_trajectory(out)
-        except (RuntimeError, OSError, ValueError) as err:
-            errors.append(f"save_trajectory_euroc: {err}; using the per-call poses")
-            final = online
-    return OrbSlam3Run(call_ms, states, load_s, shutdown_s, final, online, errors)
-
-
-def _save_trajectory_guarded(slam, out: Path, timeout_s: float = 60.0) -> None:
-    """``slam.save_trajectory_euroc(out)`` in a forked child, killed after ``timeout_s``.
-
-    ORB-SLAM3 locks a stale map's mutex, holding the GIL, and never returns when every map
-    of its atlas is empty (a monocular run whose map was reset and never re-initialised:
-    ``System::SaveTrajectoryEuRoC`` has no map with keyframes to pick). The child shares the
-    finished system's memory; the parent only waits for it.
-
-    Raises:
-        RuntimeError: the save crashed, failed or timed out.
-    """
-    pid = os.fork()
-    if pid == 0:  # child: save, then leave without running any of the parent's cleanup
-        code = 1
-        try:
-            slam.save_trajectory_euroc(str(out))
-            code = 0
-        finally:
-            os._exit(code)
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done:
-            if os.waitstatus_to_exitcode(status) != 0 or not out.exists():
-                raise RuntimeError(f"failed (exit status {os.waitstatus_to_exitcode(status)})")
-            return
-        time.sleep(0.05)
-    os.kill(pid, signal.SIGKILL)
-    os.waitpid(pid, 0)
-    raise RuntimeError(f"no answer in {timeout_s:.0f} s (every map of the atlas empty?)")
+    run = OrbSlam3Run(call_ms, states, load_s, online, online,
+                      bool(slam.inertial and slam.imu_initialized()), peak, peak - base)
+    return slam, run
 
 
 def memory_kb() -> dict:

@@ -5,7 +5,8 @@ For each sequence one worker process runs ferroslam (``ferroslam.pipeline.run_se
 and ORB-SLAM3 in turn, ``--runs`` times each (the run with the median ATE is reported, the
 spread beside it), fed frame by frame with every call timed, and evaluates both
 trajectories with ``ferroslam.metrics.ate`` against the same ground truth (SE(3) alignment
-for stereo / RGB-D, Sim(3) for monocular). One process per sequence because ORB-SLAM3 keeps
+for stereo / RGB-D and for inertial runs whose IMU made the trajectory metric, Sim(3) for
+monocular otherwise; ``ate_alignment``). One process per sequence because ORB-SLAM3 keeps
 per-camera statics (``Frame::mbInitialComputations``) that a second camera in the same
 process would inherit; both systems of a sequence share that process.
 
@@ -61,7 +62,12 @@ SEQUENCES = {
     "kitti_mono": ("kitti/odometry_06_first51", "mono", 51),
     "kitti_stereo": ("kitti/stereo_51_frames", "stereo", 51),
     "euroc_stereo": ("euroc/V1_01_easy_micro", "stereo", None),
+    "mh01_stereo": ("euroc/MH_01_easy_window", "stereo", None),
+    "mh01_mono": ("euroc/MH_01_easy_window", "mono", None),
+    "mh01_stereo_inertial": ("euroc/MH_01_easy_window", "stereo-inertial", None),
+    "mh01_mono_inertial": ("euroc/MH_01_easy_window", "mono-inertial", None),
 }
+NAME_W = max(map(len, SEQUENCES))  # width of the sequence column
 STAGES = ("extraction_ms", "tracking_ms", "matching_ms", "pose_optimisation_ms", "mapping_ms",
           "track_call_ms", "frame_ms")
 
@@ -84,16 +90,24 @@ def _both_tracking(ours_ok: np.ndarray, ours_ms: np.ndarray, orb_states: list,
             "orbslam3": _stats(orb_ms[both])["median"]}
 
 
-def _common_ate(gt, ours, theirs, align: str) -> dict:
+def ate_alignment(sensor: str, imu_metric: bool) -> str:
+    """``"sim3"`` for a trajectory of arbitrary scale (monocular, unless the IMU made it
+    metric: ours aligned to the IMU, ORB-SLAM3's IMU initialised), else ``"se3"``: fitting a
+    scale to a metric trajectory would hide its scale error."""
+    return "sim3" if sensor.startswith("mono") and not imu_metric else "se3"
+
+
+def _common_ate(gt, ours, theirs, align_ours: str, align_theirs: str) -> dict:
     """ATE of each trajectory over only the poses both have (same timestamps): a system that
     loses the map keeps its few easy poses, which its plain ATE would otherwise compare with
     the other system's whole run."""
     t_o, t_t = np.round(ours.timestamps, 6), np.round(theirs.timestamps, 6)
     common = np.intersect1d(t_o, t_t)
     return {"poses": int(common.size),
-            "ours": _ate(gt, ours.subset(np.flatnonzero(np.isin(t_o, common))), align)["rmse_m"],
+            "ours": _ate(gt, ours.subset(np.flatnonzero(np.isin(t_o, common))),
+                         align_ours)["rmse_m"],
             "orbslam3": _ate(gt, theirs.subset(np.flatnonzero(np.isin(t_t, common))),
-                             align)["rmse_m"]}
+                             align_theirs)["rmse_m"]}
 
 
 def _ate(gt, traj, align: str) -> dict:
@@ -136,14 +150,13 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
     from ferroslam.trajectory import Trajectory
 
     folder, sensor, default_n = SEQUENCES[name]
-    seq = open_sequence(data_dir() / folder)
+    seq = open_sequence(data_dir() / folder, sensor=sensor)
     n = min(len(seq), max_frames or default_n or len(seq))
-    align = "sim3" if sensor == "mono" else "se3"
     gt = Trajectory(*seq.groundtruth())
     vocab = orb.export_vocabulary(workdir)
     settings = orb.write_settings(seq, sensor, workdir, extractor)
     config = {**orb.ferroslam_config(seq, sensor, extractor), "mapping_thread": mapping_thread}
-    rec = {"sequence": name, "path": folder, "sensor": sensor, "frames": n, "align": align,
+    rec = {"sequence": name, "path": folder, "sensor": sensor, "frames": n,
            "realtime": realtime, "cpus_kept_busy": keep_cpus_busy,
            "config": config, "settings": str(settings), "load_start": orb.load_average()}
 
@@ -156,7 +169,9 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
         wall = time.perf_counter() - t0
         peak = orb.memory_kb()["VmHWM"]
         traj = res.trajectory
-        if sensor == "mono" and res.segments is not None and res.segments.size:
+        status = (res.inertial or {}).get("status")
+        align = ate_alignment(sensor, status == "aligned")
+        if align == "sim3" and res.segments is not None and res.segments.size:
             longest = np.bincount(res.segments).argmax()  # as the pipeline's Sim(3) ATE
             traj = traj.subset(np.flatnonzero(res.segments == longest))
         record = {
@@ -164,29 +179,30 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
             "keyframes": len(res.keyframes), "map_points": int(res.map_points.shape[0]),
             "wall_s": wall, "frame_ms": _stats(res.timings["frame_ms"]),
             "stages_ms": {k: _stats(res.timings[k]) for k in STAGES},
-            "ate": _ate(gt, traj, align), "peak_rss_mb": peak / 1024,
-            "peak_delta_mb": (peak - base) / 1024,
+            "align": align, "ate": _ate(gt, traj, align), "inertial_status": status,
+            "scale_error": None if res.path_length is None else res.path_length.scale_error,
+            "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024,
         }
         ok = np.array([st == "ok" for st in res.states])
-        return record, ok, np.asarray(res.timings["frame_ms"], np.float64), traj
+        return record, ok, np.asarray(res.timings["frame_ms"], np.float64), traj, align
 
     def orbslam3():
-        base = orb.memory_kb()["VmRSS"]
-        orb.reset_peak_memory()
         t0 = time.perf_counter()
         run = orb.run_orbslam3(seq, sensor, n, vocab, settings, realtime=realtime)
         wall = time.perf_counter() - t0
-        peak = orb.memory_kb()["VmHWM"]
+        align = ate_alignment(sensor, run.imu_initialized)
         record = {
             "tracked": run.tracked_frames, "poses": len(run.trajectory), "wall_s": wall,
             "vocab_and_setup_s": run.load_s, "shutdown_s": run.shutdown_s,
+            "imu_initialized": run.imu_initialized, "align": align,
             "frame_ms": _stats(run.call_ms), "ate": _ate(gt, run.trajectory, align),
             "ate_online": _ate(gt, run.online, align),
             "states": {s: run.states.count(s) for s in set(run.states)},
-            "peak_rss_mb": peak / 1024, "peak_delta_mb": (peak - base) / 1024,
+            "peak_rss_mb": run.peak_rss_kb / 1024, "peak_delta_mb": run.peak_delta_kb / 1024,
             "errors": run.errors,
         }
-        return record, run.states, np.asarray(run.call_ms, np.float64), run.trajectory
+        return (record, run.states, np.asarray(run.call_ms, np.float64), run.trajectory,
+                align)
 
     # Neither system is deterministic with its mapping thread, so each runs `runs` times,
     # alternating so that a change of machine load reaches both; the run with the median ATE
@@ -208,7 +224,7 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
                                    for b in both]
     rec["both_tracking_ms"] = {k: float(np.median([b[k] for b in both]))
                                for k in ("frames", "ours", "orbslam3")}
-    common = [_common_ate(gt, o[3], t[3], align) for o, t in zip(ours_runs, orb_runs)]
+    common = [_common_ate(gt, o[3], t[3], o[4], t[4]) for o, t in zip(ours_runs, orb_runs)]
     rec["both_tracking_ate_all_m"] = [
         [None if c[k] is None else float(c[k]) for k in ("poses", "ours", "orbslam3")]
         for c in common]
@@ -243,8 +259,22 @@ def _per_pair(pairs: list) -> str:
            f"of {len(valid)}"
 
 
+def _alignment_note(r: dict) -> str:
+    """How each system's ATE of sequence record ``r`` was aligned and why: our path-length
+    scale error (metric runs), our IMU alignment status and whether ORB-SLAM3's IMU
+    initialised (inertial runs)."""
+    ours, theirs = r["ours"], r["orbslam3"]
+    note = f"ATE alignment ours {ours['align']}, ORB-SLAM3 {theirs['align']}"
+    if ours["scale_error"] is not None:
+        note += f"; ours path-length scale error {100 * ours['scale_error']:+.1f}%"
+    if r["sensor"].endswith(orb.INERTIAL):
+        note += (f"; ours IMU {ours['inertial_status']}, ORB-SLAM3 IMU initialised: "
+                 f"{theirs['imu_initialized']}")
+    return note
+
+
 def print_table(records: list) -> None:
-    head = (f"{'sequence':<13} {'frames':>6} {'tracked o/t':>11} {'ATE cm ours':>11} "
+    head = (f"{'sequence':<{NAME_W}} {'frames':>6} {'tracked o/t':>11} {'ATE cm ours':>11} "
             f"{'ATE cm orb3':>11} {'ATE o/t':>7} {'ms med ours':>11} {'ms med orb3':>11} "
             f"{'p95 ours':>8} {'p95 orb3':>8} {'t o/t':>6} {'peak MB o/t':>12}")
     print(head)
@@ -252,7 +282,7 @@ def print_table(records: list) -> None:
     for r in records:
         o, t = r["ours"], r["orbslam3"]
         med_o, med_t = np.median(o["frame_ms_median_all"]), np.median(t["frame_ms_median_all"])
-        print(f"{r['sequence']:<13} {r['frames']:>6} {o['tracked']:>5}/{t['tracked']:<5} "
+        print(f"{r['sequence']:<{NAME_W}} {r['frames']:>6} {o['tracked']:>5}/{t['tracked']:<5} "
               f"{_cm(o['ate']):>11} {_cm(t['ate']):>11} "
               f"{_ratio(o['ate'].get('rmse_m'), t['ate'].get('rmse_m')):>7} "
               f"{med_o:>11.1f} {med_t:>11.1f} "
@@ -264,10 +294,11 @@ def print_table(records: list) -> None:
         o, t = r["ours"], r["orbslam3"]
         stages = "  ".join(f"{k[:-3]} {v['median']:.1f} ({v['p95']:.1f})"
                            for k, v in o["stages_ms"].items())
-        print(f"{r['sequence']:<13} {stages}")
+        print(f"{r['sequence']:<{NAME_W}} {stages}")
         extractor = {k: r["config"][k] for k in orb.EXTRACTOR_KEYS}
-        print(f"{'':<13} extractor (both): {extractor}")
-        print(f"{'':<13} ours: {o['keyframes']} KFs, {o['map_points']} points, wall {o['wall_s']:.1f} s, "
+        print(f"{'':<{NAME_W}} extractor (both): {extractor}")
+        print(f"{'':<{NAME_W}} {_alignment_note(r)}")
+        print(f"{'':<{NAME_W}} ours: {o['keyframes']} KFs, {o['map_points']} points, wall {o['wall_s']:.1f} s, "
               f"peak RSS {o['peak_rss_mb']:.0f} MB | ORB-SLAM3: setup+vocab {t['vocab_and_setup_s']:.1f} s, "
               f"wall {t['wall_s']:.1f} s, online-pose ATE {_cm(t['ate_online'])} cm, states {t['states']}, "
               f"peak RSS {t['peak_rss_mb']:.0f} MB {' '.join(t['errors'])}")
@@ -275,29 +306,29 @@ def print_table(records: list) -> None:
             spread = ", ".join("fail" if a is None else f"{100 * a:.2f}" for a in x["ate_all_m"])
             meds = ", ".join(f"{m:.1f}" for m in x["frame_ms_median_all"])
             tracked = ", ".join(str(n) for n in x["tracked_all"])
-            print(f"{'':<13} {who} over {x['runs']} runs: tracked [{tracked}], ATE cm [{spread}], "
+            print(f"{'':<{NAME_W}} {who} over {x['runs']} runs: tracked [{tracked}], ATE cm [{spread}], "
                   f"median ms [{meds}]")
-        print(f"{'':<13} ATE pairs ours/ORB-SLAM3 {o['ate'].get('pairs')}/{t['ate'].get('pairs')}; "
+        print(f"{'':<{NAME_W}} ATE pairs ours/ORB-SLAM3 {o['ate'].get('pairs')}/{t['ate'].get('pairs')}; "
               f"wall per frame incl. image loading and (ORB-SLAM3) its mapping threads and "
               f"shutdown: {1e3 * o['wall_s'] / r['frames']:.1f} / "
               f"{1e3 * (t['wall_s'] - t['vocab_and_setup_s']) / r['frames']:.1f} ms")
         both = r["both_tracking_ms"]
-        print(f"{'':<13} median ms over the frames both track ({both['frames']:.0f}), median of the "
+        print(f"{'':<{NAME_W}} median ms over the frames both track ({both['frames']:.0f}), median of the "
               f"run pairs: ours "
               f"{both['ours']:.1f} / ORB-SLAM3 {both['orbslam3']:.1f} "
               f"({_ratio(both['ours'], both['orbslam3'])}); {_per_pair(r['both_tracking_ms_all'])}")
         a = r["both_tracking_ate_m"]
-        print(f"{'':<13} ATE over the poses both have ({a['poses']:.0f}), median of the run pairs: "
+        print(f"{'':<{NAME_W}} ATE over the poses both have ({a['poses']:.0f}), median of the run pairs: "
               f"ours {100 * a['ours']:.2f} / ORB-SLAM3 {100 * a['orbslam3']:.2f} cm "
               f"({_ratio(a['ours'], a['orbslam3'])}); {_per_pair(r['both_tracking_ate_all_m'])}")
         busy = "; CPUs kept busy" if r.get("cpus_kept_busy") else ""
-        print(f"{'':<13} load average at start {r['load_start']}, at end {r['load_end']}{busy}")
+        print(f"{'':<{NAME_W}} load average at start {r['load_start']}, at end {r['load_end']}{busy}")
         if "two_thread_speedup" in r:  # benches/cpu_packing.py
             sp = r["two_thread_speedup"]
-            print(f"{'':<13} two threads against one at the start: {sp['back_to_back']:.2f}x "
+            print(f"{'':<{NAME_W}} two threads against one at the start: {sp['back_to_back']:.2f}x "
                   f"back to back, {sp['after_10ms_idle']:.2f}x after 10 ms idle (about 1: no "
                   "second core, packed or busy)")
-    print("\nATE: RMSE after SE(3) (Sim(3) for mono) alignment, final trajectories (ours: longest "
+    print("\nATE: RMSE after SE(3) (Sim(3) for mono, unless the IMU made it metric) alignment, final trajectories (ours: longest "
           "segment for mono; ORB-SLAM3: SaveTrajectoryEuRoC, biggest map; for each system the run "
           "with the median ATE of --runs; ms med and p95: the median over the runs). o/t = ours / "
           "ORB-SLAM3 (< 1: ours better/faster). ms: ours frame_ms, ORB-SLAM3 track call; peak MB: "

@@ -73,3 +73,22 @@ def test_cpus_kept_busy_runs_one_idle_priority_spinner_per_cpu_and_stops_them():
     assert all(spinner.poll() is not None for spinner in spinners)
     with _orbslam3.cpus_kept_busy(False) as none:
         assert none == []
+
+
+def test_ate_alignment_fits_a_scale_only_to_scale_free_trajectories():
+    assert compare.ate_alignment("mono", False) == "sim3"
+    assert compare.ate_alignment("mono-inertial", False) == "sim3"
+    assert compare.ate_alignment("mono-inertial", True) == "se3"
+    assert compare.ate_alignment("stereo-inertial", False) == "se3"
+    assert compare.ate_alignment("stereo", False) == "se3"
+
+
+def test_imu_bounds_give_each_frame_the_samples_since_the_previous_one():
+    # Frame i gets the samples in (frame i - 1, frame i]; the first frame all up to it.
+    import _orbslam3
+    import numpy as np
+
+    imu_t = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5])
+    bounds = _orbslam3.imu_bounds(imu_t, np.array([1.0, 2.0, 2.2]))
+    windows = [imu_t[a:b].tolist() for a, b in zip(bounds[:-1], bounds[1:])]
+    assert windows == [[0.0, 0.5, 1.0], [1.5, 2.0], []]
