@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["Camera", "read_camera_yaml"]
+
+# Largest image side accepted, pixels: beyond any camera (64k), and the core's u32 sizes.
+_MAX_SIDE_PX = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -16,7 +21,9 @@ class Camera:
 
     ``fx, fy, cx, cy`` in pixels; ``dist`` = OpenCV ``(k1, k2, p1, p2, k3)`` mapping ideal
     normalised coordinates to raw image coordinates; ``width, height`` in pixels.
-    Raises ``ValueError`` for non-positive focal lengths or image size, or bad ``dist``.
+    Raises ``TypeError`` naming the field for a value that is not a real number (a string, a
+    bool) or a size that is not an integer, ``ValueError`` for non-positive focal lengths or
+    image size, non-finite values or bad ``dist``.
     """
 
     fx: float
@@ -28,19 +35,40 @@ class Camera:
     height: int = 480
 
     def __post_init__(self) -> None:
-        dist = np.asarray(self.dist, dtype=np.float64).reshape(-1)
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+                raise TypeError(f"{name} must be a real number of pixels, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"fx and fy must be positive, got fx = {self.fx}, fy = {self.fy}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+                raise TypeError(f"{name} must be an integer number of pixels, got {value!r}")
+            if not 0 < value <= _MAX_SIDE_PX:
+                raise ValueError(f"{name} must be in 1..={_MAX_SIDE_PX} pixels, got {value}")
+            object.__setattr__(self, name, int(value))
+        try:
+            dist = np.asarray(self.dist, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise TypeError(f"dist must be 5 real numbers (k1 k2 p1 p2 k3), got {self.dist!r}"
+                            ) from None
         if dist.shape != (5,) or not np.all(np.isfinite(dist)):
             raise ValueError(f"dist must be 5 finite values (k1 k2 p1 p2 k3), got {self.dist!r}")
-        values = (self.fx, self.fy, self.cx, self.cy)
-        if not all(np.isfinite(values)) or self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"invalid intrinsics fx, fy, cx, cy = {values}")
-        if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ValueError(f"invalid image size {self.width}x{self.height}")
         object.__setattr__(self, "dist", dist)
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
-        for name in ("fx", "fy", "cx", "cy"):
-            object.__setattr__(self, name, float(getattr(self, name)))
+
+    def check_image(self, image: np.ndarray, name: str = "image") -> None:
+        """Raises ``ValueError`` naming both sizes unless ``image`` (``(H, W)`` or
+        ``(H, W, C)``) is ``width x height``: features of an image of another size would be
+        tracked with the wrong calibration."""
+        shape = np.shape(image)
+        if len(shape) < 2 or tuple(shape[:2]) != (self.height, self.width):
+            size = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else f"of shape {shape}"
+            raise ValueError(f"{name} is {size} (width x height) but the camera is "
+                             f"{self.width}x{self.height}")
 
     @property
     def K(self) -> np.ndarray:

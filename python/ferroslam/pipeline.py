@@ -17,7 +17,8 @@ from .features import OrbExtractor, sample_depth
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .trajectory import Trajectory
 
-__all__ = ["EXTRACTOR_KEYS", "RunResult", "load_vocabulary", "make_extractor", "run_sequence"]
+__all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_extractor",
+           "run_sequence"]
 
 SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
 _INERTIAL = "-inertial"
@@ -163,6 +164,18 @@ class RunResult:
         return out
 
 
+class RunError(ValueError):
+    """A run that stopped at an error: ``partial`` holds the result of the frames before it
+    (trajectory, map, timings; evaluated when the ground truth could be read), so that
+    nothing tracked is lost; ``frame`` is the index of the frame that failed (``None`` when
+    the error came after the last frame, e.g. from the ground truth)."""
+
+    def __init__(self, message: str, partial: RunResult, frame: Optional[int]) -> None:
+        super().__init__(message)
+        self.partial = partial
+        self.frame = frame
+
+
 def make_extractor(config: dict) -> OrbExtractor:
     """ORB extractor from the extractor keys of a configuration (``SlamSystem.options``;
     keys left out take ``OrbExtractor``'s defaults)."""
@@ -195,7 +208,9 @@ class _RgbdFeed:
         return {}
 
     def load(self, i: int):
-        return self.seq.load_gray(i), self.seq.load_depth(i)
+        gray = self.seq.load_gray(i)
+        self.seq.camera.check_image(gray, f"image {i}")
+        return gray, self.seq.load_depth(i)
 
     def features(self, data) -> tuple:
         gray, depth = data
@@ -223,7 +238,9 @@ class _StereoFeed:
         return {"baseline": float(self.seq.baseline_m)}
 
     def load(self, i: int):
-        return self.seq.load_stereo(i)
+        left, right = self.seq.load_stereo(i)
+        self.seq.camera.check_image(left, f"left image {i}")
+        return left, right
 
     def features(self, data) -> tuple:
         left, right = self.extractor.detect_pair(*data)
@@ -245,7 +262,9 @@ class _MonoFeed:
         return {}
 
     def load(self, i: int):
-        return self.seq.load_gray(i)
+        gray = self.seq.load_gray(i)
+        self.seq.camera.check_image(gray, f"image {i}")
+        return gray
 
     def features(self, gray) -> tuple:
         return self.extractor.detect(gray)
@@ -406,7 +425,6 @@ def _jsonable(value):
 
 def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
          realtime: bool, imu) -> RunResult:
-
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
     init_reasons: list[Optional[str]] = []
@@ -415,22 +433,27 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
     start = time.perf_counter()
     imu_from = 0
     imu_period_s = 1.0 / float(seq.imu_params().rate_hz) if imu is not None else 0.0
+    failure: Optional[tuple[int, Exception]] = None
     for i in bar:
         if realtime:
             time.sleep(max(0.0, start + float(seq.timestamps[i] - seq.timestamps[0])
                            - time.perf_counter()))
-        t0 = time.perf_counter()
-        data = feed.load(i)
-        t1 = time.perf_counter()
-        features = feed.features(data)
-        t2 = time.perf_counter()
-        if imu is not None:
-            imu_to = imu_batch_end(imu[0], float(seq.timestamps[i]), imu_period_s,
-                                   float(config.get("imu_time_offset_s", 0.0)))
-            if imu_to > imu_from:
-                system.add_imu(*(a[imu_from:imu_to] for a in imu))
-            imu_from = imu_to
-        res = feed.track(system, float(seq.timestamps[i]), features)
+        try:
+            t0 = time.perf_counter()
+            data = feed.load(i)
+            t1 = time.perf_counter()
+            features = feed.features(data)
+            t2 = time.perf_counter()
+            if imu is not None:
+                imu_to = imu_batch_end(imu[0], float(seq.timestamps[i]), imu_period_s,
+                                       float(config.get("imu_time_offset_s", 0.0)))
+                if imu_to > imu_from:
+                    system.add_imu(*(a[imu_from:imu_to] for a in imu))
+                imu_from = imu_to
+            res = feed.track(system, float(seq.timestamps[i]), features)
+        except Exception as err:  # noqa: BLE001 - raised again with the frames done
+            failure = (i, err)
+            break
         t3 = time.perf_counter()
         timings["load_ms"][i] = (t1 - t0) * 1e3
         timings["extraction_ms"][i] = (t2 - t1) * 1e3
@@ -448,18 +471,22 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         if progress:
             bar.set_postfix(state=res.state, tracked=res.num_tracked, refresh=False)
     bar.close()
-    system.wait()  # the mapping thread's last keyframes (no-op when mapping inline)
-
+    try:
+        system.wait()  # the mapping thread's last keyframes (no-op when mapping inline)
+    except Exception:  # noqa: BLE001 - the first error is the one to report
+        if failure is None:
+            raise
+    done = len(states)
     stamps, poses = system.frame_trajectory()
     kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
     result = RunResult(
         sequence=str(getattr(seq, "name", "")),
         sensor=sensor,
         config=config,
-        timestamps=np.asarray(seq.timestamps[:n], dtype=np.float64),
+        timestamps=np.asarray(seq.timestamps[:done], dtype=np.float64),
         states=states,
-        num_tracked=num_tracked,
-        timings=timings,
+        num_tracked=num_tracked[:done],
+        timings={name: values[:done] for name, values in timings.items()},
         trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
         keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
         keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
@@ -470,7 +497,17 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         inertial=system.inertial_alignment() if imu is not None else None,
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
     )
+    evaluation_error = None
     if getattr(seq, "has_groundtruth", False):
-        result.groundtruth = Trajectory(*seq.groundtruth())
-        _evaluate(result, result.groundtruth)
+        try:
+            result.groundtruth = Trajectory(*seq.groundtruth())
+        except (OSError, ValueError) as err:
+            evaluation_error = err
+        else:
+            _evaluate(result, result.groundtruth)
+    if failure is not None:
+        i, err = failure
+        raise RunError(f"frame {i} ({type(err).__name__}): {err}", result, i) from err
+    if evaluation_error is not None:
+        raise RunError(f"ground truth: {evaluation_error}", result, None) from evaluation_error
     return result

@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import enum
 import math
+import numbers
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any, Optional, Sequence, TextIO, Union
 
@@ -55,6 +57,24 @@ class TrackingStatus(enum.Enum):
 def _pose_text(T: np.ndarray) -> str:
     """The 3x4 part of a pose, one line."""
     return np.array2string(T[:3].ravel(), precision=6, max_line_width=400)
+
+
+def _flag(name: str, value: Any) -> bool:
+    """``value`` if it is a bool: ``"no"`` or ``0`` for ``False`` is a mistake to report, not
+    to take as true."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _imu_rate_hz(imu: Any) -> float:
+    """The sample rate of IMU parameters given as ``ImuParams`` or a dict."""
+    return float(imu["rate_hz"] if isinstance(imu, dict) else imu.rate_hz)
+
+
+def _length(value: Any) -> str:
+    """``"of N items"`` for a sized value, else ``""`` (for messages)."""
+    return f"of {len(value)} items" if hasattr(value, "__len__") else ""
 
 
 def _positive_int(name: str, value: Any) -> int:
@@ -139,7 +159,8 @@ class _VSlam:
         c = intrinsics
         self._system = SlamSystem(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=self._sensor,
-            threaded=bool(threaded), loop_closure=bool(loop_closure), seed=seed,
+            threaded=_flag("threaded", threaded), loop_closure=_flag("loop_closure", loop_closure),
+            seed=seed,
             **{k: v for k, v in given.items() if v is not None}, **(core_options or {}),
         )
         options = self._system.options
@@ -155,7 +176,10 @@ class _VSlam:
 
             self._system.set_vocabulary(load_vocabulary(vocabulary))
         self.imu = imu
+        self._imu_period_s = 0.0
+        self._imu_time_offset_s = float(imu_time_offset_s)
         if imu is not None:
+            self._imu_period_s = 1.0 / _imu_rate_hz(imu)
             if camera_to_imu_transform is None:
                 raise ValueError("imu needs camera_to_imu_transform: the (4, 4) camera pose in "
                                  "the IMU (body) frame, e.g. EuRoC's T_BS")
@@ -192,18 +216,42 @@ class _VSlam:
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
+        if not math.isfinite(t):
+            raise ValueError(f"timestamp must be a finite number of seconds, got {timestamp!r}")
+        if self._last_timestamp is not None and t <= self._last_timestamp:
+            # Checked here too, before the IMU batch is stored: a retry with the right
+            # timestamp and the same batch must be accepted.
+            raise ValueError(f"timestamp {t} s is not after the previous frame's "
+                             f"{self._last_timestamp} s")
         if imu is not None:
-            if self.imu is None:
-                raise ValueError("IMU samples given but this object has no IMU: pass imu=... "
-                                 "and camera_to_imu_transform=... when creating it")
-            stamps, gyro, accel = (np.asarray(a, dtype=np.float64) for a in imu)
-            self._system.add_imu(stamps, gyro, accel)
+            self._system.add_imu(*self._imu_batch(imu, t))
         result = getattr(self._system, method)(t, *args)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
         if result is not None:
             self._absorb(result)
         self._drain()
+
+    def _imu_batch(self, imu: Any, frame_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``(t, gyro, accel)`` float64 arrays of a frame's IMU batch, checked against the
+        frame time: samples more than an IMU period after it (half a period more for clock
+        jitter) belong to later frames, and taken now they would be integrated as this one's
+        (the core refuses the later frames' samples then)."""
+        if self.imu is None:
+            raise ValueError("IMU samples given but this object has no IMU: pass imu=... "
+                             "and camera_to_imu_transform=... when creating it")
+        if not isinstance(imu, (tuple, list)) or len(imu) != 3:
+            raise ValueError("imu must be (timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) "
+                             f"m/s^2), got {type(imu).__name__} {_length(imu)}")
+        stamps, gyro, accel = (np.asarray(a, dtype=np.float64) for a in imu)
+        if stamps.size and stamps.max() - self._imu_time_offset_s > (
+                frame_s + 1.5 * self._imu_period_s):
+            raise ValueError(
+                f"imu: a sample at {stamps.max()} s (IMU clock) is "
+                f"{stamps.max() - self._imu_time_offset_s - frame_s:.3f} s after the frame at "
+                f"{frame_s} s: pass the samples up to the frame (and at most the one after it, "
+                f"within an IMU period, {self._imu_period_s:.4f} s); check imu_time_offset_s")
+        return stamps, gyro, accel
 
     def _drain(self) -> None:
         """Takes in the results of the frames the background thread has processed."""
@@ -337,7 +385,7 @@ class _VSlam:
         """Discards the map and the trajectory (after the queued frames); the next frame
         starts a new one."""
         self._system.reset()
-        self._system.take_results()
+        self._drain()  # the queued frames were processed before the reset: count them
         self._last = None
         self._new_keyframe = False
 
@@ -403,6 +451,7 @@ class MonoVSlam(_VSlam):
         frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``: those up to this
         frame's time and, if there, the first one after it (at most one IMU period later: the
         frame is then interpolated, not extrapolated)."""
+        self.intrinsics.check_image(image)
         keypoints, descriptors = self._extractor.detect(image)
         self._track(timestamp, "track_mono", keypoints, descriptors, imu=imu)
 
@@ -432,6 +481,7 @@ class StereoVSlam(_VSlam):
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
+        self.intrinsics.check_image(left, "left image")
         left_features, right_features = self._extractor.detect_pair(left, right)
         self._track(timestamp, "track_stereo", *left_features, *right_features, imu=imu)
 
@@ -444,13 +494,20 @@ class RGBDVSlam(_VSlam):
     _sensor = "rgbd"
 
     def __init__(self, intrinsics: Camera, depth_scale_factor: float = 1.0, *,
-                 depth_range: Sequence[float] = (0.1, 8.0), **options: Any) -> None:
+                 depth_range: Optional[Sequence[float]] = None, **options: Any) -> None:
+        if isinstance(depth_scale_factor, bool) or not isinstance(depth_scale_factor,
+                                                                  numbers.Real):
+            raise TypeError(f"depth_scale_factor must be a real number, got "
+                            f"{depth_scale_factor!r}")
         if not (math.isfinite(depth_scale_factor) and depth_scale_factor > 0):
             raise ValueError(f"depth_scale_factor must be positive, got {depth_scale_factor!r}")
         self.depth_scale_factor = float(depth_scale_factor)
-        self.depth_range = tuple(float(v) for v in depth_range)
-        core = {"depth_range": self.depth_range, **options.pop("core_options", {})}
+        self._depth_warned = False
+        given = {} if depth_range is None else {"depth_range": tuple(depth_range)}
+        core = {**given, **options.pop("core_options", {})}
         super().__init__(intrinsics, core_options=core, **options)
+        # The range in use: the one given, else the core's default for RGB-D.
+        self.depth_range: tuple[float, float] = tuple(self._system.options["depth_range"])
 
     def add_frame(self, color: np.ndarray, depth: np.ndarray,
                   timestamp: Optional[float] = None,
@@ -458,9 +515,29 @@ class RGBDVSlam(_VSlam):
         """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
         dtype; divided by ``depth_scale_factor``; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
         depth = np.asarray(depth)
+        if depth.dtype.kind not in "uif":
+            raise ValueError(f"depth must be an integer or float image, got dtype {depth.dtype}")
         if depth.shape[:2] != np.shape(color)[:2]:
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
+        self.intrinsics.check_image(color, "color image")
         keypoints, descriptors = self._extractor.detect(color)
         depth_m = sample_depth(depth.astype(np.float64) / self.depth_scale_factor, keypoints)
+        self._check_depth_scale(depth_m)
         self._track(timestamp, "track_rgbd", keypoints, descriptors, depth_m, imu=imu)
+
+    def _check_depth_scale(self, depth_m: np.ndarray) -> None:
+        """Warns once when a frame has depth at its keypoints but none of it inside
+        ``depth_range``: raw millimetres with ``depth_scale_factor=1`` (or metres with 5000)
+        would otherwise never start a map, and nothing would say why."""
+        if self._depth_warned:
+            return
+        measured = depth_m[depth_m > 0]
+        low, high = self.depth_range
+        if measured.size and not np.any((measured >= low) & (measured <= high)):
+            self._depth_warned = True
+            warnings.warn(
+                f"no depth of this frame falls inside depth_range {self.depth_range} m (median "
+                f"{float(np.median(measured)):.4g} m after dividing by depth_scale_factor="
+                f"{self.depth_scale_factor:g}): is depth_scale_factor right? (5000 for TUM, "
+                "1000 for millimetre sensors)", UserWarning, stacklevel=3)

@@ -105,10 +105,35 @@ pub enum ImuError {
         /// Largest `|gyro|` in the stream, in the units given.
         max_norm: f64,
     },
+    /// Mean accelerometer magnitude beyond [`crate::plausibility::MAX_MEAN_ACCEL_M_S2`]:
+    /// another unit (cm/s^2, mm/s^2).
+    #[error(
+        "accelerometer: mean |accel| is {mean_norm:.1}, {times_gravity:.0} times gravity, \
+         beyond any MEMS accelerometer's range (16 g): the stream looks like {likely_unit}; \
+         convert it to m/s^2"
+    )]
+    AccelBeyondRange {
+        /// Mean `|accel|` over the stream, in the units given.
+        mean_norm: f64,
+        /// `mean_norm / 9.81`.
+        times_gravity: f64,
+        /// The unit the magnitude suggests.
+        likely_unit: &'static str,
+    },
+    /// Mean accelerometer magnitude near zero: no accelerometer data, or gravity removed.
+    #[error(
+        "accelerometer: mean |accel| is {mean_norm:.3} m/s^2, but an IMU reads gravity's \
+         9.81 m/s^2 (specific force) unless it is falling: the accelerometer is missing \
+         (zeros) or gravity-compensated; pass the raw accelerometer"
+    )]
+    AccelNearZero {
+        /// Mean `|accel|` over the stream.
+        mean_norm: f64,
+    },
     /// Mean accelerometer magnitude is about 1 instead of about 9.81: probably in g.
     #[error(
-        "mean |accel| is {mean_norm:.2}, close to 1 instead of 9.81 m/s^2: the stream looks \
-         like it is in g, multiply by 9.81"
+        "accelerometer: mean |accel| is {mean_norm:.2}, close to 1 instead of 9.81 m/s^2: \
+         the stream looks like it is in g, multiply by 9.81"
     )]
     AccelLooksLikeG {
         /// Mean `|accel|` over the stream, in the units given.

@@ -10,11 +10,24 @@ pub const MAX_GYRO_RAD_S: f64 = 35.0;
 /// stream is in g. In m/s^2 a stream that is not in free fall averages about 9.81.
 pub const ACCEL_IN_G_BAND: (f64, f64) = (0.5, 2.0);
 
+/// Largest plausible mean `|accel|` over a stream, m/s^2: 16 g, the top range of common MEMS
+/// accelerometers. Centimetres per second squared put a resting IMU at 981, millimetres at
+/// 9810.
+pub const MAX_MEAN_ACCEL_M_S2: f64 = 16.0 * GRAVITY_M_S2;
+
+/// Below this mean `|accel|`, m/s^2 (and below [`ACCEL_IN_G_BAND`]), the accelerometer reads
+/// nothing: an IMU reads gravity's 9.81 m/s^2 unless in free fall.
+pub const MIN_MEAN_ACCEL_M_S2: f64 = ACCEL_IN_G_BAND.0;
+
+/// Standard gravity, m/s^2, to name how far off a magnitude is.
+const GRAVITY_M_S2: f64 = 9.81;
+
 /// Checks that a stream looks like rad/s and m/s^2.
 ///
 /// Returns [`ImuError::GyroLooksLikeDegrees`] if any `|gyro| > MAX_GYRO_RAD_S`, else
-/// [`ImuError::AccelLooksLikeG`] if the mean `|accel|` lies in [`ACCEL_IN_G_BAND`]. An empty
-/// stream passes. Limitation: deg/s at slow rotation (below 35 deg/s) is not detectable
+/// [`ImuError::AccelLooksLikeG`] if the mean `|accel|` lies in [`ACCEL_IN_G_BAND`],
+/// [`ImuError::AccelBeyondRange`] above [`MAX_MEAN_ACCEL_M_S2`] and
+/// [`ImuError::AccelNearZero`] below [`MIN_MEAN_ACCEL_M_S2`]. An empty stream passes. Limitation: deg/s at slow rotation (below 35 deg/s) is not detectable
 /// from magnitudes; a gyro-bias estimate far above a few deg/s is the later symptom.
 /// Non-finite samples are skipped here; [`crate::check_stream`] reports them.
 pub fn check_units(measurements: &[ImuMeasurement]) -> Result<(), ImuError> {
@@ -35,6 +48,22 @@ pub fn check_units(measurements: &[ImuMeasurement]) -> Result<(), ImuError> {
         let mean_norm = finite().map(|m| m.accel_m_s2.norm()).sum::<f64>() / count as f64;
         if (ACCEL_IN_G_BAND.0..=ACCEL_IN_G_BAND.1).contains(&mean_norm) {
             return Err(ImuError::AccelLooksLikeG { mean_norm });
+        }
+        if mean_norm < MIN_MEAN_ACCEL_M_S2 {
+            return Err(ImuError::AccelNearZero { mean_norm });
+        }
+        if mean_norm > MAX_MEAN_ACCEL_M_S2 {
+            let times_gravity = mean_norm / GRAVITY_M_S2;
+            let likely_unit = match times_gravity.log10().round() as i32 {
+                2 => "cm/s^2 (divide by 100)",
+                3 => "mm/s^2 (divide by 1000)",
+                _ => "another unit than m/s^2",
+            };
+            return Err(ImuError::AccelBeyondRange {
+                mean_norm,
+                times_gravity,
+                likely_unit,
+            });
         }
     }
     Ok(())
@@ -71,6 +100,20 @@ mod tests {
             check_units(&stream(deg, 1.0)),
             Err(ImuError::GyroLooksLikeDegrees { max_norm }) if max_norm > 90.0
         ));
+    }
+
+    #[test]
+    fn centimetres_millimetres_and_zeros_are_caught() {
+        for (scale, unit) in [(100.0, "cm/s^2"), (1000.0, "mm/s^2")] {
+            let err = check_units(&stream(1.0, scale)).unwrap_err();
+            assert!(matches!(err, ImuError::AccelBeyondRange { .. }), "{err}");
+            assert!(err.to_string().contains(unit), "{err}");
+            assert!(err.to_string().starts_with("accelerometer"), "{err}");
+        }
+        let err = check_units(&stream(1.0, 0.0)).unwrap_err();
+        assert!(matches!(err, ImuError::AccelNearZero { mean_norm } if mean_norm == 0.0));
+        // A hard manoeuvre at 10 g is still m/s^2.
+        assert_eq!(check_units(&stream(1.0, 10.0)), Ok(()));
     }
 
     #[test]

@@ -63,6 +63,7 @@ pub mod ids;
 pub mod keyframe;
 pub mod map;
 pub mod map_point;
+pub mod rig;
 
 #[cfg(test)]
 pub(crate) mod test_support;
@@ -73,3 +74,4 @@ pub use ids::{KeyFrameId, MapPointId};
 pub use keyframe::KeyFrame;
 pub use map::{Map, MapEdit, MapJournal, COVISIBILITY_THRESHOLD};
 pub use map_point::MapPoint;
+pub use rig::Rig;

@@ -9,7 +9,7 @@ use std::collections::{BTreeMap, HashMap};
 use ferroslam_features::ScalePyramid;
 use nalgebra::{Isometry3, Vector3};
 
-use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId};
+use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
 mod consistency;
 mod covisibility;
@@ -50,6 +50,8 @@ pub struct Map {
     replaced_points: HashMap<MapPointId, MapPointId>,
     /// Edits being recorded (a copy handed to concurrent mapping), see [`MapJournal`].
     recorder: Option<Recorder>,
+    /// The sensor and camera the map is built with (kept by `clear`), stored in map files.
+    rig: Option<Rig>,
 }
 
 #[allow(non_snake_case)]
@@ -66,7 +68,18 @@ impl Map {
             culled_keyframes: HashMap::new(),
             replaced_points: HashMap::new(),
             recorder: None,
+            rig: None,
         }
+    }
+
+    /// Records the sensor and camera the map is built with (written to map files).
+    pub fn set_rig(&mut self, rig: Rig) {
+        self.rig = Some(rig);
+    }
+
+    /// The sensor and camera the map is built with, if recorded.
+    pub fn rig(&self) -> Option<&Rig> {
+        self.rig.as_ref()
     }
 
     /// The ORB scale pyramid of every keyframe.

@@ -223,7 +223,16 @@ impl ConcurrentMapper {
                     continue;
                 }
                 Some(FromMapping::Done(mapped)) if mapped.epoch == self.epoch => mapped,
-                Some(FromMapping::Done(_)) => continue,
+                Some(FromMapping::Done(_)) => {
+                    // A job of the map before a reset: its edits are dropped, but the thread
+                    // is free only now (waiting for it keeps `wait` honest: afterwards the
+                    // backlog is empty).
+                    self.in_flight = false;
+                    if !self.queue.is_empty() {
+                        self.dispatch(map, vocabulary);
+                    }
+                    continue;
+                }
             };
             self.in_flight = false;
             map.apply_journal_part(&mapped.journal, &mut self.renamed_in_flight);
@@ -236,11 +245,11 @@ impl ConcurrentMapper {
         out
     }
 
-    /// Forgets the queue and any job in flight (the map was reset or replaced).
+    /// Forgets the queue and the result of any job in flight (the map was reset or
+    /// replaced); a job in flight still occupies the thread until it reports.
     pub(crate) fn reset(&mut self) {
         self.epoch += 1;
         self.fresh = true;
-        self.in_flight = false;
         self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
         self.queue.clear();
         self.renamed.clear();

@@ -1,6 +1,8 @@
 //! Tuning knobs of the SLAM system and their defaults, per sensor and image size: the one
 //! place every front end (the CLI, `run_sequence`, the vSLAM objects) reads them from.
 
+use ferroslam_features::extractor::EDGE_PX;
+
 use crate::error::SlamError;
 
 /// The camera setup a system tracks; decides which `track_*` call it accepts and the
@@ -75,6 +77,10 @@ pub struct SlamConfig {
 
 /// `track_feature_range` with an RGB-D sensor, see [`SlamConfig::for_sensor`].
 pub const RGBD_TRACK_FEATURE_RANGE: (usize, usize) = (30, 250);
+
+/// Shorter side of the coarsest pyramid level, pixels: room for a keypoint with its
+/// descriptor's border on both sides.
+pub const MIN_LEVEL_SIDE_PX: usize = 2 * EDGE_PX + 1;
 
 /// ORB keypoints per image column of the default budget. ORB-SLAM's settings keep about
 /// this density across cameras: 1000 features at 640 px wide (TUM), 1200 at 752 (EuRoC),
@@ -197,6 +203,30 @@ impl SlamConfig {
         Ok(())
     }
 
+    /// Checks that every pyramid level of a `width_px` x `height_px` image keeps room for
+    /// keypoints: [`MIN_LEVEL_SIDE_PX`] on its shorter side. A pyramid too deep for the image
+    /// (`scale_factor` 2 with 12 levels shrinks 640x480 to under a pixel) would fail inside
+    /// the extractor at the first frame.
+    pub fn check_pyramid(&self, width_px: u32, height_px: u32) -> Result<(), SlamError> {
+        let side = f64::from(width_px.min(height_px));
+        let coarsest = side / self.scale_factor.powi(self.n_levels as i32 - 1);
+        if coarsest >= MIN_LEVEL_SIDE_PX as f64 {
+            return Ok(());
+        }
+        let fitting = if side < MIN_LEVEL_SIDE_PX as f64 {
+            0
+        } else {
+            ((side / MIN_LEVEL_SIDE_PX as f64).ln() / self.scale_factor.ln()).floor() as usize + 1
+        };
+        Err(SlamError::InvalidConfig(format!(
+            "n_levels = {} with scale_factor {} shrinks the {width_px}x{height_px} images to \
+             {coarsest:.1} px on the shorter side at the coarsest level; levels need at least \
+             {MIN_LEVEL_SIDE_PX} px (keypoints keep {EDGE_PX} px from the border): at most {fitting} \
+             levels fit",
+            self.n_levels, self.scale_factor
+        )))
+    }
+
     /// Depth below which a point is close enough to trust its measured depth, metres.
     pub fn close_depth_m(&self, fx: f64) -> f64 {
         self.bf * self.depth_threshold / fx
@@ -224,6 +254,31 @@ mod tests {
             },
             SlamConfig::for_sensor(Sensor::Stereo)
         );
+    }
+
+    #[test]
+    fn pyramids_too_deep_for_the_image_are_refused() {
+        let ok = SlamConfig::for_sensor(Sensor::Monocular);
+        assert!(ok.check_pyramid(640, 480).is_ok());
+        let deep = SlamConfig {
+            scale_factor: 2.0,
+            n_levels: 12,
+            ..ok.clone()
+        };
+        let err = deep.check_pyramid(640, 480).unwrap_err().to_string();
+        assert!(
+            err.contains("n_levels = 12") && err.contains("at most 4 levels"),
+            "{err}"
+        );
+        // 480 / 2^3 = 60 px fits, 480 / 2^4 = 30 px does not.
+        assert!(SlamConfig {
+            n_levels: 4,
+            ..deep.clone()
+        }
+        .check_pyramid(640, 480)
+        .is_ok());
+        let err = ok.check_pyramid(5, 1).unwrap_err().to_string();
+        assert!(err.contains("at most 0 levels"), "{err}");
     }
 
     #[test]

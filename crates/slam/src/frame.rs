@@ -48,8 +48,8 @@ pub struct RgbdInput<'a> {
 
 impl RgbdInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
-    pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
-        validate_features(self.timestamp, self.keypoints, self.descriptors, n_levels)?;
+    pub fn validate(&self, shape: &InputShape) -> Result<(), SlamError> {
+        validate_features(self.timestamp, self.keypoints, self.descriptors, shape)?;
         if self.depth_m.len() != self.keypoints.len() {
             return Err(SlamError::InvalidInput(format!(
                 "got {} keypoints and {} depths: lengths must match",
@@ -73,8 +73,8 @@ pub struct MonoInput<'a> {
 
 impl MonoInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
-    pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
-        validate_features(self.timestamp, self.keypoints, self.descriptors, n_levels)
+    pub fn validate(&self, shape: &InputShape) -> Result<(), SlamError> {
+        validate_features(self.timestamp, self.keypoints, self.descriptors, shape)
     }
 }
 
@@ -92,9 +92,9 @@ pub struct StereoInput<'a> {
 impl StereoInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates, octaves beyond the pyramid,
     /// missing pyramid levels and left/right images of different sizes.
-    pub fn validate(&self, n_levels: usize) -> Result<(), SlamError> {
+    pub fn validate(&self, shape: &InputShape) -> Result<(), SlamError> {
         for (side, view) in [("left", &self.left), ("right", &self.right)] {
-            validate_features(self.timestamp, view.keypoints, view.descriptors, n_levels)
+            validate_features(self.timestamp, view.keypoints, view.descriptors, shape)
                 .map_err(|e| SlamError::InvalidInput(format!("{side} image: {e}")))?;
             let top = view.keypoints.iter().map(|k| k.octave as usize + 1).max();
             if view.levels.len() < top.unwrap_or(1) {
@@ -106,6 +106,13 @@ impl StereoInput<'_> {
             }
         }
         let size = |v: &StereoView<'_>, l: usize| v.levels.get(l).map(|i| (i.width(), i.height()));
+        let camera_size = (shape.width as usize, shape.height as usize);
+        if let Some(level0) = size(&self.left, 0).filter(|&s| s != camera_size) {
+            return Err(SlamError::InvalidInput(format!(
+                "the images are {}x{} but the camera is {}x{} (width x height)",
+                level0.0, level0.1, shape.width, shape.height
+            )));
+        }
         for l in 0..self.left.levels.len().min(self.right.levels.len()) {
             if size(&self.left, l) != size(&self.right, l) {
                 return Err(SlamError::InvalidInput(format!(
@@ -120,14 +127,26 @@ impl StereoInput<'_> {
     }
 }
 
-/// Checks what every sensor's features share: finite time and coordinates, one descriptor
-/// per keypoint, octaves inside the pyramid.
+/// What a system's input must fit: the pyramid depth and the camera's image size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InputShape {
+    /// Pyramid levels: keypoint octaves must be below.
+    pub n_levels: usize,
+    /// Image width, pixels: raw keypoints lie in `[0, width)`.
+    pub width: u32,
+    /// Image height, pixels: raw keypoints lie in `[0, height)`.
+    pub height: u32,
+}
+
+/// Checks what every sensor's features share: finite time and coordinates inside the image,
+/// one descriptor per keypoint, octaves inside the pyramid.
 fn validate_features(
     timestamp: f64,
     keypoints: &[Keypoint],
     descriptors: &[Descriptor],
-    n_levels: usize,
+    shape: &InputShape,
 ) -> Result<(), SlamError> {
+    let n_levels = shape.n_levels;
     let n = keypoints.len();
     if !timestamp.is_finite() {
         return Err(SlamError::InvalidInput("timestamp is not finite".into()));
@@ -144,6 +163,17 @@ fn validate_features(
     {
         return Err(SlamError::InvalidInput(format!(
             "keypoint {i} has non-finite coordinates"
+        )));
+    }
+    let (w, h) = (shape.width as f32, shape.height as f32);
+    if let Some(i) = keypoints
+        .iter()
+        .position(|k| !(0.0..w).contains(&k.x) || !(0.0..h).contains(&k.y))
+    {
+        return Err(SlamError::InvalidInput(format!(
+            "keypoint {i} at ({}, {}) px lies outside the camera's {}x{} image: are the \
+             images the size the camera was calibrated for?",
+            keypoints[i].x, keypoints[i].y, shape.width, shape.height
         )));
     }
     if let Some(i) = keypoints.iter().position(|k| k.octave as usize >= n_levels) {

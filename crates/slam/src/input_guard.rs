@@ -5,24 +5,24 @@
 
 use crate::config::Sensor;
 use crate::error::SlamError;
-use crate::frame::{MonoInput, RgbdInput, StereoInput};
+use crate::frame::{InputShape, MonoInput, RgbdInput, StereoInput};
 
 /// Input rules of one system and the last accepted timestamp.
 #[derive(Clone, Debug)]
 pub struct InputGuard {
     sensor: Sensor,
-    n_levels: usize,
+    shape: InputShape,
     distorted: bool,
     last_timestamp: Option<f64>,
 }
 
 impl InputGuard {
-    /// Rules for a `sensor` system with `n_levels` pyramid levels and a camera that is
-    /// `distorted` (stereo input must be rectified).
-    pub fn new(sensor: Sensor, n_levels: usize, distorted: bool) -> Self {
+    /// Rules for a `sensor` system whose input has `shape` and whose camera is `distorted`
+    /// (stereo input must be rectified).
+    pub fn new(sensor: Sensor, shape: InputShape, distorted: bool) -> Self {
         Self {
             sensor,
-            n_levels,
+            shape,
             distorted,
             last_timestamp: None,
         }
@@ -31,7 +31,7 @@ impl InputGuard {
     /// Checks an RGB-D frame and, if it passes, accepts its timestamp.
     pub fn accept_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<(), SlamError> {
         self.expect(Sensor::Rgbd, "track_rgbd")?;
-        input.validate(self.n_levels)?;
+        input.validate(&self.shape)?;
         self.advance(input.timestamp)
     }
 
@@ -45,14 +45,14 @@ impl InputGuard {
                     .into(),
             ));
         }
-        input.validate(self.n_levels)?;
+        input.validate(&self.shape)?;
         self.advance(input.timestamp)
     }
 
     /// Checks a monocular frame and, if it passes, accepts its timestamp.
     pub fn accept_mono(&mut self, input: &MonoInput<'_>) -> Result<(), SlamError> {
         self.expect(Sensor::Monocular, "track_mono")?;
-        input.validate(self.n_levels)?;
+        input.validate(&self.shape)?;
         self.advance(input.timestamp)
     }
 

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use ferroslam_features::ScalePyramid;
 use ferroslam_geometry::camera::PinholeCamera;
-use ferroslam_map::{KeyFrameId, Map};
+use ferroslam_map::{KeyFrameId, Map, Rig};
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
 
@@ -12,7 +12,7 @@ use crate::concurrent_mapping::{ConcurrentMapper, KeyFrameWork, MAX_QUEUED_KEYFR
 use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::frame::{Frame, InputShape, MonoInput, RgbdInput, StereoInput};
 use crate::imu_prediction::ImuPredictor;
 use crate::inertial::{
     rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig,
@@ -102,12 +102,19 @@ impl SlamSystem {
     /// Creates a system for `camera` (the calibration of the raw keypoints) and `config`.
     pub fn new(camera: PinholeCamera, config: SlamConfig) -> Result<Self, SlamError> {
         config.validate()?;
-        let guard = InputGuard::new(config.sensor, config.n_levels, camera.is_distorted());
+        config.check_pyramid(camera.width, camera.height)?;
+        let guard = InputGuard::new(
+            config.sensor,
+            input_shape(&config, &camera),
+            camera.is_distorted(),
+        );
         let pyramid = ScalePyramid::new(config.scale_factor, config.n_levels)
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
+        let mut map = Map::new(pyramid);
+        map.set_rig(rig(&config, &camera));
         Ok(Self {
             ctx: Context::new(camera, config),
-            map: Map::new(pyramid),
+            map,
             tracker: Tracker::default(),
             mapper: LocalMapper::default(),
             initializer: MonoInitializer::default(),
@@ -168,7 +175,11 @@ impl SlamSystem {
     /// A fresh guard with this system's input rules (for a background submitter).
     pub fn input_guard(&self) -> InputGuard {
         let c = &self.ctx;
-        InputGuard::new(c.config.sensor, c.config.n_levels, c.camera.is_distorted())
+        InputGuard::new(
+            c.config.sensor,
+            input_shape(&c.config, &c.camera),
+            c.camera.is_distorted(),
+        )
     }
 
     /// Initialises or tracks a frame, then inserts a keyframe when needed.
@@ -723,7 +734,16 @@ impl SlamSystem {
     /// [`SlamError::MapFile`] for a missing, truncated or corrupt file, another format version,
     /// or a map built with another ORB pyramid than this system's; the system is unchanged.
     pub fn load_map(&mut self, path: &std::path::Path) -> Result<(), SlamError> {
-        let map = Map::load_from_path(path).map_err(|e| map_file_error(path, e))?;
+        let mut map = Map::load_from_path(path).map_err(|e| map_file_error(path, e))?;
+        let ours = rig(&self.ctx.config, &self.ctx.camera);
+        if let Some(reason) = map.rig().and_then(|theirs| theirs.mismatch(&ours)) {
+            return Err(SlamError::MapFile {
+                path: path.display().to_string(),
+                reason,
+                not_found: false,
+            });
+        }
+        map.set_rig(ours);
         let (theirs, ours) = (map.pyramid(), self.map.pyramid());
         if theirs.n_levels != ours.n_levels
             || (theirs.scale_factor - ours.scale_factor).abs() > 1e-9
@@ -825,5 +845,26 @@ fn map_file_error(path: &std::path::Path, e: ferroslam_map::MapError) -> SlamErr
         path: path.display().to_string(),
         reason: e.to_string(),
         not_found,
+    }
+}
+
+/// The sensor and camera of a system, as its map files record them.
+fn rig(config: &SlamConfig, camera: &PinholeCamera) -> Rig {
+    let d = &camera.distortion;
+    Rig {
+        sensor: config.sensor.name().to_owned(),
+        intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy],
+        distortion: [d.k1, d.k2, d.p1, d.p2, d.k3],
+        width: camera.width,
+        height: camera.height,
+    }
+}
+
+/// The input rules of `config` and `camera`: pyramid depth and image size.
+fn input_shape(config: &SlamConfig, camera: &PinholeCamera) -> InputShape {
+    InputShape {
+        n_levels: config.n_levels,
+        width: camera.width,
+        height: camera.height,
     }
 }

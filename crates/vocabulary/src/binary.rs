@@ -17,6 +17,7 @@
 //! The root is implicit (zero descriptor, weight 0); leaves are the nodes without children.
 //! About 44 bytes per node: 49 MB for a `k = 10, L = 6` tree with 10^6 words.
 
+use std::io::Read;
 use std::path::Path;
 
 use ferroslam_features::Descriptor;
@@ -157,9 +158,13 @@ impl Vocabulary {
     /// Reads the binary format from `path`.
     ///
     /// # Errors
-    /// [`VocabularyError::Io`] when the file cannot be read, else as [`Vocabulary::from_bytes`].
+    /// [`VocabularyError::Io`] when the file cannot be read, is not a regular file (a device
+    /// such as `/dev/zero` would be read forever, a FIFO block) or is larger than
+    /// [`crate::MAX_FILE_BYTES`], else as [`Vocabulary::from_bytes`].
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        Vocabulary::from_bytes(&std::fs::read(path)?)
+        let mut bytes = Vec::new();
+        crate::open_regular_file(path.as_ref())?.read_to_end(&mut bytes)?;
+        Vocabulary::from_bytes(&bytes)
     }
 }
 

@@ -117,7 +117,9 @@ impl Vocabulary {
     /// # Errors
     /// As [`Vocabulary::read_dbow2_text`].
     pub fn load_dbow2_text(path: impl AsRef<Path>) -> Result<Self> {
-        Vocabulary::read_dbow2_text(std::io::BufReader::new(std::fs::File::open(path)?))
+        Vocabulary::read_dbow2_text(std::io::BufReader::new(crate::open_regular_file(
+            path.as_ref(),
+        )?))
     }
 }
 

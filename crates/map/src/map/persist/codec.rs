@@ -11,7 +11,7 @@ use ferroslam_features::{ImageBounds, Keypoint, KeypointGrid};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 use super::super::CulledKeyFrame;
-use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId};
+use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
 /// Appends encoded values to a byte buffer.
 #[derive(Default)]
@@ -455,6 +455,35 @@ impl Codec for CulledKeyFrame {
         Ok(CulledKeyFrame {
             anchor: d.get()?,
             T_c_a: d.get()?,
+        })
+    }
+}
+
+/// Sensor name (bytes, UTF-8), intrinsics, distortion, image size.
+impl Codec for Rig {
+    const MIN_SIZE: usize = 8 + 9 * 8 + 2 * 4;
+    fn encode(&self, e: &mut Encoder) {
+        e.put(&self.sensor.as_bytes().to_vec());
+        self.intrinsics
+            .iter()
+            .chain(&self.distortion)
+            .for_each(|v| e.put(v));
+        e.put(&self.width);
+        e.put(&self.height);
+    }
+    fn decode(d: &mut Decoder) -> Result<Self, MapError> {
+        let sensor = String::from_utf8(d.get::<Vec<u8>>()?)
+            .map_err(|_| corrupt(format!("{}: sensor name is not UTF-8", d.context)))?;
+        let mut values = [0.0; 9];
+        for v in &mut values {
+            *v = d.get()?;
+        }
+        Ok(Rig {
+            sensor,
+            intrinsics: [values[0], values[1], values[2], values[3]],
+            distortion: [values[4], values[5], values[6], values[7], values[8]],
+            width: d.get()?,
+            height: d.get()?,
         })
     }
 }

@@ -1,13 +1,15 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 1, all numbers little-endian)
+//! # Format (version 3, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
 //! 8       4     format version, u32 (= FORMAT_VERSION)
 //! 12      8     payload length N, u64
-//! 20      N     payload: five sections, in this order, each
+//! 20      N     payload: six sections, in this order, each
 //!                 tag [u8; 4] | body length u64 | body
+//!                 "RIG_" Option<sensor name Vec<u8>, fx fy cx cy f64, k1 k2 p1 p2 k3
+//!                        f64, width u32, height u32> (version 3 on; see `Rig`)
 //!                 "PYRM" scale factor f64, number of levels u64
 //!                 "IDS_" next keyframe id u32, next map point id u32, origin Option<u32>
 //!                 "KEYF" keyframes by increasing id (Vec<KeyFrame>)
@@ -58,7 +60,7 @@ use std::path::Path;
 use ferroslam_features::ScalePyramid;
 
 use super::Map;
-use crate::{KeyFrame, MapError, MapPoint};
+use crate::{KeyFrame, MapError, MapPoint, Rig};
 
 mod codec;
 #[cfg(test)]
@@ -70,8 +72,9 @@ use codec::{check_increasing, corrupt, Decoder, Encoder};
 pub const MAGIC_TEXT: &str = "FSLAMMAP";
 /// The magic bytes starting every map file.
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
-/// The map-file format version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 2;
+/// The map-file format version this build writes and reads. Version 3 added the sensor and
+/// camera record ([`crate::Rig`]); version 2 files are refused (their sensor is unknown).
+pub const FORMAT_VERSION: u32 = 3;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;
@@ -84,6 +87,10 @@ struct Section {
     name: &'static str,
 }
 
+const RIG: Section = Section {
+    tag: *b"RIG_",
+    name: "the sensor and camera section",
+};
 const PYRAMID: Section = Section {
     tag: *b"PYRM",
     name: "the scale pyramid section",
@@ -171,17 +178,18 @@ impl Map {
         Self::decode_payload(payload)
     }
 
-    /// [`Map::save`] to a file, created or replaced. The map is written to `<path>.partial`
-    /// and renamed over `path`, so an interrupted save leaves any previous file intact.
+    /// [`Map::save`] to a file, created or replaced. The map is written to a new temporary
+    /// file beside `path` (`<path>.<random>.partial`, created exclusively: a file or link
+    /// planted under that name is never written through) and renamed over `path`, so an
+    /// interrupted save leaves any previous file intact.
     ///
     /// # Errors
     /// [`MapError::MapFileIo`].
     pub fn save_to_path(&self, path: impl AsRef<Path>) -> Result<(), MapError> {
         let path = path.as_ref();
-        let mut partial = path.as_os_str().to_owned();
-        partial.push(".partial");
+        let (file, partial) = create_temporary_beside(path)?;
         let write = || -> Result<(), MapError> {
-            let mut w = BufWriter::new(File::create(&partial)?);
+            let mut w = BufWriter::new(file);
             self.save(&mut w)?;
             w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
             Ok(std::fs::rename(&partial, path)?)
@@ -211,6 +219,7 @@ impl Map {
     /// The whole file: header, sections, checksum.
     fn to_bytes(&self) -> Vec<u8> {
         let mut payload = Encoder::default();
+        section(&mut payload, RIG, |e| e.put(&self.rig));
         section(&mut payload, PYRAMID, |e| {
             e.put(&self.pyramid.scale_factor);
             e.put(&self.pyramid.n_levels);
@@ -244,6 +253,7 @@ impl Map {
     /// Decodes the sections and validates ids and invariants.
     fn decode_payload(payload: &[u8]) -> Result<Map, MapError> {
         let mut d = Decoder::new(payload, "the section table");
+        let rig: Option<Rig> = read_section(&mut d, RIG, Decoder::get)?;
         let (scale_factor, n_levels): (f64, usize) =
             read_section(&mut d, PYRAMID, |d| Ok((d.get()?, d.get()?)))?;
         if n_levels > MAX_PYRAMID_LEVELS {
@@ -293,6 +303,7 @@ impl Map {
             culled_keyframes: culled.into_iter().collect(),
             replaced_points: replaced.into_iter().collect(),
             recorder: None,
+            rig,
         };
         if let Some(o) = origin.filter(|o| !map.keyframes.contains_key(o)) {
             return Err(corrupt(format!("the origin {o} is not a keyframe")));
@@ -350,4 +361,35 @@ fn read_up_to(r: &mut impl Read, n: u64) -> Result<Vec<u8>, MapError> {
     let mut out = Vec::new();
     r.take(n).read_to_end(&mut out)?;
     Ok(out)
+}
+
+/// A new file beside `path`, named `<path>.<random>.partial` and created exclusively (never
+/// an existing file or a link), with its name.
+fn create_temporary_beside(path: &Path) -> std::io::Result<(File, std::path::PathBuf)> {
+    let mut last_error = None;
+    // A name taken by chance (or planted) is skipped; a few draws find a free one.
+    for _ in 0..8 {
+        let mut name = path.as_os_str().to_owned();
+        name.push(format!(".{:016x}.partial", random_u64()));
+        let partial = std::path::PathBuf::from(name);
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&partial)
+        {
+            Ok(file) => return Ok((file, partial)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last_error = Some(e),
+            Err(e) => return Err(e),
+        }
+    }
+    Err(last_error.expect("at least one attempt"))
+}
+
+/// 64 random bits from the standard library: each `RandomState` draws new keys, seeded
+/// from the operating system's randomness.
+fn random_u64() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    std::collections::hash_map::RandomState::new()
+        .build_hasher()
+        .finish()
 }

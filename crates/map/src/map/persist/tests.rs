@@ -188,6 +188,24 @@ fn path_helpers_round_trip_and_report_missing_files() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[cfg(unix)]
+#[test]
+fn save_never_writes_through_a_planted_partial_link() {
+    let (map, _) = sample_map();
+    let dir = std::env::temp_dir().join(format!("ferroslam-map-link-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let victim = dir.join("victim.txt");
+    std::fs::write(&victim, b"keep me").unwrap();
+    let path = dir.join("map.fslam");
+    std::os::unix::fs::symlink(&victim, dir.join("map.fslam.partial")).unwrap();
+    map.save_to_path(&path).unwrap();
+    assert_eq!(std::fs::read(&victim).unwrap(), b"keep me");
+    assert_same(&map, &Map::load_from_path(&path).unwrap());
+    // Only the map, the victim and the planted link are left: no temporary file.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 3);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn load_consumes_exactly_one_map() {
     let (map, _) = sample_map();
@@ -240,6 +258,24 @@ fn every_flipped_byte_is_detected() {
 }
 
 #[test]
+fn the_rig_round_trips_and_survives_clear() {
+    let (mut map, _) = sample_map();
+    let rig = crate::Rig {
+        sensor: "mono".into(),
+        intrinsics: [500.0, 501.0, 320.0, 240.0],
+        distortion: [0.1, -0.2, 0.0, 0.001, 0.0],
+        width: 640,
+        height: 480,
+    };
+    map.set_rig(rig.clone());
+    let loaded = load(&to_bytes(&map)).unwrap();
+    assert_eq!(loaded.rig(), Some(&rig));
+    assert_eq!(load(&to_bytes(&sample_map().0)).unwrap().rig(), None);
+    map.clear();
+    assert_eq!(map.rig(), Some(&rig));
+}
+
+#[test]
 fn wrong_magic_and_version_are_named() {
     let (map, _) = sample_map();
     let mut bytes = to_bytes(&map);
@@ -252,7 +288,14 @@ fn wrong_magic_and_version_are_named() {
             supported: FORMAT_VERSION
         }
     );
-    assert!(err.to_string().contains("version 2"), "{err}");
+    assert!(err.to_string().contains("version 4"), "{err}");
+    // A version 2 file (before the sensor and camera record) is refused, not misread.
+    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+    let err = load(&bytes).unwrap_err();
+    assert!(
+        err.to_string().contains("version 2 is not supported"),
+        "{err}"
+    );
 
     let err = load(b"ply\nformat ascii 1.0\n").unwrap_err();
     assert!(matches!(err, MapError::NotAMapFile { ref found, .. } if found == b"ply\nform"));

@@ -1,0 +1,87 @@
+//! [`Rig`]: the sensor and camera a map was built with, stored in map files so that a map is
+//! only loaded into a system it fits.
+
+/// The sensor and calibrated camera of the system that built a map.
+///
+/// A monocular map has an arbitrary scale, and keyframe features are pixels of one camera:
+/// loaded into a system with another sensor or camera, such a map would track garbage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rig {
+    /// Sensor name as the systems spell it (`"mono"`, `"stereo"`, `"rgbd"`).
+    pub sensor: String,
+    /// `fx, fy, cx, cy`, pixels.
+    pub intrinsics: [f64; 4],
+    /// Radial-tangential distortion `k1, k2, p1, p2, k3`.
+    pub distortion: [f64; 5],
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+}
+
+impl Rig {
+    /// Why `self` (a map's) does not fit `system` (a system's), naming both sides; `None`
+    /// when it does (intrinsics equal to 1e-6 relative).
+    pub fn mismatch(&self, system: &Rig) -> Option<String> {
+        if self.sensor != system.sensor {
+            return Some(format!(
+                "the map was built by a {:?} system, this system is {:?}",
+                self.sensor, system.sensor
+            ));
+        }
+        if (self.width, self.height) != (system.width, system.height) {
+            return Some(format!(
+                "the map was built with {}x{} images, this system's camera is {}x{}",
+                self.width, self.height, system.width, system.height
+            ));
+        }
+        let close = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .all(|(x, y)| (x - y).abs() <= 1e-6 * x.abs().max(y.abs()).max(1.0))
+        };
+        if !close(&self.intrinsics, &system.intrinsics)
+            || !close(&self.distortion, &system.distortion)
+        {
+            return Some(format!(
+                "the map was built with the camera fx, fy, cx, cy = {:?}, distortion {:?}; \
+                 this system's is {:?}, {:?}",
+                self.intrinsics, self.distortion, system.intrinsics, system.distortion
+            ));
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rig(sensor: &str) -> Rig {
+        Rig {
+            sensor: sensor.into(),
+            intrinsics: [517.3, 516.5, 318.6, 255.3],
+            distortion: [0.26, -0.95, 0.0, 0.0, 1.16],
+            width: 640,
+            height: 480,
+        }
+    }
+
+    #[test]
+    fn mismatches_name_both_sides() {
+        assert_eq!(rig("rgbd").mismatch(&rig("rgbd")), None);
+        let m = rig("mono").mismatch(&rig("rgbd")).unwrap();
+        assert!(m.contains("\"mono\"") && m.contains("\"rgbd\""), "{m}");
+        let wide = Rig {
+            width: 752,
+            ..rig("rgbd")
+        };
+        let m = wide.mismatch(&rig("rgbd")).unwrap();
+        assert!(m.contains("752x480") && m.contains("640x480"), "{m}");
+        let other = Rig {
+            intrinsics: [500.0, 500.0, 320.0, 240.0],
+            ..rig("rgbd")
+        };
+        assert!(other.mismatch(&rig("rgbd")).unwrap().contains("500.0"));
+    }
+}
