@@ -15,13 +15,20 @@ from typing import Optional, Sequence
 from .metrics import ALIGNMENTS
 from .pipeline import SENSORS
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "main", "write_run_outputs"]
 
 
 def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _non_negative_seconds(text: str) -> float:
+    value = float(text)
+    if not (value >= 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds >= 0, got {text}")
     return value
 
 
@@ -32,7 +39,7 @@ def _add_eval_inputs(p: argparse.ArgumentParser, default_align: str) -> None:
                    help="file format of both files (default: tum)")
     p.add_argument("--align", choices=ALIGNMENTS, default=default_align,
                    help=f"alignment of the estimate (default: {default_align})")
-    p.add_argument("--max-diff", type=float, default=0.01,
+    p.add_argument("--max-diff", type=_non_negative_seconds, default=0.01,
                    help="timestamp association tolerance in seconds (default: 0.01)")
 
 
@@ -72,7 +79,7 @@ def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ferroslam`` argument parser (``demo``, ``run``, ``eval {ate,rpe}``, ``download``,
-    ``vocab {train,export-dbow2}``)."""
+    ``vocab {train,export-dbow2}``, ``batch``)."""
     from .demo import DEMO_CONFIGS
     from .download import DATASETS
 
@@ -159,6 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="network timeout in seconds (default: 30)")
     dl.add_argument("--silent", action="store_true", help="no progress bar")
     _add_vocab_parser(sub)
+    _add_batch_parser(sub)
     return parser
 
 
@@ -185,6 +193,38 @@ def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
                         help="binary vocabulary to export (default: the shipped one)")
 
 
+def _add_batch_parser(sub: argparse._SubParsersAction) -> None:
+    """``batch``: a SPEC of runs fanned out over a Ray cluster (``ferroslam.batch``)."""
+    from .batch import SPEC_EXAMPLE
+
+    batch = sub.add_parser(
+        "batch", help="run sequences x option sets x repeats over a Ray cluster",
+        description="Run every sequence x option set x repeat of SPEC as one Ray task, each\n"
+                    "in its own folder of DIR (what 'ferroslam run' writes), then write\n"
+                    "DIR/results.csv (one row per run) and DIR/summary.md (median, min-max\n"
+                    "over repeats). Runs already done in DIR are skipped. Exit status 1 if\n"
+                    "any run failed. Needs Ray: pip install 'ferroslam[batch]'.",
+        epilog="SPEC (JSON or YAML; top-level keys are defaults that a run's keys override,\n"
+               "'grid' sweeps every combination, relative folders are relative to SPEC):\n"
+               + SPEC_EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    batch.add_argument("spec", type=Path, help="JSON or YAML file of runs (below)")
+    batch.add_argument("--out", type=Path, required=True, metavar="DIR",
+                       help="output folder (created); holds one folder per run")
+    cluster = batch.add_argument_group("cluster")
+    cluster.add_argument("--address", metavar="ADDR",
+                         help="existing Ray cluster: auto, HOST:PORT or ray://HOST:PORT "
+                              "(default: start a local one on 127.0.0.1, stopped at the end)")
+    cluster.add_argument("--num-cpus", type=_positive_int, metavar="N",
+                         help="CPUs of the local Ray instance (default: all)")
+    cluster.add_argument("--cpus-per-run", type=_positive_int, default=1, metavar="N",
+                         help="CPUs (and Rayon threads) of each run (default: 1)")
+    batch.add_argument("--retry-failed", action="store_true",
+                       help="run the failed runs of an earlier call again")
+    batch.add_argument("--silent", action="store_true", help="no progress bar, no summary")
+
+
 def _load_config(path: Optional[Path]) -> dict:
     if path is None:
         return {}
@@ -192,6 +232,8 @@ def _load_config(path: Optional[Path]) -> dict:
         raise FileNotFoundError(f"config file not found: {path}")
     try:
         config = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a JSON text file (not UTF-8)") from None
     except json.JSONDecodeError as err:
         raise ValueError(f"{path}: invalid JSON: {err}") from None
     if not isinstance(config, dict):
@@ -228,18 +270,33 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
                       silent: bool) -> int:
-    """Run ``seq``, write every output file into ``out`` and print the summary."""
-    from .pipeline import run_sequence
+    """Run ``seq``, write every output file into ``out`` and print the summary. A run that
+    stops at an error (a corrupt image at frame N, a bad ground-truth line) still writes the
+    results of the frames before it, then reports the error."""
+    from .pipeline import RunError, run_sequence
 
-    out.mkdir(parents=True, exist_ok=True)
-    result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
-                          sensor=sensor)
-    _write_outputs(result, out, seq.name)
-    summary = result.summary()
-    (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    out.mkdir(parents=True, exist_ok=True)  # an unwritable --out fails before tracking
+    try:
+        result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
+                              sensor=sensor)
+    except RunError as err:
+        write_run_outputs(err.partial, out)
+        raise RunError(f"{err}; the results of the {err.partial.frames} frames before it are "
+                       f"in {out}/", err.partial, err.frame) from err
+    summary = write_run_outputs(result, out)
     if not silent:
         _print_summary(summary, out)
     return 0
+
+
+def write_run_outputs(result, out: Path) -> dict:
+    """Write what ``ferroslam run`` leaves in ``out`` (created) and return the summary put in
+    results.json; one function so that ``run``, ``demo`` and ``batch`` write the same files."""
+    out.mkdir(parents=True, exist_ok=True)
+    _write_outputs(result, out, result.sequence)
+    summary = result.summary()
+    (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return summary
 
 
 def _write_outputs(result, out: Path, name: str) -> None:
@@ -308,6 +365,23 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"note: {err}")
     print(f"results in      {out}/ (trajectory.txt, keyframes.txt, map.ply, plot.png, "
           "results.json)")
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import run_batch
+
+    outcome = run_batch(args.spec, args.out, address=args.address,
+                        cpus_per_run=args.cpus_per_run, num_cpus=args.num_cpus,
+                        retry_failed=args.retry_failed, progress=not args.silent)
+    failed = [row for row in outcome.rows if row["status"] != "ok"]
+    for row in failed:
+        print(f"ferroslam: run {row['run_dir']} {row['status']}: {row['error']}",
+              file=sys.stderr)
+    if not args.silent:
+        print(f"{len(outcome.rows)} runs ({outcome.ran} run now, {outcome.skipped} done "
+              f"before): {len(outcome.rows) - len(failed)} ok, {len(failed)} failed\n"
+              f"results in {args.out}/ (results.csv, summary.md, one folder per run)")
+    return 1 if failed else 0
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
@@ -381,11 +455,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         parser.print_help()
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
-                "download": _cmd_download, "vocab": _cmd_vocab}
+                "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch}
     try:
         return commands[args.command](args)
-    except (FileNotFoundError, ImportError, ValueError, NotImplementedError,
+    except (OSError, ImportError, ValueError, TypeError, OverflowError, NotImplementedError,
             DownloadError) as err:
+        # User errors: a missing or unwritable path (OSError names it), a bad option value
+        # (the core names the option), bad data.
         print(f"ferroslam: error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

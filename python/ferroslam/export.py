@@ -123,7 +123,7 @@ def write_trajectory(
 
     Raises:
         ValueError: unknown ``format``; shapes, NaN/inf or decreasing timestamps (from
-            :class:`~ferroslam.trajectory.Trajectory`).
+            :class:`~ferroslam.trajectory.Trajectory`); a pose that is not rigid.
     """
     writers = {
         "tum": lambda t: write_tum_trajectory(path, t.timestamps, t.poses),
@@ -131,5 +131,14 @@ def write_trajectory(
     }
     if format not in writers:
         raise ValueError(f"format must be one of {sorted(writers)}, got {format!r}")
-    writers[format](Trajectory(timestamps, poses))
+    trajectory = Trajectory(timestamps, poses)
+    rotations = trajectory.poses[:, :3, :3]
+    gram_error = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
+    bottom_ok = np.all(trajectory.poses[:, 3] == [0.0, 0.0, 0.0, 1.0], axis=1)
+    bad = np.flatnonzero((gram_error > 1e-6) | (np.linalg.det(rotations) <= 0) | ~bottom_ok)
+    if bad.size:
+        raise ValueError(f"poses[{bad[0]}] is not a rigid transform (orthonormal rotation, "
+                         "determinant +1, last row 0 0 0 1): a TUM or KITTI file holds "
+                         "rigid camera poses")
+    writers[format](trajectory)
     return Path(path)

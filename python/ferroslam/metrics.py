@@ -81,6 +81,9 @@ def associate(
     Returns:
         ``(idx_ref, idx_est)``: int arrays of equal length, in the order of the shorter list.
     """
+    if not (isinstance(max_diff, (int, float, np.floating, np.integer))
+            and np.isfinite(max_diff) and max_diff >= 0):
+        raise ValueError(f"max_diff must be a number of seconds >= 0, got {max_diff!r}")
     t_ref = np.asarray(t_ref, dtype=np.float64)
     t_est = np.asarray(t_est, dtype=np.float64)
     for name, t in (("t_ref", t_ref), ("t_est", t_est)):

@@ -78,9 +78,19 @@ def _length(value: Any) -> str:
 
 
 def _positive_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or int(value) != value or value < 1:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be a positive integer, got {value!r}")
+    if value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
+
+
+def _positive_real(name: str, value: Any, unit: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a positive number of {unit}, got {value!r}")
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number of {unit}, got {value!r}")
+    return float(value)
 
 
 class _VSlam:
@@ -147,7 +157,8 @@ class _VSlam:
                  "n_features": max_num_points, "skip_max_frames": skip_max_frames,
                  "loop_closure_threshold": loop_closure_threshold,
                  "track_feature_range": (None if track_feature_range is None
-                                         else tuple(int(v) for v in track_feature_range))}
+                                         else tuple(_positive_int("track_feature_range", v)
+                                                    for v in track_feature_range))}
         for name, key in (("num_levels", "n_levels"), ("max_num_points", "n_features"),
                           ("skip_max_frames", "skip_max_frames"),
                           ("loop_closure_threshold", "loop_closure_threshold")):
@@ -184,7 +195,8 @@ class _VSlam:
                 raise ValueError("imu needs camera_to_imu_transform: the (4, 4) camera pose in "
                                  "the IMU (body) frame, e.g. EuRoC's T_BS")
             self._system.set_imu(imu, np.asarray(camera_to_imu_transform, dtype=np.float64),
-                                 num_poses_threshold=num_poses_threshold,
+                                 num_poses_threshold=_positive_int("num_poses_threshold",
+                                                                   num_poses_threshold),
                                  alignment_fraction=alignment_fraction,
                                  imu_time_offset_s=imu_time_offset_s)
         self._frames = 0
@@ -402,7 +414,9 @@ class _VSlam:
         truncated or incompatible one (the object is unchanged then).
         """
         self._system.load_map(Path(path))
-        self._system.localization_only = localization_only
+        # An empty map has nothing to localise in: the next frames start one.
+        self._system.localization_only = (_flag("localization_only", localization_only)
+                                          and self._system.num_keyframes > 0)
         self._last = None
 
     @property
@@ -464,8 +478,7 @@ class StereoVSlam(_VSlam):
     _sensor = "stereo"
 
     def __init__(self, intrinsics: Camera, baseline: float, **options: Any) -> None:
-        if not (math.isfinite(baseline) and baseline > 0):
-            raise ValueError(f"baseline must be a positive number of metres, got {baseline!r}")
+        baseline = _positive_real("baseline", baseline, "metres")
         if np.any(intrinsics.dist != 0):
             raise ValueError("StereoVSlam needs rectified images: intrinsics must have no "
                              "distortion (rectify with ferroslam.stereo.StereoRectifier)")

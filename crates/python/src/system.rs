@@ -466,7 +466,9 @@ impl PySlamSystem {
 
     #[setter]
     fn set_localization_only(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
-        self.engine.run(py, move |s| s.set_localization_only(on))
+        self.engine
+            .run(py, move |s| s.set_localization_only(on))?
+            .map_err(to_py)
     }
 
     /// Clears the map; tracking restarts with the next frame.

@@ -708,8 +708,20 @@ impl SlamSystem {
 
     /// Localisation-only mode: frames are tracked (and relocalised) against the map but never
     /// become keyframes, so the map stays as it is (e.g. a loaded map).
-    pub fn set_localization_only(&mut self, on: bool) {
+    ///
+    /// # Errors
+    /// `InvalidInput` when switched on without a map: there is nothing to localise in, and
+    /// the first frames would build one.
+    pub fn set_localization_only(&mut self, on: bool) -> Result<(), SlamError> {
+        if on && self.map.num_keyframes() == 0 {
+            return Err(SlamError::InvalidInput(
+                "localization_only needs a map to localise in: load_map first (this system's \
+                 map is empty)"
+                    .into(),
+            ));
+        }
         self.localization_only = on;
+        Ok(())
     }
 
     /// Whether localisation-only mode is on.
@@ -720,8 +732,20 @@ impl SlamSystem {
     /// Writes the map to `path` (versioned binary format, see `ferroslam_map::map::persist`).
     ///
     /// # Errors
-    /// [`SlamError::MapFile`] when the file cannot be written.
+    /// `InvalidInput` for an empty path or a folder; [`SlamError::MapFile`] when the file
+    /// cannot be written.
     pub fn save_map(&self, path: &std::path::Path) -> Result<(), SlamError> {
+        if path.as_os_str().is_empty() || path.is_dir() {
+            return Err(SlamError::InvalidInput(format!(
+                "save_map: {:?} is {}: give a file path",
+                path.display().to_string(),
+                if path.as_os_str().is_empty() {
+                    "empty"
+                } else {
+                    "a folder"
+                }
+            )));
+        }
         self.map
             .save_to_path(path)
             .map_err(|e| map_file_error(path, e))

@@ -261,6 +261,14 @@ mod tests {
             Vocabulary::from_bytes(&flipped),
             Err(VocabularyError::ChecksumMismatch)
         ));
+        // A branching factor of 2^32 - 1 with a valid checksum is refused, not loaded.
+        let mut wide = bytes.clone();
+        wide[12..16].copy_from_slice(&u32::MAX.to_le_bytes());
+        let body_len = wide.len() - 8;
+        let sum = checksum(&wide[..body_len]);
+        wide[body_len..].copy_from_slice(&sum.to_le_bytes());
+        let err = Vocabulary::from_bytes(&wide).unwrap_err();
+        assert!(err.to_string().contains("k = 4294967295"), "{err}");
         // A huge node count in the header is reported as truncation, not an allocation.
         let mut huge = bytes;
         huge[24..28].copy_from_slice(&u32::MAX.to_le_bytes());

@@ -34,5 +34,5 @@ pub use error::{Result, VocabularyError};
 pub(crate) use file::open_regular_file;
 pub use file::MAX_FILE_BYTES;
 pub use train::TrainParams;
-pub use vocabulary::{Vocabulary, MAX_LEVELS};
+pub use vocabulary::{Vocabulary, MAX_BRANCHING, MAX_LEVELS};
 pub use weighting::Weighting;

@@ -59,7 +59,8 @@ impl Vocabulary {
     /// on thread scheduling.
     ///
     /// # Errors
-    /// [`VocabularyError::InvalidParameter`] for `k < 2` or `levels` outside `1..=16`;
+    /// [`VocabularyError::InvalidParameter`] for `k` outside `2..=MAX_BRANCHING` or `levels`
+    /// outside `1..=16`;
     /// [`VocabularyError::NoTrainingData`] when there is no descriptor at all.
     pub fn train(images: &[Vec<Descriptor>], params: &TrainParams) -> Result<Self> {
         check_shape(params.k, params.levels)?;

@@ -12,6 +12,10 @@ const NOT_A_WORD: WordId = WordId::MAX;
 /// Deepest tree the crate accepts (DBoW2/ORB-SLAM accept `L <= 10`).
 pub const MAX_LEVELS: u32 = 16;
 
+/// Largest branching factor accepted (DBoW2 vocabularies use 10): a corrupt header's `k`
+/// of billions would make node counts overflow and every word lookup scan billions.
+pub const MAX_BRANCHING: u32 = 4096;
+
 /// A hierarchical vocabulary of 256-bit ORB descriptors, as DBoW2's `TemplatedVocabulary`.
 ///
 /// Node 0 is the root (depth 0, no descriptor); every other node has a parent with a smaller
@@ -44,7 +48,8 @@ impl Vocabulary {
     /// recorded, and every node must lie at depth `<= levels`.
     ///
     /// # Errors
-    /// [`VocabularyError::InvalidParameter`] for `k < 2` or `levels` outside `1..=MAX_LEVELS`;
+    /// [`VocabularyError::InvalidParameter`] for `k` outside `2..=MAX_BRANCHING` or `levels`
+    /// outside `1..=MAX_LEVELS`;
     /// [`VocabularyError::Malformed`] for arrays of different lengths, a tree without any
     /// word, a parent id not smaller than its child's, a node deeper than `levels`, or a
     /// non-finite weight.
@@ -285,9 +290,9 @@ impl Vocabulary {
 
 /// Validates the recorded branching factor and depth.
 pub(crate) fn check_shape(k: u32, levels: u32) -> Result<()> {
-    if k < 2 {
+    if !(2..=MAX_BRANCHING).contains(&k) {
         return Err(VocabularyError::InvalidParameter(format!(
-            "branching factor k = {k} < 2"
+            "branching factor k = {k} outside 2..={MAX_BRANCHING}"
         )));
     }
     if !(1..=MAX_LEVELS).contains(&levels) {

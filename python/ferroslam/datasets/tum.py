@@ -122,8 +122,8 @@ class TumSequence:
         self.path = Path(path).expanduser().resolve()
         if not self.path.is_dir():
             raise FileNotFoundError(f"TUM sequence folder not found: {self.path}")
-        if depth_factor <= 0:
-            raise ValueError(f"depth_factor must be positive, got {depth_factor}")
+        if not (np.isfinite(depth_factor) and depth_factor > 0):
+            raise ValueError(f"depth_factor must be a positive number, got {depth_factor}")
         self.depth_factor = float(depth_factor)
         self.camera = camera if camera is not None else self._find_camera()
         t_rgb, rgb_files = _read_list(self.path / "rgb.txt", "TUM rgb list")
