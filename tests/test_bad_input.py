@@ -286,3 +286,107 @@ def test_eval_max_diff_must_not_be_negative(capsys):
     with pytest.raises(SystemExit):
         main(["eval", "ate", "a.txt", "b.txt", "--max-diff", "-1"])
     assert "--max-diff: must be a number of seconds >= 0" in capsys.readouterr().err
+
+
+def test_a_constant_gyro_never_aligns_and_the_reason_names_the_gyroscope():
+    """A gyro stuck at 3 rad/s passes the unit checks (under 35 rad/s) but no alignment can
+    match it to the rotation vision sees: it used to report "aligned" with absurd states."""
+    from ferroslam.pipeline import run_sequence
+
+    seq = open_sequence(require_data("euroc", "MH_01_easy_window"))
+
+    class StuckGyro:
+        def __getattr__(self, name):
+            return getattr(seq, name)
+
+        def __len__(self):
+            return len(seq)
+
+        def imu(self):
+            t, gyro, accel = seq.imu()
+            return t, np.tile([0.0, 0.0, 3.0], (len(t), 1)), accel
+
+    result = run_sequence(StuckGyro(), sensor="stereo-inertial", max_frames=150,
+                          progress=False)
+    assert result.inertial["status"] == "failed", result.inertial
+    assert result.inertial["reason"].startswith("gyroscope"), result.inertial["reason"]
+
+
+def test_tiny_images_are_a_value_error_not_a_cv2_error():
+    from ferroslam.features import OrbExtractor
+
+    with pytest.raises(ValueError, match="image 5x1 is too small for 8 pyramid levels"):
+        OrbExtractor().detect(np.zeros((1, 5), np.uint8))
+
+
+def test_match_stereo_refuses_pyramids_of_different_sizes():
+    from ferroslam._core import match_stereo
+
+    none = np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8)
+    with pytest.raises(ValueError,
+                       match=r"left_pyramid\[0\] is 640x480 but right_pyramid\[0\] is 320x240"):
+        match_stereo(*none, [np.zeros((480, 640), np.uint8)], *none,
+                     [np.zeros((240, 320), np.uint8)], fx=500.0, baseline=0.1)
+
+
+def test_detect_orb_corners_names_a_negative_budget():
+    from ferroslam._core import detect_orb_corners
+
+    with pytest.raises(ValueError, match="budgets must be a list of keypoint counts"):
+        detect_orb_corners([np.zeros((100, 100), np.uint8)], [-5], ini_fast=20, min_fast=7)
+
+
+def test_plot_to_a_path_under_a_file_names_the_path(tmp_path):
+    from ferroslam.plot import plot_map
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OSError, match="cannot write the plot to .*file/map.png"):
+        plot_map(np.zeros((3, 3)), np.tile(np.eye(4), (2, 1, 1)),
+                 path=tmp_path / "file" / "map.png")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_a_threaded_system_refuses_work_in_a_forked_child():
+    slam = SlamSystem(500.0, 500.0, 320.0, 240.0, [], 640, 480, sensor="mono", threaded=True)
+    pid = os.fork()
+    if pid == 0:  # the child: must raise at once, not wait for threads it does not have
+        code = 1
+        try:
+            slam.wait()
+        except RuntimeError as err:
+            code = 0 if "forked" in str(err) or "fork of it" in str(err) else 2
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+    slam.wait()  # the parent's threads still work
+
+
+def test_a_second_thread_calling_in_is_told_the_system_is_not_thread_safe():
+    import threading
+    import time
+
+    from ferroslam.features import OrbExtractor, sample_depth
+
+    seq = TumSequence(require_data("tum", "rgbd_dataset_freiburg1_rpy"))
+    orb = OrbExtractor()
+    frames = []
+    for i in range(60):
+        kp, desc = orb.detect(seq.load_gray(i))
+        frames.append((seq.timestamps[i], kp, desc, sample_depth(seq.load_depth(i), kp)))
+    cam = seq.camera
+    slam = SlamSystem(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
+                      sensor="rgbd", threaded=True)
+    for frame in frames:
+        slam.track_rgbd(*frame)
+    waiter = threading.Thread(target=slam.wait)
+    waiter.start()
+    time.sleep(0.02)
+    try:
+        with pytest.raises(RuntimeError, match="in use by another thread: it is not thread-safe"):
+            for _ in range(200):  # until the wait is seen holding the system
+                slam.state
+                time.sleep(0.001)
+    finally:
+        waiter.join()
+    assert slam.state == "ok"

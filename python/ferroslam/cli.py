@@ -159,7 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="destination folder (created); the archive is kept there while "
                          "downloading so an interrupted run resumes")
     dl.add_argument("--url", help="download from this address instead (a mirror)")
-    dl.add_argument("--sha256", metavar="HEX", help="expected SHA-256 of the archive")
+    dl.add_argument("--sha256", metavar="HEX",
+                    help="expected SHA-256 of the archive (required for plain-http sources "
+                         "such as EuRoC's official server)")
     dl.add_argument("--keep-archive", action="store_true",
                     help="keep the archive after extraction")
     dl.add_argument("--timeout", type=float, default=30.0,

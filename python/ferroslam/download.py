@@ -5,13 +5,18 @@
   to ``DIR/rgbd_dataset_freiburg1_xyz/``.
 * EuRoC MAV (ASL zip): ``http://robotics.ethz.ch/~asl-datasets/ijrr_euroc_mav_dataset/
   ROOM/NAME/NAME.zip`` (``MH_01_easy`` ... ``V2_03_difficult``; ``V1_01`` is enough),
-  extracted to ``DIR/NAME/mav0/``.
+  extracted to ``DIR/NAME/mav0/``. The server is known to us over plain http only (whether
+  it offers https could not be checked), so EuRoC needs the archive's ``sha256`` or an
+  https mirror (``url``).
 * KITTI odometry needs a (free) login, so :func:`kitti_instructions` says what to fetch.
 
 Downloads go to ``<archive>.part`` and resume with an HTTP ``Range`` request; the byte count
 must match the server's ``Content-Length`` (and ``sha256`` when one is given) before the
 file is renamed and extracted (:func:`ferroslam.archives.extract_archive`: no member may
-escape the folder). Standard library (``urllib``) and tqdm only.
+escape the folder). Only ``http://`` and ``https://`` addresses are fetched; plain http,
+which anyone on the path can alter, needs ``sha256``, and a redirect from https to http is
+refused for the same reason. A download stops past :data:`MAX_DOWNLOAD_BYTES`. Standard
+library (``urllib``) and tqdm only.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import hashlib
 import http.client
 import re
 import socket
+import ssl
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -36,6 +42,7 @@ __all__ = [
     "DatasetSource",
     "DownloadError",
     "EUROC_SEQUENCES",
+    "MAX_DOWNLOAD_BYTES",
     "download",
     "fetch_dataset",
     "kitti_instructions",
@@ -53,6 +60,13 @@ EUROC_SEQUENCES = (
 _EUROC_ROOMS = {"MH": "machine_hall", "V1": "vicon_room1", "V2": "vicon_room2"}
 _TUM_NAME = re.compile(r"^(?:rgbd_dataset_)?(?:freiburg|fr)([123])[_/]([a-z0-9_]+?)(?:\.tgz)?$")
 _CHUNK = 1 << 16
+_SHA256_HEX = re.compile(r"^[0-9a-fA-F]{64}$")
+
+MAX_DOWNLOAD_BYTES = 16 << 30
+"""Default cap on one download (16 GiB). The largest archives the command knows are a few GB
+(EuRoC sequences 1-3 GB zipped, TUM ``.tgz`` files smaller), so a genuine archive stays far
+below it, while a wrong address or a server sending an endless body stops here instead of
+filling the disk."""
 
 
 class DownloadError(RuntimeError):
@@ -129,8 +143,51 @@ KITTI cannot be downloaded automatically: its archives need a (free) account.
   4. Run: ferroslam run {dest / 'dataset' / 'sequences' / seq} --sensor stereo"""
 
 
-def _offline_error(url: str, reason: object) -> DownloadError:
+def _checked_sha256(sha256: Optional[str]) -> Optional[str]:
+    """``sha256`` in lower case, checked to be 64 hex characters before anything is fetched
+    (a typo would otherwise show only as a mismatch after the whole download)."""
+    if sha256 is None:
+        return None
+    if not _SHA256_HEX.match(sha256.strip()):
+        raise ValueError(f"sha256 must be 64 hexadecimal characters, got {sha256!r}")
+    return sha256.strip().lower()
+
+
+def _check_url(url: str, sha256: Optional[str]) -> None:
+    """Refuse, before any network access, addresses that are not http(s) (``file:`` would
+    read local files, ``data:`` anything) and plain http without a checksum: anyone on the
+    path could replace the archive, and only ``sha256`` would notice."""
+    scheme = urllib.parse.urlparse(url).scheme.lower()
+    if scheme not in ("http", "https"):
+        raise ValueError(f"{url}: only http:// and https:// addresses can be downloaded")
+    if scheme == "http" and sha256 is None:
+        raise DownloadError(
+            f"{url} is plain http, which anyone on the way can alter: pass the archive's "
+            "published checksum with --sha256 HEX, or an https:// mirror with --url")
+
+
+class _NoDowngradeRedirect(urllib.request.HTTPRedirectHandler):
+    """Follows redirects, except from https to anything else: the certificate check that
+    made the https address trustworthy would silently be lost."""
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):
+        old_scheme = urllib.parse.urlparse(req.full_url).scheme.lower()
+        new_scheme = urllib.parse.urlparse(newurl).scheme.lower()
+        if new_scheme not in ("http", "https") or (old_scheme == "https" and new_scheme != "https"):
+            raise DownloadError(f"{req.full_url} redirects to {newurl}: refused (from https "
+                                "a redirect must stay on https, from http go to http(s))")
+        return super().redirect_request(req, fp, code, msg, headers, newurl)
+
+
+def _network_error(url: str, reason: object) -> DownloadError:
+    """A certificate problem said as such (retrying would not help), else offline."""
     host = urllib.parse.urlparse(url).netloc
+    if isinstance(reason, ssl.SSLCertVerificationError):
+        return DownloadError(
+            f"the TLS certificate of {host} could not be verified ({reason.verify_message}): "
+            "the system's CA certificates may be outdated (update them, or set SSL_CERT_FILE "
+            "to your organisation's CA bundle behind an inspecting proxy), or the server is "
+            "not who it claims to be")
     return DownloadError(
         f"cannot reach {host} ({reason}): check the internet connection or proxy "
         f"(HTTPS_PROXY) and run the same command again; a partial download resumes"
@@ -141,15 +198,16 @@ def _open(url: str, start: int, timeout: float):
     request = urllib.request.Request(url, headers={"User-Agent": "ferroslam-download"})
     if start:
         request.add_header("Range", f"bytes={start}-")
+    opener = urllib.request.build_opener(_NoDowngradeRedirect)
     try:
-        return urllib.request.urlopen(request, timeout=timeout)  # noqa: S310 (http(s) only)
+        return opener.open(request, timeout=timeout)
     except urllib.error.HTTPError as err:
         if err.code == 416 and start:  # nothing left to send: the part may be complete
             return err
         raise DownloadError(f"{url}: HTTP {err.code} {err.reason}"
                             + (" (check the sequence name)" if err.code == 404 else "")) from None
-    except (urllib.error.URLError, socket.timeout, ConnectionError) as err:
-        raise _offline_error(url, getattr(err, "reason", err)) from None
+    except (urllib.error.URLError, socket.timeout, ConnectionError, ssl.SSLError) as err:
+        raise _network_error(url, getattr(err, "reason", err)) from None
 
 
 _CONTENT_RANGE = re.compile(r"^bytes\s+(?:(\d+)-\d+|\*)/(\d+|\*)$")
@@ -180,6 +238,7 @@ def download(
     sha256: Optional[str] = None,
     progress: bool = True,
     timeout: float = 30.0,
+    max_bytes: int = MAX_DOWNLOAD_BYTES,
 ) -> Path:
     """Download ``url`` to ``path`` with resume; return ``path``.
 
@@ -187,13 +246,19 @@ def download(
     (a server that ignores ranges sends everything again: the part is restarted). The
     transfer is complete when the part holds the size announced by the server
     (``Content-Length`` / ``Content-Range``); then ``sha256`` (hex) is checked, if given,
-    and the part is renamed to ``path``.
+    and the part is renamed to ``path``. ``url`` must be https, or http with ``sha256``.
+    A file larger than ``max_bytes`` is refused when announced, or stopped and deleted.
 
     Raises:
-        DownloadError: offline / unreachable host (``URLError``, timeout), HTTP error,
-            transfer shorter than announced (the part is kept: call again to resume),
-            more bytes than announced, or checksum mismatch (the file is deleted).
+        ValueError: ``url`` is not http(s), or ``sha256`` is not 64 hex characters.
+        DownloadError: plain http without ``sha256``, a redirect from https to http,
+            offline / unreachable host (``URLError``, timeout), certificate not verified,
+            HTTP error, more than ``max_bytes`` (announced, or received: the part is
+            deleted), transfer shorter than announced (the part is kept: call again to
+            resume), more bytes than announced, or checksum mismatch (the file is deleted).
     """
+    sha256 = _checked_sha256(sha256)
+    _check_url(url, sha256)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     part = path.with_name(path.name + ".part")
@@ -215,7 +280,10 @@ def download(
                 start = 0
                 length = response.headers.get("Content-Length", "")
                 total = int(length) if length.isdigit() else None
-            _receive(response, part, start, total, progress, path.name, url)
+            if total is not None and total > max_bytes:
+                raise DownloadError(f"{url}: the server announces {total} bytes, more than the "
+                                    f"limit of {max_bytes} bytes; check the address")
+            _receive(response, part, start, total, progress, path.name, url, max_bytes)
             break
     size = part.stat().st_size
     if total is not None and size != total:
@@ -226,7 +294,7 @@ def download(
         )
     if sha256 is not None:
         actual = _sha256(part)
-        if actual.lower() != sha256.strip().lower():
+        if actual != sha256:
             part.unlink()
             raise DownloadError(f"{url}: sha256 mismatch (got {actual}, expected {sha256}); "
                                 "the download was deleted, run the command again")
@@ -235,24 +303,32 @@ def download(
 
 
 def _receive(response, part: Path, start: int, total: Optional[int], progress: bool,
-             label: str, url: str) -> None:
+             label: str, url: str, max_bytes: int) -> None:
+    """Append the body to ``part``, counting bytes as they arrive: a server need not
+    announce a size, so only the count stops an endless body (the part is then deleted)."""
     bar = tqdm(total=total, initial=start, unit="B", unit_scale=True, unit_divisor=1024,
                desc=label, disable=not progress)
+    size = start
     try:
         with open(part, "ab" if start else "wb") as f:
-            while True:
+            while size <= max_bytes:
                 try:
                     block = response.read(_CHUNK)
                 except (socket.timeout, ConnectionError) as err:
-                    raise _offline_error(url, err) from None
+                    raise _network_error(url, err) from None
                 except http.client.IncompleteRead:
                     break  # the size check reports it; the part is kept for a resume
                 if not block:
                     break
                 f.write(block)
+                size += len(block)
                 bar.update(len(block))
     finally:
         bar.close()
+    if size > max_bytes:
+        part.unlink()
+        raise DownloadError(f"{url}: the server sent more than the limit of {max_bytes} "
+                            f"bytes; stopped and deleted {part}; check the address")
 
 
 def fetch_dataset(
@@ -273,17 +349,20 @@ def fetch_dataset(
     ``keep_archive``.
 
     Raises:
-        ValueError: unknown dataset or name (see :func:`resolve`), damaged archive or
-            unsafe member paths (see :mod:`ferroslam.archives`).
-        DownloadError: see :func:`download`.
+        ValueError: unknown dataset or name (see :func:`resolve`), ``sha256`` not 64 hex
+            characters, damaged archive or unsafe member paths (see
+            :mod:`ferroslam.archives`).
+        DownloadError: see :func:`download` (the official EuRoC address is plain http:
+            it needs ``sha256`` or an https ``url``).
     """
+    sha256 = _checked_sha256(sha256)
     source = resolve(dataset, name)
     dest = Path(dest).expanduser()
     archive = dest / source.archive_name
     if not archive.is_file():
         download(url or source.url, archive, sha256=sha256, progress=progress,
                  timeout=timeout)
-    elif sha256 is not None and _sha256(archive).lower() != sha256.strip().lower():
+    elif sha256 is not None and _sha256(archive) != sha256:
         raise DownloadError(f"{archive}: sha256 mismatch; delete it and run again")
     try:
         extract_archive(archive, dest / source.subdir if source.subdir else dest)

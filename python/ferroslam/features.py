@@ -121,8 +121,12 @@ class OrbExtractor:
         ``INTER_LINEAR_EXACT``, see the module doc)."""
         levels = [gray]
         h, w = gray.shape
-        for scale in self.scales[1:]:
+        for level, scale in enumerate(self.scales[1:], start=1):
             size = (int(round(w / scale)), int(round(h / scale)))
+            if min(size) < 1:
+                raise ValueError(
+                    f"image {w}x{h} is too small for {self.n_levels} pyramid levels of scale "
+                    f"{self.scale_factor}: level {level} would be {size[0]}x{size[1]} px")
             levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR_EXACT))
         return levels
 

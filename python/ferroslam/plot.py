@@ -229,10 +229,15 @@ def _figure(size: tuple[float, float]) -> Figure:
 
 
 def _save(fig: Figure, path: Union[str, Path]) -> Path:
+    """Saves ``fig`` to ``path``, creating its folders; an ``OSError`` names the path (a
+    parent that is a file otherwise reads "File exists")."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.tight_layout()
+        fig.savefig(path)
+    except OSError as err:
+        raise OSError(err.errno, f"cannot write the plot to {path}: {err.strerror}") from err
     return path
 
 

@@ -2,7 +2,7 @@
 
 use ferroslam_slam::SlamError as CoreError;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyFileNotFoundError, PyValueError};
+use pyo3::exceptions::{PyException, PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::PyErr;
 
 create_exception!(
@@ -13,7 +13,7 @@ create_exception!(
 );
 
 /// Bad configuration or input -> `ValueError` (with the core's message naming the problem);
-/// internal failures -> `SlamError`.
+/// internal failures -> `SlamError`; a stage that failed in its thread -> `RuntimeError`.
 pub fn to_py(err: CoreError) -> PyErr {
     match err {
         CoreError::InvalidConfig(_) | CoreError::InvalidInput(_) => {
@@ -24,5 +24,6 @@ pub fn to_py(err: CoreError) -> PyErr {
         } => PyFileNotFoundError::new_err(err.to_string()),
         CoreError::MapFile { .. } => PyValueError::new_err(err.to_string()),
         CoreError::Map(_) | CoreError::Optim(_) => SlamError::new_err(err.to_string()),
+        CoreError::StageFailed { .. } => PyRuntimeError::new_err(err.to_string()),
     }
 }

@@ -21,10 +21,15 @@ use crate::convert;
 pub fn detect_orb_corners<'py>(
     py: Python<'py>,
     levels: &Bound<'py, PyAny>,
-    budgets: Vec<usize>,
+    budgets: &Bound<'py, PyAny>,
     ini_fast: u8,
     min_fast: u8,
 ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let budgets: Vec<usize> = budgets.extract().map_err(|_| {
+        PyValueError::new_err(format!(
+            "budgets must be a list of keypoint counts >= 0, one per level, got {budgets}"
+        ))
+    })?;
     if !(0 < min_fast && min_fast <= ini_fast) {
         return Err(PyValueError::new_err(format!(
             "need 0 < min_fast <= ini_fast, got min_fast = {min_fast}, ini_fast = {ini_fast}"

@@ -41,6 +41,15 @@ pub fn match_stereo<'py>(
         convert::pyramid(left_pyramid, "left_pyramid")?,
         convert::pyramid(right_pyramid, "right_pyramid")?,
     );
+    for (l, (left, right)) in lp.iter().zip(&rp).enumerate() {
+        if (left.0, left.1) != (right.0, right.1) {
+            return Err(PyValueError::new_err(format!(
+                "left_pyramid[{l}] is {}x{} but right_pyramid[{l}] is {}x{} (width x height): \
+                 a rectified pair has images of one size",
+                left.0, left.1, right.0, right.1
+            )));
+        }
+    }
     let too_high =
         |k: &[ferroslam_features::Keypoint], n: usize| k.iter().any(|k| k.octave as usize >= n);
     if too_high(&lk, lp.len()) || too_high(&rk, rp.len()) {

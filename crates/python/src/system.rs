@@ -1,12 +1,16 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::{Mutex, MutexGuard, TryLockError};
+
 use ferroslam_slam::{
-    BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamSystem, TrackResult, TrackingState,
+    BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamError, SlamSystem, TrackResult,
+    TrackingState,
 };
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyUntypedArrayMethods};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -128,9 +132,26 @@ impl PyTrackResult {
 /// thread (`set_mapping_thread`).
 #[pyclass(name = "SlamSystem", module = "ferroslam._core")]
 pub struct PySlamSystem {
-    engine: Engine,
+    /// Behind a mutex so that a second Python thread calling in meanwhile gets a clear
+    /// error (the system is not thread-safe) rather than PyO3's "Already borrowed".
+    engine: Mutex<Engine>,
     /// The configuration the system was built with.
     config: SlamConfig,
+}
+
+impl PySlamSystem {
+    /// The engine, if no other thread is using it.
+    fn engine(&self) -> PyResult<MutexGuard<'_, Engine>> {
+        self.engine.try_lock().map_err(|e| match e {
+            TryLockError::WouldBlock => PyRuntimeError::new_err(
+                "this SlamSystem is in use by another thread: it is not thread-safe; feed it \
+                 from one thread (threaded=True already tracks and maps in threads of its own)",
+            ),
+            TryLockError::Poisoned(_) => PyRuntimeError::new_err(
+                "this SlamSystem failed in an earlier call (internal error); create a new one",
+            ),
+        })
+    }
 }
 
 #[pymethods]
@@ -185,11 +206,18 @@ impl PySlamSystem {
             Engine::Background {
                 slam: BackgroundSlam::spawn(system, true),
                 guard,
+                pid: std::process::id(),
             }
         } else {
-            Engine::Inline(Box::new(system))
+            Engine::Inline {
+                system: Box::new(system),
+                failure: None,
+            }
         };
-        Ok(Self { engine, config })
+        Ok(Self {
+            engine: Mutex::new(engine),
+            config,
+        })
     }
 
     /// Tracks one RGB-D frame (queues it in threaded mode and returns None).
@@ -197,7 +225,7 @@ impl PySlamSystem {
     /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
     /// descriptors: (N, 32) uint8; depth_m: (N,) float32 metres (0 = none).
     fn track_rgbd(
-        &mut self,
+        &self,
         py: Python<'_>,
         timestamp: f64,
         keypoints: &Bound<'_, PyAny>,
@@ -221,7 +249,7 @@ impl PySlamSystem {
             descriptors: descs,
             depth_m: convert::floats(&depth_m),
         };
-        self.engine.track(py, frame)
+        self.engine()?.track(py, frame)
     }
 
     /// Tracks one rectified stereo pair (queues it in threaded mode and returns None).
@@ -231,7 +259,7 @@ impl PySlamSystem {
     /// image scaled by scale_factor^-l, as used for detection), equal sizes left and right.
     #[allow(clippy::too_many_arguments)]
     fn track_stereo(
-        &mut self,
+        &self,
         py: Python<'_>,
         timestamp: f64,
         left_keypoints: &Bound<'_, PyAny>,
@@ -248,7 +276,7 @@ impl PySlamSystem {
             left: (lk, ld, convert::pyramid(left_pyramid, "left_pyramid")?),
             right: (rk, rd, convert::pyramid(right_pyramid, "right_pyramid")?),
         };
-        self.engine.track(py, frame)
+        self.engine()?.track(py, frame)
     }
 
     /// Tracks one monocular frame (queues it in threaded mode and returns None).
@@ -256,7 +284,7 @@ impl PySlamSystem {
     /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
     /// descriptors: (N, 32) uint8.
     fn track_mono(
-        &mut self,
+        &self,
         py: Python<'_>,
         timestamp: f64,
         keypoints: &Bound<'_, PyAny>,
@@ -268,15 +296,17 @@ impl PySlamSystem {
             keypoints: kps,
             descriptors: descs,
         };
-        self.engine.track(py, frame)
+        self.engine()?.track(py, frame)
     }
 
     /// Threaded mode: results of the frames processed since the last call, in order (frames
     /// the core rejected raise here). Synchronous mode: always empty (track_* returns them).
-    fn take_results(&mut self) -> PyResult<Vec<PyTrackResult>> {
-        let Engine::Background { slam, .. } = &self.engine else {
+    fn take_results(&self) -> PyResult<Vec<PyTrackResult>> {
+        let engine = self.engine()?;
+        let Engine::Background { slam, pid, .. } = &*engine else {
             return Ok(Vec::new());
         };
+        check_process(*pid)?;
         slam.take_results()
             .into_iter()
             .map(|r| r.map(|inner| PyTrackResult { inner }).map_err(to_py))
@@ -285,40 +315,40 @@ impl PySlamSystem {
 
     /// Whether every submitted frame has been tracked and mapped (always true when
     /// synchronous).
-    fn is_done(&self) -> bool {
-        match &self.engine {
-            Engine::Inline(_) => true,
+    fn is_done(&self) -> PyResult<bool> {
+        Ok(match &*self.engine()? {
+            Engine::Inline { .. } => true,
             Engine::Background { slam, .. } => slam.is_idle(),
-        }
+        })
     }
 
     /// Blocks (without the GIL) until every submitted frame has been tracked and mapped.
-    fn wait(&mut self, py: Python<'_>) -> PyResult<()> {
-        self.engine
+    fn wait(&self, py: Python<'_>) -> PyResult<()> {
+        self.engine()?
             .run(py, SlamSystem::finish_mapping)?
             .map_err(to_py)
     }
 
     /// Runs local mapping and loop closing in a thread of their own (always so when
     /// threaded); off again, the queued keyframes are mapped first.
-    fn set_mapping_thread(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
-        self.engine
+    fn set_mapping_thread(&self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.engine()?
             .run(py, move |s| s.set_concurrent_mapping(on))?
             .map_err(to_py)
     }
 
     /// Records (`True`) each local BA problem as local mapping builds it, before solving;
     /// `False` stops and drops the record. Mapping must run inline.
-    fn record_local_ba_problems(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
-        self.engine
+    fn record_local_ba_problems(&self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.engine()?
             .run(py, move |s| s.record_local_ba_problems(on))?
             .map_err(to_py)
     }
 
     /// The local BA problems recorded since the last call, oldest first, each in the text
     /// form `BaProblem::to_text` writes.
-    fn take_local_ba_problems(&mut self, py: Python<'_>) -> PyResult<Vec<String>> {
-        self.engine.run(py, |s| {
+    fn take_local_ba_problems(&self, py: Python<'_>) -> PyResult<Vec<String>> {
+        self.engine()?.run(py, |s| {
             s.take_local_ba_problems()
                 .iter()
                 .map(|p| p.to_text())
@@ -328,14 +358,14 @@ impl PySlamSystem {
 
     /// Whether local mapping and loop closing run in a thread of their own.
     #[getter]
-    fn mapping_thread(&mut self, py: Python<'_>) -> PyResult<bool> {
-        self.engine.run(py, |s| s.concurrent_mapping())
+    fn mapping_thread(&self, py: Python<'_>) -> PyResult<bool> {
+        self.engine()?.run(py, |s| s.concurrent_mapping())
     }
 
     /// Whether frames are processed in a background thread.
     #[getter]
-    fn threaded(&self) -> bool {
-        matches!(self.engine, Engine::Background { .. })
+    fn threaded(&self) -> PyResult<bool> {
+        Ok(matches!(*self.engine()?, Engine::Background { .. }))
     }
 
     /// The sensor this system was created for: "mono", "stereo" or "rgbd".
@@ -359,8 +389,8 @@ impl PySlamSystem {
 
     /// Map segment of each frame of frame_trajectory(), (N,) uint32: a monocular system
     /// starts a new segment (own frame and scale) after it stays lost.
-    fn frame_segments<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
-        let ids: Vec<u32> = self.engine.run(py, |s| {
+    fn frame_segments<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        let ids: Vec<u32> = self.engine()?.run(py, |s| {
             s.frame_segments().into_iter().map(|s| s as u32).collect()
         })?;
         Ok(PyArray1::from_vec(py, ids))
@@ -369,8 +399,8 @@ impl PySlamSystem {
     /// Loops closed so far, oldest first: dicts with the two keyframe ids ("current",
     /// "matched"), their "timestamps", "num_matches", Sim(3) "scale", "correction_m" (how far
     /// the current keyframe moved) and the essential graph's "graph_cost" (before, after).
-    fn loops<'py>(&mut self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
-        let loops = self.engine.run(py, |s| s.loops().to_vec())?;
+    fn loops<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let loops = self.engine()?.run(py, |s| s.loops().to_vec())?;
         loops
             .into_iter()
             .map(|l| {
@@ -390,8 +420,8 @@ impl PySlamSystem {
     /// Loop-detection counters: "keyframes_checked", "with_candidates" (bag-of-words
     /// candidates found), "verified" (consistent candidates checked geometrically),
     /// "rejected" (refused by the Sim(3) or the match count).
-    fn loop_stats<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let st = self.engine.run(py, |s| s.loop_stats())?;
+    fn loop_stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let st = self.engine()?.run(py, |s| s.loop_stats())?;
         let d = PyDict::new(py);
         d.set_item("keyframes_checked", st.keyframes_checked)?;
         d.set_item("with_candidates", st.with_candidates)?;
@@ -401,8 +431,8 @@ impl PySlamSystem {
     }
 
     /// (timestamps (N,), T_w_c (N, 4, 4)) of every tracked frame, with map corrections.
-    fn frame_trajectory<'py>(&mut self, py: Python<'py>) -> PyResult<FrameArrays<'py>> {
-        let traj = self.engine.run(py, |s| s.frame_trajectory())?;
+    fn frame_trajectory<'py>(&self, py: Python<'py>) -> PyResult<FrameArrays<'py>> {
+        let traj = self.engine()?.run(py, |s| s.frame_trajectory())?;
         let stamps = traj.iter().map(|(t, _)| *t).collect();
         let poses: Vec<_> = traj.into_iter().map(|(_, T)| T).collect();
         Ok((
@@ -412,8 +442,8 @@ impl PySlamSystem {
     }
 
     /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes.
-    fn keyframe_trajectory<'py>(&mut self, py: Python<'py>) -> PyResult<KeyFrameArrays<'py>> {
-        let kfs = self.engine.run(py, |s| s.keyframe_trajectory())?;
+    fn keyframe_trajectory<'py>(&self, py: Python<'py>) -> PyResult<KeyFrameArrays<'py>> {
+        let kfs = self.engine()?.run(py, |s| s.keyframe_trajectory())?;
         let ids: Vec<u32> = kfs.iter().map(|(id, _, _)| id.0).collect();
         let stamps = kfs.iter().map(|(_, t, _)| *t).collect();
         let poses: Vec<_> = kfs.into_iter().map(|(_, _, T)| T).collect();
@@ -425,8 +455,8 @@ impl PySlamSystem {
     }
 
     /// World positions of the map points, (M, 3) float64 metres.
-    fn map_points<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let pts = self.engine.run(py, |s| s.map_points())?;
+    fn map_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = self.engine()?.run(py, |s| s.map_points())?;
         Ok(PyArray2::from_owned_array(
             py,
             Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]),
@@ -434,71 +464,67 @@ impl PySlamSystem {
     }
 
     /// Writes the map to `path` (versioned binary file with a checksum).
-    fn save_map(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
-        self.engine
+    fn save_map(&self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
+        self.engine()?
             .run(py, move |s| s.save_map(&path))?
             .map_err(to_py)
     }
 
     /// Replaces the map with the one saved at `path`; the next frames relocalise in it.
-    fn load_map(&mut self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
-        self.engine
+    fn load_map(&self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
+        self.engine()?
             .run(py, move |s| s.load_map(&path))?
             .map_err(to_py)
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by bag of words and lost frames are
     /// relocalised against the keyframes they resemble.
-    fn set_vocabulary(
-        &mut self,
-        py: Python<'_>,
-        vocabulary: PyRef<'_, PyVocabulary>,
-    ) -> PyResult<()> {
+    fn set_vocabulary(&self, py: Python<'_>, vocabulary: PyRef<'_, PyVocabulary>) -> PyResult<()> {
         let shared = vocabulary.shared();
-        self.engine.run(py, move |s| s.set_vocabulary(shared))
+        self.engine()?.run(py, move |s| s.set_vocabulary(shared))
     }
 
     /// Localisation-only mode: track against the map without adding keyframes.
     #[getter]
-    fn get_localization_only(&mut self, py: Python<'_>) -> PyResult<bool> {
-        self.engine.run(py, |s| s.localization_only())
+    fn get_localization_only(&self, py: Python<'_>) -> PyResult<bool> {
+        self.engine()?.run(py, |s| s.localization_only())
     }
 
     #[setter]
-    fn set_localization_only(&mut self, py: Python<'_>, on: bool) -> PyResult<()> {
-        self.engine
+    fn set_localization_only(&self, py: Python<'_>, on: bool) -> PyResult<()> {
+        self.engine()?
             .run(py, move |s| s.set_localization_only(on))?
             .map_err(to_py)
     }
 
     /// Clears the map; tracking restarts with the next frame.
-    fn reset(&mut self, py: Python<'_>) -> PyResult<()> {
-        self.engine.run(py, |s| s.reset())
+    fn reset(&self, py: Python<'_>) -> PyResult<()> {
+        self.engine()?.run(py, |s| s.reset())
     }
 
     /// "not_initialized", "ok", "lost" or "recently_lost" (vision failed; the pose is the
     /// IMU's prediction, aligned visual-inertial maps only).
     #[getter]
-    fn state(&mut self, py: Python<'_>) -> PyResult<&'static str> {
-        self.engine.run(py, |s| state_name(s.state()))
+    fn state(&self, py: Python<'_>) -> PyResult<&'static str> {
+        self.engine()?.run(py, |s| state_name(s.state()))
     }
 
     /// Live keyframes in the map.
     #[getter]
-    fn num_keyframes(&mut self, py: Python<'_>) -> PyResult<usize> {
-        self.engine.run(py, |s| s.map().num_keyframes())
+    fn num_keyframes(&self, py: Python<'_>) -> PyResult<usize> {
+        self.engine()?.run(py, |s| s.map().num_keyframes())
     }
 
     /// Live map points.
     #[getter]
-    fn num_map_points(&mut self, py: Python<'_>) -> PyResult<usize> {
-        self.engine.run(py, |s| s.map().num_map_points())
+    fn num_map_points(&self, py: Python<'_>) -> PyResult<usize> {
+        self.engine()?.run(py, |s| s.map().num_map_points())
     }
 
     /// Map resets so far (tracking lost right after initialisation).
     #[getter]
-    fn num_resets(&mut self, py: Python<'_>) -> PyResult<usize> {
-        self.engine.run(py, |s| s.resets())
+    fn num_resets(&self, py: Python<'_>) -> PyResult<usize> {
+        self.engine()?.run(py, |s| s.resets())
     }
 
     /// Sets the IMU: noise model `params` (an ImuParams or a dict), `T_b_c` (4, 4) camera
@@ -507,7 +533,7 @@ impl PySlamSystem {
     #[pyo3(signature = (params, T_b_c, *, num_poses_threshold = 20, alignment_fraction = 0.9, gravity_magnitude = 9.81, imu_time_offset_s = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn set_imu(
-        &mut self,
+        &self,
         py: Python<'_>,
         params: &Bound<'_, PyAny>,
         T_b_c: &Bound<'_, PyAny>,
@@ -524,7 +550,7 @@ impl PySlamSystem {
             gravity_magnitude,
             imu_time_offset_s,
         )?;
-        self.engine
+        self.engine()?
             .run(py, move |s| s.set_imu(config))?
             .map_err(to_py)
     }
@@ -532,29 +558,31 @@ impl PySlamSystem {
     /// Adds IMU samples: timestamps (M,) s, gyro (M, 3) rad/s, accel (M, 3) m/s^2, float64,
     /// body frame; feed each frame's samples before tracking it.
     fn add_imu(
-        &mut self,
+        &self,
         py: Python<'_>,
         timestamps: &Bound<'_, PyAny>,
         gyro: &Bound<'_, PyAny>,
         accel: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
         let samples = inertial::samples(timestamps, gyro, accel)?;
-        self.engine
+        self.engine()?
             .run(py, move |s| s.add_imu(&samples))?
             .map_err(to_py)
     }
 
     /// The camera-IMU alignment of the current map as a dict, or None without an IMU.
-    fn inertial_alignment<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let status = self.engine.run(py, |s| s.inertial_alignment().cloned())?;
+    fn inertial_alignment<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let status = self
+            .engine()?
+            .run(py, |s| s.inertial_alignment().cloned())?;
         status.map(|s| inertial::status_dict(py, &s)).transpose()
     }
 
     /// The newest keyframe's IMU state once aligned, else None: ``{"keyframe_id",
     /// "timestamp", "velocity" (3,) m/s body velocity in the world, "gyro_bias" (3,) rad/s,
     /// "accel_bias" (3,) m/s^2}``.
-    fn keyframe_imu_state<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let state = self.engine.run(py, |s| s.keyframe_imu_state())?;
+    fn keyframe_imu_state<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let state = self.engine()?.run(py, |s| s.keyframe_imu_state())?;
         state
             .map(|(id, t, v, bias)| inertial::imu_state_dict(py, id.0, t, &v, &bias))
             .transpose()
@@ -564,10 +592,17 @@ impl PySlamSystem {
 /// Where frames are processed: in the calling thread, or in a background thread fed through
 /// a bounded queue (input checked here first, so bad frames raise at once).
 enum Engine {
-    Inline(Box<SlamSystem>),
+    /// Each call runs on the caller's thread; after a panic (a bug) the system may be
+    /// inconsistent, so `failure` refuses every later call.
+    Inline {
+        system: Box<SlamSystem>,
+        failure: Option<SlamError>,
+    },
+    /// Tracking and mapping in threads of the process `pid` that created them.
     Background {
         slam: BackgroundSlam,
         guard: InputGuard,
+        pid: u32,
     },
 }
 
@@ -579,23 +614,64 @@ impl Engine {
         job: impl FnOnce(&mut SlamSystem) -> R + Send + 'static,
     ) -> PyResult<R> {
         match self {
-            Engine::Inline(system) => Ok(py.detach(|| job(system))),
-            Engine::Background { slam, .. } => py.detach(|| slam.run(job)).map_err(to_py),
+            Engine::Inline { system, failure } => {
+                inline(py, system, failure, |system| Ok(job(system))).map_err(to_py)
+            }
+            Engine::Background { slam, pid, .. } => {
+                check_process(*pid)?;
+                py.detach(|| slam.run(job)).map_err(to_py)
+            }
         }
     }
 
     /// Tracks `frame` now (synchronous: its result) or queues it (threaded: None).
     fn track(&mut self, py: Python<'_>, frame: OwnedFrame) -> PyResult<Option<PyTrackResult>> {
         match self {
-            Engine::Inline(system) => py
-                .detach(|| frame.track(system))
-                .map(|inner| Some(PyTrackResult { inner }))
-                .map_err(to_py),
-            Engine::Background { slam, guard } => {
+            Engine::Inline { system, failure } => {
+                inline(py, system, failure, |system| frame.track(system))
+                    .map(|inner| Some(PyTrackResult { inner }))
+                    .map_err(to_py)
+            }
+            Engine::Background { slam, guard, pid } => {
+                check_process(*pid)?;
                 frame.check(guard).map_err(to_py)?;
                 py.detach(|| slam.submit(frame)).map_err(to_py)?;
                 Ok(None)
             }
         }
     }
+}
+
+/// `job` on an inline system without the GIL; a panic becomes [`SlamError::StageFailed`]
+/// (never a `PanicException`) and is kept in `failure`, which refuses every later call.
+fn inline<R>(
+    py: Python<'_>,
+    system: &mut SlamSystem,
+    failure: &mut Option<SlamError>,
+    job: impl FnOnce(&mut SlamSystem) -> Result<R, SlamError> + Send,
+) -> Result<R, SlamError>
+where
+    R: Send,
+{
+    if let Some(error) = failure {
+        return Err(error.clone());
+    }
+    let outcome = py.detach(|| catch_unwind(AssertUnwindSafe(|| job(system))));
+    outcome.unwrap_or_else(|panic| {
+        let error = SlamError::from_panic("tracking", &*panic);
+        *failure = Some(error.clone());
+        Err(error)
+    })
+}
+
+/// A threaded system's threads exist only in the process that created it: used in a
+/// forked child, every call would wait for threads that are not there.
+fn check_process(pid: u32) -> PyResult<()> {
+    if std::process::id() == pid {
+        return Ok(());
+    }
+    Err(PyRuntimeError::new_err(
+        "this threaded SlamSystem was created in another process (this is a fork of it): its \
+         tracking and mapping threads do not exist here; create a new system in this process",
+    ))
 }

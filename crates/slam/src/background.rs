@@ -8,6 +8,7 @@
 //! message executed by the tracking thread after the frames queued before it: it owns the
 //! map, nobody locks it. [`BackgroundSlam::wait`] also waits for the mapping thread.
 
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::sync::{Arc, Mutex};
@@ -267,16 +268,25 @@ fn worker_loop(
     for message in inbox {
         match message {
             Message::Frame(frame) => {
-                let result = frame.track(system);
+                let result = catch_unwind(AssertUnwindSafe(|| frame.track(system)))
+                    .unwrap_or_else(|panic| Err(SlamError::from_panic("tracking", &*panic)));
+                let failed = matches!(result, Err(SlamError::StageFailed { .. }));
                 // Report before counting the frame done: `pending() == 0` then implies that
                 // every result can be taken.
                 let reported = report.send(result).is_ok();
                 pending.fetch_sub(1, Ordering::SeqCst);
-                if !reported {
+                // After a panic the system may be inconsistent: the thread stops, and the
+                // next call says why (the caller already has this frame's error).
+                if !reported || failed {
                     return;
                 }
             }
-            Message::Run(job) => job(system),
+            Message::Run(job) => {
+                if catch_unwind(AssertUnwindSafe(|| job(system))).is_err() {
+                    // The caller's reply channel is dropped: its call reports the failure.
+                    return;
+                }
+            }
         }
     }
     // The queue is closed: let the mapping thread finish so nothing submitted is lost.
@@ -284,7 +294,12 @@ fn worker_loop(
 }
 
 fn stopped() -> SlamError {
-    SlamError::InvalidInput("the SLAM background thread has stopped".into())
+    SlamError::StageFailed {
+        stage: "tracking",
+        message: "the SLAM background thread has stopped after an earlier error; create a \
+                  new system"
+            .into(),
+    }
 }
 
 #[cfg(test)]
@@ -306,6 +321,34 @@ mod tests {
             keypoints: Vec::new(),
             descriptors: Vec::new(),
         }
+    }
+
+    #[test]
+    fn a_panic_in_the_thread_surfaces_as_a_stage_failure_at_the_next_call() {
+        let slam = BackgroundSlam::spawn(system(), true);
+        let panicked = slam.run(|_| -> () { panic!("boom") });
+        assert!(matches!(
+            panicked,
+            Err(SlamError::StageFailed {
+                stage: "tracking",
+                ..
+            })
+        ));
+        // The thread is gone: later calls say so, queued work is not waited for forever.
+        assert!(matches!(
+            slam.run(|s| s.state()),
+            Err(SlamError::StageFailed { .. })
+        ));
+        assert!(matches!(
+            slam.submit(empty(1.0)),
+            Err(SlamError::StageFailed { .. })
+        ));
+        assert_eq!(slam.pending(), 0);
+        let message = SlamError::from_panic("local mapping", &"index out of bounds").to_string();
+        assert_eq!(
+            message,
+            "internal error in local mapping (please report): index out of bounds"
+        );
     }
 
     #[test]

@@ -17,8 +17,9 @@
 //! results of older jobs are dropped and the thread starts its next job afresh.
 
 use std::collections::HashMap;
+use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -62,6 +63,8 @@ enum FromMapping {
     Grown { epoch: u64, journal: MapJournal },
     /// The job is done.
     Done(Mapped),
+    /// The job panicked (a bug): the thread stops.
+    Failed(SlamError),
 }
 
 /// What a job did.
@@ -106,6 +109,8 @@ pub(crate) struct ConcurrentMapper {
     frame_interval: Option<Duration>,
     /// Wall time of the last keyframe mapped unhurried, microseconds (0: none yet).
     keyframe_mapping_us: Arc<AtomicU64>,
+    /// Why the mapping thread stopped, once it has: every later collect reports it.
+    failure: Option<SlamError>,
 }
 
 /// Keyframes local mapping may have queued or in progress when tracking wants another;
@@ -148,7 +153,13 @@ impl ConcurrentMapper {
             last_frame: None,
             frame_interval: None,
             keyframe_mapping_us,
+            failure: None,
         }
+    }
+
+    /// Why the mapping thread stopped (a panic in local mapping or loop closing), if it did.
+    pub(crate) fn failure(&self) -> Option<&SlamError> {
+        self.failure.as_ref()
     }
 
     /// Tracking starts a frame (the pace of frames decides whether mapping is hurried).
@@ -209,21 +220,33 @@ impl ConcurrentMapper {
             let next = {
                 let done = self.done.lock().unwrap_or_else(PoisonError::into_inner);
                 if wait && self.in_flight {
-                    done.recv().ok()
+                    done.recv().map_err(|_| TryRecvError::Disconnected)
                 } else {
-                    done.try_recv().ok()
+                    done.try_recv()
                 }
             };
             let mapped = match next {
-                None => break,
-                Some(FromMapping::Grown { epoch, journal }) => {
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => {
+                    // Gone without a word (it reports its panics): nothing more will come.
+                    self.stop(SlamError::StageFailed {
+                        stage: "local mapping",
+                        message: "the mapping thread has stopped".into(),
+                    });
+                    break;
+                }
+                Ok(FromMapping::Failed(error)) => {
+                    self.stop(error);
+                    break;
+                }
+                Ok(FromMapping::Grown { epoch, journal }) => {
                     if epoch == self.epoch {
                         map.apply_journal_part(&journal, &mut self.renamed_in_flight);
                     }
                     continue;
                 }
-                Some(FromMapping::Done(mapped)) if mapped.epoch == self.epoch => mapped,
-                Some(FromMapping::Done(_)) => {
+                Ok(FromMapping::Done(mapped)) if mapped.epoch == self.epoch => mapped,
+                Ok(FromMapping::Done(_)) => {
                     // A job of the map before a reset: its edits are dropped, but the thread
                     // is free only now (waiting for it keeps `wait` honest: afterwards the
                     // backlog is empty).
@@ -243,6 +266,14 @@ impl ConcurrentMapper {
             }
         }
         out
+    }
+
+    /// Records that the mapping thread stopped: nothing is in flight or queued any more.
+    fn stop(&mut self, error: SlamError) {
+        self.failure.get_or_insert(error);
+        self.in_flight = false;
+        self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
+        self.queue.clear();
     }
 
     /// Forgets the queue and the result of any job in flight (the map was reset or
@@ -314,12 +345,20 @@ fn mapping_loop(
     for job in inbox {
         let n = job.work.len();
         let run = || state.run(job, ctx, &report, interrupt, keyframe_mapping_us);
-        let mapped = match &pool {
+        let mapped = catch_unwind(AssertUnwindSafe(|| match &pool {
             Some(pool) => pool.install(run),
             None => run(),
-        };
+        }));
         backlog.fetch_sub(n, Ordering::SeqCst);
-        if report.send(FromMapping::Done(mapped)).is_err() {
+        // After a panic the mapping state may be inconsistent: report it and stop.
+        let (message, stop) = match mapped {
+            Ok(mapped) => (FromMapping::Done(mapped), false),
+            Err(panic) => (
+                FromMapping::Failed(SlamError::from_panic("local mapping", &*panic)),
+                true,
+            ),
+        };
+        if report.send(message).is_err() || stop {
             return;
         }
     }

@@ -608,6 +608,7 @@ impl Inertial {
             ..AlignmentConfig::default()
         };
         let out = align(&poses, &self.config.T_b_c, &pres, &config).map_err(|e| e.to_string())?;
+        check_plausible(&out)?;
         Ok(InertialAlignment {
             scale: out.scale,
             refinement: 0,
@@ -646,6 +647,46 @@ impl Inertial {
         }
         self.sync(map);
     }
+}
+
+/// Largest gyro bias an alignment may find, rad/s (29 deg/s): MEMS gyro biases stay within a
+/// few deg/s (EuRoC's ADIS16448: 0.08 rad/s). Beyond, the readings do not describe the
+/// rotation vision sees: another unit (deg/s during slow motion), a constant, wrong axes.
+pub const MAX_GYRO_BIAS_RAD_S: f64 = 0.5;
+/// Largest accelerometer bias an alignment may find, m/s^2 (MEMS: a few tenths).
+pub const MAX_ACCEL_BIAS_M_S2: f64 = 2.0;
+/// Largest keyframe speed an alignment may find, m/s (360 km/h): garbage IMU data (cm/s^2
+/// that passed the unit checks, samples from another clock) "aligns" at hundreds of m/s.
+pub const MAX_SPEED_M_S: f64 = 100.0;
+
+/// Refuses an alignment whose biases or velocities (m/s) no real IMU and camera produce,
+/// naming the sensor to check.
+fn check_plausible(out: &ferroslam_imu::alignment::Alignment) -> Result<(), String> {
+    let gyro = out.gyro_bias.norm();
+    if gyro > MAX_GYRO_BIAS_RAD_S {
+        return Err(format!(
+            "gyroscope: matching the rotation vision sees needs a gyro bias of {gyro:.2} rad/s, \
+             beyond any MEMS gyro's ({MAX_GYRO_BIAS_RAD_S} rad/s): check the gyroscope's unit \
+             (deg/s instead of rad/s?), its axes (T_b_c) and imu_time_offset_s"
+        ));
+    }
+    let accel = out.accel_bias.norm();
+    if accel > MAX_ACCEL_BIAS_M_S2 {
+        return Err(format!(
+            "accelerometer: the alignment needs an accelerometer bias of {accel:.2} m/s^2, \
+             beyond any MEMS accelerometer's ({MAX_ACCEL_BIAS_M_S2} m/s^2): check its unit \
+             (m/s^2) and axes (T_b_c)"
+        ));
+    }
+    let speed = out.velocities.iter().map(|v| v.norm()).fold(0.0, f64::max);
+    if speed > MAX_SPEED_M_S {
+        return Err(format!(
+            "accelerometer: the alignment puts the camera at {speed:.0} m/s, beyond \
+             {MAX_SPEED_M_S} m/s: check the accelerometer's unit (m/s^2), the IMU timestamps \
+             and imu_time_offset_s"
+        ));
+    }
+    Ok(())
 }
 
 /// Live keyframes `(id, timestamp)` in time order.
@@ -733,6 +774,40 @@ mod tests {
         // Order is checked on the camera clock too.
         let err = inertial.add(&[sample(1.016)]).unwrap_err();
         assert!(err.to_string().contains("last sample added"), "{err}");
+    }
+
+    #[test]
+    fn implausible_alignments_name_the_sensor() {
+        let plausible = ferroslam_imu::alignment::Alignment {
+            scale: 1.0,
+            gravity_w: Vector3::new(0.0, 0.0, -9.81),
+            R_w_gravity: UnitQuaternion::identity(),
+            gyro_bias: Vector3::new(-0.003, 0.021, 0.08),
+            accel_bias: Vector3::zeros(),
+            accel_bias_estimated: false,
+            velocities: vec![Vector3::new(0.3, 0.0, 0.1); 3],
+            acceleration_excitation: 1.0,
+        };
+        assert_eq!(check_plausible(&plausible), Ok(()));
+        let constant_gyro = ferroslam_imu::alignment::Alignment {
+            gyro_bias: Vector3::new(0.0, 0.0, 3.0),
+            ..plausible.clone()
+        };
+        assert!(check_plausible(&constant_gyro)
+            .unwrap_err()
+            .starts_with("gyroscope: matching the rotation vision sees needs a gyro bias of 3.00"));
+        let fast = ferroslam_imu::alignment::Alignment {
+            velocities: vec![Vector3::new(442.0, 0.0, 0.0)],
+            ..plausible.clone()
+        };
+        assert!(check_plausible(&fast).unwrap_err().contains("442 m/s"));
+        let biased = ferroslam_imu::alignment::Alignment {
+            accel_bias: Vector3::new(0.0, 5.0, 0.0),
+            ..plausible
+        };
+        assert!(check_plausible(&biased)
+            .unwrap_err()
+            .starts_with("accelerometer"));
     }
 
     #[test]

@@ -458,6 +458,10 @@ impl SlamSystem {
         };
         let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
         let finished = concurrent.collect(&mut self.map, vocabulary.as_ref(), wait);
+        if let Some(failure) = concurrent.failure() {
+            // Mapping stopped for good: every call says so rather than track without it.
+            return Err(failure.clone());
+        }
         if finished.is_empty() {
             return Ok(());
         }
