@@ -390,3 +390,29 @@ def test_a_second_thread_calling_in_is_told_the_system_is_not_thread_safe():
     finally:
         waiter.join()
     assert slam.state == "ok"
+
+
+def test_complex_or_boolean_depth_is_refused():
+    with RGBDVSlam(CAMERA, 5000, threaded=False, vocabulary=None) as vslam:
+        image = np.zeros((480, 640), np.uint8)
+        for depth in (np.zeros((480, 640), complex), np.zeros((480, 640), bool)):
+            with pytest.raises(ValueError, match="depth must be an integer or float image"):
+                vslam.add_frame(image, depth)
+
+
+def test_an_imu_batch_of_two_arrays_names_imu():
+    seq, vslam = _euroc_stereo_inertial()
+    t, gyro, _ = seq.imu()
+    with vslam, pytest.raises(ValueError, match=r"imu must be \(timestamps"):
+        vslam.add_frame(*seq.load_stereo(0), timestamp=seq.timestamps[0], imu=(t[:2], gyro[:2]))
+
+
+@pytest.mark.parametrize("argv", [
+    ["vocab", "export-dbow2", "/proc/version/voc.txt"],
+    ["demo", "--max-frames", "2", "--silent", "--out", "/proc/version/demo"],
+])
+def test_cli_unwritable_outputs_are_one_line_errors(argv, capsys):
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("ferroslam: error:") and "/proc/version" in err
+    assert "Traceback" not in err
