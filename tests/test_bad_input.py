@@ -410,9 +410,42 @@ def test_an_imu_batch_of_two_arrays_names_imu():
 @pytest.mark.parametrize("argv", [
     ["vocab", "export-dbow2", "/proc/version/voc.txt"],
     ["demo", "--max-frames", "2", "--silent", "--out", "/proc/version/demo"],
+    ["download", "tum", "freiburg1_xyz", "--to", "/proc/version/data", "--silent"],
 ])
 def test_cli_unwritable_outputs_are_one_line_errors(argv, capsys):
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert err.startswith("ferroslam: error:") and "/proc/version" in err
     assert "Traceback" not in err
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_vocabulary_load_refuses_a_fifo_without_blocking(tmp_path):
+    fifo = tmp_path / "voc.fifo"
+    os.mkfifo(fifo)
+    with pytest.raises((ValueError, OSError), match="not a regular file"):
+        Vocabulary.load(str(fifo))
+
+
+def test_a_gyroscope_in_degrees_during_slow_motion_does_not_align():
+    """Standing still, a gyro in deg/s reads about 4.6 (the bias x 57), under the 35 rad/s
+    the unit check catches: the alignment must refuse, naming the gyroscope."""
+    from ferroslam.pipeline import run_sequence
+
+    seq = open_sequence(require_data("euroc", "V1_01_easy_micro"))
+
+    class Degrees:
+        def __getattr__(self, name):
+            return getattr(seq, name)
+
+        def __len__(self):
+            return len(seq)
+
+        def imu(self):
+            t, gyro, accel = seq.imu()
+            return t, np.degrees(gyro), accel
+
+    result = run_sequence(Degrees(), {"num_poses_threshold": 10}, sensor="stereo-inertial",
+                          progress=False)
+    assert result.inertial["status"] == "failed", result.inertial
+    assert result.inertial["reason"].startswith("gyroscope"), result.inertial["reason"]
