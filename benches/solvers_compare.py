@@ -401,8 +401,8 @@ BAL_FILE = "problem-21-11315-pre.txt.bz2"
 
 def run_ours_bal(path: Path) -> dict:
     """One ``bal_solve`` run (release build): read_s, solve_s, iterations, costs."""
-    cmd = ["cargo", "run", "--release", "-q", "-p", "ferroslam-optim", "--example",
-           "bal_solve", "--", str(path)]
+    cmd = ["cargo", "run", "--release", "-q", "-p", "ferroslam-optim", "--features", "bal",
+           "--example", "bal_solve", "--", str(path)]
     out = subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, text=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ferroslam import io
-from ferroslam.export import write_ply, write_trajectory
-from ferroslam.transforms import quat_to_matrix
+from ferroslam import export, io
+from ferroslam.datasets import EurocSequence
+from ferroslam.export import TRAJECTORY_FORMATS, write_ply, write_trajectory
+from ferroslam.transforms import matrix_to_quat, quat_to_matrix
 
 
 def _read_ply(path):
@@ -52,6 +53,24 @@ def test_ply_round_trip_is_exact(tmp_path, cloud, binary):
     ]
     np.testing.assert_array_equal(np.column_stack([v["x"], v["y"], v["z"]]), points)
     np.testing.assert_array_equal(np.column_stack([v["red"], v["green"], v["blue"]]), colors)
+
+
+def test_ply_ascii_and_binary_read_back_the_same(tmp_path, cloud):
+    points, colors = cloud
+    _, ascii_v = _read_ply(write_ply(tmp_path / "a.ply", points, colors, binary=False))
+    _, binary_v = _read_ply(write_ply(tmp_path / "b.ply", points, colors, binary=True))
+    assert ascii_v.dtype == binary_v.dtype
+    np.testing.assert_array_equal(ascii_v, binary_v)
+
+
+def test_ply_is_binary_by_default_only_for_large_maps(tmp_path, monkeypatch):
+    monkeypatch.setattr(export, "PLY_BINARY_ABOVE_POINTS", 10)
+    points = np.arange(33.0).reshape(11, 3)
+    header, v = _read_ply(write_ply(tmp_path / "large.ply", points))
+    assert header[1] == "format binary_little_endian 1.0"
+    np.testing.assert_array_equal(np.column_stack([v["x"], v["y"], v["z"]]), points)
+    header, _ = _read_ply(write_ply(tmp_path / "small.ply", points[:10]))
+    assert header[1] == "format ascii 1.0"
 
 
 def test_ply_without_colors_and_float_colors(tmp_path, cloud):
@@ -113,10 +132,44 @@ def test_kitti_trajectory_re_reads_equal(tmp_path):
     np.testing.assert_array_equal(back.timestamps, np.arange(12.0))
 
 
+def test_trajectory_formats_are_the_ones_written():
+    assert TRAJECTORY_FORMATS == ("tum", "kitti", "euroc")
+
+
+def test_euroc_trajectory_is_an_asl_csv_with_nanoseconds(tmp_path):
+    T = _poses(20, seed=2)
+    t_ns = 1403636579763555584 + 50_000_000 * np.arange(20, dtype=np.int64)
+    t = (t_ns // 10**9).astype(float) + (t_ns % 10**9) * 1e-9
+    path = write_trajectory(tmp_path / "kf" / "traj.csv", t, T, format="euroc")
+    lines = path.read_text().splitlines()
+    assert lines[0] == ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], "
+                        "q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []")
+    written_ns = np.array([int(line.split(",")[0]) for line in lines[1:]])
+    # float64 seconds near 1.4e9 s resolve 238 ns: the nearest integer ns is written.
+    assert np.abs(written_ns - t_ns).max() <= 120
+    # Columns as evo's `euroc` reader takes them: p xyz, then the quaternion w first.
+    table = np.loadtxt(path, delimiter=",", comments="#")
+    np.testing.assert_allclose(table[:, 1:4], T[:, :3, 3], rtol=0, atol=1e-9)
+    q_wxyz = np.roll(matrix_to_quat(T[:, :3, :3]), 1, axis=1)
+    np.testing.assert_allclose(table[:, 4:8], q_wxyz, rtol=0, atol=1e-9)
+    back = io.read_euroc_trajectory(path)
+    np.testing.assert_allclose(back.timestamps, t, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(back.poses, T, rtol=0, atol=1e-8)
+
+
+def test_euroc_reader_matches_the_dataset_ground_truth(euroc_micro):
+    # The ASL csv of EuRoC itself (17 columns, the body pose): the reader takes the first 8.
+    seq = EurocSequence(euroc_micro)
+    body = io.read_euroc_trajectory(seq.groundtruth_path)
+    t, T_w_c = seq.groundtruth()
+    np.testing.assert_array_equal(body.timestamps, t)
+    np.testing.assert_allclose(body.poses @ seq.T_b_c, T_w_c, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize(
     "timestamps, poses, fmt, match",
     [
-        (np.arange(3.0), _poses(3), "euroc", "format"),
+        (np.arange(3.0), _poses(3), "bag", "format"),
         (np.arange(2.0), _poses(3), "tum", "timestamps"),
         (np.arange(3.0), _poses(3)[:, :3], "kitti", "poses"),
         (np.array([0.0, 2.0, 1.0]), _poses(3), "tum", "out of order"),

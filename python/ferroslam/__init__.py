@@ -9,6 +9,7 @@ from __future__ import annotations
 from importlib import metadata as _metadata
 
 from . import datasets, io, metrics
+from .calibration import Calibration, load_calibration
 from .camera import Camera
 from .trajectory import Trajectory
 
@@ -26,6 +27,7 @@ except ImportError:  # native module not built (or older than SlamError)
 
 
 __all__ = [
+    "Calibration",
     "Camera",
     "MonoVSlam",
     "RGBDVSlam",
@@ -37,6 +39,7 @@ __all__ = [
     "__version__",
     "datasets",
     "io",
+    "load_calibration",
     "metrics",
 ]
 

@@ -76,45 +76,18 @@ class Camera:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
 
-_KEYS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "width", "height")
-
-
 def read_camera_yaml(path: str | Path) -> Camera:
-    """Read a flat ``key: value`` YAML camera file.
+    """The first camera of a calibration file, e.g. a flat ``key: value`` YAML.
 
-    Accepts the keys ``fx fy cx cy k1 k2 p1 p2 k3 width height``, optionally prefixed as in
-    ORB-SLAM settings (``Camera.fx``, ``Camera1.fx``); other keys are ignored. Missing
-    distortion terms are 0, missing size is 640x480.
+    Flat files hold the keys ``fx fy cx cy k1 k2 p1 p2 k3 width height``, optionally
+    prefixed as in ORB-SLAM settings (``Camera.fx``, ``Camera1.fx``); other keys are ignored.
+    Missing distortion terms are 0, a missing size is 640x480. Any other format of
+    :func:`ferroslam.load_calibration` is read too.
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: a needed value is missing or not a number.
+        ValueError: a needed value is missing or not a number (naming the file and key).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"camera file not found: {path}")
-    values: dict[str, float] = {}
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        text = line.split("#", 1)[0].strip()
-        if ":" not in text or text.startswith("%"):
-            continue
-        key, value = (s.strip() for s in text.split(":", 1))
-        key = key.rsplit(".", 1)[-1]
-        if key not in _KEYS or not value:
-            continue
-        try:
-            values[key] = float(value)
-        except ValueError:
-            raise ValueError(f"{path}:{number}: {key} is not a number: {value!r}") from None
-    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in values]
-    if missing:
-        raise ValueError(f"{path}: missing {', '.join(missing)}")
-    return Camera(
-        values["fx"],
-        values["fy"],
-        values["cx"],
-        values["cy"],
-        np.array([values.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")]),
-        int(values.get("width", 640)),
-        int(values.get("height", 480)),
-    )
+    from .calibration import load_calibration  # here: calibration imports Camera
+
+    return load_calibration(path).cameras[0]

@@ -54,8 +54,11 @@ Every command has its own help: ferroslam COMMAND --help"""
 
 _OUTPUTS = """\
 outputs (in --out):
-  trajectory.txt      every tracked frame, TUM format (timestamp tx ty tz qx qy qz qw, T_w_c)
-  keyframes.txt       keyframe poses, TUM format
+  trajectory.txt      every tracked frame, TUM format (timestamp tx ty tz qx qy qz qw, T_w_c);
+                      --trajectory-format kitti / euroc (trajectory.csv) for the others
+  keyframes.txt       keyframe poses, same format
+  colmap/             keyframes and map points as a COLMAP text model (cameras.txt,
+                      images.txt, points3D.txt)
   map.ply             map points (world frame = first camera, metres), PLY
   plot.png            top and side views against the ground truth, map points
   trajectory_top.png  top view only
@@ -72,8 +75,13 @@ dataset layouts (--format auto detects them):
 
 
 def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
+    from .export import TRAJECTORY_FORMATS
+
     output = p.add_argument_group("output")
     output.add_argument("--out", type=Path, help=f"output folder (default: {default_out})")
+    output.add_argument("--trajectory-format", choices=TRAJECTORY_FORMATS, default="tum",
+                        help="format of trajectory.txt and keyframes.txt: tum (default), kitti "
+                             "(3x4 rows, no time) or euroc (ASL csv, .csv files)")
     output.add_argument("--silent", action="store_true", help="no progress bar, no summary")
 
 
@@ -253,7 +261,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         config["seed"] = args.seed
     seq = open_sequence(args.path, args.format, sensor=args.sensor)
     out = args.out if args.out is not None else Path("out") / seq.name
-    return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent)
+    return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
+                             args.trajectory_format)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -267,11 +276,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print(f"ferroslam demo: {args.sensor} SLAM on the bundled TUM fr1/rpy sample "
               "(CC BY 4.0, Sturm et al., IROS 2012)")
     with sample_sequence() as seq:
-        return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent)
+        return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
+                                 args.trajectory_format)
 
 
 def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
-                      silent: bool) -> int:
+                      silent: bool, trajectory_format: str = "tum") -> int:
     """Run ``seq``, write every output file into ``out`` and print the summary. A run that
     stops at an error (a corrupt image at frame N, a bad ground-truth line) still writes the
     results of the frames before it, then reports the error."""
@@ -282,37 +292,42 @@ def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int],
         result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
                               sensor=sensor)
     except RunError as err:
-        write_run_outputs(err.partial, out)
+        write_run_outputs(err.partial, out, trajectory_format)
         raise RunError(f"{err}; the results of the {err.partial.frames} frames before it are "
                        f"in {out}/", err.partial, err.frame) from err
-    summary = write_run_outputs(result, out)
+    summary = write_run_outputs(result, out, trajectory_format)
     if not silent:
         _print_summary(summary, out)
     return 0
 
 
-def write_run_outputs(result, out: Path) -> dict:
+def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
     """Write what ``ferroslam run`` leaves in ``out`` (created) and return the summary put in
     results.json; one function so that ``run``, ``demo`` and ``batch`` write the same files."""
     out.mkdir(parents=True, exist_ok=True)
-    _write_outputs(result, out, result.sequence)
+    _write_outputs(result, out, result.sequence, trajectory_format)
     summary = result.summary()
     (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return summary
 
 
-def _write_outputs(result, out: Path, name: str) -> None:
-    """Trajectories (TUM), map points (PLY) and plots; the plots show the estimate and map
-    aligned to the ground truth when ATE could be computed."""
+def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None:
+    """Trajectories (in ``trajectory_format``), map points (PLY), the keyframes and points as
+    a COLMAP text model (``colmap/``) and plots; the plots show the estimate and map aligned
+    to the ground truth when ATE could be computed."""
     import numpy as np
 
-    from .export import write_ply, write_trajectory
+    from .export import write_colmap_model, write_ply, write_trajectory
     from .plot import plot_overview, plot_trajectory_top_view
 
-    write_trajectory(out / "trajectory.txt", result.trajectory.timestamps,
-                     result.trajectory.poses)
-    write_trajectory(out / "keyframes.txt", result.keyframes.timestamps, result.keyframes.poses)
+    suffix = ".csv" if trajectory_format == "euroc" else ".txt"
+    for stem, trajectory in (("trajectory", result.trajectory), ("keyframes", result.keyframes)):
+        write_trajectory(out / f"{stem}{suffix}", trajectory.timestamps, trajectory.poses,
+                         format=trajectory_format)
     write_ply(out / "map.ply", result.map_points)
+    if result.camera is not None:
+        write_colmap_model(out / "colmap", result.camera, result.keyframe_ids,
+                           result.keyframes.poses, result.map_points)
     if not len(result.trajectory):
         return  # nothing tracked: nothing to draw
     ate = result.ate_frames
@@ -365,7 +380,7 @@ def _print_summary(summary: dict, out: Path) -> None:
         print(f"IMU alignment   {inertial['status']}: {inertial.get('reason', '')}")
     for err in summary["metric_errors"]:
         print(f"note: {err}")
-    print(f"results in      {out}/ (trajectory.txt, keyframes.txt, map.ply, plot.png, "
+    print(f"results in      {out}/ (trajectory, keyframes, map.ply, colmap/, plot.png, "
           "results.json)")
 
 

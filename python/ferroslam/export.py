@@ -1,41 +1,79 @@
-"""Files users look at outside Python: map point clouds (PLY) and keyframe trajectories.
+"""Files users open outside Python: map point clouds, trajectories and COLMAP models.
 
 * :func:`write_ply` writes points (and optional colours) as a PLY vertex list, readable by
   MeshLab, CloudCompare, Open3D, Blender.
-* :func:`write_trajectory` dispatches to the TUM / KITTI writers of :mod:`ferroslam.io`.
+* :func:`write_trajectory` dispatches to the TUM / KITTI / EuRoC writers of
+  :mod:`ferroslam.io` (:data:`TRAJECTORY_FORMATS`).
+* :func:`write_colmap_model` writes keyframes and map points as a COLMAP text model
+  (``cameras.txt``, ``images.txt``, ``points3D.txt``) for photogrammetry, NeRF and
+  Gaussian-splatting tools.
 
-Both raise ``ValueError`` naming the offending argument (shape, NaN/inf, range) before
+All raise ``ValueError`` naming the offending argument (shape, NaN/inf, range) before
 touching the file, and create missing parent folders.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
 from ._validate import finite_array
-from .io import PathLike, write_kitti_poses, write_tum_trajectory
+from .camera import Camera
+from .io import PathLike, write_euroc_trajectory, write_kitti_poses, write_tum_trajectory
 from .trajectory import Trajectory
+from .transforms import inverse, matrix_to_quat
 
-__all__ = ["write_ply", "write_trajectory"]
+__all__ = [
+    "PLY_BINARY_ABOVE_POINTS",
+    "TRAJECTORY_FORMATS",
+    "write_colmap_model",
+    "write_ply",
+    "write_trajectory",
+]
+
+# ``write_ply(binary=None)`` writes larger maps in binary: ASCII costs ~60 bytes per point
+# and parses slowly, which starts to matter around a hundred thousand points.
+PLY_BINARY_ABOVE_POINTS = 100_000
 
 _XYZ = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
 _RGB = [("red", "u1"), ("green", "u1"), ("blue", "u1")]
 
 
-def _colors_u8(colors: object, n: int) -> np.ndarray:
+def _colors_u8(colors: object, n: int, name: str = "colors") -> np.ndarray:
     """``(n, 3)`` uint8 colours from uint8-range integers or floats in ``[0, 1]``."""
     raw = np.asarray(colors)
-    c = finite_array(raw, "colors", (n, 3))
+    c = finite_array(raw, name, (n, 3))
     if np.issubdtype(raw.dtype, np.floating):
         if c.size and (c.min() < 0.0 or c.max() > 1.0):
-            raise ValueError("colors given as floats must lie in [0, 1]")
+            raise ValueError(f"{name} given as floats must lie in [0, 1]")
         return np.round(c * 255.0).astype(np.uint8)
     if c.size and (c.min() < 0 or c.max() > 255):
-        raise ValueError("colors given as integers must lie in [0, 255]")
+        raise ValueError(f"{name} given as integers must lie in [0, 255]")
     return c.astype(np.uint8)
+
+
+def _ply_header(fields: list[tuple[str, str]], n_points: int, binary: bool) -> bytes:
+    """PLY header for ``n_points`` vertices of ``fields`` (see ``write_ply``)."""
+    types = {"<f8": "double", "u1": "uchar"}
+    lines = [
+        "ply",
+        f"format {'binary_little_endian' if binary else 'ascii'} 1.0",
+        "comment ferroslam map points (world frame, metres)",
+        f"element vertex {n_points}",
+        *(f"property {types[t]} {name}" for name, t in fields),
+        "end_header",
+    ]
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
+def _ply_records(fields: list[tuple[str, str]], columns: list[np.ndarray]) -> np.ndarray:
+    """Packed little-endian vertex records, one field per column."""
+    records = np.empty(len(columns[0]), dtype=fields)
+    for (name, _), column in zip(fields, columns):
+        records[name] = column
+    return records
 
 
 def write_ply(
@@ -43,7 +81,7 @@ def write_ply(
     points: np.ndarray,
     colors: Optional[np.ndarray] = None,
     *,
-    binary: bool = False,
+    binary: Optional[bool] = None,
 ) -> Path:
     """Write ``points`` as a PLY point cloud and return the path.
 
@@ -54,7 +92,8 @@ def write_ply(
             (rounded to 8 bits).
         binary: ``False`` writes ``format ascii 1.0`` (coordinates with 17 significant
             digits: exact float64 round trip); ``True`` writes ``format
-            binary_little_endian 1.0``.
+            binary_little_endian 1.0``; ``None`` (default) picks binary for more than
+            :data:`PLY_BINARY_ABOVE_POINTS` points. Both hold the same float64 values.
 
     The header is::
 
@@ -76,33 +115,44 @@ def write_ply(
         ValueError: ``points`` or ``colors`` of the wrong shape, non-finite or out of range.
     """
     xyz = finite_array(points, "points", (None, 3))
-    rgb = None if colors is None else _colors_u8(colors, xyz.shape[0])
-    fields = _XYZ + (_RGB if rgb is not None else [])
-    types = {"<f8": "double", "u1": "uchar"}
-    header = [
-        "ply",
-        f"format {'binary_little_endian' if binary else 'ascii'} 1.0",
-        "comment ferroslam map points (world frame, metres)",
-        f"element vertex {xyz.shape[0]}",
-        *(f"property {types[t]} {name}" for name, t in fields),
-        "end_header",
-    ]
+    fields, columns = _XYZ, list(xyz.T)
+    if colors is not None:
+        fields, columns = fields + _RGB, columns + list(_colors_u8(colors, len(xyz)).T)
+    records = _ply_records(fields, columns)
+    if binary is None:
+        binary = len(xyz) > PLY_BINARY_ABOVE_POINTS
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(_ply_header(fields, len(xyz), binary))
         if binary:
-            records = np.empty(xyz.shape[0], dtype=fields)
-            for i, axis in enumerate("xyz"):
-                records[axis] = xyz[:, i]
-            if rgb is not None:
-                for i, (name, _) in enumerate(_RGB):
-                    records[name] = rgb[:, i]
             f.write(records.tobytes())
         else:
-            table = xyz if rgb is None else np.column_stack([xyz, rgb])
-            np.savetxt(f, table, fmt=["%.17g"] * 3 + ["%d"] * (table.shape[1] - 3))
+            np.savetxt(f, records, fmt=["%.17g"] * 3 + ["%d"] * (len(fields) - 3))
     return path
+
+
+def _rigid_poses(poses: np.ndarray, name: str, why: str) -> None:
+    """Raises ``ValueError`` naming the first of ``poses (N, 4, 4)`` that is not rigid
+    (orthonormal rotation to 1e-6, determinant +1, last row ``0 0 0 1``)."""
+    rotations = poses[:, :3, :3]
+    gram_error = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
+    bottom_ok = np.all(poses[:, 3] == [0.0, 0.0, 0.0, 1.0], axis=1)
+    bad = np.flatnonzero((gram_error > 1e-6) | (np.linalg.det(rotations) <= 0) | ~bottom_ok)
+    if bad.size:
+        raise ValueError(f"{name}[{bad[0]}] is not a rigid transform (orthonormal rotation, "
+                         f"determinant +1, last row 0 0 0 1): {why}")
+
+
+# Writers of ``write_trajectory``, by format name: ``(path, trajectory)``.
+_TRAJECTORY_WRITERS: dict[str, Callable[[PathLike, Trajectory], None]] = {
+    "tum": lambda path, t: write_tum_trajectory(path, t.timestamps, t.poses),
+    "kitti": lambda path, t: write_kitti_poses(path, t.poses),
+    "euroc": lambda path, t: write_euroc_trajectory(path, t.timestamps, t.poses),
+}
+
+#: Format names :func:`write_trajectory` accepts (the CLI's ``--trajectory-format`` choices).
+TRAJECTORY_FORMATS = tuple(_TRAJECTORY_WRITERS)
 
 
 def write_trajectory(
@@ -118,27 +168,243 @@ def write_trajectory(
         timestamps: ``(N,)`` seconds, non-decreasing (not written in KITTI files, whose
             lines are implicitly indexed 0, 1, ...).
         poses: ``(N, 4, 4)`` camera poses ``T_w_c`` (camera to world, metres).
-        format: ``"tum"`` (``timestamp tx ty tz qx qy qz qw``) or ``"kitti"`` (first three
-            rows of ``T_w_c``, row-major).
+        format: one of :data:`TRAJECTORY_FORMATS`: ``"tum"`` (``timestamp tx ty tz qx qy qz
+            qw``), ``"kitti"`` (first three rows of ``T_w_c``, row-major) or ``"euroc"``
+            (ASL csv ``timestamp_ns,tx,ty,tz,qw,qx,qy,qz``, integer nanoseconds).
 
     Raises:
         ValueError: unknown ``format``; shapes, NaN/inf or decreasing timestamps (from
             :class:`~ferroslam.trajectory.Trajectory`); a pose that is not rigid.
     """
-    writers = {
-        "tum": lambda t: write_tum_trajectory(path, t.timestamps, t.poses),
-        "kitti": lambda t: write_kitti_poses(path, t.poses),
-    }
-    if format not in writers:
-        raise ValueError(f"format must be one of {sorted(writers)}, got {format!r}")
+    if format not in _TRAJECTORY_WRITERS:
+        raise ValueError(f"format must be one of {list(TRAJECTORY_FORMATS)}, got {format!r}")
     trajectory = Trajectory(timestamps, poses)
-    rotations = trajectory.poses[:, :3, :3]
-    gram_error = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
-    bottom_ok = np.all(trajectory.poses[:, 3] == [0.0, 0.0, 0.0, 1.0], axis=1)
-    bad = np.flatnonzero((gram_error > 1e-6) | (np.linalg.det(rotations) <= 0) | ~bottom_ok)
-    if bad.size:
-        raise ValueError(f"poses[{bad[0]}] is not a rigid transform (orthonormal rotation, "
-                         "determinant +1, last row 0 0 0 1): a TUM or KITTI file holds "
-                         "rigid camera poses")
-    writers[format](trajectory)
+    _rigid_poses(trajectory.poses, "poses", "a trajectory file holds rigid camera poses")
+    _TRAJECTORY_WRITERS[format](path, trajectory)
     return Path(path)
+
+
+_COLMAP_HEADERS = {
+    "cameras.txt": ("# Camera list with one line of data per camera:\n"
+                    "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+                    "# Number of cameras: 1\n"),
+    "images.txt": ("# Image list with two lines of data per image:\n"
+                   "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+                   "#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
+                   "# Number of images: {n}, mean observations per image: {mean}\n"),
+    "points3D.txt": ("# 3D point list with one line of data per point:\n"
+                     "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as "
+                     "(IMAGE_ID, POINT2D_IDX)\n"
+                     "# Number of points: {n}, mean track length: {mean}\n"),
+}
+
+# COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV and ferroslam at (0, 0).
+_COLMAP_PIXEL_OFFSET = 0.5
+
+# The text model has one camera, with this id.
+_COLMAP_CAMERA_ID = 1
+
+
+def _numbers(values: np.ndarray | Sequence[float]) -> str:
+    """Shortest text that reads back as the same float64 (``repr``), space-separated; -0.0
+    is written 0.0."""
+    return " ".join(repr(float(v) + 0.0) for v in values)
+
+
+def _colmap_camera_line(camera: Camera) -> str:
+    """``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` for ``camera``'s raw (distorted) images.
+
+    ``PINHOLE`` (fx fy cx cy) without distortion, ``OPENCV`` (+ k1 k2 p1 p2) when ``k3 = 0``,
+    else ``FULL_OPENCV`` (+ k1 k2 p1 p2 k3 k4 k5 k6 with k4 = k5 = k6 = 0: its rational radial
+    term then equals OpenCV's five-coefficient model). The principal point moves by
+    ``_COLMAP_PIXEL_OFFSET``.
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a ferroslam.Camera, got {type(camera).__name__}")
+    k1, k2, p1, p2, k3 = camera.dist
+    params = [camera.fx, camera.fy, camera.cx + _COLMAP_PIXEL_OFFSET,
+              camera.cy + _COLMAP_PIXEL_OFFSET]
+    if k3 != 0.0:
+        model, params = "FULL_OPENCV", params + [k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
+    elif np.any(camera.dist):
+        model, params = "OPENCV", params + [k1, k2, p1, p2]
+    else:
+        model = "PINHOLE"
+    return f"{_COLMAP_CAMERA_ID} {model} {camera.width} {camera.height} {_numbers(params)}"
+
+
+def _keyframe_ids(keyframe_ids: object) -> np.ndarray:
+    """``(N,)`` int64 unique ids that leave room for COLMAP's uint32 ``IMAGE_ID`` = id + 1."""
+    ids = _index_array(keyframe_ids, "keyframe_ids", None, 2**32 - 1)
+    if np.unique(ids).size != ids.size:
+        raise ValueError("keyframe_ids must be unique")
+    return ids
+
+
+def _image_names(image_names: Optional[Sequence[str]], keyframe_ids: np.ndarray) -> list[str]:
+    """One unique name per keyframe, without whitespace (COLMAP splits lines on spaces)."""
+    if image_names is None:
+        return [f"keyframe_{int(i):06d}.png" for i in keyframe_ids]
+    names = list(image_names)
+    if len(names) != keyframe_ids.size:
+        raise ValueError(f"image_names has {len(names)} names for {keyframe_ids.size} keyframes")
+    for name in names:
+        if not isinstance(name, str) or not name or name != "".join(name.split()):
+            raise ValueError(f"image_names must be non-empty strings without whitespace, "
+                             f"got {name!r}")
+    if len(set(names)) != len(names):
+        raise ValueError("image_names must be unique")
+    return names
+
+
+def _index_array(value: object, name: str, n_rows: Optional[int], bound: int) -> np.ndarray:
+    """``(n_rows,)`` (``None``: any length) int64 indices in ``[0, bound)``."""
+    index = np.asarray(value)
+    shape_ok = index.ndim == 1 and n_rows in (None, index.shape[0])
+    if not shape_ok or (index.size and not np.issubdtype(index.dtype, np.integer)):
+        raise ValueError(f"{name} must be ({'N' if n_rows is None else n_rows},) integers, "
+                         f"got {index.dtype} of shape {index.shape}")
+    index = index.astype(np.int64)
+    if index.size and (index.min() < 0 or index.max() >= bound):
+        raise ValueError(f"{name} must lie in [0, {bound})")
+    return index
+
+
+def _observations(
+    observations: Optional[Sequence[object]], n_images: int, n_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked ``(keyframe_index (K,), point_index (K,), uv_px (K, 2))``, each point seen at
+    most once per keyframe."""
+    if observations is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2))
+    try:
+        keyframe_index, point_index, uv_px = observations
+    except (TypeError, ValueError):
+        raise ValueError("observations must be (keyframe_index, point_index, uv_px)") from None
+    uv = finite_array(uv_px, "observations uv_px", (None, 2))
+    image = _index_array(keyframe_index, "observations keyframe_index", len(uv), n_images)
+    point = _index_array(point_index, "observations point_index", len(uv), n_points)
+    if np.unique(image * n_points + point).size != len(uv):
+        raise ValueError("observations see a point twice in one keyframe")
+    return image, point, uv
+
+
+def _groups(keys: np.ndarray, n_groups: int) -> list[np.ndarray]:
+    """Row indices of each key ``0 .. n_groups - 1``, in the rows' order."""
+    order = np.argsort(keys, kind="stable")
+    bounds = np.searchsorted(keys[order], np.arange(n_groups + 1))
+    return [order[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _point2d_indices(by_image: list[np.ndarray], n_observations: int) -> np.ndarray:
+    """COLMAP's ``POINT2D_IDX`` of each observation: its place in its image's POINTS2D line."""
+    point2d_idx = np.empty(n_observations, np.int64)
+    for rows in by_image:
+        point2d_idx[rows] = np.arange(len(rows))
+    return point2d_idx
+
+
+def _mean(total: int, count: int) -> str:
+    return repr(total / count if count else 0.0)
+
+
+def _images_txt(
+    image_ids: np.ndarray, T_w_c: np.ndarray, names: list[str],
+    by_image: list[np.ndarray], point: np.ndarray, uv_px: np.ndarray,
+) -> str:
+    """Two lines per keyframe: the world-to-camera pose ``T_c_w = T_w_c^-1`` as
+    ``QW QX QY QZ TX TY TZ`` (COLMAP's ``cam_from_world``), then its ``X Y POINT3D_ID``s."""
+    T_c_w = inverse(T_w_c)
+    q_xyzw = matrix_to_quat(T_c_w[:, :3, :3])
+    header = _COLMAP_HEADERS["images.txt"]
+    lines = [header.format(n=len(names), mean=_mean(len(point), len(names)))]
+    for i, rows in enumerate(by_image):
+        pose = np.concatenate([q_xyzw[i, 3:], q_xyzw[i, :3], T_c_w[i, :3, 3]])
+        lines.append(f"{image_ids[i]} {_numbers(pose)} {_COLMAP_CAMERA_ID} {names[i]}\n")
+        lines.append(" ".join(f"{_numbers(uv_px[r] + _COLMAP_PIXEL_OFFSET)} {point[r] + 1}"
+                              for r in rows) + "\n")
+    return "".join(lines)
+
+
+def _points3d_txt(
+    xyz: np.ndarray, rgb: np.ndarray, by_point: list[np.ndarray],
+    image_id_of: np.ndarray, point2d_idx_of: np.ndarray,
+) -> str:
+    """One line per point; ``ERROR`` is -1 (COLMAP's "not computed")."""
+    n_obs = sum(len(rows) for rows in by_point)
+    lines = [_COLMAP_HEADERS["points3D.txt"].format(n=len(xyz), mean=_mean(n_obs, len(xyz)))]
+    for j, rows in enumerate(by_point):
+        track = "".join(f" {image_id_of[r]} {point2d_idx_of[r]}" for r in rows)
+        lines.append(f"{j + 1} {_numbers(xyz[j])} {' '.join(map(str, rgb[j]))} -1{track}\n")
+    return "".join(lines)
+
+
+def write_colmap_model(
+    folder: PathLike,
+    camera: Camera,
+    keyframe_ids: np.ndarray,
+    keyframe_poses_T_w_c: np.ndarray,
+    points_xyz: np.ndarray,
+    *,
+    point_colors: Optional[np.ndarray] = None,
+    observations: Optional[tuple[np.ndarray, np.ndarray, np.ndarray]] = None,
+    image_names: Optional[Sequence[str]] = None,
+) -> Path:
+    """Write keyframes and map points as a COLMAP text model in ``folder``; return it.
+
+    Writes ``cameras.txt``, ``images.txt`` and ``points3D.txt`` (COLMAP's text format, read by
+    ``colmap``, ``pycolmap.Reconstruction(folder)``, nerfstudio, Gaussian-splatting trainers).
+
+    Conventions: ferroslam poses are ``T_w_c`` (camera to world); COLMAP stores each image's
+    world-to-camera pose ``T_c_w = T_w_c^-1`` (``cam_from_world``: ``p_c = R p_w + t``) as
+    ``QW QX QY QZ TX TY TZ``. Pixel coordinates follow OpenCV (centre of the top-left pixel at
+    ``(0, 0)``); COLMAP puts it at ``(0.5, 0.5)``, so the principal point and every
+    observation are written 0.5 px larger. ``IMAGE_ID`` is keyframe id + 1 and
+    ``POINT3D_ID`` is row + 1 (COLMAP numbers from 1); the single camera has ``CAMERA_ID`` 1.
+
+    Args:
+        folder: output folder (created with its parents).
+        camera: intrinsics of the images the keyframes come from (raw, distorted images:
+            ``PINHOLE``, ``OPENCV`` or ``FULL_OPENCV``, see below).
+        keyframe_ids: ``(N,)`` unique integer keyframe ids.
+        keyframe_poses_T_w_c: ``(N, 4, 4)`` rigid camera poses in the world, metres.
+        points_xyz: ``(M, 3)`` world positions in metres.
+        point_colors: optional ``(M, 3)`` RGB (integers in ``[0, 255]`` or floats in
+            ``[0, 1]``); grey 128 if not given.
+        observations: optional ``(keyframe_index (K,), point_index (K,), uv_px (K, 2))``:
+            point ``points_xyz[point_index]`` seen in keyframe ``keyframe_index`` (a row of
+            the keyframe arrays) at raw pixel ``uv_px``; at most once per keyframe. Without
+            them the images list no 2-D points and the points have empty tracks.
+        image_names: optional ``N`` unique names without whitespace, the image files
+            relative to the tools' image folder (default ``keyframe_<id:06d>.png``).
+
+    The camera model is ``PINHOLE`` without distortion, ``OPENCV`` when ``k3 = 0`` and
+    ``FULL_OPENCV`` (``k4 = k5 = k6 = 0``) otherwise; ``ERROR`` is -1 (not computed).
+
+    Raises:
+        TypeError: ``camera`` is not a :class:`~ferroslam.camera.Camera`.
+        ValueError: shapes, NaN/inf, non-rigid poses, ids or indices out of range or
+            repeated, bad names or colours.
+    """
+    camera_line = _colmap_camera_line(camera)
+    ids = _keyframe_ids(keyframe_ids)
+    image_ids = ids + 1
+    T_w_c = finite_array(keyframe_poses_T_w_c, "keyframe_poses_T_w_c", (len(ids), 4, 4))
+    _rigid_poses(T_w_c, "keyframe_poses_T_w_c", "COLMAP images need rigid camera poses")
+    names = _image_names(image_names, ids)
+    xyz = finite_array(points_xyz, "points_xyz", (None, 3))
+    rgb = (np.full(xyz.shape, 128, np.uint8) if point_colors is None
+           else _colors_u8(point_colors, len(xyz), "point_colors"))
+    image, point, uv_px = _observations(observations, len(image_ids), len(xyz))
+    by_image = _groups(image, len(image_ids))
+    texts = {
+        "cameras.txt": _COLMAP_HEADERS["cameras.txt"] + camera_line + "\n",
+        "images.txt": _images_txt(image_ids, T_w_c, names, by_image, point, uv_px),
+        "points3D.txt": _points3d_txt(xyz, rgb, _groups(point, len(xyz)), image_ids[image],
+                                      _point2d_indices(by_image, len(image))),
+    }
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, text in texts.items():
+        (folder / name).write_text(text, encoding="utf-8")
+    return folder

@@ -1,8 +1,11 @@
-"""Trajectory file readers and writers (TUM and KITTI formats).
+"""Trajectory file readers and writers (TUM, KITTI and EuRoC formats).
 
 * TUM: one pose per line, ``timestamp tx ty tz qx qy qz qw`` (``T_w_c``, metres, seconds);
   lines starting with ``#`` and blank lines are ignored.
 * KITTI: one pose per line, the first three rows of ``T_w_c`` row-major (12 numbers).
+* EuRoC: the ASL csv of EuRoC's ground truth (what evo's ``euroc`` command reads),
+  ``timestamp_ns,tx,ty,tz,qw,qx,qy,qz`` (``T_w_c``, metres, integer nanoseconds; note the
+  quaternion's ``w`` first) under a ``#timestamp [ns], p_RS_R_x [m], ...`` header.
 
 Readers raise ``FileNotFoundError`` naming the file, and ``ValueError`` naming the file and
 line for malformed lines or timestamps out of order.
@@ -20,9 +23,11 @@ from .trajectory import Trajectory
 from .transforms import poses_from_tum, tum_from_poses
 
 __all__ = [
+    "read_euroc_trajectory",
     "read_kitti_poses",
     "read_table",
     "read_tum_trajectory",
+    "write_euroc_trajectory",
     "write_kitti_poses",
     "write_tum_trajectory",
 ]
@@ -109,3 +114,48 @@ def write_kitti_poses(path: PathLike, T_w_c: np.ndarray) -> None:
         raise ValueError(f"T_w_c must have shape (N, 4, 4), got {T.shape}")
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(path, T[:, :3, :].reshape(-1, 12), fmt="%.9e")
+
+
+_EUROC_HEADER = ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], "
+                 "q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []")
+
+
+def _nanoseconds(timestamps_s: np.ndarray) -> np.ndarray:
+    """Integer nanoseconds nearest to float seconds, whole seconds split off first so that
+    ``t * 1e9`` (beyond float64's exact integers for Unix times) never rounds."""
+    whole_s = np.floor(timestamps_s)
+    fraction_ns = np.round((timestamps_s - whole_s) * 1e9).astype(np.int64)
+    return whole_s.astype(np.int64) * 10**9 + fraction_ns
+
+
+def read_euroc_trajectory(path: PathLike) -> Trajectory:
+    """Read an ASL csv (``t_ns, p xyz, q wxyz``, extra columns ignored) as ``T_w_c``.
+
+    Nanosecond timestamps must strictly increase; they become float64 seconds (about 0.2 us
+    resolution at today's Unix times). The pose is taken as is: for EuRoC's own ground truth
+    (the IMU body, not a camera) use ``EurocSequence.groundtruth``, which applies ``T_b_c``.
+    """
+    # datasets.euroc imports this module: its ASL parsing is imported at call time.
+    from .datasets.euroc import _read_floats, _read_ns_rows, _seconds
+
+    path = Path(path)
+    stamps_ns, rows = _read_ns_rows(path, 8, "EuRoC trajectory")
+    p_q_wxyz = _read_floats(path, rows, slice(1, 8)).reshape(-1, 7)
+    xyz_quat = np.concatenate([p_q_wxyz[:, :3], p_q_wxyz[:, 4:7], p_q_wxyz[:, 3:4]], 1)
+    return Trajectory(_seconds(stamps_ns), poses_from_tum(xyz_quat))
+
+
+def write_euroc_trajectory(path: PathLike, timestamps: np.ndarray, T_w_c: np.ndarray) -> None:
+    """Write ``timestamps (N,)`` seconds and ``T_w_c (N, 4, 4)`` as an ASL csv.
+
+    Timestamps are written as the nearest integer nanoseconds, the pose with 9 decimals and
+    the quaternion ``w`` first, as in EuRoC's ``state_groundtruth_estimate0/data.csv``.
+    """
+    traj = Trajectory(timestamps, T_w_c)
+    xyz_quat = tum_from_poses(traj.poses)
+    p_q_wxyz = np.concatenate([xyz_quat[:, :3], xyz_quat[:, 6:7], xyz_quat[:, 3:6]], 1)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(_EUROC_HEADER + "\n")
+        for t_ns, row in zip(_nanoseconds(traj.timestamps), p_q_wxyz):
+            f.write(f"{t_ns}," + ",".join(f"{v:.9f}" for v in row) + "\n")

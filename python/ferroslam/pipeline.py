@@ -13,6 +13,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 from tqdm import tqdm
 
+from .camera import Camera
 from .features import OrbExtractor, sample_depth
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .trajectory import Trajectory
@@ -53,6 +54,7 @@ class RunResult:
     camera-IMU alignment at the end (``SlamSystem.inertial_alignment``) for the ``-inertial``
     sensors. With ground truth: ATE (SE(3), or Sim(3) over the longest segment for monocular
     runs without an IMU alignment), RPE and path length (metric scale; not for those runs).
+    ``camera``: the intrinsics of the images tracked (for exports such as COLMAP models).
     """
 
     sequence: str
@@ -71,6 +73,7 @@ class RunResult:
     loops: list = field(default_factory=list)
     loop_stats: dict = field(default_factory=dict)
     inertial: Optional[dict] = None
+    camera: Optional[Camera] = None
     groundtruth: Optional[Trajectory] = None
     ate_frames: Optional[AteResult] = None
     ate_keyframes: Optional[AteResult] = None
@@ -496,6 +499,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         loop_stats=system.loop_stats(),
         inertial=system.inertial_alignment() if imu is not None else None,
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
+        camera=getattr(seq, "camera", None),
     )
     evaluation_error = None
     if getattr(seq, "has_groundtruth", False):

@@ -19,14 +19,16 @@
 //! robust-then-plain schedule with outlier classification). [`pose_graph`] holds the SE(3) /
 //! Sim(3) pose-graph optimiser ([`SymbolicPoseGraph`] + [`optimize_pose_graph`], same
 //! Levenberg-Marquardt and sparse Cholesky pattern) and a g2o reader ([`read_g2o`]).
-//! [`bal`] solves Bundle Adjustment in the Large problems (Snavely cameras, reader for the
-//! published `.txt` / `.txt.bz2` files) with the same Schur-complement core as [`ba`].
+//! `bal` (cargo feature `bal`, benchmarks only) solves Bundle Adjustment in the Large
+//! problems (Snavely cameras, reader for the published `.txt` / `.txt.bz2` files) with the
+//! same Schur-complement core as [`ba`].
 //! [`optimize_sim3`] refines the loop-closing similarity `S_12` between two keyframes from
 //! matched map points (ORB-SLAM's `OptimizeSim3`: both reprojection errors, Huber, outlier
 //! removal between two rounds), after `ferroslam_geometry::sim3_ransac` found it.
 #![warn(missing_docs)]
 
 pub mod ba;
+#[cfg(feature = "bal")]
 pub mod bal;
 mod block_pattern;
 pub mod error;

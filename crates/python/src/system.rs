@@ -338,7 +338,9 @@ impl PySlamSystem {
     }
 
     /// Records (`True`) each local BA problem as local mapping builds it, before solving;
-    /// `False` stops and drops the record. Mapping must run inline.
+    /// `False` stops and drops the record. Mapping must run inline. (Builds with the `bench`
+    /// feature only.)
+    #[cfg(feature = "bench")]
     fn record_local_ba_problems(&self, py: Python<'_>, on: bool) -> PyResult<()> {
         self.engine()?
             .run(py, move |s| s.record_local_ba_problems(on))?
@@ -346,7 +348,8 @@ impl PySlamSystem {
     }
 
     /// The local BA problems recorded since the last call, oldest first, each in the text
-    /// form `BaProblem::to_text` writes.
+    /// form `BaProblem::to_text` writes. (Builds with the `bench` feature only.)
+    #[cfg(feature = "bench")]
     fn take_local_ba_problems(&self, py: Python<'_>) -> PyResult<Vec<String>> {
         self.engine()?.run(py, |s| {
             s.take_local_ba_problems()

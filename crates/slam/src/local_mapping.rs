@@ -160,6 +160,7 @@ pub struct LocalMapper {
     /// Points created recently and not yet proven (ORB-SLAM `mlpRecentAddedMapPoints`).
     recent_points: Vec<MapPointId>,
     /// While recording, every local BA problem as built, before it is solved.
+    #[cfg(feature = "bench")]
     recorded_problems: Option<Vec<BaProblem>>,
 }
 
@@ -171,6 +172,7 @@ impl LocalMapper {
 
     /// Starts (`true`) or stops recording each local BA problem before it is solved; stopping
     /// drops what was recorded.
+    #[cfg(feature = "bench")]
     pub(crate) fn record_problems(&mut self, on: bool) {
         if on != self.recorded_problems.is_some() {
             self.recorded_problems = on.then(Vec::new);
@@ -178,11 +180,19 @@ impl LocalMapper {
     }
 
     /// Whether local BA problems are being recorded.
+    #[cfg(feature = "bench")]
     pub(crate) fn is_recording(&self) -> bool {
         self.recorded_problems.is_some()
     }
 
+    /// Whether local BA problems are being recorded (never without the `bench` feature).
+    #[cfg(not(feature = "bench"))]
+    pub(crate) fn is_recording(&self) -> bool {
+        false
+    }
+
     /// The problems recorded since the last call.
+    #[cfg(feature = "bench")]
     pub(crate) fn take_recorded_problems(&mut self) -> Vec<BaProblem> {
         self.recorded_problems
             .as_mut()
@@ -479,7 +489,11 @@ impl LocalMapper {
     ) -> Result<usize, SlamError> {
         let mut local: Vec<KeyFrameId> = vec![kf];
         local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
-        adjust_keyframes(&local, map, ctx, self.recorded_problems.as_mut())
+        #[cfg(feature = "bench")]
+        let record = self.recorded_problems.as_mut();
+        #[cfg(not(feature = "bench"))]
+        let record = None;
+        adjust_keyframes(&local, map, ctx, record)
     }
 
     /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close

@@ -5,6 +5,7 @@ use std::time::Instant;
 use ferroslam_features::ScalePyramid;
 use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{KeyFrameId, Map, Rig};
+#[cfg(feature = "bench")]
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
 
@@ -375,6 +376,7 @@ impl SlamSystem {
     ///
     /// # Errors
     /// [`SlamError::InvalidConfig`] while the mapping thread runs.
+    #[cfg(feature = "bench")]
     pub fn record_local_ba_problems(&mut self, on: bool) -> Result<(), SlamError> {
         if on && self.concurrent.is_some() {
             return Err(SlamError::InvalidConfig(
@@ -389,6 +391,7 @@ impl SlamSystem {
 
     /// The local BA problems recorded since the last call (see
     /// [`Self::record_local_ba_problems`]), oldest first.
+    #[cfg(feature = "bench")]
     pub fn take_local_ba_problems(&mut self) -> Vec<BaProblem> {
         self.mapper.take_recorded_problems()
     }

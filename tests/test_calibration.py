@@ -1,0 +1,325 @@
+"""ferroslam.load_calibration on the calibration files users have: ORB-SLAM3 settings (1.0 and
+legacy), flat camera.yaml, Kalibr camchain and IMU files, OpenCV FileStorage and ROS
+camera_info, checked against the real EuRoC sensor.yaml files where they describe the same
+sensor."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from conftest import require_data
+from ferroslam import Calibration, Camera, load_calibration
+from ferroslam.calibration import load_imu_params
+from ferroslam.camera import read_camera_yaml
+from ferroslam.datasets import EurocSequence
+
+# EuRoC cam0 / cam1 as in mav0/cam*/sensor.yaml.
+CAM0 = (458.654, 457.296, 367.215, 248.375)
+DIST0 = [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0]
+CAM1 = (457.587, 456.134, 379.999, 255.238)
+DIST1 = [-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05, 0.0]
+# T_BS of cam0 (the IMU is EuRoC's body frame), as ORB-SLAM3's EuRoC settings write it.
+T_BS0 = """[0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,
+         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,
+        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,
+         0.0, 0.0, 0.0, 1.0]"""
+IMU_NOISE = """IMU.NoiseGyro: 1.6968e-04
+IMU.NoiseAcc: 2.0e-3
+IMU.GyroWalk: 1.9393e-05
+IMU.AccWalk: 3.0e-03
+IMU.Frequency: 200.0
+"""
+
+ORBSLAM3_STEREO_INERTIAL = f"""%YAML:1.0
+File.version: "1.0"
+Camera.type: "PinHole"
+Camera1.fx: 458.654
+Camera1.fy: 457.296
+Camera1.cx: 367.215
+Camera1.cy: 248.375
+Camera1.k1: -0.28340811
+Camera1.k2: 0.07395907
+Camera1.p1: 0.00019359
+Camera1.p2: 1.76187114e-05
+Camera2.fx: 457.587
+Camera2.fy: 456.134
+Camera2.cx: 379.999
+Camera2.cy: 255.238
+Camera2.k1: -0.28368365
+Camera2.k2: 0.07451284
+Camera2.p1: -0.00010473
+Camera2.p2: -3.55590700e-05
+Camera.width: 752
+Camera.height: 480
+Camera.fps: 20
+Camera.RGB: 1
+Stereo.ThDepth: 60.0
+Stereo.T_c1_c2: !!opencv-matrix
+  rows: 4
+  cols: 4
+  dt: f
+  data: [0.9999972564777967, -0.0023171357232751057, -0.0003433931206204861, 0.11007413780047799,
+         0.0023120671924322465, 0.9998980485071031, -0.014090668452683376, -0.00015661205439167214,
+         0.00037600810231955327, 0.01408983584669108, 0.9999006626380811, 0.0008893827854321804,
+         0.0, 0.0, 0.0, 1.0]
+IMU.T_b_c1: !!opencv-matrix
+  rows: 4
+  cols: 4
+  dt: f
+  data: {T_BS0}
+{IMU_NOISE}
+ORBextractor.nFeatures: 1200
+"""
+
+ORBSLAM_LEGACY_MONO_INERTIAL = f"""%YAML:1.0
+Camera.type: "PinHole"
+Camera.fx: 458.654
+Camera.fy: 457.296
+Camera.cx: 367.215
+Camera.cy: 248.375
+Camera.k1: -0.28340811
+Camera.k2: 0.07395907
+Camera.p1: 0.00019359
+Camera.p2: 1.76187114e-05
+Camera.width: 752
+Camera.height: 480
+Camera.fps: 20.0
+Tbc: !!opencv-matrix
+   rows: 4
+   cols: 4
+   dt: f
+   data: {T_BS0}
+{IMU_NOISE}"""
+
+# Kalibr's EuRoC camchain: T_cam_imu = inv(T_BS), cam1.T_cn_cnm1 = T_c1_c0.
+KALIBR_CAMCHAIN = """cam0:
+  T_cam_imu:
+    - [0.01486554298179427, 0.9995572490083462, -0.02577443669744028, 0.06522290953553112]
+    - [-0.9998809296985752, 0.01496721332471924, 0.0037561883579669726, -0.02070638549271943]
+    - [0.004140296794224038, 0.025715529947966016, 0.9996607271779023, -0.008054602460029517]
+    - [0.0, 0.0, 0.0, 1.0]
+  cam_overlaps: [1]
+  camera_model: pinhole
+  distortion_coeffs: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+  distortion_model: radtan
+  intrinsics: [458.654, 457.296, 367.215, 248.375]
+  resolution: [752, 480]
+  rostopic: /cam0/image_raw
+cam1:
+  T_cam_imu:
+    - [0.012555267089102958, 0.999598781151433, -0.025389800891746528, -0.04490198068250875]
+    - [-0.9997550997231162, 0.013011905181503854, 0.01790058382525125, -0.020569771258915234]
+    - [0.018223771455443325, 0.02515883631155237, 0.999517347077547, -0.008638135126028098]
+    - [0.0, 0.0, 0.0, 1.0]
+  T_cn_cnm1:
+    - [0.9999972564778812, 0.0023120671924238847, 0.0003760081024155938, -0.11007380812718678]
+    - [-0.0023171357232812354, 0.9998980485066438, 0.014089835846648196, 0.00039912154701414806]
+    - [-0.0003433931205241621, -0.01409066845271459, 0.9999006626377283, -0.0008537025033580449]
+    - [0.0, 0.0, 0.0, 1.0]
+  cam_overlaps: [0]
+  camera_model: pinhole
+  distortion_model: radtan
+  distortion_coeffs: [-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05]
+  intrinsics: [457.587, 456.134, 379.999, 255.238]
+  resolution: [752, 480]
+  rostopic: /cam1/image_raw
+"""
+
+KALIBR_IMU = """imu0:
+  T_i_b:
+    - [1.0, 0.0, 0.0, 0.0]
+    - [0.0, 1.0, 0.0, 0.0]
+    - [0.0, 0.0, 1.0, 0.0]
+    - [0.0, 0.0, 0.0, 1.0]
+  accelerometer_noise_density: 2e-3
+  accelerometer_random_walk: 3.0e-3
+  gyroscope_noise_density: 1.6968e-04
+  gyroscope_random_walk: 1.9393e-05
+  model: calibrated
+  rostopic: /imu0
+  time_offset: 0.0
+  update_rate: 200.0
+"""
+
+# TUM fr1, as ROS camera_info YAML (camera_calibration_parsers).
+ROS_CAMERA_INFO = """image_width: 640
+image_height: 480
+camera_name: fr1_rgb
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [517.3, 0, 318.6, 0, 516.5, 255.3, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [517.3, 0, 318.6, 0, 0, 516.5, 255.3, 0, 0, 0, 1, 0]
+"""
+TUM_FR1 = (517.3, 516.5, 318.6, 255.3)
+TUM_FR1_DIST = [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]
+
+
+@pytest.fixture(scope="module")
+def euroc():
+    """The real EuRoC sequence whose sensor.yaml files the fixtures above restate."""
+    return EurocSequence(require_data("euroc", "V1_01_easy_micro"))
+
+
+def _write(tmp_path, text, name="calib.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _assert_camera(camera, intrinsics, dist, size):
+    assert isinstance(camera, Camera)
+    assert (camera.fx, camera.fy, camera.cx, camera.cy) == intrinsics
+    np.testing.assert_allclose(camera.dist, dist, rtol=1e-12)
+    assert (camera.width, camera.height) == size
+
+
+def _assert_euroc_imu(imu):
+    assert imu.gyroscope_noise_density == 1.6968e-4 and imu.accelerometer_noise_density == 2.0e-3
+    assert imu.gyroscope_random_walk == 1.9393e-5 and imu.accelerometer_random_walk == 3.0e-3
+    assert imu.rate_hz == 200.0
+    np.testing.assert_array_equal(imu.T_b_imu, np.eye(4))
+
+
+def test_orbslam3_stereo_inertial(tmp_path, euroc):
+    calib = load_calibration(_write(tmp_path, ORBSLAM3_STEREO_INERTIAL))
+    assert isinstance(calib, Calibration) and len(calib.cameras) == 2
+    _assert_camera(calib.cameras[0], CAM0, DIST0, (752, 480))
+    _assert_camera(calib.cameras[1], CAM1, DIST1, (752, 480))
+    # dt: f in the file, but the digits written are kept
+    np.testing.assert_allclose(calib.camera_to_imu[0], euroc.T_b_cam0, atol=1e-12)
+    np.testing.assert_allclose(calib.camera_to_imu[1], euroc.T_b_cam1, atol=1e-9)
+    assert calib.camera_to_imu[0].dtype == np.float64
+    assert calib.baseline_m == pytest.approx(0.1101, abs=1e-4)
+    _assert_euroc_imu(calib.imu)
+
+
+def test_orbslam_legacy_mono_inertial(tmp_path, euroc):
+    calib = load_calibration(_write(tmp_path, ORBSLAM_LEGACY_MONO_INERTIAL))
+    assert len(calib.cameras) == 1 and calib.T_left_right is None and calib.baseline_m is None
+    _assert_camera(calib.cameras[0], CAM0, DIST0, (752, 480))
+    np.testing.assert_allclose(calib.camera_to_imu[0], euroc.T_b_cam0, atol=1e-12)
+    _assert_euroc_imu(calib.imu)
+    _assert_euroc_imu(load_imu_params(tmp_path / "calib.yaml"))
+
+
+def test_kalibr_camchain_and_imu(tmp_path, euroc):
+    camchain = _write(tmp_path, KALIBR_CAMCHAIN, "camchain-imucam.yaml")
+    calib = load_calibration(camchain, imu_path=_write(tmp_path, KALIBR_IMU, "imu.yaml"))
+    _assert_camera(calib.cameras[0], CAM0, DIST0, (752, 480))
+    _assert_camera(calib.cameras[1], CAM1, DIST1, (752, 480))
+    np.testing.assert_allclose(calib.camera_to_imu[0], euroc.T_b_cam0, atol=1e-9)
+    np.testing.assert_allclose(calib.camera_to_imu[1], euroc.T_b_cam1, atol=1e-9)
+    T_cam0_cam1 = np.linalg.inv(euroc.T_b_cam0) @ euroc.T_b_cam1
+    np.testing.assert_allclose(calib.T_left_right, T_cam0_cam1, atol=1e-9)
+    assert calib.baseline_m == pytest.approx(euroc.rectifier.baseline_m, abs=1e-9)
+    _assert_euroc_imu(calib.imu)  # "2e-3" (a string to PyYAML) is read as a number
+    assert load_calibration(camchain).imu is None
+
+
+def test_imu_params_of_the_real_euroc_sensor_yaml(euroc):
+    _assert_euroc_imu(load_imu_params(euroc.mav0 / "imu0" / "sensor.yaml"))
+
+
+def test_opencv_filestorage_written_by_opencv(tmp_path):
+    path = tmp_path / "out_camera_data.yml"
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    storage.write("image_width", 640)
+    storage.write("image_height", 480)
+    storage.write("camera_matrix", np.array([[517.3, 0, 318.6], [0, 516.5, 255.3], [0, 0, 1]]))
+    storage.write("distortion_coefficients", np.array([TUM_FR1_DIST]).T)
+    storage.write("avg_reprojection_error", 0.21)
+    storage.release()
+    calib = load_calibration(path)
+    _assert_camera(calib.cameras[0], TUM_FR1, TUM_FR1_DIST, (640, 480))
+    assert calib.camera_to_imu == [None] and calib.imu is None
+
+
+def test_ros_camera_info(tmp_path):
+    calib = load_calibration(_write(tmp_path, ROS_CAMERA_INFO, "fr1.yaml"))
+    _assert_camera(calib.cameras[0], TUM_FR1, TUM_FR1_DIST, (640, 480))
+
+
+@pytest.mark.parametrize("text", [
+    "fx: 517.3\nfy: 516.5\ncx: 318.6\ncy: 255.3\nk1: 0.2624\nk2: -0.9531\np1: -0.0054\n"
+    "p2: 0.0026\nk3: 1.1633\n",
+    "%YAML:1.0\nCamera.fx: 517.3\nCamera.fy: 516.5\nCamera.cx: 318.6\nCamera.cy: 255.3\n"
+    "Camera.k1: 0.2624\nCamera.k2: -0.9531\nCamera.p1: -0.0054\nCamera.p2: 0.0026\n"
+    "Camera.k3: 1.1633\nCamera.width: 640\nCamera.height: 480\nDepthMapFactor: 5000.0\n",
+    "Camera1.fx: 517.3\nCamera1.fy: 516.5\nCamera1.cx: 318.6\nCamera1.cy: 255.3\n"
+    "Camera1.k1: 0.2624\nCamera1.k2: -0.9531\nCamera1.p1: -0.0054\nCamera1.p2: 0.0026\n"
+    "Camera1.k3: 1.1633\n",
+], ids=["flat", "camera-prefix", "camera1-prefix"])
+def test_flat_camera_yaml(tmp_path, text):
+    """read_camera_yaml keeps its keys and its 640x480 default size."""
+    path = _write(tmp_path, text, "camera.yaml")
+    _assert_camera(read_camera_yaml(path), TUM_FR1, TUM_FR1_DIST, (640, 480))
+    assert load_calibration(path).camera_to_imu == [None]
+
+
+def test_fisheye_is_refused_naming_file_and_field(tmp_path):
+    text = KALIBR_CAMCHAIN.replace("distortion_model: radtan", "distortion_model: equidistant", 1)
+    path = _write(tmp_path, text, "fisheye.yaml")
+    with pytest.raises(ValueError, match=r"fisheye.yaml: cam0.distortion_model 'equidistant' "
+                                         r"is not supported.*Kannala-Brandt"):
+        load_calibration(path)
+    text = KALIBR_CAMCHAIN.replace("camera_model: pinhole", "camera_model: omni", 1)
+    with pytest.raises(ValueError, match=r"cam0.camera_model 'omni' is not supported"):
+        load_calibration(_write(tmp_path, text))
+    text = ORBSLAM3_STEREO_INERTIAL.replace('"PinHole"', '"KannalaBrandt8"')
+    with pytest.raises(ValueError, match=r"Camera.type 'KannalaBrandt8'.*Kannala-Brandt"):
+        load_calibration(_write(tmp_path, text))
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("Camera1.fy: 457.296\n", "", r"calib.yaml: missing field Camera1.fy"),
+    ("Camera1.fy: 457.296", "Camera1.fy: abc", r"calib.yaml: Camera1.fy is not a number: 'abc'"),
+    ("Camera1.fx: 458.654", "Camera1.fx: -458.654", r"calib.yaml: Camera1.fx: fx and fy must "
+                                                    "be positive"),
+    ("Camera.width: 752", "Camera.width: 752.5", r"Camera.width must be a whole number"),
+    ("0.0, 0.0, 0.0, 1.0]\nIMU.NoiseGyro", "0.0, 0.0, 0.0, 2.0]\nIMU.NoiseGyro",
+     r"IMU.T_b_c1 is not a rigid transform"),
+    ("rows: 4\n  cols: 4\n  dt: f\n  data: [0.99", "rows: 3\n  cols: 4\n  dt: f\n  data: [0.99",
+     r"Stereo.T_c1_c2 declares 3x4 but holds 16 values"),
+    ("IMU.GyroWalk: 1.9393e-05", "IMU.GyroWalk: 0", r"IMU.GyroWalk must be positive"),
+    ('File.version: "1.0"', 'File.version: "2.0"', r"File.version '2.0' is not supported"),
+])
+def test_bad_fields_are_named(tmp_path, old, new, message):
+    assert old in ORBSLAM3_STEREO_INERTIAL
+    path = _write(tmp_path, ORBSLAM3_STEREO_INERTIAL.replace(old, new, 1))
+    with pytest.raises(ValueError, match=message):
+        load_calibration(path)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nowhere.yaml"):
+        load_calibration(tmp_path / "nowhere.yaml")
+    with pytest.raises(ValueError, match=r"calib.yaml: not a calibration format.*keys: a, b"):
+        load_calibration(_write(tmp_path, "a: 1\nb: 2\n"))
+    with pytest.raises(ValueError, match=r"imu.yaml: holds IMU noise only.*load_imu_params"):
+        load_calibration(_write(tmp_path, KALIBR_IMU, "imu.yaml"))
+    with pytest.raises(ValueError, match=r"calib.yaml: no IMU noise parameters"):
+        load_imu_params(_write(tmp_path, ROS_CAMERA_INFO))
+    with pytest.raises(ValueError, match=r"calib.yaml: not valid YAML"):
+        load_calibration(_write(tmp_path, "fx: [1, 2\n"))
+    with pytest.raises(ValueError, match=r"calib.yaml: not a valid OpenCV FileStorage file"):
+        load_calibration(_write(tmp_path, "%YAML:1.0\nfx: [1, 2\n"))
+    text = ROS_CAMERA_INFO.replace("255.3, 0, 0, 1]", "255.3, 0, 0]", 1)
+    with pytest.raises(ValueError, match=r"camera_matrix declares 3x3 but holds 8 values"):
+        load_calibration(_write(tmp_path, text))
+    text = ROS_CAMERA_INFO.replace("rows: 3\n  cols: 3\n  data: [517.3", "data: [517.3", 1)
+    assert load_calibration(_write(tmp_path, text)).cameras[0].fx == 517.3  # flat 9 values

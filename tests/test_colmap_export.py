@@ -1,0 +1,229 @@
+"""COLMAP text models written by ``ferroslam.export.write_colmap_model``, read back by pycolmap.
+
+The synthetic scene checks the conventions end to end: a map point, projected by pycolmap
+through the written pose and camera, lands on the 2-D observation written for it.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+
+import numpy as np
+import pytest
+from conftest import require_data
+
+from ferroslam.camera import Camera
+from ferroslam.export import write_colmap_model
+from ferroslam.transforms import inverse
+
+CAMERAS = {
+    "PINHOLE": Camera(500.0, 490.0, 319.5, 239.5, np.zeros(5), 640, 480),
+    "OPENCV": Camera(500.0, 490.0, 321.0, 238.0, [0.1, -0.2, 1e-3, -2e-3, 0.0], 640, 480),
+    "FULL_OPENCV": Camera(517.3, 516.5, 318.6, 255.3,
+                          [0.2624, -0.9531, -0.0054, 0.0026, 1.1633], 640, 480),
+}
+
+
+def _pycolmap():
+    """pycolmap, skipped locally without it; CI installs it (``.ci/run``), so there it must be."""
+    if importlib.util.find_spec("pycolmap") is None:
+        message = "pycolmap is missing: pip install 'ferroslam[test]'"
+        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+            pytest.fail(message)
+        pytest.skip(message)
+    import pycolmap
+
+    return pycolmap
+
+
+def _look_at(centre_w: np.ndarray, target_w: np.ndarray) -> np.ndarray:
+    """``T_w_c`` of a camera at ``centre_w`` whose optical axis (z) points at ``target_w``."""
+    z = target_w - centre_w
+    z /= np.linalg.norm(z)
+    x = np.cross([0.0, -1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = centre_w
+    return T
+
+
+def _project_px(camera: Camera, p_c: np.ndarray) -> np.ndarray:
+    """OpenCV projection (radial-tangential, centre of the top-left pixel at (0, 0))."""
+    k1, k2, p1, p2, k3 = camera.dist
+    x, y = p_c[:, 0] / p_c[:, 2], p_c[:, 1] / p_c[:, 2]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.column_stack([camera.fx * xd + camera.cx, camera.fy * yd + camera.cy])
+
+
+def _scene(camera: Camera, seed: int = 7):
+    """4 keyframes around 50 points near (0, 0, 5) m and every in-image observation."""
+    rng = np.random.default_rng(seed)
+    points_w = rng.uniform(-1.0, 1.0, size=(50, 3)) + [0.0, 0.0, 5.0]
+    angles = np.radians([-20.0, -7.0, 6.0, 18.0])
+    T_w_c = np.stack([_look_at(np.array([5 * np.sin(a), 0.3 * i, 5 - 5 * np.cos(a)]),
+                               np.array([0.0, 0.0, 5.0])) for i, a in enumerate(angles)])
+    keyframe_index, point_index, uv_px = [], [], []
+    for k, T_c_w in enumerate(inverse(T_w_c)):
+        uv = _project_px(camera, points_w @ T_c_w[:3, :3].T + T_c_w[:3, 3])
+        inside = np.flatnonzero((uv >= 0).all(1) & (uv < [camera.width, camera.height]).all(1))
+        keyframe_index += [k] * len(inside)
+        point_index += inside[::-1].tolist()  # not in point order: POINT2D_IDX is per image
+        uv_px += uv[inside[::-1]].tolist()
+    observations = (np.array(keyframe_index), np.array(point_index), np.array(uv_px))
+    return T_w_c, points_w, observations
+
+
+def _cam_from_world(image) -> np.ndarray:
+    """``T_c_w`` (3, 4) of a pycolmap image (a method since pycolmap 3.12, a property before)."""
+    pose = image.cam_from_world
+    return (pose() if callable(pose) else pose).matrix()
+
+
+def _check_images(reconstruction, keyframe_ids, T_w_c, names) -> None:
+    """Each keyframe is the image with id keyframe id + 1 and pose ``T_c_w = T_w_c^-1``."""
+    assert sorted(reconstruction.images) == [int(i) + 1 for i in keyframe_ids]
+    for i, T in zip(keyframe_ids, T_w_c):
+        image = reconstruction.image(int(i) + 1)
+        assert image.camera_id == 1
+        np.testing.assert_allclose(_cam_from_world(image), inverse(T)[:3], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(image.projection_center(), T[:3, 3], rtol=0, atol=1e-9)
+    assert [reconstruction.image(int(i) + 1).name for i in keyframe_ids] == names
+
+
+@pytest.mark.parametrize("model", sorted(CAMERAS))
+def test_synthetic_model_reads_back_and_points_project_on_their_observations(tmp_path, model):
+    pycolmap = _pycolmap()
+    camera = CAMERAS[model]
+    T_w_c, points_w, observations = _scene(camera)
+    keyframe_ids = np.array([0, 3, 4, 9], dtype=np.uint32)
+    names = [f"rgb/{i}.png" for i in keyframe_ids]
+    colors = np.random.default_rng(1).integers(0, 256, size=(50, 3))
+    folder = write_colmap_model(tmp_path / "sparse" / "0", camera, keyframe_ids, T_w_c,
+                                points_w, point_colors=colors, observations=observations,
+                                image_names=names)
+
+    rec = pycolmap.Reconstruction(folder)
+    assert (rec.num_cameras(), rec.num_images(), rec.num_points3D()) == (1, 4, 50)
+    colmap_camera = rec.camera(1)
+    assert colmap_camera.model_name == model
+    assert (colmap_camera.width, colmap_camera.height) == (640, 480)
+    # COLMAP's pixel centres sit at +0.5.
+    np.testing.assert_array_equal(colmap_camera.params[:4], [camera.fx, camera.fy,
+                                                             camera.cx + 0.5, camera.cy + 0.5])
+    _check_images(rec, keyframe_ids, T_w_c, names)
+    assert rec.compute_num_observations() == len(observations[0])
+    for k, j, uv in zip(*observations):
+        image = rec.image(int(keyframe_ids[k]) + 1)
+        point = rec.point3D(int(j) + 1)
+        np.testing.assert_array_equal(point.xyz, points_w[j])
+        np.testing.assert_array_equal(point.color, colors[j])
+        assert any(e.image_id == image.image_id and image.points2D[e.point2D_idx].xy.tolist()
+                   == (uv + 0.5).tolist() for e in point.track.elements)
+        p_c = _cam_from_world(image) @ np.append(point.xyz, 1.0)
+        np.testing.assert_allclose(colmap_camera.img_from_cam(p_c), uv + 0.5, rtol=0, atol=1e-6)
+
+
+def test_slam_keyframes_and_map_points_read_back(tmp_path, tum_desk):
+    pycolmap = _pycolmap()
+    from ferroslam.datasets import open_sequence
+    from ferroslam.pipeline import run_sequence
+
+    seq = open_sequence(tum_desk)
+    result = run_sequence(seq, sensor="rgbd", progress=False)
+    frame_of = {frame.timestamp: frame for frame in seq.frames}
+    names = [frame_of[t].rgb_path.relative_to(seq.path).as_posix()
+             for t in result.keyframes.timestamps]
+    folder = write_colmap_model(tmp_path / "colmap", seq.camera, result.keyframe_ids,
+                                result.keyframes.poses, result.map_points, image_names=names)
+
+    rec = pycolmap.Reconstruction(folder)
+    assert rec.num_images() == len(result.keyframe_ids) >= 2
+    assert rec.num_points3D() == len(result.map_points) > 100
+    assert rec.camera(1).model_name == "FULL_OPENCV"  # TUM fr1 has k3 = 1.1633
+    _check_images(rec, result.keyframe_ids, result.keyframes.poses, names)
+    # Without observations the points keep their positions, grey, with empty tracks.
+    xyz = np.array([rec.point3D(j + 1).xyz for j in range(len(result.map_points))])
+    np.testing.assert_array_equal(xyz, result.map_points)
+    assert all(rec.point3D(j).track.length() == 0 and rec.point3D(j).color.tolist() == [128] * 3
+               for j in rec.point3D_ids())
+
+
+def test_text_files_have_colmap_headers_and_one_based_ids(tmp_path):
+    camera = CAMERAS["PINHOLE"]
+    T_w_c, points_w, observations = _scene(camera)
+    write_colmap_model(tmp_path, camera, np.arange(4), T_w_c, points_w,
+                       observations=observations)
+    cameras = (tmp_path / "cameras.txt").read_text().splitlines()
+    assert cameras[:3] == ["# Camera list with one line of data per camera:",
+                           "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
+                           "# Number of cameras: 1"]
+    assert cameras[3] == "1 PINHOLE 640 480 500.0 490.0 320.0 240.0"
+    images = (tmp_path / "images.txt").read_text().splitlines()
+    assert images[3].startswith("# Number of images: 4, mean observations per image: ")
+    assert len(images) == 4 + 2 * 4
+    assert [line.split()[0] for line in images[4::2]] == ["1", "2", "3", "4"]
+    assert [line.split()[-1] for line in images[4::2]] == [f"keyframe_{i:06d}.png"
+                                                           for i in range(4)]
+    points = (tmp_path / "points3D.txt").read_text().splitlines()
+    assert points[2].startswith("# Number of points: 50, mean track length: ")
+    assert [int(line.split()[0]) for line in points[3:]] == list(range(1, 51))
+    assert all(line.split()[4:8] == ["128", "128", "128", "-1"] for line in points[3:])
+
+
+@pytest.mark.parametrize(
+    "change, error, match",
+    [
+        ({"camera": "tum"}, TypeError, "camera"),
+        ({"keyframe_ids": np.array([0, 0])}, ValueError, "unique"),
+        ({"keyframe_ids": np.array([0.0, 1.0])}, ValueError, "integer"),
+        ({"keyframe_ids": np.array([-1, 1])}, ValueError, "keyframe_ids"),
+        ({"keyframe_poses_T_w_c": np.eye(4)[None]}, ValueError, "keyframe_poses_T_w_c"),
+        ({"keyframe_poses_T_w_c": np.stack([np.eye(4), 2 * np.eye(4)])}, ValueError,
+         r"keyframe_poses_T_w_c\[1\] is not a rigid transform"),
+        ({"points_xyz": np.full((3, 3), np.nan)}, ValueError, "points_xyz"),
+        ({"point_colors": np.zeros((2, 3))}, ValueError, "point_colors"),
+        ({"image_names": ["a.png"]}, ValueError, "image_names"),
+        ({"image_names": ["a b.png", "c.png"]}, ValueError, "whitespace"),
+        ({"image_names": ["a.png", "a.png"]}, ValueError, "unique"),
+        ({"observations": (np.array([0]), np.array([3]), np.zeros((1, 2)))}, ValueError,
+         "point_index"),
+        ({"observations": (np.array([2]), np.array([0]), np.zeros((1, 2)))}, ValueError,
+         "keyframe_index"),
+        ({"observations": (np.array([0, 0]), np.array([1, 1]), np.zeros((2, 2)))}, ValueError,
+         "twice"),
+        ({"observations": (np.array([0]), np.array([1]), np.full((1, 2), np.inf))}, ValueError,
+         "uv_px"),
+        ({"observations": np.zeros((3, 4))}, ValueError, "observations"),
+    ],
+)
+def test_bad_input_names_the_argument_and_writes_nothing(tmp_path, change, error, match):
+    args = {"camera": CAMERAS["OPENCV"], "keyframe_ids": np.array([0, 1]),
+            "keyframe_poses_T_w_c": np.stack([np.eye(4), np.eye(4)]),
+            "points_xyz": np.zeros((3, 3))}
+    args.update(change)
+    with pytest.raises(error, match=match):
+        write_colmap_model(tmp_path / "model", **args)
+    assert not (tmp_path / "model").exists()
+
+
+def test_cli_run_writes_the_chosen_trajectory_format_and_a_colmap_model(tmp_path):
+    import pycolmap
+
+    from ferroslam.cli import main
+
+    path = require_data("tum", "rgbd_dataset_freiburg1_desk")
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--sensor", "rgbd", "--out", str(out), "--silent",
+                 "--trajectory-format", "kitti"]) == 0
+    rows = np.loadtxt(out / "trajectory.txt", ndmin=2)
+    assert rows.shape[1] == 12 and len(rows) == json.loads(
+        (out / "results.json").read_text())["trajectory_poses"]
+    model = pycolmap.Reconstruction(str(out / "colmap"))
+    keyframes = np.loadtxt(out / "keyframes.txt", ndmin=2)
+    assert model.num_images() == len(keyframes)
