@@ -449,3 +449,19 @@ def test_a_gyroscope_in_degrees_during_slow_motion_does_not_align():
                           progress=False)
     assert result.inertial["status"] == "failed", result.inertial
     assert result.inertial["reason"].startswith("gyroscope"), result.inertial["reason"]
+
+
+def test_a_bad_ground_truth_line_keeps_every_result(tmp_path, capsys):
+    """Ground truth is read after tracking: a bad line used to leave --out empty."""
+    source = require_data("tum", "rgbd_dataset_freiburg1_desk")
+    seq_dir = tmp_path / "rgbd_dataset_freiburg1_desk"
+    shutil.copytree(source, seq_dir)
+    with open(seq_dir / "groundtruth.txt", "a", encoding="utf-8") as f:
+        f.write("1305031454.0 not a pose\n")
+    out = tmp_path / "out"
+    code = main(["run", str(seq_dir), "--sensor", "rgbd", "--out", str(out), "--silent"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.startswith("ferroslam: error: ground truth")
+    lines = [l for l in (out / "trajectory.txt").read_text().splitlines()
+             if l and not l.startswith("#")]
+    assert len(lines) == 9

@@ -1,14 +1,15 @@
 """ferroslam: visual SLAM (ORB-SLAM pipeline) for Python with a Rust core.
 
-Pure-Python parts (``datasets``, ``features``, ``metrics``, ``io``, ``plot``) import without
-the native extension; ``SlamSystem`` needs ``ferroslam._core`` (built with maturin).
+Pure-Python parts (``datasets``, ``sources``, ``features``, ``metrics``, ``io``, ``plot``)
+import without the native extension; ``SlamSystem`` needs ``ferroslam._core`` (built with
+maturin).
 """
 
 from __future__ import annotations
 
 from importlib import metadata as _metadata
 
-from . import datasets, io, metrics
+from . import datasets, io, metrics, sources
 from .calibration import Calibration, load_calibration
 from .camera import Camera
 from .trajectory import Trajectory
@@ -29,6 +30,7 @@ except ImportError:  # native module not built (or older than SlamError)
 __all__ = [
     "Calibration",
     "Camera",
+    "FrameResult",
     "MonoVSlam",
     "RGBDVSlam",
     "StereoVSlam",
@@ -41,10 +43,11 @@ __all__ = [
     "io",
     "load_calibration",
     "metrics",
+    "sources",
 ]
 
 
-_VSLAM = ("MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus")
+_VSLAM = ("FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus")
 
 
 def __getattr__(name: str):

@@ -25,6 +25,14 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _positive_rate(text: str) -> float:
+    value = float(text)
+    if not (0 < value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number of frames per second, "
+                                         f"got {text}")
+    return value
+
+
 def _non_negative_seconds(text: str) -> float:
     value = float(text)
     if not (value >= 0 and value != float("inf")):
@@ -71,7 +79,14 @@ dataset layouts (--format auto detects them):
   kitti  PATH/image_0/ (and image_1/ for stereo), calib.txt, times.txt; ground truth
          poses.txt or ../../poses/NN.txt (optional)
   euroc  PATH/mav0/cam0/ (and cam1/): data.csv, data/, sensor.yaml; ground truth
-         mav0/state_groundtruth_estimate0/data.csv (optional)"""
+         mav0/state_groundtruth_estimate0/data.csv (optional)
+
+other sources (--sensor mono, --camera FILE; no ground truth, so no ATE):
+  video     a video file OpenCV reads (.mp4, .avi, ...); frame times from the stream
+  images    a folder of .png/.jpg, in name order; times from numeric names (seconds, or
+            nanoseconds as 1403636579763555584.png) or from --fps
+  camera:N  live camera N (OpenCV's numbering: /dev/videoN); frames that come while
+            tracking is behind are dropped; Ctrl+C ends the run and writes the results"""
 
 
 def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
@@ -79,6 +94,11 @@ def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
 
     output = p.add_argument_group("output")
     output.add_argument("--out", type=Path, help=f"output folder (default: {default_out})")
+    output.add_argument("--viewer", action="store_true",
+                        help="show the run live in the Rerun viewer (pip install "
+                             "'ferroslam[viewer]')")
+    output.add_argument("--rerun-save", type=Path, metavar="FILE.rrd",
+                        help="record the run for the Rerun viewer to FILE.rrd (headless)")
     output.add_argument("--trajectory-format", choices=TRAJECTORY_FORMATS, default="tum",
                         help="format of trajectory.txt and keyframes.txt: tum (default), kitti "
                              "(3x4 rows, no time) or euroc (ASL csv, .csv files)")
@@ -120,7 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_LAYOUTS + "\n\n" + _OUTPUTS, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     run.add_argument("path", type=Path,
-                     help="sequence folder: TUM RGB-D, KITTI odometry or EuRoC (ASL) layout")
+                     help="sequence folder (TUM RGB-D, KITTI odometry or EuRoC (ASL) layout), "
+                          "video file, image folder or camera:N")
     algo = run.add_argument_group("algorithm")
     algo.add_argument("--sensor", choices=SENSORS, required=True,
                       help="camera setup: mono (any layout), rgbd (TUM), stereo (KITTI, EuRoC); "
@@ -132,6 +153,13 @@ def build_parser() -> argparse.ArgumentParser:
                            '{"n_features": 2000, "depth_threshold": 35}')
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
     algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
+    source = run.add_argument_group("video, image folder and camera")
+    source.add_argument("--camera", type=Path, metavar="FILE",
+                        help="calibration (required for these): ORB-SLAM3 settings, Kalibr "
+                             "camchain, OpenCV or ROS camera_info, flat camera.yaml")
+    source.add_argument("--fps", type=_positive_rate,
+                        help="frame rate of an image folder (frame i at i/fps s), for names "
+                             "that are not times")
     _add_output_options(run, "out/<sequence name>")
 
     ev = sub.add_parser("eval", help="evaluate trajectory files",
@@ -253,16 +281,54 @@ def _load_config(path: Optional[Path]) -> dict:
     return config
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from .datasets import open_sequence
+def _open_input(args: argparse.Namespace):
+    """The dataset sequence, or the video / image folder / camera source, ``args.path``
+    names; a source gets the ``--camera`` calibration."""
+    from .calibration import load_calibration
+    from .datasets import is_sequence_folder, open_sequence
+    from .sources import open_source
 
+    if args.format != "auto" or is_sequence_folder(args.path):
+        if args.camera is not None or args.fps is not None:
+            raise ValueError("--camera and --fps are for videos, image folders and cameras; a "
+                             f"dataset folder ({args.path}) has its own calibration and times")
+        return open_sequence(args.path, args.format, sensor=args.sensor)
+    if args.sensor != "mono":
+        try:
+            open_sequence(args.path, sensor=args.sensor)  # says which layouts it looked for
+        except (OSError, ValueError) as err:
+            raise type(err)(f"{err}; videos, image folders and camera:N are read with "
+                            "--sensor mono") from None
+    source = open_source(args.path, fps=args.fps)
+    if args.camera is None:
+        raise ValueError(f"{args.path}: a video, image folder or camera needs its calibration: "
+                         "--camera FILE (ORB-SLAM3 settings, Kalibr camchain, OpenCV or ROS "
+                         "camera_info, flat camera.yaml)")
+    source.camera = load_calibration(args.camera).cameras[0]
+    return source
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
     config = _load_config(args.config)
     if args.seed is not None:
         config["seed"] = args.seed
-    seq = open_sequence(args.path, args.format, sensor=args.sensor)
+    seq = _open_input(args)
     out = args.out if args.out is not None else Path("out") / seq.name
     return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
-                             args.trajectory_format)
+                             args.trajectory_format, _rerun_logger(args))
+
+
+def _rerun_logger(args: argparse.Namespace):
+    """A Rerun logger for ``--viewer`` (live) or ``--rerun-save FILE.rrd``, else None."""
+    if not (args.viewer or args.rerun_save):
+        return None
+    from .viewer import RerunLogger
+
+    if args.viewer and args.rerun_save:
+        raise ValueError("--viewer and --rerun-save: choose one (the viewer can save what it "
+                         "shows)")
+    # JPEG keeps a recording of a whole run to tens of MB instead of hundreds.
+    return RerunLogger(spawn=args.viewer, save_path=args.rerun_save, jpeg_quality=85)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -277,28 +343,49 @@ def _cmd_demo(args: argparse.Namespace) -> int:
               "(CC BY 4.0, Sturm et al., IROS 2012)")
     with sample_sequence() as seq:
         return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
-                                 args.trajectory_format)
+                                 args.trajectory_format, _rerun_logger(args))
 
 
 def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
-                      silent: bool, trajectory_format: str = "tum") -> int:
-    """Run ``seq``, write every output file into ``out`` and print the summary. A run that
-    stops at an error (a corrupt image at frame N, a bad ground-truth line) still writes the
-    results of the frames before it, then reports the error."""
-    from .pipeline import RunError, run_sequence
+                      silent: bool, trajectory_format: str = "tum", logger=None) -> int:
+    """Run ``seq`` (a live source through ``run_source``), write every output file into
+    ``out`` and print the summary. A run that stops at an error (a corrupt image at frame N, a
+    bad ground-truth line) still writes the results of the frames before it, then reports the
+    error."""
+    from .pipeline import RunError, run_sequence, run_source
 
     out.mkdir(parents=True, exist_ok=True)  # an unwritable --out fails before tracking
+    on_frame = None
+    if logger is not None:
+        from .viewer import make_frame_callback
+
+        on_frame = make_frame_callback(logger, seq.camera)
     try:
-        result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
-                              sensor=sensor)
+        if getattr(seq, "live", False):
+            result = run_source(seq, config, max_frames=max_frames, progress=not silent)
+        else:
+            result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
+                                  sensor=sensor, on_frame=on_frame)
     except RunError as err:
         write_run_outputs(err.partial, out, trajectory_format)
+        _log_final_map(logger, err.partial)
         raise RunError(f"{err}; the results of the {err.partial.frames} frames before it are "
                        f"in {out}/", err.partial, err.frame) from err
+    _log_final_map(logger, result)
     summary = write_run_outputs(result, out, trajectory_format)
     if not silent:
         _print_summary(summary, out)
     return 0
+
+
+def _log_final_map(logger, result) -> None:
+    """The map as bundle adjustment and loop closing left it, to the Rerun logger (if any),
+    which is then closed (a recording is complete only then)."""
+    if logger is None:
+        return
+    with logger:
+        logger.log_map(result.map_points, keyframe_poses_T_w_c=result.keyframes.poses,
+                       loops=result.loops, keyframe_ids=result.keyframe_ids)
 
 
 def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
@@ -352,6 +439,10 @@ def _print_summary(summary: dict, out: Path) -> None:
     frame = summary["timing_ms"].get("frame_ms")
     if frame:
         print(f"time per frame  median {frame['median']:.1f} ms  p95 {frame['p95']:.1f} ms")
+    latency = summary["timing_ms"].get("latency_ms")
+    if latency:
+        print(f"latency         median {latency['median']:.1f} ms  p95 {latency['p95']:.1f} ms"
+              f"  ({summary['dropped_frames']} frames dropped while tracking was behind)")
     metrics = summary["metrics"]
     if summary["first_initialised_frame"] is None:
         print("status          not initialised: the map never started")

@@ -2,6 +2,8 @@
 
 The heavy lifting happens in ``ferroslam._core.SlamSystem`` (Rust); this module feeds it
 frame by frame, times every stage and evaluates the result against ground truth.
+:func:`run_source` does the same for a live source (a camera) through ``MonoVSlam``, which
+drops the frames that come while tracking is behind.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, r
 from .trajectory import Trajectory
 
 __all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_extractor",
-           "run_sequence"]
+           "run_sequence", "run_source"]
 
 SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
 _INERTIAL = "-inertial"
@@ -55,6 +57,9 @@ class RunResult:
     sensors. With ground truth: ATE (SE(3), or Sim(3) over the longest segment for monocular
     runs without an IMU alignment), RPE and path length (metric scale; not for those runs).
     ``camera``: the intrinsics of the images tracked (for exports such as COLMAP models).
+    ``dropped_frames``: for a live run (:func:`run_source`), the frames read but not tracked
+    because tracking was behind (``None`` otherwise: every frame is tracked); its timings are
+    ``tracking_ms``, ``mapping_ms`` and ``latency_ms`` (``FrameResult.latency_ms``).
     """
 
     sequence: str
@@ -80,6 +85,7 @@ class RunResult:
     rpe_frames: Optional[RpeResult] = None
     path_length: Optional[PathLengthResult] = None
     metric_errors: list = field(default_factory=list)
+    dropped_frames: Optional[int] = None
 
     @property
     def scale_free(self) -> bool:
@@ -145,6 +151,8 @@ class RunResult:
             "metrics": {},
             "metric_errors": list(self.metric_errors),
         }
+        if self.dropped_frames is not None:
+            out["dropped_frames"] = self.dropped_frames
         for name, result in (("ate_frames", self.ate_frames), ("ate_keyframes", self.ate_keyframes)):
             if result is not None:
                 out["metrics"][name] = {
@@ -215,6 +223,11 @@ class _RgbdFeed:
         self.seq.camera.check_image(gray, f"image {i}")
         return gray, self.seq.load_depth(i)
 
+    @staticmethod
+    def image(data) -> np.ndarray:
+        """The tracked image of loaded ``data`` (for ``on_frame``)."""
+        return data[0]
+
     def features(self, data) -> tuple:
         gray, depth = data
         keypoints, descriptors = self.extractor.detect(gray)
@@ -245,6 +258,11 @@ class _StereoFeed:
         self.seq.camera.check_image(left, f"left image {i}")
         return left, right
 
+    @staticmethod
+    def image(data) -> np.ndarray:
+        """The tracked (left) image of a loaded pair (for ``on_frame``)."""
+        return data[0]
+
     def features(self, data) -> tuple:
         left, right = self.extractor.detect_pair(*data)
         return (*left, *right)
@@ -268,6 +286,11 @@ class _MonoFeed:
         gray = self.seq.load_gray(i)
         self.seq.camera.check_image(gray, f"image {i}")
         return gray
+
+    @staticmethod
+    def image(data) -> np.ndarray:
+        """The tracked image (for ``on_frame``)."""
+        return data
 
     def features(self, gray) -> tuple:
         return self.extractor.detect(gray)
@@ -330,6 +353,7 @@ def run_sequence(
     sensor: str = "rgbd",
     system_factory: Optional[Callable[..., Any]] = None,
     realtime: bool = False,
+    on_frame: Optional[Callable[..., None]] = None,
 ) -> RunResult:
     """Track a whole sequence and evaluate it.
 
@@ -356,6 +380,10 @@ def run_sequence(
             hold the ``set_imu`` options ``num_poses_threshold``, ``alignment_fraction``,
             ``gravity_magnitude`` and ``imu_time_offset_s`` (``t_imu = t_cam + offset``).
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
+        on_frame: called after each frame as ``on_frame(result, image=, keypoints=,
+            timestamp_s=, system=)`` (the core's ``TrackResult``, the grey or left image, its
+            keypoints, the frame time, the ``SlamSystem``), e.g. a live view
+            (``ferroslam.viewer.make_frame_callback``).
 
     Raises:
         ValueError: bad configuration or ``max_frames``.
@@ -387,7 +415,7 @@ def run_sequence(
         system.set_vocabulary(load_vocabulary(vocabulary))
     if config.get("mapping_thread"):
         system.set_mapping_thread(True)
-    return _run(seq, system, feed, n, sensor, config, progress, realtime, imu)
+    return _run(seq, system, feed, n, sensor, config, progress, realtime, imu, on_frame)
 
 
 def _imu_stream(seq, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -413,6 +441,70 @@ def imu_batch_end(stamps: np.ndarray, frame_s: float, period_s: float,
     return end
 
 
+def _map_outputs(system) -> dict:
+    """The ``RunResult`` fields a ``SlamSystem`` holds at the end of a run: trajectories,
+    keyframes, segments, loops, map points."""
+    stamps, poses = system.frame_trajectory()
+    kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
+    return dict(
+        trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
+        keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
+        keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
+        segments=np.asarray(system.frame_segments(), dtype=np.int64).reshape(-1),
+        loops=system.loops(),
+        loop_stats=system.loop_stats(),
+        map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
+    )
+
+
+def run_source(source, config: Optional[dict] = None, max_frames: Optional[int] = None,
+               progress: bool = True) -> RunResult:
+    """Track a live monocular source (``ferroslam.sources.CameraSource``, or any iterable of
+    ``(timestamp_s, image)`` with ``camera``, ``name`` and ``live``) as its frames come,
+    with ``MonoVSlam.track_source``: frames that arrive while tracking is behind are dropped
+    (``RunResult.dropped_frames``). Ends when the source does, after ``max_frames`` frames
+    read, or at Ctrl+C (``KeyboardInterrupt``), the usual end of a camera run: the frames
+    tracked until then make the result. No ground truth, so no metrics.
+
+    ``config``: as :func:`run_sequence`'s (``SlamSystem`` options, ``vocabulary``,
+    ``seed``); tracking and mapping run in background threads, so runs are not repeatable.
+    """
+    from .vslam import FrameResult, MonoVSlam
+
+    config = dict(config or {})
+    core_options = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY + ("seed",)}
+    records: list[FrameResult] = []
+    bar = tqdm(disable=not progress, desc=source.name, unit="frame")
+
+    def record(frame: FrameResult) -> None:
+        records.append(frame)
+        bar.update()
+        bar.set_postfix(state=frame.track.state, refresh=False)
+
+    with MonoVSlam(source.camera, vocabulary=config.get("vocabulary", "default"),
+                   seed=config.get("seed", 0), core_options=core_options,
+                   on_frame=record) as vslam:
+        try:
+            vslam.track_source(source, max_frames=max_frames)
+        except KeyboardInterrupt:
+            pass  # stopping the camera: keep what was tracked
+        vslam.wait()
+        bar.close()
+        tracks = [r.track for r in records]
+        return RunResult(
+            sequence=source.name, sensor="mono", config=config,
+            timestamps=np.array([r.timestamp_s for r in records], dtype=np.float64),
+            states=[str(t.state) for t in tracks],
+            num_tracked=np.array([t.num_tracked for t in tracks], dtype=np.int64),
+            timings={"tracking_ms": np.array([t.tracking_ms for t in tracks], dtype=np.float64),
+                     "mapping_ms": np.array([t.mapping_ms for t in tracks], dtype=np.float64),
+                     "latency_ms": np.array([r.latency_ms for r in records], dtype=np.float64)},
+            init_reasons=[t.init_reason for t in tracks],
+            camera=source.camera, dropped_frames=vslam.dropped_frames,
+            **_map_outputs(vslam._system),
+        )
+
+
 def _jsonable(value):
     """``value`` with numpy arrays and scalars turned into lists and floats."""
     if isinstance(value, dict):
@@ -427,7 +519,7 @@ def _jsonable(value):
 
 
 def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
-         realtime: bool, imu) -> RunResult:
+         realtime: bool, imu, on_frame: Optional[Callable[..., None]] = None) -> RunResult:
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
     init_reasons: list[Optional[str]] = []
@@ -454,6 +546,9 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
                     system.add_imu(*(a[imu_from:imu_to] for a in imu))
                 imu_from = imu_to
             res = feed.track(system, float(seq.timestamps[i]), features)
+            if on_frame is not None:
+                on_frame(res, image=feed.image(data), keypoints=features[0],
+                         timestamp_s=float(seq.timestamps[i]), system=system)
         except Exception as err:  # noqa: BLE001 - raised again with the frames done
             failure = (i, err)
             break
@@ -480,8 +575,6 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         if failure is None:
             raise
     done = len(states)
-    stamps, poses = system.frame_trajectory()
-    kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
     result = RunResult(
         sequence=str(getattr(seq, "name", "")),
         sensor=sensor,
@@ -490,16 +583,10 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
         states=states,
         num_tracked=num_tracked[:done],
         timings={name: values[:done] for name, values in timings.items()},
-        trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
-        keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
-        keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
-        segments=np.asarray(system.frame_segments(), dtype=np.int64).reshape(-1),
         init_reasons=init_reasons,
-        loops=system.loops(),
-        loop_stats=system.loop_stats(),
         inertial=system.inertial_alignment() if imu is not None else None,
-        map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
         camera=getattr(seq, "camera", None),
+        **_map_outputs(system),
     )
     evaluation_error = None
     if getattr(seq, "has_groundtruth", False):

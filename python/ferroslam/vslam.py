@@ -19,24 +19,42 @@ extracted while the core works (the GIL is released). Frames are processed in or
 results equal the synchronous mode's (``threaded=False``: each ``add_frame`` finishes its
 frame). ``check_status``, ``has_new_keyframe`` and the map reflect the frames processed so
 far; ``is_done()`` says whether all added frames are.
+
+Live sources (a camera, ``ferroslam.sources.CameraSource``) bring frames at their own pace:
+``MonoVSlam.track_source`` then keeps only the newest frame while the core is busy and drops
+the older ones (``dropped_frames``), so the lag stays bounded instead of growing with a
+queue. ``on_frame`` is called with a :class:`FrameResult` (pose, state, latency) as each
+frame's result comes in, and ``current_pose()`` gives the latest pose.
 """
 
 from __future__ import annotations
 
+import collections
 import enum
+import itertools
 import math
 import numbers
 import tempfile
+import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional, Sequence, TextIO, Union
+from typing import Any, Callable, Iterable, Optional, Sequence, TextIO, Union
 
 import numpy as np
 
 from .camera import Camera
 from .features import sample_depth
 
-__all__ = ["MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
+__all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
+
+# Live feeding: a new frame is taken from the source once at most this many added frames are
+# still unprocessed, so the next frame's features are extracted while the core tracks the
+# previous one, and a frame waits behind at most one other.
+_LIVE_FRAMES_IN_FLIGHT = 1
+# How often a live feed looks whether the core has caught up, seconds (a frame takes tens of
+# milliseconds to track).
+_LIVE_POLL_S = 0.001
 
 
 class TrackingStatus(enum.Enum):
@@ -52,6 +70,23 @@ class TrackingStatus(enum.Enum):
     FREQUENT_KEYFRAMES = "frequent_keyframes"
     """More tracked points than the upper limit: keyframes come too often for so slow a
     camera; raise ``skip_max_frames`` (``FrequentKeyFrames``)."""
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One processed frame, as ``on_frame`` receives it.
+
+    ``index``: the frame's number among those added (dropped frames are never added);
+    ``timestamp_s``: its time; ``latency_ms``: from the ``add_frame`` call to its result
+    taken in (feature extraction, waiting in the queue, tracking), what a live user sees;
+    ``track``: the core's ``TrackResult`` (``state``, ``T_w_c`` (4, 4) float64 or ``None``,
+    ``num_tracked``, ``is_keyframe``, ``tracking_ms``, ``mapping_ms``, ``init_reason``).
+    """
+
+    index: int
+    timestamp_s: float
+    latency_ms: float
+    track: Any
 
 
 def _pose_text(T: np.ndarray) -> str:
@@ -112,10 +147,12 @@ class _VSlam:
     (Verbose: 1 prints stages and loop closures, 2 also logs every frame, the initial map and
     each loop closure's data to a file in the temporary folder, 3 adds each new keyframe's
     pose before local BA and the keyframe poses after it), ``frame_rate_hz`` (timestamps when
-    none are given), ``seed``. With an IMU: ``imu`` (noise parameters),
-    ``camera_to_imu_transform``, ``num_poses_threshold``, ``alignment_fraction`` and
-    ``imu_time_offset_s`` (the IMU clock's offset, ``t_imu = t_cam + imu_time_offset_s``, as
-    Kalibr's ``timeshift_cam_imu``).
+    none are given), ``seed``, ``on_frame`` (called with each frame's :class:`FrameResult`
+    as results are taken in, in the caller's thread; also settable as an attribute; an
+    exception it raises comes out of the call that took the result in). With an IMU: ``imu``
+    (noise parameters), ``camera_to_imu_transform``, ``num_poses_threshold``,
+    ``alignment_fraction`` and ``imu_time_offset_s`` (the IMU clock's offset, ``t_imu = t_cam
+    + imu_time_offset_s``, as Kalibr's ``timeshift_cam_imu``).
     """
 
     _sensor = ""
@@ -142,6 +179,7 @@ class _VSlam:
         alignment_fraction: float = 0.9,
         imu_time_offset_s: float = 0.0,
         core_options: Optional[dict] = None,
+        on_frame: Optional[Callable[[FrameResult], Any]] = None,
     ) -> None:
         if not isinstance(intrinsics, Camera):
             raise TypeError(f"intrinsics must be a ferroslam.Camera, got {type(intrinsics).__name__}")
@@ -199,8 +237,14 @@ class _VSlam:
                                                                    num_poses_threshold),
                                  alignment_fraction=alignment_fraction,
                                  imu_time_offset_s=imu_time_offset_s)
+        self.on_frame = on_frame
         self._frames = 0
         self._processed = 0
+        self._dropped = 0
+        self._draining = False
+        # (timestamp_s, add_frame call time) of the frames added but not yet processed, oldest
+        # first: results come in the order frames were added.
+        self._in_flight: collections.deque[tuple[float, float]] = collections.deque()
         self._last_timestamp: Optional[float] = None
         self._last = None
         self._new_keyframe = False
@@ -223,8 +267,10 @@ class _VSlam:
                 timestamp = self._last_timestamp + 1.0 / self.frame_rate_hz
         return float(timestamp)
 
-    def _track(self, timestamp: Optional[float], method: str, *args: Any,
+    def _track(self, started_s: float, timestamp: Optional[float], method: str, *args: Any,
                imu: Optional[Sequence[np.ndarray]] = None) -> None:
+        """Hands a frame's features to the core; ``started_s``: ``time.perf_counter()`` at the
+        ``add_frame`` call (for the latency)."""
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
@@ -240,6 +286,7 @@ class _VSlam:
         result = getattr(self._system, method)(t, *args)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
+        self._in_flight.append((t, started_s))
         if result is not None:
             self._absorb(result)
         self._drain()
@@ -266,16 +313,28 @@ class _VSlam:
         return stamps, gyro, accel
 
     def _drain(self) -> None:
-        """Takes in the results of the frames the background thread has processed."""
-        for result in self._system.take_results():
-            self._absorb(result)
+        """Takes in the results of the frames the background thread has processed. Not
+        again from inside ``on_frame``: the callback sees the object as of its frame
+        (``current_pose()`` is that frame's), and the later results follow in order."""
+        if self._draining:
+            return
+        self._draining = True
+        try:
+            for result in self._system.take_results():
+                self._absorb(result)
+        finally:
+            self._draining = False
 
     def _absorb(self, result: Any) -> None:
         previous = self._last.state if self._last is not None else "not_initialized"
+        timestamp_s, started_s = self._in_flight.popleft()
         self._last = result
         self._processed += 1
         self._new_keyframe |= bool(result.is_keyframe)
         self._report(previous, result)
+        if self.on_frame is not None:
+            self.on_frame(FrameResult(self._processed - 1, timestamp_s,
+                                      (time.perf_counter() - started_s) * 1e3, result))
 
     def _report(self, previous: str, result: Any) -> None:
         if self.verbose == 0:
@@ -343,6 +402,14 @@ class _VSlam:
             return TrackingStatus.FREQUENT_KEYFRAMES
         return TrackingStatus.SUCCESSFUL
 
+    def current_pose(self) -> tuple[Optional[np.ndarray], TrackingStatus]:
+        """``(T_w_c, status)`` of the latest processed frame: its ``(4, 4)`` float64 camera
+        pose in the world (``None`` when it was not tracked, or before any frame) and
+        :meth:`check_status`. Cheap: for showing the pose live."""
+        status = self.check_status()  # takes in the processed results first
+        pose = None if self._last is None else self._last.T_w_c
+        return (None if pose is None else np.array(pose, dtype=np.float64)), status
+
     def is_done(self) -> bool:
         """Whether every added frame has been processed (MATLAB ``isDone``)."""
         return bool(self._system.is_done())
@@ -351,6 +418,12 @@ class _VSlam:
         """Blocks until every added frame has been processed."""
         self._system.wait()
         self._drain()
+
+    def _wait_for_core(self, in_flight: int) -> None:
+        """Blocks until at most ``in_flight`` added frames are unprocessed (polling: the
+        core's ``wait`` also waits for mapping, which would hold a live feed back)."""
+        while self._frames - self.num_processed > in_flight:
+            time.sleep(_LIVE_POLL_S)
 
     @property
     def num_frames(self) -> int:
@@ -362,6 +435,12 @@ class _VSlam:
         """Frames the core has processed so far."""
         self._drain()
         return self._processed
+
+    @property
+    def dropped_frames(self) -> int:
+        """Frames of a live source never added because tracking was behind (see
+        ``MonoVSlam.track_source``); every frame read is either added or dropped."""
+        return self._dropped
 
     def map_points(self) -> np.ndarray:
         """World positions of the map points, ``(M, 3)`` float64 (metres, or map units
@@ -465,9 +544,46 @@ class MonoVSlam(_VSlam):
         frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``: those up to this
         frame's time and, if there, the first one after it (at most one IMU period later: the
         frame is then interpolated, not extrapolated)."""
+        started_s = time.perf_counter()
         self.intrinsics.check_image(image)
         keypoints, descriptors = self._extractor.detect(image)
-        self._track(timestamp, "track_mono", keypoints, descriptors, imu=imu)
+        self._track(started_s, timestamp, "track_mono", keypoints, descriptors, imu=imu)
+
+    def track_source(self, source: Iterable[tuple[float, np.ndarray]], *,
+                     drop_frames: Optional[bool] = None,
+                     max_frames: Optional[int] = None) -> None:
+        """Adds the ``(timestamp_s, image)`` frames of ``source`` (e.g. a
+        ``ferroslam.sources`` source) until it ends or ``max_frames`` were read; returns
+        before the last frames are processed (``wait()``).
+
+        ``drop_frames`` (default: ``source.live``, True for cameras, never for files): a
+        thread reads the source and keeps only the newest frame; it is added once the core
+        has caught up (at most one frame still being tracked), and the older ones are dropped
+        and counted in ``dropped_frames``. So with a camera faster than tracking, each
+        tracked frame is the newest there is and the lag stays bounded. Without it every
+        frame is added in turn (``add_frame`` waits when the core's queue is full).
+        """
+        live = bool(getattr(source, "live", False))
+        frames = itertools.islice(source, None if max_frames is None
+                                  else _positive_int("max_frames", max_frames))
+        if not _flag("drop_frames", live if drop_frames is None else drop_frames):
+            for timestamp_s, image in frames:
+                self.add_frame(image, timestamp_s)
+            return
+        from .sources import LatestFrameReader
+
+        reader = LatestFrameReader(frames)
+        try:
+            while True:
+                self._wait_for_core(_LIVE_FRAMES_IN_FLIGHT)
+                frame, skipped = reader.take()
+                self._dropped += skipped
+                if frame is None:
+                    return
+                timestamp_s, image = frame
+                self.add_frame(image, timestamp_s)
+        finally:
+            self._dropped += reader.close()
 
 
 class StereoVSlam(_VSlam):
@@ -494,9 +610,10 @@ class StereoVSlam(_VSlam):
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
+        started_s = time.perf_counter()
         self.intrinsics.check_image(left, "left image")
         left_features, right_features = self._extractor.detect_pair(left, right)
-        self._track(timestamp, "track_stereo", *left_features, *right_features, imu=imu)
+        self._track(started_s, timestamp, "track_stereo", *left_features, *right_features, imu=imu)
 
 
 class RGBDVSlam(_VSlam):
@@ -527,6 +644,7 @@ class RGBDVSlam(_VSlam):
                   imu: Optional[Sequence[np.ndarray]] = None) -> None:
         """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
         dtype; divided by ``depth_scale_factor``; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
+        started_s = time.perf_counter()
         depth = np.asarray(depth)
         if depth.dtype.kind not in "uif":
             raise ValueError(f"depth must be an integer or float image, got dtype {depth.dtype}")
@@ -537,7 +655,7 @@ class RGBDVSlam(_VSlam):
         keypoints, descriptors = self._extractor.detect(color)
         depth_m = sample_depth(depth.astype(np.float64) / self.depth_scale_factor, keypoints)
         self._check_depth_scale(depth_m)
-        self._track(timestamp, "track_rgbd", keypoints, descriptors, depth_m, imu=imu)
+        self._track(started_s, timestamp, "track_rgbd", keypoints, descriptors, depth_m, imu=imu)
 
     def _check_depth_scale(self, depth_m: np.ndarray) -> None:
         """Warns once when a frame has depth at its keypoints but none of it inside

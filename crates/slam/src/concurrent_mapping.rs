@@ -55,6 +55,9 @@ struct Job {
     vocabulary: Option<Arc<Vocabulary>>,
     /// Frames come faster than the last keyframe was mapped (see [`Interrupt`]).
     hurried: bool,
+    /// Tests: the job panics, as a bug in local mapping would.
+    #[cfg(test)]
+    panics: bool,
 }
 
 /// What the mapping thread sends back.
@@ -296,6 +299,8 @@ impl ConcurrentMapper {
             renamed: std::mem::take(&mut self.renamed),
             vocabulary: vocabulary.cloned(),
             hurried: self.hurried(),
+            #[cfg(test)]
+            panics: false,
         };
         let n = job.work.len();
         self.interrupt.store(false, Ordering::Relaxed);
@@ -344,7 +349,13 @@ fn mapping_loop(
     yield_to_tracking();
     for job in inbox {
         let n = job.work.len();
-        let run = || state.run(job, ctx, &report, interrupt, keyframe_mapping_us);
+        #[cfg(test)]
+        let panics = job.panics;
+        let run = || {
+            #[cfg(test)]
+            assert!(!panics, "a job that panics (test)");
+            state.run(job, ctx, &report, interrupt, keyframe_mapping_us)
+        };
         let mapped = catch_unwind(AssertUnwindSafe(|| match &pool {
             Some(pool) => pool.install(run),
             None => run(),
@@ -506,6 +517,36 @@ mod tests {
 
     use super::*;
     use crate::config::SlamConfig;
+
+    #[test]
+    fn a_panic_in_local_mapping_is_reported_and_nothing_waits_for_the_thread() {
+        let camera =
+            PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
+        let mut mapper = ConcurrentMapper::spawn(Context::new(camera, SlamConfig::default()));
+        let mut map = Map::new(ferroslam_features::ScalePyramid::default());
+        let job = Job {
+            epoch: mapper.epoch,
+            fresh: true,
+            map: map.clone(),
+            work: Vec::new(),
+            renamed: HashMap::new(),
+            vocabulary: None,
+            hurried: false,
+            panics: true,
+        };
+        mapper.jobs.as_ref().unwrap().send(job).unwrap();
+        mapper.in_flight = true;
+        assert!(mapper.collect(&mut map, None, true).is_empty());
+        assert!(matches!(
+            mapper.failure(),
+            Some(SlamError::StageFailed { stage: "local mapping", message })
+                if message.contains("a job that panics")
+        ));
+        assert!(!mapper.in_flight);
+        assert_eq!(mapper.backlog(), 0);
+        // Later collects report at once instead of waiting for the thread.
+        assert!(mapper.collect(&mut map, None, true).is_empty());
+    }
 
     #[test]
     fn hurried_while_frames_come_faster_than_the_last_unhurried_keyframe_was_mapped() {

@@ -4,6 +4,8 @@ use ferroslam_features::ImageBounds;
 use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_optim::Intrinsics;
 
+use ferroslam_map::Rig;
+
 use crate::config::SlamConfig;
 
 /// Calibration and settings every stage needs; fixed for the life of a system.
@@ -51,4 +53,36 @@ impl Context {
             baseline_m,
         }
     }
+
+    /// The sensor and camera, as map files record them.
+    pub fn rig(&self) -> Rig {
+        let (camera, d) = (&self.camera, &self.camera.distortion);
+        Rig {
+            sensor: self.config.sensor.name().to_owned(),
+            intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy],
+            distortion: [d.k1, d.k2, d.p1, d.p2, d.k3],
+            width: camera.width,
+            height: camera.height,
+        }
+    }
+
+    /// What input frames must fit: pyramid depth and image size.
+    pub fn input_shape(&self) -> InputShape {
+        InputShape {
+            n_levels: self.config.n_levels,
+            width: self.camera.width,
+            height: self.camera.height,
+        }
+    }
+}
+
+/// What a system's input must fit: the pyramid depth and the camera's image size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InputShape {
+    /// Pyramid levels: keypoint octaves must be below.
+    pub n_levels: usize,
+    /// Image width, pixels: raw keypoints lie in `[0, width)`.
+    pub width: u32,
+    /// Image height, pixels: raw keypoints lie in `[0, height)`.
+    pub height: u32,
 }

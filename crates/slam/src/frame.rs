@@ -8,7 +8,7 @@ use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{FrameFeatures, MapPointId};
 use nalgebra::{Isometry3, Vector2, Vector3};
 
-use crate::context::Context;
+use crate::context::{Context, InputShape};
 use crate::error::SlamError;
 
 /// One input frame during tracking.
@@ -125,17 +125,6 @@ impl StereoInput<'_> {
         }
         Ok(())
     }
-}
-
-/// What a system's input must fit: the pyramid depth and the camera's image size.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct InputShape {
-    /// Pyramid levels: keypoint octaves must be below.
-    pub n_levels: usize,
-    /// Image width, pixels: raw keypoints lie in `[0, width)`.
-    pub width: u32,
-    /// Image height, pixels: raw keypoints lie in `[0, height)`.
-    pub height: u32,
 }
 
 /// Checks what every sensor's features share: finite time and coordinates inside the image,

@@ -4,8 +4,9 @@
 //! caller's thread, with the same messages.
 
 use crate::config::Sensor;
+use crate::context::InputShape;
 use crate::error::SlamError;
-use crate::frame::{InputShape, MonoInput, RgbdInput, StereoInput};
+use crate::frame::{MonoInput, RgbdInput, StereoInput};
 
 /// Input rules of one system and the last accepted timestamp.
 #[derive(Clone, Debug)]

@@ -17,7 +17,7 @@ use nalgebra::{Isometry3, Vector3};
 
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::local_mapping::LocalProblem;
+use crate::local_ba_problem::LocalProblem;
 
 /// Keyframes of the window, the fixed oldest one included (ORB-SLAM3 optimises 10).
 pub const INERTIAL_WINDOW_KEYFRAMES: usize = 11;

@@ -2,24 +2,26 @@
 //! new points from depth, culling of recent points, triangulation with covisible keyframes,
 //! fusion of duplicates, local bundle adjustment and culling of redundant keyframes.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use ferroslam_features::matcher::TH_LOW;
-use ferroslam_features::{hamming, search_for_triangulation, MatchOptions};
+use ferroslam_features::{search_for_triangulation, MatchOptions};
 use ferroslam_geometry::triangulation::triangulate_dlt;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
-use ferroslam_optim::{local_bundle_adjust, BaProblem, Observation};
+#[cfg(feature = "bench")]
+use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector2, Vector3};
 
 use crate::config::Sensor;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
-use crate::frustum::visible_point;
+use crate::local_ba_problem::adjust_keyframes;
 use crate::local_inertial_ba::{local_inertial_bundle_adjust, InertialWindow};
+use crate::point_fusion::fuse_with_neighbours;
 
 /// Covisible keyframes searched for new points and fusion (ORB-SLAM: 10 with depth, 20
 /// monocular, where triangulation is the only source of points).
@@ -313,7 +315,8 @@ impl LocalMapper {
             report.interrupted = true;
             return Ok(());
         }
-        report.fused_points += fuse_with_neighbours(kf, map, ctx)?;
+        report.fused_points +=
+            fuse_with_neighbours(kf, map, ctx, triangulation_neighbours(ctx.config.sensor))?;
         Ok(())
     }
 
@@ -383,7 +386,7 @@ impl LocalMapper {
             triangulation_neighbours(sensor)
         };
         let neighbours = map.best_covisibles(kf, n_neighbours);
-        let median_depth = scene_median_depth(map, kf);
+        let median_depth = map.scene_median_depth(kf);
         let pyramid = map.pyramid().clone();
         let ratio_factor = 1.5 * pyramid.scale_factor;
         let mut created = 0;
@@ -547,188 +550,6 @@ impl LocalMapper {
     }
 }
 
-/// Bundle adjustment of the keyframes `local` (the map's origin stays fixed) and every point
-/// they see, with the other keyframes observing those points held fixed; ORB-SLAM's robust
-/// then plain schedule. Rejected observations are erased from the map; returns their number.
-/// Local BA passes a keyframe and its covisible keyframes, global BA every keyframe. The
-/// problem, before solving, is pushed to `record` if given.
-pub(crate) fn adjust_keyframes(
-    local: &[KeyFrameId],
-    map: &mut Map,
-    ctx: &Context,
-    record: Option<&mut Vec<BaProblem>>,
-) -> Result<usize, SlamError> {
-    let (mut problem, index) = LocalProblem::build(local, &[], map, ctx);
-    if let Some(record) = record {
-        record.push(problem.clone());
-    }
-    let Ok(result) = local_bundle_adjust(&mut problem) else {
-        // A numerically failed BA leaves the map as it was; the next keyframe retries.
-        return Ok(0);
-    };
-    index.apply(&problem, &result.outlier, map)
-}
-
-/// Which keyframes, points and observations of the map a local BA problem holds.
-pub(crate) struct LocalProblem {
-    /// Keyframe of each pose of the problem.
-    pub pose_ids: Vec<KeyFrameId>,
-    points: Vec<MapPointId>,
-    /// `(point, keyframe)` of each observation.
-    obs_keys: Vec<(MapPointId, KeyFrameId)>,
-}
-
-impl LocalProblem {
-    /// The BA problem over the keyframes `local` (free, except the map's origin), every
-    /// point they see, the other keyframes observing those points and `also_fixed` (fixed).
-    pub(crate) fn build(
-        local: &[KeyFrameId],
-        also_fixed: &[KeyFrameId],
-        map: &Map,
-        ctx: &Context,
-    ) -> (BaProblem, Self) {
-        let local_set: HashSet<KeyFrameId> = local.iter().copied().collect();
-        let points = map.points_seen_by(local.iter().copied());
-        let mut fixed = Vec::new();
-        let mut fixed_set = HashSet::new();
-        let observers = points
-            .iter()
-            .flat_map(|&m| map.map_point(m).unwrap().observations().keys().copied());
-        for k in also_fixed.iter().copied().chain(observers) {
-            if !local_set.contains(&k) && map.keyframe(k).is_some() && fixed_set.insert(k) {
-                fixed.push(k);
-            }
-        }
-        let pose_ids: Vec<KeyFrameId> = local.iter().chain(fixed.iter()).copied().collect();
-        let pose_index: HashMap<KeyFrameId, usize> =
-            pose_ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
-        let pyramid = map.pyramid();
-        let mut observations = Vec::new();
-        let mut obs_keys = Vec::new();
-        for (pi, &m) in points.iter().enumerate() {
-            for (&k, &i) in map.map_point(m).unwrap().observations() {
-                let Some(&pose) = pose_index.get(&k) else {
-                    continue;
-                };
-                let f = map.keyframe(k).unwrap().features();
-                let kp = &f.keypoints[i];
-                let ur = f.u_right[i];
-                observations.push(Observation {
-                    pose,
-                    point: pi,
-                    uv: Vector2::new(kp.x as f64, kp.y as f64),
-                    u_right: (ur >= 0.0).then_some(ur as f64),
-                    inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
-                });
-                obs_keys.push((m, k));
-            }
-        }
-        // The map's first keyframe fixes the gauge.
-        let origin = map.origin();
-        let problem = BaProblem {
-            intrinsics: ctx.intrinsics,
-            poses: pose_ids
-                .iter()
-                .map(|k| *map.keyframe(*k).unwrap().T_c_w())
-                .collect(),
-            pose_fixed: pose_ids
-                .iter()
-                .map(|k| !local_set.contains(k) || Some(*k) == origin)
-                .collect(),
-            points: points
-                .iter()
-                .map(|m| map.map_point(*m).unwrap().position())
-                .collect(),
-            observations,
-        };
-        let index = Self {
-            pose_ids,
-            points,
-            obs_keys,
-        };
-        (problem, index)
-    }
-
-    /// Writes the solved `problem` back: free poses, points, and the erasure of the
-    /// observations flagged in `outlier`; returns how many were erased.
-    pub(crate) fn apply(
-        &self,
-        problem: &BaProblem,
-        outlier: &[bool],
-        map: &mut Map,
-    ) -> Result<usize, SlamError> {
-        for (pi, &k) in self.pose_ids.iter().enumerate() {
-            if !problem.pose_fixed[pi] {
-                map.set_keyframe_pose(k, problem.poses[pi])?;
-            }
-        }
-        for (pi, &m) in self.points.iter().enumerate() {
-            map.set_map_point_position(m, problem.points[pi])?;
-        }
-        let mut n_outliers = 0;
-        for (o, &(m, k)) in self.obs_keys.iter().enumerate() {
-            if outlier[o] && map.map_point(m).is_some() {
-                map.erase_observation(m, k);
-                n_outliers += 1;
-            }
-        }
-        self.drop_points_beyond_the_scene(map);
-        for &m in &self.points {
-            if map.map_point(m).is_some() {
-                map.update_normal_and_depth(m)?;
-            }
-        }
-        Ok(n_outliers)
-    }
-
-    /// Marks bad the points bundle adjustment left farther from their reference keyframe
-    /// than [`MAX_SCENE_DEPTH_RATIO`] times that keyframe's scene median depth.
-    fn drop_points_beyond_the_scene(&self, map: &mut Map) {
-        let mut medians: HashMap<KeyFrameId, Option<f64>> = HashMap::new();
-        for &m in &self.points {
-            let Some(p) = map.map_point(m) else { continue };
-            let (reference, position) = (p.reference_keyframe(), p.position());
-            let Some(centre) = map.keyframe(reference).map(|k| k.camera_center()) else {
-                continue;
-            };
-            let median = *medians
-                .entry(reference)
-                .or_insert_with(|| scene_median_depth(map, reference));
-            if median.is_some_and(|d| (position - centre).norm() > MAX_SCENE_DEPTH_RATIO * d) {
-                map.set_map_point_bad(m);
-            }
-        }
-    }
-}
-
-/// Largest distance of a point from its reference keyframe after bundle adjustment, in that
-/// keyframe's scene median depths. Points seen along nearly parallel rays (a monocular pair
-/// at a short baseline, a static stereo rig's points seen without disparity) are barely
-/// constrained in depth, and BA can slide them out to hundreds of times the scene (KITTI 01
-/// monocular: 64 000 map units against a median of 1; EuRoC V1_01 stereo-inertial: 822 m
-/// in a room). Stereo points within `bf / MIN_DISPARITY_PX` stay (KITTI: 386 m against a
-/// median of about 16 m).
-const MAX_SCENE_DEPTH_RATIO: f64 = 40.0;
-
-/// Median depth of `kf`'s map points in its camera, metres (ORB-SLAM
-/// `ComputeSceneMedianDepth`); `None` without points in front of it.
-pub(crate) fn scene_median_depth(map: &Map, kf: KeyFrameId) -> Option<f64> {
-    let k = map.keyframe(kf)?;
-    let mut z: Vec<f64> = k
-        .map_points()
-        .iter()
-        .flatten()
-        .filter_map(|m| map.map_point(*m))
-        .map(|p| (k.T_c_w() * Point3::from(p.position())).z)
-        .filter(|z| *z > 0.0)
-        .collect();
-    if z.is_empty() {
-        return None;
-    }
-    let mid = z.len() / 2;
-    Some(*z.select_nth_unstable_by(mid, f64::total_cmp).1)
-}
-
 /// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two cameras.
 fn fundamental_matrix(
     T_c1_w: &Isometry3<f64>,
@@ -825,141 +646,6 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
         return None;
     }
     triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &xn[0], &xn[1])
-}
-
-/// ORB-SLAM `SearchInNeighbors`: fuses the points of `kf` into its first and second
-/// covisibility neighbours and theirs into `kf`, then refreshes `kf`'s points and links.
-fn fuse_with_neighbours(kf: KeyFrameId, map: &mut Map, ctx: &Context) -> Result<usize, SlamError> {
-    let mut targets = Vec::new();
-    let mut seen: HashSet<KeyFrameId> = HashSet::from([kf]);
-    for n in map.best_covisibles(kf, triangulation_neighbours(ctx.config.sensor)) {
-        if seen.insert(n) {
-            targets.push(n);
-        }
-        for n2 in map.best_covisibles(n, 5) {
-            if seen.insert(n2) {
-                targets.push(n2);
-            }
-        }
-    }
-    let own: Vec<MapPointId> = map
-        .keyframe(kf)
-        .map(|k| k.map_points().iter().flatten().copied().collect())
-        .unwrap_or_default();
-    let mut fused = 0;
-    for &t in &targets {
-        fused += fuse_points_into(map, t, &own, ctx, 3.0)?;
-    }
-    let mut theirs = Vec::new();
-    let mut seen_points = HashSet::new();
-    for &t in &targets {
-        for m in map
-            .keyframe(t)
-            .into_iter()
-            .flat_map(|k| k.map_points().iter().flatten())
-        {
-            if seen_points.insert(*m) {
-                theirs.push(*m);
-            }
-        }
-    }
-    fused += fuse_points_into(map, kf, &theirs, ctx, 3.0)?;
-    let refreshed: Vec<MapPointId> = map
-        .keyframe(kf)
-        .map(|k| k.map_points().iter().flatten().copied().collect())
-        .unwrap_or_default();
-    for m in refreshed {
-        if map.map_point(m).is_some() {
-            map.compute_distinctive_descriptor(m)?;
-            map.update_normal_and_depth(m)?;
-        }
-    }
-    map.update_connections(kf)?;
-    Ok(fused)
-}
-
-/// Projects `points` into keyframe `kf` and, for the best keypoint passing the reprojection
-/// test within `th * scale` pixels, either merges duplicates (the point with more
-/// observations survives) or adds the observation (ORB-SLAM `ORBmatcher::Fuse`).
-pub(crate) fn fuse_points_into(
-    map: &mut Map,
-    kf: KeyFrameId,
-    points: &[MapPointId],
-    ctx: &Context,
-    th: f64,
-) -> Result<usize, SlamError> {
-    let Some(k) = map.keyframe(kf) else {
-        return Ok(0);
-    };
-    let (T_c_w, center) = (*k.T_c_w(), k.camera_center());
-    let pyramid = map.pyramid().clone();
-    let mut fused = 0;
-    for &m in points {
-        let Some(p) = map.map_point(m) else { continue };
-        if p.observations().contains_key(&kf) {
-            continue;
-        }
-        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5)
-        else {
-            continue;
-        };
-        let descriptor = *p.descriptor();
-        let z = (T_c_w * Point3::from(p.position())).z;
-        let ur_pred = vis.u - ctx.intrinsics.bf / z;
-        let k = map.keyframe(kf).unwrap();
-        let f = k.features();
-        let radius = th * pyramid.scale[vis.level as usize];
-        let mut best: Option<(u32, usize)> = None;
-        for i in f
-            .grid
-            .features_in_area(&f.keypoints, vis.u, vis.v, radius, None, None)
-        {
-            let kp = &f.keypoints[i];
-            if kp.octave + 1 < vis.level || kp.octave > vis.level {
-                continue;
-            }
-            let (ex, ey) = (vis.u - kp.x as f64, vis.v - kp.y as f64);
-            let ur = f.u_right[i] as f64;
-            let inv_s2 = pyramid.inv_sigma2[kp.octave as usize];
-            let chi2_ok = if ur >= 0.0 {
-                let er = ur_pred - ur;
-                (ex * ex + ey * ey + er * er) * inv_s2 <= CHI2_STEREO
-            } else {
-                (ex * ex + ey * ey) * inv_s2 <= CHI2_MONO
-            };
-            if !chi2_ok {
-                continue;
-            }
-            let d = hamming(&descriptor, &f.descriptors[i]);
-            if best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((d, i));
-            }
-        }
-        let Some((_, i)) = best.filter(|(d, _)| *d <= TH_LOW) else {
-            continue;
-        };
-        match k
-            .map_point(i)
-            .filter(|other| map.map_point(*other).is_some())
-        {
-            Some(other) if other != m => {
-                let n_other = map.map_point(other).unwrap().num_observations();
-                let n_this = map.map_point(m).unwrap().num_observations();
-                if n_other > n_this {
-                    map.replace_map_point(m, other)?;
-                } else {
-                    map.replace_map_point(other, m)?;
-                }
-                fused += 1;
-            }
-            Some(_) => {}
-            None => {
-                map.add_observation(m, kf, i)?;
-                fused += 1;
-            }
-        }
-    }
-    Ok(fused)
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@ use nalgebra::{Isometry3, Vector2};
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::Frame;
-use crate::local_mapping::{scene_median_depth, LocalMapper};
+use crate::local_mapping::LocalMapper;
 
 /// Keypoints a frame needs to serve in an initialisation pair (ORB-SLAM).
 const MIN_KEYPOINTS: usize = 100;
@@ -207,7 +207,7 @@ pub fn create_initial_map(
     map.update_connections(kf2)?;
     mapper.local_bundle_adjust(kf2, map, ctx)?;
 
-    let median_depth = scene_median_depth(map, kf1);
+    let median_depth = map.scene_median_depth(kf1);
     let tracked = map.tracked_points(kf2, 1);
     let (Some(depth), true) = (median_depth, tracked >= MIN_INITIAL_POINTS) else {
         map.clear();

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use ferroslam_features::ScalePyramid;
 use ferroslam_geometry::camera::PinholeCamera;
-use ferroslam_map::{KeyFrameId, Map, Rig};
+use ferroslam_map::{KeyFrameId, Map};
 #[cfg(feature = "bench")]
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
@@ -13,7 +13,7 @@ use crate::concurrent_mapping::{ConcurrentMapper, KeyFrameWork, MAX_QUEUED_KEYFR
 use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::{Frame, InputShape, MonoInput, RgbdInput, StereoInput};
+use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::imu_prediction::ImuPredictor;
 use crate::inertial::{
     rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig,
@@ -104,17 +104,18 @@ impl SlamSystem {
     pub fn new(camera: PinholeCamera, config: SlamConfig) -> Result<Self, SlamError> {
         config.validate()?;
         config.check_pyramid(camera.width, camera.height)?;
+        let ctx = Context::new(camera, config);
         let guard = InputGuard::new(
-            config.sensor,
-            input_shape(&config, &camera),
-            camera.is_distorted(),
+            ctx.config.sensor,
+            ctx.input_shape(),
+            ctx.camera.is_distorted(),
         );
-        let pyramid = ScalePyramid::new(config.scale_factor, config.n_levels)
+        let pyramid = ScalePyramid::new(ctx.config.scale_factor, ctx.config.n_levels)
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
         let mut map = Map::new(pyramid);
-        map.set_rig(rig(&config, &camera));
+        map.set_rig(ctx.rig());
         Ok(Self {
-            ctx: Context::new(camera, config),
+            ctx,
             map,
             tracker: Tracker::default(),
             mapper: LocalMapper::default(),
@@ -176,11 +177,7 @@ impl SlamSystem {
     /// A fresh guard with this system's input rules (for a background submitter).
     pub fn input_guard(&self) -> InputGuard {
         let c = &self.ctx;
-        InputGuard::new(
-            c.config.sensor,
-            input_shape(&c.config, &c.camera),
-            c.camera.is_distorted(),
-        )
+        InputGuard::new(c.config.sensor, c.input_shape(), c.camera.is_distorted())
     }
 
     /// Initialises or tracks a frame, then inserts a keyframe when needed.
@@ -766,7 +763,7 @@ impl SlamSystem {
     /// or a map built with another ORB pyramid than this system's; the system is unchanged.
     pub fn load_map(&mut self, path: &std::path::Path) -> Result<(), SlamError> {
         let mut map = Map::load_from_path(path).map_err(|e| map_file_error(path, e))?;
-        let ours = rig(&self.ctx.config, &self.ctx.camera);
+        let ours = self.ctx.rig();
         if let Some(reason) = map.rig().and_then(|theirs| theirs.mismatch(&ours)) {
             return Err(SlamError::MapFile {
                 path: path.display().to_string(),
@@ -876,26 +873,5 @@ fn map_file_error(path: &std::path::Path, e: ferroslam_map::MapError) -> SlamErr
         path: path.display().to_string(),
         reason: e.to_string(),
         not_found,
-    }
-}
-
-/// The sensor and camera of a system, as its map files record them.
-fn rig(config: &SlamConfig, camera: &PinholeCamera) -> Rig {
-    let d = &camera.distortion;
-    Rig {
-        sensor: config.sensor.name().to_owned(),
-        intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy],
-        distortion: [d.k1, d.k2, d.p1, d.p2, d.k3],
-        width: camera.width,
-        height: camera.height,
-    }
-}
-
-/// The input rules of `config` and `camera`: pyramid depth and image size.
-fn input_shape(config: &SlamConfig, camera: &PinholeCamera) -> InputShape {
-    InputShape {
-        n_levels: config.n_levels,
-        width: camera.width,
-        height: camera.height,
     }
 }

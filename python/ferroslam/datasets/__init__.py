@@ -11,7 +11,7 @@ Every sequence type offers ``len()``, indexing/iteration over frames, ``name``,
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Union
+from typing import Optional, Union
 
 from ..camera import Camera, read_camera_yaml
 from .euroc import EurocFrame, EurocSequence, ImuParams, read_sensor_yaml
@@ -33,6 +33,7 @@ __all__ = [
     "TumSequence",
     "associate_greedy",
     "detect_format",
+    "is_sequence_folder",
     "open_sequence",
     "read_camera_yaml",
     "read_kitti_calib",
@@ -48,19 +49,32 @@ _EXPECTED = (
 )
 
 
-def detect_format(path: Union[str, Path]) -> str:
-    """``"tum"``, ``"kitti"`` or ``"euroc"`` from the files in folder ``path``.
-
-    Raises ``ValueError`` (saying what was expected) if no layout matches.
-    """
-    path = Path(path)
+def _layout(path: Path) -> Optional[str]:
     if (path / "rgb.txt").is_file():
         return "tum"
     if (path / "calib.txt").is_file() and any((path / d).is_dir() for d in ("image_0", "image_l")):
         return "kitti"
     if (path / "mav0").is_dir() or (path / "cam0" / "data.csv").is_file():
         return "euroc"
-    raise ValueError(f"cannot detect the dataset layout of {path} (expected {_EXPECTED})")
+    return None
+
+
+def detect_format(path: Union[str, Path]) -> str:
+    """``"tum"``, ``"kitti"`` or ``"euroc"`` from the files in folder ``path``.
+
+    Raises ``ValueError`` (saying what was expected) if no layout matches.
+    """
+    path = Path(path)
+    layout = _layout(path)
+    if layout is None:
+        raise ValueError(f"cannot detect the dataset layout of {path} (expected {_EXPECTED})")
+    return layout
+
+
+def is_sequence_folder(path: Union[str, Path]) -> bool:
+    """Whether ``path`` is a folder in one of the dataset layouts (else ``ferroslam run``
+    reads it as a folder of images, ``ferroslam.sources.ImageFolderSource``)."""
+    return _layout(Path(path).expanduser()) is not None
 
 
 def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str = "",

@@ -7,9 +7,29 @@ use ferroslam_features::{hamming, Descriptor};
 use nalgebra::Vector3;
 
 use super::Map;
-use crate::{MapError, MapPointId};
+use crate::{KeyFrameId, MapError, MapPointId};
 
 impl Map {
+    /// Median depth of `kf`'s map points in its camera, metres (ORB-SLAM
+    /// `ComputeSceneMedianDepth`); `None` for an unknown keyframe or without points in front
+    /// of it.
+    pub fn scene_median_depth(&self, kf: KeyFrameId) -> Option<f64> {
+        let k = self.keyframe(kf)?;
+        let mut z: Vec<f64> = k
+            .map_points()
+            .iter()
+            .flatten()
+            .filter_map(|m| self.map_point(*m))
+            .map(|p| (k.T_c_w() * nalgebra::Point3::from(p.position())).z)
+            .filter(|z| *z > 0.0)
+            .collect();
+        if z.is_empty() {
+            return None;
+        }
+        let mid = z.len() / 2;
+        Some(*z.select_nth_unstable_by(mid, f64::total_cmp).1)
+    }
+
     /// Recomputes the point's mean viewing direction (unit mean of the unit rays from every
     /// observing camera centre to the point) and its distance range: with `d` the distance
     /// from the reference keyframe's centre and `o` the octave of its keypoint,

@@ -25,8 +25,9 @@ mod reader;
 mod snavely;
 mod solver;
 
-pub use problem::{BalObservation, BalProblem, CameraParams, CAMERA_PARAMS};
+pub use problem::{BalObservation, BalProblem};
 pub use reader::{parse_bal, read_bal};
+pub use snavely::{CameraParams, CAMERA_PARAMS};
 pub use snavely::{SnavelyCamera, SnavelyLinearization};
 pub use solver::{solve_bal, BalOptions, BalReport};
 

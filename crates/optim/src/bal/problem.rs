@@ -1,15 +1,9 @@
 //! The data of a BAL problem and its cost.
 
-use super::snavely::SnavelyCamera;
+use super::snavely::{CameraParams, SnavelyCamera};
 use crate::error::OptimError;
-use nalgebra::{SVector, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
-
-/// Parameters per camera: `[w (angle-axis, 3), t (3), f, k1, k2]`.
-pub const CAMERA_PARAMS: usize = 9;
-
-/// One BAL camera, `[w1 w2 w3 t1 t2 t3 f k1 k2]` (see the [module docs](super)).
-pub type CameraParams = SVector<f64, CAMERA_PARAMS>;
 
 /// Observations per chunk of the cost sum (fixed, so the summation order is too).
 const COST_CHUNK: usize = 1024;

@@ -9,7 +9,8 @@
 //! <point coordinate>                x 3 * num_points
 //! ```
 
-use super::problem::{BalObservation, BalProblem, CameraParams, CAMERA_PARAMS};
+use super::problem::{BalObservation, BalProblem};
+use super::snavely::{CameraParams, CAMERA_PARAMS};
 use crate::error::OptimError;
 use nalgebra::{Vector2, Vector3};
 use std::io::Read;

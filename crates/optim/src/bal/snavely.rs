@@ -1,8 +1,13 @@
 //! Snavely's BAL camera: projection and its analytic Jacobians.
 
-use super::problem::CameraParams;
 use ferroslam_geometry::so3;
-use nalgebra::{Matrix2, Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, SMatrix, SVector, Vector2, Vector3};
+
+/// Parameters per camera: `[w (angle-axis, 3), t (3), f, k1, k2]`.
+pub const CAMERA_PARAMS: usize = 9;
+
+/// One BAL camera, `[w1 w2 w3 t1 t2 t3 f k1 k2]` (see the [module docs](super)).
+pub type CameraParams = SVector<f64, CAMERA_PARAMS>;
 
 /// A BAL camera prepared for projecting many points: rotation matrix and the right Jacobian
 /// of its angle-axis vector computed once.

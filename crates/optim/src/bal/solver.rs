@@ -6,8 +6,9 @@
 //! cameras, all free; damping and the step search are [`crate::lm`]'s (Marquardt's clamped
 //! diagonal, Nielsen's update), as in Ceres' LM.
 
-use super::problem::{cost_at, BalProblem, CAMERA_PARAMS};
+use super::problem::{cost_at, BalProblem};
 use super::snavely::SnavelyCamera;
+use super::snavely::CAMERA_PARAMS;
 use crate::ba::solve::{linearize, solve_damped, Linearization, ObservationJacobians};
 use crate::ba::SymbolicBa;
 use crate::error::OptimError;

@@ -7,13 +7,12 @@ use std::collections::{HashMap, HashSet};
 
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
-use nalgebra::Vector3;
 
-use super::essential_graph::{optimize_essential_graph, EssentialGraphInput};
+use super::essential_graph::{move_point, optimize_essential_graph, EssentialGraphInput};
 use super::verification::{pose_of, LoopMatch};
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::local_mapping::fuse_points_into;
+use crate::point_fusion::fuse_points_into;
 
 /// Window of the fusion of the loop's points into the corrected neighbourhood, pixels at
 /// level 0 (ORB-SLAM `SearchAndFuse`: 4).
@@ -136,10 +135,4 @@ pub(super) fn correct_loop(
     )?;
     map.add_loop_edge(current, found.loop_kf)?;
     Ok(costs)
-}
-
-/// A world point seen by a keyframe whose pose changes from `S_old` to `S_new` (both
-/// world to camera), moved so its camera coordinates do not change: `S_new^-1 * S_old * p`.
-pub(super) fn move_point(p: &Vector3<f64>, S_old: &Sim3, S_new: &Sim3) -> Vector3<f64> {
-    S_new.inverse().transform_point(&S_old.transform_point(p))
 }

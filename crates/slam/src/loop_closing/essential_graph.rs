@@ -12,9 +12,8 @@ use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::{
     optimize_pose_graph, PoseEdge, PoseGraphOptions, Sim3PoseGraph, SymbolicPoseGraph,
 };
-use nalgebra::SMatrix;
+use nalgebra::{SMatrix, Vector3};
 
-use super::correction::move_point;
 use super::verification::pose_of;
 use crate::error::SlamError;
 
@@ -124,4 +123,10 @@ pub(super) fn optimize_essential_graph(
         map.update_normal_and_depth(m)?;
     }
     Ok((report.initial_cost, report.final_cost))
+}
+
+/// A world point seen by a keyframe whose pose changes from `S_old` to `S_new` (both
+/// world to camera), moved so its camera coordinates do not change: `S_new^-1 * S_old * p`.
+pub(super) fn move_point(p: &Vector3<f64>, S_old: &Sim3, S_new: &Sim3) -> Vector3<f64> {
+    S_new.inverse().transform_point(&S_old.transform_point(p))
 }

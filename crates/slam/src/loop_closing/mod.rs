@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::local_mapping::adjust_keyframes;
+use crate::local_ba_problem::adjust_keyframes;
 use crate::place_recognition::PlaceRecognition;
 use detection::LoopDetector;
 
