@@ -89,6 +89,30 @@ def test_cli_reports_a_spec_error_with_exit_status_1(tmp_path, capsys):
     assert err.startswith("ferroslam: error: ") and f"{spec}: unknown key 'frames'" in err
 
 
+def test_named_datasets_are_fetched_once_and_a_failed_fetch_fails_its_runs(tmp_path):
+    desk = require_data("tum", "rgbd_dataset_freiburg1_desk")
+    runs = batch.expand_spec(
+        {"repeats": 2, "max_frames": 3,
+         "runs": [{"sequence": "tum:freiburg1_desk", "sensor": "rgbd"},
+                  {"sequence": "kitti:00", "sensor": "stereo"}]}, tmp_path, "spec.json")
+    calls = []
+
+    def fetch(dataset, name, dest, progress=True):
+        calls.append((dataset, name, dest))
+        if dataset == "kitti":
+            raise batch.DownloadError("KITTI needs an account: download it by hand")
+        return desk
+
+    runs = batch.fetch_named_sequences(runs, tmp_path / "datasets", False, fetch=fetch)
+    assert sorted(calls) == [("kitti", "00", tmp_path / "datasets"),
+                             ("tum", "freiburg1_desk", tmp_path / "datasets")]
+    assert [r.path for r in runs[:2]] == [desk, desk] and not runs[0].unavailable
+    assert runs[2].unavailable.startswith("kitti:00: KITTI needs an account")
+    row = batch.execute_run(runs[2], tmp_path / "out")
+    assert row["status"] == "failed" and "KITTI needs an account" in row["error"]
+    assert batch.execute_run(runs[0], tmp_path / "out")["status"] == "ok"
+
+
 def test_batch_arguments():
     args = cli.build_parser().parse_args(["batch", "spec.yaml", "--out", "o"])
     assert (args.spec, args.out, args.address, args.cpus_per_run) == (

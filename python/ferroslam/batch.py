@@ -6,8 +6,10 @@ A SPEC (JSON, or YAML with PyYAML) lists the runs; :data:`SPEC_EXAMPLE` shows ev
 Top-level ``repeats``, ``max_frames`` and ``options`` are defaults that a run's own keys
 override (``options`` key by key); a run's ``grid`` sweeps every combination of the listed
 option values. ``sequence`` is a folder (relative paths are relative to the SPEC file's
-folder) in any layout ``ferroslam run`` reads; dataset names as ``ferroslam download`` takes
-them are not supported: download first (on every node, or once on a shared filesystem).
+folder) in any layout ``ferroslam run`` reads, or ``DATASET:NAME`` as ``ferroslam download``
+takes them (``tum:freiburg1_xyz``): the driver downloads each such sequence once into
+``DIR/datasets`` before the runs start (with a cluster, ``DIR`` must be on a filesystem the
+nodes share); a sequence that cannot be fetched fails its runs with the download error.
 ``options`` go to :func:`ferroslam.pipeline.run_sequence` as they are; the core's defaults
 for the sensor and image width fill the rest.
 
@@ -26,10 +28,12 @@ rewrites the table.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import itertools
 import json
 import os
+import re
 import resource
 import statistics
 import sys
@@ -42,10 +46,14 @@ from typing import Any, Iterator, NamedTuple, Optional, Union
 
 from tqdm import tqdm
 
+from .download import DATASETS, DownloadError, fetch_dataset
 from .pipeline import SENSORS
 
 __all__ = ["BatchOutcome", "RunSpec", "SPEC_EXAMPLE", "execute_run", "expand_spec",
-           "load_spec", "run_batch", "write_summary", "write_table"]
+           "fetch_named_sequences", "load_spec", "run_batch", "write_summary", "write_table"]
+
+# ``DATASET:NAME`` as ``ferroslam download DATASET NAME`` takes them.
+_DATASET_NAME = re.compile(rf"^({'|'.join(DATASETS)}):(\S+)$")
 
 SPEC_EXAMPLE = """\
 {"repeats": 3, "max_frames": null, "options": {"n_features": 1200},
@@ -90,6 +98,8 @@ class RunSpec:
     options: dict = field(hash=False)
     max_frames: Optional[int]
     repeat: int
+    # Why the sequence could not be had (a named dataset that failed to download).
+    unavailable: str = ""
 
     @property
     def option_set(self) -> str:
@@ -169,7 +179,7 @@ def _expand_entry(entry: Any, where: str, base_dir: Path, source: str, defaults:
     _check_keys(entry, _RUN_KEYS, where, source)
     sequence = entry.get("sequence")
     if not isinstance(sequence, str) or not sequence:
-        raise ValueError(f"{source}: {where}.sequence must be a folder path")
+        raise ValueError(f"{source}: {where}.sequence must be a folder path or DATASET:NAME")
     sensor = entry.get("sensor")
     if sensor not in SENSORS:
         raise ValueError(f"{source}: {where}.sensor must be one of {', '.join(SENSORS)}, "
@@ -179,7 +189,9 @@ def _expand_entry(entry: Any, where: str, base_dir: Path, source: str, defaults:
     repeats = _check_count(entry.get("repeats", repeats), f"{where}.repeats", source)
     max_frames = _check_limit(entry.get("max_frames", max_frames), f"{where}.max_frames",
                               source)
-    path = (base_dir / Path(sequence).expanduser()).resolve()
+    # A dataset name stands in until fetch_named_sequences puts the download there.
+    path = (Path(sequence) if _DATASET_NAME.match(sequence)
+            else (base_dir / Path(sequence).expanduser()).resolve())
     return [RunSpec(sequence, path, sensor, {**options, **point}, max_frames, repeat)
             for point in _grid_points(entry.get("grid", {}), f"{where}.grid", source)
             for repeat in range(repeats)]
@@ -244,6 +256,8 @@ def execute_run(run: RunSpec, out_dir: Path) -> dict:
 
     start = time.perf_counter()
     try:
+        if run.unavailable:
+            raise FileNotFoundError(run.unavailable)
         seq = open_sequence(run.path, sensor=run.sensor)
         result = run_sequence(seq, run.options, max_frames=run.max_frames, progress=False,
                               sensor=run.sensor)
@@ -295,9 +309,9 @@ def run_batch(spec_path: Union[str, Path], out_dir: Union[str, Path], *,
     127.0.0.1 with ``num_cpus`` CPUs (default: all) and stops it at the end.
     ``retry_failed`` runs failed runs again instead of keeping their rows.
     """
-    runs = load_spec(spec_path)
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
+    runs = fetch_named_sequences(load_spec(spec_path), out_dir / "datasets", progress)
     rows = {run.folder: row for run in runs
             if (row := _done_row(out_dir / run.folder, retry_failed)) is not None}
     todo = [run for run in runs if run.folder not in rows]
@@ -308,6 +322,24 @@ def run_batch(spec_path: Union[str, Path], out_dir: Union[str, Path], *,
     write_table(table, out_dir / "results.csv")
     write_summary(table, out_dir / "summary.md")
     return BatchOutcome(table, len(todo), len(runs) - len(todo))
+
+
+def fetch_named_sequences(runs: list[RunSpec], dest: Path, progress: bool = True,
+                          fetch=fetch_dataset) -> list[RunSpec]:
+    """``runs`` with each ``DATASET:NAME`` sequence downloaded once into ``dest`` (``fetch``
+    as ``ferroslam.download.fetch_dataset``; an archive already there is not fetched again)
+    and their ``path`` set to it; a sequence that cannot be fetched marks its runs
+    ``unavailable`` with the error, so they fail as rows and the others go on."""
+    fetched: dict[str, tuple[Path, str]] = {}
+    for name in {run.sequence for run in runs if _DATASET_NAME.match(run.sequence)}:
+        dataset, sequence = _DATASET_NAME.match(name).groups()
+        try:
+            fetched[name] = (Path(fetch(dataset, sequence, dest, progress=progress)), "")
+        except (OSError, ValueError, DownloadError) as err:
+            fetched[name] = (Path(name), f"{name}: {err}")
+    return [dataclasses.replace(run, path=fetched[run.sequence][0],
+                                unavailable=fetched[run.sequence][1])
+            if run.sequence in fetched else run for run in runs]
 
 
 def _done_row(folder: Path, retry_failed: bool) -> Optional[dict]:
