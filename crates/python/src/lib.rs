@@ -3,6 +3,7 @@
 //! Arrays are checked here (dtype, shape, finiteness) before the core sees them, so no panic
 //! reaches Python; errors are translated in one place, [`errors`].
 #![allow(non_snake_case)]
+#![warn(missing_docs)]
 
 mod config;
 mod convert;

@@ -5,6 +5,7 @@
 //! frame a, camera poses are `T_w_c`, metres / pixels / seconds. Keypoints enter raw
 //! (distorted) and are undistorted once, in [`frame::Frame`].
 #![allow(non_snake_case)]
+#![warn(missing_docs)]
 
 pub mod background;
 pub mod concurrent_mapping;
