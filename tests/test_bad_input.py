@@ -288,6 +288,23 @@ def test_eval_max_diff_must_not_be_negative(capsys):
     assert "--max-diff: must be a number of seconds >= 0" in capsys.readouterr().err
 
 
+class _with_gyro:
+    """``seq`` whose IMU gyroscope readings are ``change(gyro)``."""
+
+    def __init__(self, seq, change):
+        self._seq, self._change = seq, change
+
+    def __getattr__(self, name):
+        return getattr(self._seq, name)
+
+    def __len__(self):
+        return len(self._seq)
+
+    def imu(self):
+        t, gyro, accel = self._seq.imu()
+        return t, self._change(gyro), accel
+
+
 def test_a_constant_gyro_never_aligns_and_the_reason_names_the_gyroscope():
     """A gyro stuck at 3 rad/s passes the unit checks (under 35 rad/s) but no alignment can
     match it to the rotation vision sees: it used to report "aligned" with absurd states."""
@@ -295,18 +312,8 @@ def test_a_constant_gyro_never_aligns_and_the_reason_names_the_gyroscope():
 
     seq = open_sequence(require_data("euroc", "MH_01_easy_window"))
 
-    class StuckGyro:
-        def __getattr__(self, name):
-            return getattr(seq, name)
-
-        def __len__(self):
-            return len(seq)
-
-        def imu(self):
-            t, gyro, accel = seq.imu()
-            return t, np.tile([0.0, 0.0, 3.0], (len(t), 1)), accel
-
-    result = run_sequence(StuckGyro(), sensor="stereo-inertial", max_frames=150,
+    stuck = _with_gyro(seq, lambda gyro: np.tile([0.0, 0.0, 3.0], (len(gyro), 1)))
+    result = run_sequence(stuck, sensor="stereo-inertial", max_frames=150,
                           progress=False)
     assert result.inertial["status"] == "failed", result.inertial
     assert result.inertial["reason"].startswith("gyroscope"), result.inertial["reason"]
@@ -434,18 +441,7 @@ def test_a_gyroscope_in_degrees_during_slow_motion_does_not_align():
 
     seq = open_sequence(require_data("euroc", "V1_01_easy_micro"))
 
-    class Degrees:
-        def __getattr__(self, name):
-            return getattr(seq, name)
-
-        def __len__(self):
-            return len(seq)
-
-        def imu(self):
-            t, gyro, accel = seq.imu()
-            return t, np.degrees(gyro), accel
-
-    result = run_sequence(Degrees(), {"num_poses_threshold": 10}, sensor="stereo-inertial",
+    result = run_sequence(_with_gyro(seq, np.degrees), {"num_poses_threshold": 10}, sensor="stereo-inertial",
                           progress=False)
     assert result.inertial["status"] == "failed", result.inertial
     assert result.inertial["reason"].startswith("gyroscope"), result.inertial["reason"]
