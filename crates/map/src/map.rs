@@ -4,13 +4,12 @@
 //! (point <-> keyframe), covisibility, spanning tree (keyframe culling), point geometry and
 //! descriptor, the consistency check, and map files ([`persist`]).
 
-use std::collections::{BTreeMap, HashMap};
-
 use ferroslam_features::ScalePyramid;
 use nalgebra::{Isometry3, Vector3};
 
 use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
+mod arena;
 mod consistency;
 mod covisibility;
 mod journal;
@@ -20,6 +19,7 @@ mod point_geometry;
 mod spanning_tree;
 
 pub use covisibility::COVISIBILITY_THRESHOLD;
+use arena::Arena;
 use journal::Recorder;
 pub use journal::{MapEdit, MapJournal};
 
@@ -36,18 +36,19 @@ struct CulledKeyFrame {
 /// for the removal policy and the invariants every public method preserves.
 ///
 /// Iteration orders (ids, covisibility ties, observations) are by increasing id, so every
-/// operation is deterministic.
+/// operation is deterministic. A clone costs O(1): the copies share their keyframes and
+/// points until either writes one (see `arena`).
 #[derive(Clone, Debug)]
 pub struct Map {
     pyramid: ScalePyramid,
-    keyframes: BTreeMap<KeyFrameId, KeyFrame>,
-    map_points: BTreeMap<MapPointId, MapPoint>,
+    keyframes: Arena<KeyFrameId, KeyFrame>,
+    map_points: Arena<MapPointId, MapPoint>,
     next_keyframe: u32,
     next_map_point: u32,
     /// The first keyframe inserted since creation / `clear`: spanning-tree root, never culled.
     origin: Option<KeyFrameId>,
-    culled_keyframes: HashMap<KeyFrameId, CulledKeyFrame>,
-    replaced_points: HashMap<MapPointId, MapPointId>,
+    culled_keyframes: Arena<KeyFrameId, CulledKeyFrame>,
+    replaced_points: Arena<MapPointId, MapPointId>,
     /// Edits being recorded (a copy handed to concurrent mapping), see [`MapJournal`].
     recorder: Option<Recorder>,
     /// The sensor and camera the map is built with (kept by `clear`), stored in map files.
@@ -60,13 +61,13 @@ impl Map {
     pub fn new(pyramid: ScalePyramid) -> Self {
         Self {
             pyramid,
-            keyframes: BTreeMap::new(),
-            map_points: BTreeMap::new(),
+            keyframes: Arena::default(),
+            map_points: Arena::default(),
             next_keyframe: 0,
             next_map_point: 0,
             origin: None,
-            culled_keyframes: HashMap::new(),
-            replaced_points: HashMap::new(),
+            culled_keyframes: Arena::default(),
+            replaced_points: Arena::default(),
             recorder: None,
             rig: None,
         }

@@ -36,7 +36,7 @@ impl Map {
     }
 
     fn check_observations(&self) -> Result<(), String> {
-        for (&mp, point) in &self.map_points {
+        for (&mp, point) in self.map_points.iter() {
             let mut n_obs = 0;
             for (&kf, &index) in &point.observations {
                 let frame = self
@@ -69,7 +69,7 @@ impl Map {
                 ));
             }
         }
-        for (&kf, frame) in &self.keyframes {
+        for (&kf, frame) in self.keyframes.iter() {
             for (index, mp) in frame.map_points.iter().enumerate() {
                 let Some(mp) = mp else { continue };
                 let point = self
@@ -88,7 +88,7 @@ impl Map {
     }
 
     fn check_covisibility(&self) -> Result<(), String> {
-        for (&kf, frame) in &self.keyframes {
+        for (&kf, frame) in self.keyframes.iter() {
             let counts = self.shared_point_counts(frame);
             for (&other, &weight) in &frame.covisibility {
                 let neighbour = self
@@ -132,7 +132,7 @@ impl Map {
         {
             return Err(format!("the origin has parent {parent}"));
         }
-        for (&kf, frame) in &self.keyframes {
+        for (&kf, frame) in self.keyframes.iter() {
             if let Some(parent) = frame.parent {
                 let p = self
                     .keyframes

@@ -313,11 +313,9 @@ impl Map {
     }
 }
 
-/// Tombstone tables sorted by id, for a deterministic file.
-fn sorted<K: Ord + Copy, V: Clone>(table: &std::collections::HashMap<K, V>) -> Vec<(K, V)> {
-    let mut out: Vec<_> = table.iter().map(|(&k, v)| (k, v.clone())).collect();
-    out.sort_by_key(|(k, _)| *k);
-    out
+/// A tombstone table's entries by increasing id (a deterministic file).
+fn sorted<K: Ord + Copy, V: Clone>(table: &super::Arena<K, V>) -> Vec<(K, V)> {
+    table.iter().map(|(&k, v)| (k, v.clone())).collect()
 }
 
 /// Writes the section's tag, body length and the body `write` produces.
