@@ -8,7 +8,9 @@ sequence that revisits the same place. Frames are extracted once and cached, so 
 times only what the system does per frame (``track_rgbd``: tracking + local mapping) plus,
 from the first pass, ORB extraction for reference. Every ``--every`` frames it logs the
 median / p95 call time over the window, the process RSS (``/proc/self/status``) and the
-map size; at the end it prints the curve, a least-squares slope of time and RSS against the
+map size, and what handing the map to the mapping thread costs (``snapshot us``: the
+copy-on-write copy made per keyframe; ``deep us``: the deep copy made before, for
+reference; medians of 5, bench builds only); at the end it prints the curve, a least-squares slope of time and RSS against the
 frame index, and with ``--plot PNG`` saves the curve with matplotlib.
 
 With ``--mapping-thread`` local mapping runs in its own thread, as live, and with
@@ -70,6 +72,12 @@ class FerroslamReplay:
         kf_ids, _, _ = self.system.keyframe_trajectory()
         return int(np.asarray(kf_ids).size), int(self.system.num_map_points)
 
+    def map_copy_us(self) -> tuple[float, float] | None:
+        if not hasattr(self.system, "map_copy_cost"):  # a build without the bench feature
+            return None
+        costs = np.array([self.system.map_copy_cost() for _ in range(5)])
+        return float(np.median(costs[:, 0])), float(np.median(costs[:, 1]))
+
 
 class OrbSlam3Replay:
     """ORB-SLAM3 RGB-D (``pyorbslam3``) on images loaded once (the call is extraction +
@@ -99,6 +107,10 @@ class OrbSlam3Replay:
         self.slam.save_keyframe_trajectory_tum(str(self.keyframes_file))
         with open(self.keyframes_file, encoding="utf-8") as f:
             return sum(1 for line in f if line.strip()), None
+
+    @staticmethod
+    def map_copy_us() -> None:
+        return None
 
 
 def main(argv=None) -> int:
@@ -133,7 +145,8 @@ def main(argv=None) -> int:
     print(f"{seq.name}: {n} frames x {args.passes} passes = {len(order)} frames; {mode}; "
           f"load average {orb.load_average()}")
     head = (f"{'frames':>7} {'pass':>4} {'median ms':>9} {'p95 ms':>7} {'max ms':>7} "
-            f"{'RSS MB':>7} {'ok %':>5} {'KFs':>5} {'points':>7}")
+            f"{'RSS MB':>7} {'ok %':>5} {'KFs':>5} {'points':>7} {'snapshot us':>11} "
+            f"{'deep us':>8}")
     print(head)
     print("-" * len(head))
     clock0 = time.perf_counter()
@@ -147,16 +160,20 @@ def main(argv=None) -> int:
             w = call_ms[k + 1 - ((k % args.every) + 1): k + 1]
             ok = sum(tracked[-len(w):]) / len(w)
             keyframes, points = replay.map_size()
+            copy_us = replay.map_copy_us()
             row = {"frame": k + 1, "pass": int(np.searchsorted(
                        np.cumsum([n] + [n - 1] * (args.passes - 1)), k, side="right")) + 1,
                    "median_ms": float(np.median(w)), "p95_ms": float(np.percentile(w, 95)),
                    "max_ms": float(w.max()), "rss_mb": orb.memory_kb()["VmRSS"] / 1024,
-                   "ok": ok, "keyframes": keyframes, "map_points": points}
+                   "ok": ok, "keyframes": keyframes, "map_points": points,
+                   "snapshot_us": copy_us and copy_us[0], "deep_copy_us": copy_us and copy_us[1]}
             rows.append(row)
             print(f"{row['frame']:>7} {row['pass']:>4} {row['median_ms']:>9.1f} "
                   f"{row['p95_ms']:>7.1f} {row['max_ms']:>7.1f} {row['rss_mb']:>7.1f} "
                   f"{100 * ok:>5.0f} {row['keyframes']:>5} "
-                  f"{'-' if points is None else points:>7}", flush=True)
+                  f"{'-' if points is None else points:>7} "
+                  + (f"{copy_us[0]:>11.1f} {copy_us[1]:>8.0f}" if copy_us else f"{'-':>11} {'-':>8}"),
+                  flush=True)
 
     frames = np.array([r["frame"] for r in rows], float)
     med = np.array([r["median_ms"] for r in rows])
@@ -180,6 +197,10 @@ def main(argv=None) -> int:
           f"{summary['rss_max_mb']:.0f} MB, end {summary['rss_end_mb']:.0f} MB; trend "
           f"{slope_m:+.2f} MB per 1000 frames, growth over the second half "
           f"{summary['rss_second_half_growth_mb']:+.1f} MB")
+    if rows[-1]["snapshot_us"] is not None:
+        print(f"map handed to the mapping thread at the end: {rows[-1]['snapshot_us']:.1f} us "
+              f"(deep copy {rows[-1]['deep_copy_us']:.0f} us, "
+              f"{rows[-1]['deep_copy_us'] / rows[-1]['snapshot_us']:.0f}x)")
     print(f"tracked {100 * summary['ok_fraction']:.1f} % of frames; final map "
           f"{rows[-1]['keyframes']} keyframes, {rows[-1]['map_points']} points; load average at "
           f"end {summary['load_end']}")

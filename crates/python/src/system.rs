@@ -359,6 +359,17 @@ impl PySlamSystem {
         })
     }
 
+    /// Wall time, microseconds, of handing the current map to the mapping thread
+    /// (`snapshot_us`) and of the deep copy it used to take (`deep_copy_us`). (Builds with the
+    /// `bench` feature only.)
+    #[cfg(feature = "bench")]
+    fn map_copy_cost(&self, py: Python<'_>) -> PyResult<(f64, f64)> {
+        self.engine()?.run(py, |s| {
+            let (snapshot, deep) = s.map_copy_cost();
+            (snapshot.as_secs_f64() * 1e6, deep.as_secs_f64() * 1e6)
+        })
+    }
+
     /// Whether local mapping and loop closing run in a thread of their own.
     #[getter]
     fn mapping_thread(&self, py: Python<'_>) -> PyResult<bool> {

@@ -8,7 +8,6 @@
 #![warn(missing_docs)]
 
 pub mod background;
-pub mod concurrent_mapping;
 pub mod config;
 pub mod context;
 pub mod error;
@@ -17,10 +16,12 @@ pub mod frustum;
 pub mod imu_prediction;
 pub mod inertial;
 pub mod input_guard;
+mod keyframe_insertion;
 pub mod local_ba_problem;
 pub mod local_inertial_ba;
 pub mod local_mapping;
 pub mod loop_closing;
+mod mapping;
 pub mod mono_init;
 pub mod place_recognition;
 pub mod point_fusion;

@@ -33,6 +33,18 @@ pub(crate) fn adjust_keyframes(
     index.apply(&problem, &result.outlier, map)
 }
 
+/// Local BA over `kf` and its covisible keyframes (see [`adjust_keyframes`]).
+pub(crate) fn adjust_around(
+    kf: KeyFrameId,
+    map: &mut Map,
+    ctx: &Context,
+    record: Option<&mut Vec<BaProblem>>,
+) -> Result<usize, SlamError> {
+    let mut local: Vec<KeyFrameId> = vec![kf];
+    local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
+    adjust_keyframes(&local, map, ctx, record)
+}
+
 /// Which keyframes, points and observations of the map a local BA problem holds.
 pub(crate) struct LocalProblem {
     /// Keyframe of each pose of the problem.

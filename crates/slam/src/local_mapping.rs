@@ -18,8 +18,8 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector2, Vector3};
 use crate::config::Sensor;
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::{unproject_depth, Frame};
-use crate::local_ba_problem::adjust_keyframes;
+use crate::frame::unproject_depth;
+use crate::local_ba_problem::adjust_around;
 use crate::local_inertial_ba::{local_inertial_bundle_adjust, InertialWindow};
 use crate::point_fusion::fuse_with_neighbours;
 
@@ -202,14 +202,9 @@ impl LocalMapper {
             .unwrap_or_default()
     }
 
-    /// Registers a point created outside local mapping (monocular initialisation) for culling.
+    /// Registers a point created outside local mapping (by tracking) for culling.
     pub(crate) fn add_recent_point(&mut self, m: MapPointId) {
         self.recent_points.push(m);
-    }
-
-    /// Hands over the recent points (to the concurrent mapping thread).
-    pub(crate) fn take_recent_points(&mut self) -> Vec<MapPointId> {
-        std::mem::take(&mut self.recent_points)
     }
 
     /// Follows the renaming of points created in a map copy and replayed on the original
@@ -220,78 +215,6 @@ impl LocalMapper {
                 *m = *new;
             }
         }
-    }
-
-    /// Turns a tracked frame into a keyframe: links its matched points, and creates points
-    /// from measured depth for the closest unmatched features (ORB-SLAM `CreateNewKeyFrame`,
-    /// at least 100 points, all those closer than `close_depth_m`; the first keyframe passes
-    /// infinity to keep every feature with depth).
-    pub fn insert_keyframe(
-        &mut self,
-        frame: &mut Frame,
-        map: &mut Map,
-        ctx: &Context,
-        close_depth_m: f64,
-        report: &mut MappingReport,
-    ) -> Result<KeyFrameId, SlamError> {
-        let kf = map.insert_keyframe(
-            frame.timestamp,
-            frame.index,
-            frame.T_c_w,
-            frame.features.clone(),
-        );
-        for i in 0..frame.len() {
-            let Some(m) = frame.map_points[i] else {
-                continue;
-            };
-            if frame.outlier[i]
-                || map
-                    .map_point(m)
-                    .is_none_or(|p| p.observations().contains_key(&kf))
-            {
-                frame.map_points[i] = None;
-                continue;
-            }
-            map.add_observation(m, kf, i)?;
-            map.update_normal_and_depth(m)?;
-            map.compute_distinctive_descriptor(m)?;
-        }
-        let T_w_c = frame.T_c_w.inverse();
-        for i in frame.closest_depth_features(close_depth_m) {
-            if frame.map_points[i].is_some() {
-                continue;
-            }
-            let Some(p_w) = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c) else {
-                continue;
-            };
-            let m = map.create_map_point(p_w, kf)?;
-            map.add_observation(m, kf, i)?;
-            map.compute_distinctive_descriptor(m)?;
-            map.update_normal_and_depth(m)?;
-            frame.map_points[i] = Some(m);
-            self.recent_points.push(m);
-            report.depth_points += 1;
-        }
-        map.update_connections(kf)?;
-        Ok(kf)
-    }
-
-    /// Runs the local mapping stages for the keyframe just inserted: [`Self::grow`], then
-    /// [`Self::refine`] unless interrupted.
-    pub(crate) fn process_keyframe(
-        &mut self,
-        kf: KeyFrameId,
-        map: &mut Map,
-        ctx: &Context,
-        report: &mut MappingReport,
-        inertial: Option<&mut InertialWindow>,
-        interrupt: Interrupt<'_>,
-    ) -> Result<(), SlamError> {
-        self.grow(kf, map, ctx, report, interrupt, &mut |_| {})?;
-        if report.interrupted {
-            return Ok(());
-        }
-        self.refine(kf, map, ctx, report, inertial)
     }
 
     /// The stages that change which points the keyframe's neighbourhood has: culling of
@@ -490,13 +413,11 @@ impl LocalMapper {
         map: &mut Map,
         ctx: &Context,
     ) -> Result<usize, SlamError> {
-        let mut local: Vec<KeyFrameId> = vec![kf];
-        local.extend(map.covisibles(kf).into_iter().map(|(k, _)| k));
         #[cfg(feature = "bench")]
         let record = self.recorded_problems.as_mut();
         #[cfg(not(feature = "bench"))]
         let record = None;
-        adjust_keyframes(&local, map, ctx, record)
+        adjust_around(kf, map, ctx, record)
     }
 
     /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close
@@ -774,9 +695,15 @@ mod tests {
         interrupt: Interrupt<'_>,
     ) -> MappingReport {
         let mut report = MappingReport::default();
-        LocalMapper::default()
-            .process_keyframe(newest, &mut map, &ctx, &mut report, None, interrupt)
+        let mut mapper = LocalMapper::default();
+        mapper
+            .grow(newest, &mut map, &ctx, &mut report, interrupt, &mut |_| {})
             .unwrap();
+        if !report.interrupted {
+            mapper
+                .refine(newest, &mut map, &ctx, &mut report, None)
+                .unwrap();
+        }
         map.check_consistency().unwrap();
         report
     }

@@ -6,13 +6,13 @@
 use ferroslam_features::matcher::TH_LOW;
 use ferroslam_features::{search_by_projection, MatchOptions, ProjectionQuery};
 use ferroslam_geometry::two_view::{reconstruct_two_view, TwoViewOptions, TwoViewReconstruction};
-use ferroslam_map::{KeyFrameId, Map};
+use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use nalgebra::{Isometry3, Vector2};
 
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::Frame;
-use crate::local_mapping::LocalMapper;
+use crate::local_ba_problem::adjust_around;
 
 /// Keypoints a frame needs to serve in an initialisation pair (ORB-SLAM).
 const MIN_KEYPOINTS: usize = 100;
@@ -160,19 +160,29 @@ impl MonoInitializer {
     }
 }
 
+/// The map [`create_initial_map`] made.
+pub struct InitialMap {
+    /// The reference keyframe (the world frame).
+    pub kf1: KeyFrameId,
+    /// The current frame's keyframe.
+    pub kf2: KeyFrameId,
+    /// The points created, oldest first.
+    pub points: Vec<MapPointId>,
+}
+
 /// Builds the initial map from a pair (ORB-SLAM `CreateInitialMapMonocular`): two keyframes,
 /// one point per triangulated match, bundle adjustment with the first keyframe fixed, then
 /// the scale that puts the first keyframe's median scene depth at 1.
 ///
-/// On success `current` carries its pose and point associations and the keyframe ids are
-/// returned; on failure the map is cleared and the reason returned.
+/// On success `current` carries its pose and point associations, and the keyframe ids and
+/// the points created (for the mapping pipeline's recent points) are returned; on failure
+/// the map is cleared and the reason returned.
 pub fn create_initial_map(
     pair: TwoViewPair,
     current: &mut Frame,
     map: &mut Map,
-    mapper: &mut LocalMapper,
     ctx: &Context,
-) -> Result<Result<(KeyFrameId, KeyFrameId), InitStatus>, SlamError> {
+) -> Result<Result<InitialMap, InitStatus>, SlamError> {
     let TwoViewPair {
         mut reference,
         matches,
@@ -193,6 +203,7 @@ pub fn create_initial_map(
         current.features.clone(),
     );
     current.clear_associations();
+    let mut points = Vec::new();
     for (&(i, j), p) in matches.iter().zip(&reconstruction.points_c1) {
         let Some(p) = p else { continue };
         let m = map.create_map_point(*p, kf1)?;
@@ -200,18 +211,17 @@ pub fn create_initial_map(
         map.add_observation(m, kf2, j)?;
         map.compute_distinctive_descriptor(m)?;
         map.update_normal_and_depth(m)?;
-        mapper.add_recent_point(m);
+        points.push(m);
         current.map_points[j] = Some(m);
     }
     map.update_connections(kf1)?;
     map.update_connections(kf2)?;
-    mapper.local_bundle_adjust(kf2, map, ctx)?;
+    adjust_around(kf2, map, ctx, None)?;
 
     let median_depth = map.scene_median_depth(kf1);
     let tracked = map.tracked_points(kf2, 1);
     let (Some(depth), true) = (median_depth, tracked >= MIN_INITIAL_POINTS) else {
         map.clear();
-        mapper.reset();
         return Ok(Err(InitStatus::RejectedAfterBa(format!(
             "{tracked} points left after bundle adjustment (need {MIN_INITIAL_POINTS})"
         ))));
@@ -233,5 +243,5 @@ pub fn create_initial_map(
             *slot = None;
         }
     }
-    Ok(Ok((kf1, kf2)))
+    Ok(Ok(InitialMap { kf1, kf2, points }))
 }

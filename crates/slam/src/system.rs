@@ -4,12 +4,11 @@ use std::time::Instant;
 
 use ferroslam_features::ScalePyramid;
 use ferroslam_geometry::camera::PinholeCamera;
-use ferroslam_map::{KeyFrameId, Map};
+use ferroslam_map::{KeyFrameId, Map, MapPointId};
 #[cfg(feature = "bench")]
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
 
-use crate::concurrent_mapping::{ConcurrentMapper, KeyFrameWork, MAX_QUEUED_KEYFRAMES};
 use crate::config::SlamConfig;
 use crate::context::Context;
 use crate::error::SlamError;
@@ -20,9 +19,11 @@ use crate::inertial::{
     INIT_KEYFRAME_INTERVAL_S,
 };
 use crate::input_guard::InputGuard;
-use crate::local_mapping::{Interrupt, LocalMapper, MappingReport};
-use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
-use crate::mono_init::{create_initial_map, InitStatus, MonoInitializer};
+use crate::keyframe_insertion::insert_keyframe;
+use crate::local_mapping::MappingReport;
+use crate::loop_closing::{LoopClosure, LoopStats};
+use crate::mapping::{KeyFrameWork, Mapped, Mapping, MAX_QUEUED_KEYFRAMES};
+use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
 use crate::tracking::{Tracker, TrackingState, MIN_INIT_DEPTH_POINTS, MIN_INIT_KEYPOINTS};
 use crate::trajectory::Trajectory;
@@ -72,7 +73,10 @@ pub struct SlamSystem {
     ctx: Context,
     map: Map,
     tracker: Tracker,
-    mapper: LocalMapper,
+    /// Local mapping, the keyframe index and loop closing, inline or in their thread.
+    mapping: Mapping,
+    /// Points tracking created since the last keyframe handed to mapping, oldest first.
+    new_points: Vec<MapPointId>,
     initializer: MonoInitializer,
     trajectory: Trajectory,
     /// Frame poses `(timestamp, T_w_c)` of the closed map segments, oldest first.
@@ -80,13 +84,9 @@ pub struct SlamSystem {
     lost_since: Option<f64>,
     /// Track against the map without changing it (no keyframes, no mapping).
     localization_only: bool,
-    /// Bag-of-words index of the keyframes, once a vocabulary is set.
+    /// Bag-of-words index of the keyframes for relocalisation, once a vocabulary is set
+    /// (the mapping pipeline keeps its own for loop detection and hands its entries over).
     place: Option<PlaceRecognition>,
-    /// Loop detection and correction (with a vocabulary and `config.loop_closure`), when
-    /// mapping runs inline.
-    closer: LoopCloser,
-    /// The mapping thread, when local mapping and loop closing run concurrently.
-    concurrent: Option<ConcurrentMapper>,
     /// Loops closed so far (kept across map resets) and the detection counters.
     loops: Vec<LoopClosure>,
     loop_stats: LoopStats,
@@ -118,15 +118,14 @@ impl SlamSystem {
             ctx,
             map,
             tracker: Tracker::default(),
-            mapper: LocalMapper::default(),
+            mapping: Mapping::default(),
+            new_points: Vec::new(),
             initializer: MonoInitializer::default(),
             trajectory: Trajectory::default(),
             segments: Vec::new(),
             lost_since: None,
             localization_only: false,
             place: None,
-            closer: LoopCloser::default(),
-            concurrent: None,
             loops: Vec::new(),
             loop_stats: LoopStats::default(),
             frames_seen: 0,
@@ -183,9 +182,7 @@ impl SlamSystem {
     /// Initialises or tracks a frame, then inserts a keyframe when needed.
     fn track_frame(&mut self, mut frame: Frame, start: Instant) -> Result<TrackResult, SlamError> {
         self.frames_seen += 1;
-        if let Some(concurrent) = self.concurrent.as_mut() {
-            concurrent.frame_started();
-        }
+        self.mapping.frame_started();
         self.collect_mapping(false)?;
         if self.tracker.state == TrackingState::NotInitialized {
             let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
@@ -277,12 +274,8 @@ impl SlamSystem {
         // frames would be tracked against a map missing the points of several keyframes
         // (fatal for monocular maps, which only grow by triangulation), so it waits, or
         // leaves the keyframe to the next frame (see `Tracker::defer_keyframe`).
-        if let Some(concurrent) = self
-            .concurrent
-            .as_ref()
-            .filter(|c| new_keyframe && c.backlog() >= MAX_QUEUED_KEYFRAMES)
-        {
-            concurrent.interrupt();
+        if new_keyframe && self.mapping.backlog() >= MAX_QUEUED_KEYFRAMES {
+            self.mapping.interrupt();
             if self.tracker.defer_keyframe(frame.index, &self.ctx) {
                 new_keyframe = false;
             } else {
@@ -290,43 +283,36 @@ impl SlamSystem {
             }
         }
         if new_keyframe {
-            let mut report = MappingReport::default();
-            let kf = self.mapper.insert_keyframe(
-                &mut frame,
-                &mut self.map,
-                &self.ctx,
-                self.ctx.close_depth_m,
-                &mut report,
-            )?;
+            let (kf, created) =
+                insert_keyframe(&mut frame, &mut self.map, &self.ctx, self.ctx.close_depth_m)?;
             self.tracker.on_keyframe(frame.index, kf);
             result.is_keyframe = true;
             self.record_frame(&frame);
-            let mut window = self.inertial.as_mut().and_then(|i| i.window(&self.map));
-            if let Some(concurrent) = self.concurrent.as_mut() {
-                let work = KeyFrameWork {
-                    kf,
-                    new_points: self.mapper.take_recent_points(),
-                    inertial: window,
-                };
-                // The mapping thread indexes it (see `collect_mapping`).
-                concurrent.push(work, &self.map, self.place.as_ref().map(|p| p.vocabulary()));
-            } else {
-                self.mapper.process_keyframe(
-                    kf,
-                    &mut self.map,
-                    &self.ctx,
-                    &mut report,
-                    window.as_mut(),
-                    Interrupt::NEVER,
-                )?;
-                if let (Some(inertial), Some(window)) = (self.inertial.as_mut(), &window) {
-                    inertial.store(window);
+            let mut report = MappingReport {
+                depth_points: created.len(),
+                ..MappingReport::default()
+            };
+            self.new_points.extend(created);
+            let work = KeyFrameWork {
+                kf,
+                new_points: std::mem::take(&mut self.new_points),
+                inertial: self.inertial.as_mut().and_then(|i| i.window(&self.map)),
+            };
+            let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
+            let mapped =
+                self.mapping
+                    .submit(work, &mut self.map, &self.ctx, vocabulary.as_ref());
+            if let Some(mapped) = mapped {
+                // Inline: this frame's keyframe was mapped within the call.
+                if let Some((_, done)) = mapped.reports.first() {
+                    report = MappingReport {
+                        depth_points: report.depth_points,
+                        ..done.clone()
+                    };
                 }
-                // Indexed after culling, before loop detection queries it.
-                self.index_keyframes();
-                let loops = Instant::now();
-                result.loop_closure = self.close_loops(kf)?;
-                result.loop_closing_ms = loops.elapsed().as_secs_f64() * 1e3;
+                result.loop_closure = mapped.loops.last().cloned();
+                result.loop_closing_ms = mapped.loop_closing_ms;
+                self.absorb(vec![mapped])?;
             }
             result.mapping = Some(report);
             self.update_inertial()?;
@@ -351,22 +337,6 @@ impl SlamSystem {
         }
     }
 
-    /// Inline loop closing for keyframe `kf` (with a vocabulary and `config.loop_closure`).
-    fn close_loops(&mut self, kf: KeyFrameId) -> Result<Option<LoopClosure>, SlamError> {
-        let Some(place) = self.place.as_ref().filter(|_| self.ctx.config.loop_closure) else {
-            return Ok(None);
-        };
-        if self.map.keyframe(kf).is_none() {
-            return Ok(None);
-        }
-        let closed = self
-            .closer
-            .process_keyframe(kf, &mut self.map, &self.ctx, place)?;
-        self.loop_stats = self.closer.stats();
-        self.loops.extend(closed.clone());
-        Ok(closed)
-    }
-
     /// Records (`true`) each local BA problem as local mapping builds it, before solving, for
     /// running other solvers on the same problems (`benches/solvers_compare.py`); `false`
     /// stops and drops the record. Mapping must run inline.
@@ -375,71 +345,90 @@ impl SlamSystem {
     /// [`SlamError::InvalidConfig`] while the mapping thread runs.
     #[cfg(feature = "bench")]
     pub fn record_local_ba_problems(&mut self, on: bool) -> Result<(), SlamError> {
-        if on && self.concurrent.is_some() {
-            return Err(SlamError::InvalidConfig(
+        match self.mapping.inline_pipeline() {
+            Some(pipeline) => {
+                pipeline.record_local_ba_problems(on);
+                Ok(())
+            }
+            None if !on => Ok(()),
+            None => Err(SlamError::InvalidConfig(
                 "local BA problems are recorded with mapping inline only: stop the mapping \
                  thread first"
                     .to_owned(),
-            ));
+            )),
         }
-        self.mapper.record_problems(on);
-        Ok(())
     }
 
     /// The local BA problems recorded since the last call (see
     /// [`Self::record_local_ba_problems`]), oldest first.
     #[cfg(feature = "bench")]
     pub fn take_local_ba_problems(&mut self) -> Vec<BaProblem> {
-        self.mapper.take_recorded_problems()
+        self.mapping
+            .inline_pipeline()
+            .map(|p| p.take_local_ba_problems())
+            .unwrap_or_default()
+    }
+
+    /// What handing the map to the mapping thread costs now, and what it cost when the copy
+    /// was deep: `(snapshot, deep copy)` wall times of copying the current map, for
+    /// `benches/long_run.py`. The deep copy clones every keyframe and point, as copying the
+    /// map's tables did before they shared their entries (see `ferroslam_map::Map`).
+    #[cfg(feature = "bench")]
+    pub fn map_copy_cost(&self) -> (std::time::Duration, std::time::Duration) {
+        let start = Instant::now();
+        let snapshot = std::hint::black_box(self.map.clone());
+        let snapshot_time = start.elapsed();
+        drop(snapshot);
+        let start = Instant::now();
+        let keyframes: Vec<_> = self.map.keyframes().cloned().collect();
+        let points: Vec<_> = self.map.map_points().cloned().collect();
+        std::hint::black_box((&keyframes, &points));
+        (snapshot_time, start.elapsed())
     }
 
     /// Runs local mapping and loop closing in a thread of their own (`true`) or inline in
     /// each call (`false`, the default: deterministic). Concurrent mapping works on copies of
-    /// the map and its edits are replayed here before each frame (see
-    /// [`crate::concurrent_mapping`]); switching it off first finishes the work queued.
+    /// the map and its edits are replayed here before each frame (see [`crate::mapping`]);
+    /// switching it off first finishes the work queued.
     ///
     /// # Errors
     /// An error local mapping met in the thread.
     pub fn set_concurrent_mapping(&mut self, on: bool) -> Result<(), SlamError> {
-        if on == self.concurrent.is_some() {
+        if on == self.mapping.is_threaded() {
             return Ok(());
         }
-        if on {
-            if self.mapper.is_recording() {
-                return Err(SlamError::InvalidConfig(
-                    "local BA problems are recorded with mapping inline only: stop recording \
-                     before starting the mapping thread"
-                        .to_owned(),
-                ));
-            }
-            // Points created since the last keyframe (monocular initialisation) go with the
-            // next keyframe to the thread.
-            self.concurrent = Some(ConcurrentMapper::spawn(self.ctx.clone()));
-            Ok(())
-        } else {
-            let finished = self.finish_mapping();
-            self.concurrent = None;
-            finished
+        if on
+            && self
+                .mapping
+                .inline_pipeline()
+                .is_some_and(|p| p.is_recording())
+        {
+            return Err(SlamError::InvalidConfig(
+                "local BA problems are recorded with mapping inline only: stop recording \
+                 before starting the mapping thread"
+                    .to_owned(),
+            ));
         }
+        let finished = if on { Ok(()) } else { self.finish_mapping() };
+        self.mapping.set_threaded(on, &self.ctx);
+        finished
     }
 
     /// Whether local mapping runs in its own thread.
     pub fn concurrent_mapping(&self) -> bool {
-        self.concurrent.is_some()
+        self.mapping.is_threaded()
     }
 
     /// Keyframes the mapping thread has queued or is processing (0 inline), shared so
     /// another thread can poll it.
     pub fn mapping_backlog(&self) -> Option<Arc<std::sync::atomic::AtomicUsize>> {
-        self.concurrent
-            .as_ref()
-            .map(ConcurrentMapper::backlog_handle)
+        self.mapping.backlog_handle()
     }
 
     /// Whether local mapping can take a keyframe now: always inline (it ran inside the last
     /// keyframe's call), with the mapping thread when it has nothing queued or in progress.
     fn mapping_idle(&self) -> bool {
-        self.concurrent.as_ref().is_none_or(|c| c.backlog() == 0)
+        self.mapping.backlog() == 0
     }
 
     /// Waits for the mapping thread to process every queued keyframe and applies its edits
@@ -453,15 +442,17 @@ impl SlamSystem {
 
     /// Applies what the mapping thread finished (waiting for all of it if `wait`).
     fn collect_mapping(&mut self, wait: bool) -> Result<(), SlamError> {
-        let Some(concurrent) = self.concurrent.as_mut() else {
-            return Ok(());
-        };
         let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
-        let finished = concurrent.collect(&mut self.map, vocabulary.as_ref(), wait);
-        if let Some(failure) = concurrent.failure() {
-            // Mapping stopped for good: every call says so rather than track without it.
-            return Err(failure.clone());
-        }
+        let finished = self
+            .mapping
+            .collect(&mut self.map, vocabulary.as_ref(), wait)?;
+        self.absorb(finished)
+    }
+
+    /// Takes in what the mapping pipeline did (inline or in its thread, whose edits are in
+    /// the map by now): inertial states, the keyframes it indexed, loops; returns the first
+    /// error it met.
+    fn absorb(&mut self, finished: Vec<Mapped>) -> Result<(), SlamError> {
         if finished.is_empty() {
             return Ok(());
         }
@@ -516,15 +507,15 @@ impl SlamSystem {
             Err(status) => return Ok(Err(status)),
         };
         let (ref_timestamp, ref_T_c_w) = (pair.reference.timestamp, Isometry3::identity());
-        let (kf1, kf2) =
-            match create_initial_map(pair, &mut frame, &mut self.map, &mut self.mapper, &self.ctx)?
-            {
-                Ok(kfs) => kfs,
+        let InitialMap { kf1, kf2, points } =
+            match create_initial_map(pair, &mut frame, &mut self.map, &self.ctx)? {
+                Ok(initial) => initial,
                 Err(status) => {
                     self.initializer.reset();
                     return Ok(Err(status));
                 }
             };
+        self.new_points.extend(points);
         self.tracker.on_keyframe(frame.index, kf2);
         self.tracker.state = TrackingState::Ok;
         self.tracker.matches_inliers = frame.map_points.iter().flatten().count();
@@ -550,18 +541,12 @@ impl SlamSystem {
             return Ok(None);
         }
         frame.T_c_w = Isometry3::identity();
-        let mut report = MappingReport::default();
         // Every feature with depth becomes a point at initialisation, not only the close ones.
-        let kf = self.mapper.insert_keyframe(
-            &mut frame,
-            &mut self.map,
-            &self.ctx,
-            f64::INFINITY,
-            &mut report,
-        )?;
+        let (kf, created) = insert_keyframe(&mut frame, &mut self.map, &self.ctx, f64::INFINITY)?;
         self.tracker.on_keyframe(frame.index, kf);
         self.tracker.state = TrackingState::Ok;
-        self.tracker.matches_inliers = report.depth_points;
+        self.tracker.matches_inliers = created.len();
+        self.new_points.extend(created);
         self.trajectory
             .push(frame.timestamp, &frame.T_c_w, kf, &self.map);
         self.tracker
@@ -583,12 +568,9 @@ impl SlamSystem {
             place.clear();
         }
         self.tracker.reset();
-        self.mapper.reset();
+        self.mapping.reset();
+        self.new_points.clear();
         self.initializer.reset();
-        self.closer.reset_map();
-        if let Some(concurrent) = self.concurrent.as_mut() {
-            concurrent.reset();
-        }
         self.trajectory.clear();
         self.lost_since = None;
         self.predictor.clear();

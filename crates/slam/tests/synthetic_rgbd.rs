@@ -342,7 +342,9 @@ fn concurrent_mapping_hands_its_keyframe_index_to_relocalisation() {
     track_path(&mut system, &scene, 40, 0.0, &mut rng);
     system.finish_mapping().unwrap();
     let (map, place) = (system.map(), system.place_recognition().unwrap());
-    assert!(map.num_keyframes() > 5);
+    // How many of the 20 keyframes survive culling depends on the thread's timing: 4 or 6
+    // in 16 runs (before and after the map became copy-on-write).
+    assert!(map.num_keyframes() >= 3);
     assert_eq!(place.len(), map.num_keyframes());
     for kf in map.keyframe_ids() {
         let descriptors = &map.keyframe(kf).unwrap().features().descriptors;

@@ -1,20 +1,20 @@
-//! Concurrent local mapping and loop closing (ORB-SLAM's `LocalMapping` and `LoopClosing`
-//! threads), without a shared map lock.
+//! The mapping thread: the [`MappingPipeline`] beside tracking (ORB-SLAM's `LocalMapping`
+//! and `LoopClosing` threads), without a shared map lock.
 //!
-//! Tracking owns the map. When it inserts a keyframe, it hands local mapping a snapshot (a
-//! copy of the map) with the keyframes to process; the mapping thread runs the local mapping
-//! stages and loop closing on the copy, recording its edits in a [`MapJournal`], and sends the
-//! journal back. Tracking replays it on its map when it next looks (before each frame, or
-//! when asked to finish), so tracking never waits for local BA. Keyframes inserted while a
-//! job runs are queued and go with the next snapshot, taken after the journal is replayed.
-//! The points a keyframe brings are sent ahead, as each covisible keyframe yields them and
-//! again after fusion, so the next frame can track them before local BA is done. When frames
-//! come faster than a keyframe takes to map, triangulation searches only the best covisible
-//! keyframes (see [`Interrupt`]).
+//! Tracking owns the map. When it inserts a keyframe, it hands the thread a snapshot (a copy
+//! of the map, O(1)) with the keyframes to process; the thread runs the pipeline on the copy,
+//! recording its edits in a [`MapJournal`], and sends the journal back. Tracking replays it
+//! on its map when it next looks (before each frame, or when asked to finish), so tracking
+//! never waits for local BA. Keyframes inserted while a job runs are queued and go with the
+//! next snapshot, taken after the journal is replayed. The points a keyframe brings are sent
+//! ahead, as each covisible keyframe yields them and again after fusion, so the next frame
+//! can track them before local BA is done. When frames come faster than a keyframe takes to
+//! map, triangulation searches only the best covisible keyframes (see
+//! [`crate::local_mapping::Interrupt`]).
 //!
 //! Points created in a copy are renamed when replayed; the renaming travels with the next
-//! job so the mapping thread's list of recent points follows. A map reset bumps the epoch:
-//! results of older jobs are dropped and the thread starts its next job afresh.
+//! job so the pipeline's list of recent points follows. A map reset bumps the epoch: results
+//! of older jobs are dropped and the thread starts its next job afresh.
 
 use std::collections::HashMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -24,37 +24,18 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use ferroslam_map::{KeyFrameId, Map, MapJournal, MapPointId};
-use ferroslam_vocabulary::{BowVector, FeatureVector, Vocabulary};
+use ferroslam_map::{Map, MapJournal, MapPointId};
+use ferroslam_vocabulary::Vocabulary;
 
+use super::pipeline::{KeyFrameWork, Mapped, MappingJob, MappingPipeline, Progress};
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::local_inertial_ba::InertialWindow;
-use crate::local_mapping::{Interrupt, LocalMapper, MappingReport};
-use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
-use crate::place_recognition::PlaceRecognition;
 
-/// A keyframe for local mapping, with the points tracking created with it.
-#[derive(Clone, Debug)]
-pub(crate) struct KeyFrameWork {
-    pub kf: KeyFrameId,
-    pub new_points: Vec<MapPointId>,
-    /// The window of local inertial BA (aligned visual-inertial maps).
-    pub inertial: Option<InertialWindow>,
-}
-
-/// A snapshot and the keyframes to process in it.
+/// A snapshot of the map and the job to run on it.
 struct Job {
     epoch: u64,
-    /// Start from a fresh mapping state (the map was reset or replaced).
-    fresh: bool,
     map: Map,
-    work: Vec<KeyFrameWork>,
-    /// Renaming of the previous job's points, for the recent-point list.
-    renamed: HashMap<MapPointId, MapPointId>,
-    vocabulary: Option<Arc<Vocabulary>>,
-    /// Frames come faster than the last keyframe was mapped (see [`Interrupt`]).
-    hurried: bool,
+    job: MappingJob,
     /// Tests: the job panics, as a bug in local mapping would.
     #[cfg(test)]
     panics: bool,
@@ -64,38 +45,23 @@ struct Job {
 enum FromMapping {
     /// The edits so far of the job in flight: a keyframe's new points, ahead of its local BA.
     Grown { epoch: u64, journal: MapJournal },
-    /// The job is done.
-    Done(Mapped),
+    /// The job is done: its edits and what it did.
+    Done {
+        epoch: u64,
+        journal: MapJournal,
+        mapped: Mapped,
+    },
     /// The job panicked (a bug): the thread stops.
     Failed(SlamError),
 }
 
-/// What a job did.
-pub(crate) struct Mapped {
-    epoch: u64,
-    journal: MapJournal,
-    /// Local mapping report per processed keyframe.
-    pub reports: Vec<(KeyFrameId, MappingReport)>,
-    /// Loops closed.
-    pub loops: Vec<LoopClosure>,
-    /// Loop-detection counters after the job.
-    pub stats: LoopStats,
-    /// The first error met (the job stopped there; its edits so far are in the journal).
-    pub error: Option<SlamError>,
-    /// The inertial windows with the states local inertial BA found.
-    pub inertial: Vec<InertialWindow>,
-    /// Keyframes the job indexed for place recognition (those still live at its end), with
-    /// their bags of words and feature vectors: tracking's index adopts them rather than
-    /// transforming every keyframe's descriptors again on the tracking thread.
-    pub indexed: Vec<(KeyFrameId, (BowVector, FeatureVector))>,
-}
-
 /// Handle of the mapping thread, owned by tracking.
-pub(crate) struct ConcurrentMapper {
+pub(crate) struct MappingThread {
     jobs: Option<Sender<Job>>,
     /// Behind a mutex only so the system stays `Sync`; only tracking reads it.
     done: Mutex<Receiver<FromMapping>>,
-    thread: Option<JoinHandle<()>>,
+    /// Hands the pipeline back when the thread ends (`None` after a panic).
+    thread: Option<JoinHandle<Option<MappingPipeline>>>,
     epoch: u64,
     fresh: bool,
     in_flight: bool,
@@ -116,17 +82,9 @@ pub(crate) struct ConcurrentMapper {
     failure: Option<SlamError>,
 }
 
-/// Keyframes local mapping may have queued or in progress when tracking wants another;
-/// tracking then waits for them, or, monocular, may leave the keyframe to the next frame
-/// ([`crate::tracking::Tracker::defer_keyframe`]). ORB-SLAM instead refuses monocular
-/// keyframes while mapping is busy and queues up to 3 with depth, which loses tracking when
-/// frames come faster than real time (KITTI 06 monocular fed at full speed: 27 of 51 frames
-/// tracked).
-pub(crate) const MAX_QUEUED_KEYFRAMES: usize = 1;
-
-impl ConcurrentMapper {
-    /// Starts the mapping thread.
-    pub(crate) fn spawn(ctx: Context) -> Self {
+impl MappingThread {
+    /// Starts the mapping thread with `pipeline` (the state inline mapping had so far).
+    pub(crate) fn spawn(ctx: Context, pipeline: MappingPipeline) -> Self {
         let (jobs, inbox) = channel::<Job>();
         let (report, done) = channel::<FromMapping>();
         let backlog = Arc::new(AtomicUsize::new(0));
@@ -139,14 +97,16 @@ impl ConcurrentMapper {
         );
         let thread = std::thread::Builder::new()
             .name("ferroslam-mapping".into())
-            .spawn(move || mapping_loop(&ctx, inbox, report, count, &hurry, &mapping_us))
+            .spawn(move || {
+                mapping_loop(pipeline, &ctx, inbox, report, count, &hurry, &mapping_us)
+            })
             .expect("the OS refused to start the mapping thread");
         Self {
             jobs: Some(jobs),
             done: Mutex::new(done),
             thread: Some(thread),
             epoch: 0,
-            fresh: true,
+            fresh: false,
             in_flight: false,
             queue: Vec::new(),
             renamed: HashMap::new(),
@@ -228,7 +188,7 @@ impl ConcurrentMapper {
                     done.try_recv()
                 }
             };
-            let mapped = match next {
+            let (journal, mapped) = match next {
                 Err(TryRecvError::Empty) => break,
                 Err(TryRecvError::Disconnected) => {
                     // Gone without a word (it reports its panics): nothing more will come.
@@ -248,8 +208,12 @@ impl ConcurrentMapper {
                     }
                     continue;
                 }
-                Ok(FromMapping::Done(mapped)) if mapped.epoch == self.epoch => mapped,
-                Ok(FromMapping::Done(_)) => {
+                Ok(FromMapping::Done {
+                    epoch,
+                    journal,
+                    mapped,
+                }) if epoch == self.epoch => (journal, mapped),
+                Ok(FromMapping::Done { .. }) => {
                     // A job of the map before a reset: its edits are dropped, but the thread
                     // is free only now (waiting for it keeps `wait` honest: afterwards the
                     // backlog is empty).
@@ -261,7 +225,7 @@ impl ConcurrentMapper {
                 }
             };
             self.in_flight = false;
-            map.apply_journal_part(&mapped.journal, &mut self.renamed_in_flight);
+            map.apply_journal_part(&journal, &mut self.renamed_in_flight);
             self.renamed.extend(self.renamed_in_flight.drain());
             out.push(mapped);
             if !self.queue.is_empty() {
@@ -290,19 +254,23 @@ impl ConcurrentMapper {
         self.renamed_in_flight.clear();
     }
 
+    /// Sends the queued keyframes with a copy of `map` (O(1): copies share their entries
+    /// until either side writes one, see `ferroslam_map::Map`).
     fn dispatch(&mut self, map: &Map, vocabulary: Option<&Arc<Vocabulary>>) {
         let job = Job {
             epoch: self.epoch,
-            fresh: std::mem::take(&mut self.fresh),
             map: map.clone(),
-            work: std::mem::take(&mut self.queue),
-            renamed: std::mem::take(&mut self.renamed),
-            vocabulary: vocabulary.cloned(),
-            hurried: self.hurried(),
+            job: MappingJob {
+                work: std::mem::take(&mut self.queue),
+                fresh: std::mem::take(&mut self.fresh),
+                renamed: std::mem::take(&mut self.renamed),
+                vocabulary: vocabulary.cloned(),
+                hurried: self.hurried(),
+            },
             #[cfg(test)]
             panics: false,
         };
-        let n = job.work.len();
+        let n = job.job.work.len();
         self.interrupt.store(false, Ordering::Relaxed);
         let sent = self.jobs.as_ref().is_some_and(|j| j.send(job).is_ok());
         if sent {
@@ -312,9 +280,24 @@ impl ConcurrentMapper {
             self.backlog.fetch_sub(n, Ordering::SeqCst);
         }
     }
+
+    /// Stops the thread once its queue is done and takes its pipeline back, with the points
+    /// of its last job renamed as replayed; a fresh pipeline if the thread failed or the map
+    /// was reset meanwhile.
+    pub(crate) fn stop_thread(mut self) -> MappingPipeline {
+        self.jobs = None;
+        let pipeline = self.thread.take().and_then(|t| t.join().ok().flatten());
+        match pipeline {
+            Some(mut pipeline) if !self.fresh => {
+                pipeline.rename_points(&self.renamed);
+                pipeline
+            }
+            _ => MappingPipeline::default(),
+        }
+    }
 }
 
-impl Drop for ConcurrentMapper {
+impl Drop for MappingThread {
     fn drop(&mut self) {
         self.jobs = None;
         if let Some(thread) = self.thread.take() {
@@ -323,17 +306,17 @@ impl Drop for ConcurrentMapper {
     }
 }
 
-/// The mapping thread: local mapping and loop closing state persist across jobs; each job
-/// brings the map to work on.
+/// The mapping thread: the pipeline's state persists across jobs; each job brings the map
+/// to work on. Returns the pipeline when tracking stops sending jobs (`None` after a panic).
 fn mapping_loop(
+    mut pipeline: MappingPipeline,
     ctx: &Context,
     inbox: Receiver<Job>,
     report: Sender<FromMapping>,
     backlog: Arc<AtomicUsize>,
     interrupt: &AtomicBool,
     keyframe_mapping_us: &AtomicU64,
-) {
-    let mut state = MappingState::default();
+) -> Option<MappingPipeline> {
     // Jobs run on a thread pool of their own: a job runs hundreds of small parallel loops
     // (each local BA iteration several), each otherwise handed to a pool and waited for; and
     // in tracking's pool they would queue ahead of tracking's own (idle threads steal work
@@ -348,30 +331,70 @@ fn mapping_loop(
     // (tracking's) would inherit this thread's priority.
     yield_to_tracking();
     for job in inbox {
-        let n = job.work.len();
-        #[cfg(test)]
-        let panics = job.panics;
-        let run = || {
-            #[cfg(test)]
-            assert!(!panics, "a job that panics (test)");
-            state.run(job, ctx, &report, interrupt, keyframe_mapping_us)
-        };
-        let mapped = catch_unwind(AssertUnwindSafe(|| match &pool {
+        let n = job.job.work.len();
+        let run = || run_job(&mut pipeline, job, ctx, &report, interrupt, keyframe_mapping_us);
+        let done = catch_unwind(AssertUnwindSafe(|| match &pool {
             Some(pool) => pool.install(run),
             None => run(),
         }));
         backlog.fetch_sub(n, Ordering::SeqCst);
-        // After a panic the mapping state may be inconsistent: report it and stop.
-        let (message, stop) = match mapped {
-            Ok(mapped) => (FromMapping::Done(mapped), false),
+        // After a panic the pipeline's state may be inconsistent: report it and stop.
+        let (message, stop) = match done {
+            Ok(done) => (done, false),
             Err(panic) => (
                 FromMapping::Failed(SlamError::from_panic("local mapping", &*panic)),
                 true,
             ),
         };
-        if report.send(message).is_err() || stop {
-            return;
+        if stop {
+            let _ = report.send(message);
+            return None;
         }
+        if report.send(message).is_err() {
+            break;
+        }
+    }
+    Some(pipeline)
+}
+
+/// Runs one job on its copy of the map, recording the edits; sends each keyframe's new
+/// points ahead as they are made. A stale job (the epoch moved on) is still processed;
+/// tracking drops its result.
+fn run_job(
+    pipeline: &mut MappingPipeline,
+    job: Job,
+    ctx: &Context,
+    report: &Sender<FromMapping>,
+    interrupt: &AtomicBool,
+    keyframe_mapping_us: &AtomicU64,
+) -> FromMapping {
+    #[cfg(test)]
+    assert!(!job.panics, "a job that panics (test)");
+    let Job {
+        epoch, mut map, job, ..
+    } = job;
+    map.begin_journal();
+    // Tracking applies what was sent before its next frame; if it is gone, so is the job.
+    let mut send_ahead = |map: &mut Map| {
+        let journal = map.drain_journal();
+        if !journal.is_empty() {
+            let _ = report.send(FromMapping::Grown { epoch, journal });
+        }
+    };
+    let mapped_in_full = |took: Duration| {
+        let us = took.as_micros().try_into().unwrap_or(u64::MAX);
+        keyframe_mapping_us.store(us, Ordering::Relaxed);
+    };
+    let progress = Progress {
+        waiting: Some(interrupt),
+        send_ahead: &mut send_ahead,
+        mapped_in_full: &mapped_in_full,
+    };
+    let mapped = pipeline.process(job, &mut map, ctx, progress);
+    FromMapping::Done {
+        epoch,
+        journal: map.take_journal(),
+        mapped,
     }
 }
 
@@ -386,131 +409,6 @@ fn yield_to_tracking() {
     let _ = thread_priority::set_current_thread_priority(thread_priority::ThreadPriority::Min);
 }
 
-/// What the mapping thread keeps from one job to the next.
-#[derive(Default)]
-struct MappingState {
-    mapper: LocalMapper,
-    closer: LoopCloser,
-    place: Option<PlaceRecognition>,
-}
-
-impl MappingState {
-    /// Local mapping and loop closing of the job's keyframes, in order; sends each
-    /// keyframe's new points ahead as they are made (`report`).
-    fn run(
-        &mut self,
-        job: Job,
-        ctx: &Context,
-        report: &Sender<FromMapping>,
-        interrupt: &AtomicBool,
-        keyframe_mapping_us: &AtomicU64,
-    ) -> Mapped {
-        let Self {
-            mapper,
-            closer,
-            place,
-        } = self;
-        // A stale job (the epoch moved on) is still processed; its result is dropped.
-        if job.fresh {
-            mapper.reset();
-            closer.reset_map();
-            *place = None;
-        }
-        match (&job.vocabulary, &*place) {
-            (Some(v), Some(p)) if Arc::ptr_eq(v, p.vocabulary()) => {}
-            (Some(v), _) => *place = Some(PlaceRecognition::new(Arc::clone(v))),
-            (None, _) => *place = None,
-        }
-        mapper.rename_recent_points(&job.renamed);
-        let mut map = job.map;
-        map.begin_journal();
-        let mut mapped = Mapped {
-            epoch: job.epoch,
-            journal: MapJournal::default(),
-            reports: Vec::new(),
-            loops: Vec::new(),
-            stats: LoopStats::default(),
-            error: None,
-            inertial: Vec::new(),
-            indexed: Vec::new(),
-        };
-        let mut indexed = Vec::new();
-        for mut work in job.work {
-            for m in work.new_points {
-                mapper.add_recent_point(m);
-            }
-            if map.keyframe(work.kf).is_none() {
-                continue;
-            }
-            let mut mapping = MappingReport::default();
-            // Tracking applies what was sent before its next frame; if it is gone, so is the job.
-            let mut send_ahead = |map: &mut Map| {
-                let journal = map.drain_journal();
-                if journal.is_empty() {
-                    return;
-                }
-                let _ = report.send(FromMapping::Grown {
-                    epoch: job.epoch,
-                    journal,
-                });
-            };
-            let start = Instant::now();
-            let step = mapper
-                .grow(
-                    work.kf,
-                    &mut map,
-                    ctx,
-                    &mut mapping,
-                    Interrupt::on(interrupt, job.hurried),
-                    &mut send_ahead,
-                )
-                .and_then(|()| {
-                    send_ahead(&mut map);
-                    if mapping.interrupted {
-                        return Ok(());
-                    }
-                    mapper.refine(work.kf, &mut map, ctx, &mut mapping, work.inertial.as_mut())
-                })
-                .inspect(|()| {
-                    if job.hurried || mapping.interrupted {
-                        return;
-                    }
-                    let us = start.elapsed().as_micros().try_into().unwrap_or(u64::MAX);
-                    keyframe_mapping_us.store(us, Ordering::Relaxed);
-                })
-                .and_then(|()| {
-                    let Some(place) = place.as_mut() else {
-                        return Ok(None);
-                    };
-                    indexed.extend(place.sync(&map));
-                    if !ctx.config.loop_closure || map.keyframe(work.kf).is_none() {
-                        return Ok(None);
-                    }
-                    closer.process_keyframe(work.kf, &mut map, ctx, place)
-                });
-            mapped.reports.push((work.kf, mapping));
-            mapped.inertial.extend(work.inertial);
-            match step {
-                Ok(Some(loop_closure)) => mapped.loops.push(loop_closure),
-                Ok(None) => {}
-                Err(e) => {
-                    mapped.error = Some(e);
-                    break;
-                }
-            }
-        }
-        if let Some(place) = place.as_ref() {
-            mapped.indexed = indexed
-                .into_iter()
-                .filter_map(|kf| Some((kf, place.entry(kf)?.clone())))
-                .collect();
-        }
-        mapped.stats = closer.stats();
-        mapped.journal = map.take_journal();
-        mapped
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use ferroslam_geometry::camera::{PinholeCamera, RadTan};
@@ -518,20 +416,27 @@ mod tests {
     use super::*;
     use crate::config::SlamConfig;
 
-    #[test]
-    fn a_panic_in_local_mapping_is_reported_and_nothing_waits_for_the_thread() {
+    fn spawn() -> MappingThread {
         let camera =
             PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
-        let mut mapper = ConcurrentMapper::spawn(Context::new(camera, SlamConfig::default()));
+        let ctx = Context::new(camera, SlamConfig::default());
+        MappingThread::spawn(ctx, MappingPipeline::default())
+    }
+
+    #[test]
+    fn a_panic_in_local_mapping_is_reported_and_nothing_waits_for_the_thread() {
+        let mut mapper = spawn();
         let mut map = Map::new(ferroslam_features::ScalePyramid::default());
         let job = Job {
             epoch: mapper.epoch,
-            fresh: true,
             map: map.clone(),
-            work: Vec::new(),
-            renamed: HashMap::new(),
-            vocabulary: None,
-            hurried: false,
+            job: MappingJob {
+                work: Vec::new(),
+                fresh: true,
+                renamed: HashMap::new(),
+                vocabulary: None,
+                hurried: false,
+            },
             panics: true,
         };
         mapper.jobs.as_ref().unwrap().send(job).unwrap();
@@ -550,9 +455,7 @@ mod tests {
 
     #[test]
     fn hurried_while_frames_come_faster_than_the_last_unhurried_keyframe_was_mapped() {
-        let camera =
-            PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
-        let mut mapper = ConcurrentMapper::spawn(Context::new(camera, SlamConfig::default()));
+        let mut mapper = spawn();
         mapper.frame_started();
         assert!(mapper.frame_interval.is_none() && !mapper.hurried());
         mapper.frame_started();
@@ -584,9 +487,7 @@ mod tests {
     #[cfg(target_os = "linux")]
     #[test]
     fn mapping_threads_run_at_the_lowest_priority_and_trackings_pool_does_not() {
-        let camera =
-            PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
-        let _mapper = ConcurrentMapper::spawn(Context::new(camera, SlamConfig::default()));
+        let _mapper = spawn();
         // the mapping thread and its pool's threads, once started
         let wanted = 1 + rayon::current_num_threads();
         let lowest = || {
