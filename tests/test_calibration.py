@@ -12,7 +12,7 @@ import pytest
 from conftest import require_data
 from ferroslam import Calibration, Camera, load_calibration
 from ferroslam.calibration import load_imu_params
-from ferroslam.camera import read_camera_yaml
+from ferroslam.calibration import read_camera_yaml
 from ferroslam.datasets import EurocSequence
 
 # EuRoC cam0 / cam1 as in mav0/cam*/sensor.yaml.

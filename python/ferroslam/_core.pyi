@@ -260,6 +260,10 @@ class SlamSystem:
         ``ferroslam-ba 1``, ``intrinsics fx fy cx cy bf``, ``poses n`` then per pose
         ``fixed qw qx qy qz tx ty tz`` (``T_c_w``), ``points m`` then ``x y z``,
         ``observations k`` then ``pose point u v u_right|- inv_sigma2`` (pixels)."""
+    def map_copy_cost(self) -> tuple[float, float]:
+        """``(snapshot_us, deep_copy_us)``: wall time of handing the current map to the
+        mapping thread (a copy-on-write copy) and of the deep copy it used to take. (Builds
+        with the ``bench`` feature only.)"""
     @property
     def mapping_thread(self) -> bool:
         """Whether local mapping and loop closing run in a thread of their own."""

@@ -35,10 +35,26 @@ import numpy.typing
 import yaml
 
 from .camera import Camera
-from .datasets.euroc import ImuParams
 from .transforms import inverse
 
-__all__ = ["Calibration", "load_calibration", "load_imu_params"]
+
+@dataclass(frozen=True)
+class ImuParams:
+    """IMU noise model and mounting (continuous-time densities), as EuRoC's
+    ``imu0/sensor.yaml`` and Kalibr's ``imu.yaml`` give them.
+
+    ``T_b_imu``: ``(4, 4)`` pose of the IMU in the body frame (identity in EuRoC).
+    """
+
+    gyroscope_noise_density: float  # rad / s / sqrt(Hz)
+    gyroscope_random_walk: float  # rad / s^2 / sqrt(Hz)
+    accelerometer_noise_density: float  # m / s^2 / sqrt(Hz)
+    accelerometer_random_walk: float  # m / s^3 / sqrt(Hz)
+    rate_hz: float
+    T_b_imu: np.ndarray
+
+
+__all__ = ["Calibration", "ImuParams", "load_calibration", "load_imu_params", "read_camera_yaml"]
 
 # Largest deviation of R R^T from I, and of the last row from (0 0 0 1), in a rigid transform:
 # leaves room for matrices stored as float32 (dt: f) or printed with ~7 digits.
@@ -411,3 +427,18 @@ def _imu(fields: _Fields, keys: Sequence[str], T_b_imu: np.ndarray) -> ImuParams
     return ImuParams(gyroscope_noise_density=gyro, gyroscope_random_walk=gyro_walk,
                      accelerometer_noise_density=acc, accelerometer_random_walk=acc_walk,
                      rate_hz=rate_hz, T_b_imu=T_b_imu)
+
+
+def read_camera_yaml(path: str | Path) -> Camera:
+    """The first camera of a calibration file, e.g. a flat ``key: value`` YAML.
+
+    Flat files hold the keys ``fx fy cx cy k1 k2 p1 p2 k3 width height``, optionally
+    prefixed as in ORB-SLAM settings (``Camera.fx``, ``Camera1.fx``); other keys are ignored.
+    Missing distortion terms are 0, a missing size is 640x480. Any other format of
+    :func:`ferroslam.load_calibration` is read too.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: a needed value is missing or not a number (naming the file and key).
+    """
+    return load_calibration(path).cameras[0]

@@ -5,11 +5,10 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Camera", "read_camera_yaml"]
+__all__ = ["Camera"]
 
 # Largest image side accepted, pixels: beyond any camera (64k), and the core's u32 sizes.
 _MAX_SIDE_PX = 1 << 16
@@ -74,20 +73,3 @@ class Camera:
     def K(self) -> np.ndarray:
         """3x3 calibration matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-
-def read_camera_yaml(path: str | Path) -> Camera:
-    """The first camera of a calibration file, e.g. a flat ``key: value`` YAML.
-
-    Flat files hold the keys ``fx fy cx cy k1 k2 p1 p2 k3 width height``, optionally
-    prefixed as in ORB-SLAM settings (``Camera.fx``, ``Camera1.fx``); other keys are ignored.
-    Missing distortion terms are 0, a missing size is 640x480. Any other format of
-    :func:`ferroslam.load_calibration` is read too.
-
-    Raises:
-        FileNotFoundError: the file does not exist.
-        ValueError: a needed value is missing or not a number (naming the file and key).
-    """
-    from .calibration import load_calibration  # here: calibration imports Camera
-
-    return load_calibration(path).cameras[0]

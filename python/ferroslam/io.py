@@ -128,6 +128,41 @@ def _nanoseconds(timestamps_s: np.ndarray) -> np.ndarray:
     return whole_s.astype(np.int64) * 10**9 + fraction_ns
 
 
+def read_asl_rows(path: Path, n_columns: int, what: str) -> tuple[np.ndarray, list[list[str]]]:
+    """Rows of an ASL csv: nanosecond timestamps (strictly increasing) and the fields."""
+    rows = read_table(path, n_columns, what)
+    stamps = np.empty(len(rows), dtype=np.int64)
+    for r, (number, fields) in enumerate(rows):
+        try:
+            stamps[r] = int(fields[0])
+        except ValueError:
+            raise ValueError(f"{path}:{number}: bad nanosecond timestamp {fields[0]!r}") from None
+        if r and stamps[r] <= stamps[r - 1]:
+            raise ValueError(
+                f"{path}:{number}: timestamps out of order ({stamps[r]} ns after "
+                f"{stamps[r - 1]} ns)"
+            )
+    return stamps, [fields for _, fields in rows]
+
+
+def seconds_from_ns(ns: np.ndarray) -> np.ndarray:
+    """Float seconds of integer nanoseconds (split first to keep every digit: 1.4e18 ns is
+    beyond float64's exact integers)."""
+    ns = np.asarray(ns, dtype=np.int64)
+    return (ns // 10**9).astype(np.float64) + (ns % 10**9).astype(np.float64) * 1e-9
+
+
+def read_asl_floats(path: Path, rows: list[list[str]], columns: slice) -> np.ndarray:
+    """The ``columns`` of ASL csv ``rows`` as finite float64 values."""
+    try:
+        out = np.array([[float(v) for v in fields[columns]] for fields in rows], dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"{path}: a value is not a number") from None
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"{path}: non-finite value")
+    return out
+
+
 def read_euroc_trajectory(path: PathLike) -> Trajectory:
     """Read an ASL csv (``t_ns, p xyz, q wxyz``, extra columns ignored) as ``T_w_c``.
 
@@ -135,14 +170,11 @@ def read_euroc_trajectory(path: PathLike) -> Trajectory:
     resolution at today's Unix times). The pose is taken as is: for EuRoC's own ground truth
     (the IMU body, not a camera) use ``EurocSequence.groundtruth``, which applies ``T_b_c``.
     """
-    # datasets.euroc imports this module: its ASL parsing is imported at call time.
-    from .datasets.euroc import _read_floats, _read_ns_rows, _seconds
-
     path = Path(path)
-    stamps_ns, rows = _read_ns_rows(path, 8, "EuRoC trajectory")
-    p_q_wxyz = _read_floats(path, rows, slice(1, 8)).reshape(-1, 7)
+    stamps_ns, rows = read_asl_rows(path, 8, "EuRoC trajectory")
+    p_q_wxyz = read_asl_floats(path, rows, slice(1, 8)).reshape(-1, 7)
     xyz_quat = np.concatenate([p_q_wxyz[:, :3], p_q_wxyz[:, 4:7], p_q_wxyz[:, 3:4]], 1)
-    return Trajectory(_seconds(stamps_ns), poses_from_tum(xyz_quat))
+    return Trajectory(seconds_from_ns(stamps_ns), poses_from_tum(xyz_quat))
 
 
 def write_euroc_trajectory(path: PathLike, timestamps: np.ndarray, T_w_c: np.ndarray) -> None:

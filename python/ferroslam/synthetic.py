@@ -53,12 +53,10 @@ from .datasets.euroc import (
     ImuParams,
     _number,
     _numbers,
-    _read_floats,
-    _read_ns_rows,
-    _seconds,
     _T_BS,
     read_sensor_yaml,
 )
+from .io import read_asl_floats, read_asl_rows, seconds_from_ns
 from .transforms import inverse, poses_from_tum
 
 __all__ = [
@@ -317,9 +315,9 @@ class SyntheticStereoSequence:
         self.bf = self.camera.fx * self.baseline_m
 
         gt_path = self.path / "groundtruth_vicon2gt.csv"
-        stamps, rows = _read_ns_rows(gt_path, 17, "vicon2gt ground truth")
-        values = _read_floats(gt_path, rows, slice(1, 17))
-        t_all = _seconds(stamps)
+        stamps, rows = read_asl_rows(gt_path, 17, "vicon2gt ground truth")
+        values = read_asl_floats(gt_path, rows, slice(1, 17))
+        t_all = seconds_from_ns(stamps)
         rel = t_all - t_all[0]
         keep = rel >= start_s - 1e-6
         if duration_s is not None:
@@ -426,9 +424,9 @@ class SyntheticStereoSequence:
     def _imu_ns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         if self._imu is None:
             path = self.path / "imu0" / "data.csv"
-            stamps, rows = _read_ns_rows(path, 7, "EuRoC IMU file")
-            values = _read_floats(path, rows, slice(1, 7))
-            self._imu = (stamps, _seconds(stamps), values[:, :3], values[:, 3:6])
+            stamps, rows = read_asl_rows(path, 7, "EuRoC IMU file")
+            values = read_asl_floats(path, rows, slice(1, 7))
+            self._imu = (stamps, seconds_from_ns(stamps), values[:, :3], values[:, 3:6])
         return self._imu
 
     def imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

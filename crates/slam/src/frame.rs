@@ -293,11 +293,6 @@ impl Frame {
         self.map_points.len()
     }
 
-    /// Whether the frame has no keypoints.
-    pub fn is_empty(&self) -> bool {
-        self.map_points.is_empty()
-    }
-
     /// Camera centre in the world frame, metres.
     pub fn camera_center(&self) -> Vector3<f64> {
         self.T_c_w.inverse().translation.vector

@@ -8,8 +8,6 @@ use nalgebra::{Isometry3, Point3, Vector3};
 /// Where and at which pyramid level a map point should appear in an image.
 #[derive(Clone, Copy, Debug)]
 pub struct VisiblePoint {
-    /// The map point.
-    pub id: MapPointId,
     /// Predicted pixel coordinates (undistorted).
     pub u: f64,
     /// Predicted pixel row (undistorted).
@@ -52,7 +50,6 @@ pub fn visible_point(
     }
     let level = map.pyramid().predict_level(dist, point.max_distance()) as u8;
     Some(VisiblePoint {
-        id: mp,
         u: uv.x,
         v: uv.y,
         z: p_c.z,

@@ -7,27 +7,27 @@
 #![allow(non_snake_case)]
 #![warn(missing_docs)]
 
-pub mod background;
-pub mod config;
-pub mod context;
-pub mod error;
-pub mod frame;
-pub mod frustum;
-pub mod imu_prediction;
-pub mod inertial;
-pub mod input_guard;
+mod background;
+mod config;
+mod context;
+mod error;
+mod frame;
+mod frustum;
+mod imu_prediction;
+mod inertial;
+mod input_guard;
 mod keyframe_insertion;
-pub mod local_ba_problem;
-pub mod local_inertial_ba;
-pub mod local_mapping;
-pub mod loop_closing;
+mod local_ba_problem;
+mod local_inertial_ba;
+mod local_mapping;
+mod loop_closing;
 mod mapping;
-pub mod mono_init;
-pub mod place_recognition;
-pub mod point_fusion;
-pub mod system;
-pub mod tracking;
-pub mod trajectory;
+mod mono_init;
+mod place_recognition;
+mod point_fusion;
+mod system;
+mod tracking;
+mod trajectory;
 
 pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{Sensor, SlamConfig};
@@ -35,8 +35,12 @@ pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
 pub use inertial::{
     AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig,
+    Preintegrated,
 };
 pub use input_guard::InputGuard;
+pub use local_mapping::MappingReport;
 pub use loop_closing::{LoopClosure, LoopStats};
+pub use mono_init::InitStatus;
+pub use place_recognition::{PlaceRecognition, FEATURE_LEVELS_UP};
 pub use system::{SlamSystem, TrackResult};
 pub use tracking::TrackingState;

@@ -15,7 +15,7 @@ use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::imu_prediction::ImuPredictor;
 use crate::inertial::{
-    rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig,
+    rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig, Preintegrated,
     INIT_KEYFRAME_INTERVAL_S,
 };
 use crate::input_guard::InputGuard;
@@ -630,7 +630,7 @@ impl SlamSystem {
     pub fn keyframe_imu(
         &self,
         kf: KeyFrameId,
-    ) -> Option<(KeyFrameId, &crate::inertial::Preintegrated)> {
+    ) -> Option<(KeyFrameId, &Preintegrated)> {
         self.inertial.as_ref()?.preintegrated(kf)
     }
 

@@ -80,11 +80,6 @@ impl Trajectory {
         Ok(())
     }
 
-    /// Number of tracked frames.
-    pub fn len(&self) -> usize {
-        self.frames.len()
-    }
-
     /// Whether no frame was tracked.
     pub fn is_empty(&self) -> bool {
         self.frames.is_empty()

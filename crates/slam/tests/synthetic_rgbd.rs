@@ -5,8 +5,9 @@
 use ferroslam_features::{Descriptor, Keypoint};
 use ferroslam_geometry::camera::{test_cameras, ImageBounds, PinholeCamera};
 use ferroslam_geometry::se3;
-use ferroslam_slam::place_recognition::FEATURE_LEVELS_UP;
-use ferroslam_slam::{RgbdInput, SlamConfig, SlamError, SlamSystem, TrackingState};
+use ferroslam_slam::{
+    RgbdInput, SlamConfig, SlamError, SlamSystem, TrackingState, FEATURE_LEVELS_UP,
+};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -13,7 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional, Union
 
-from ..camera import Camera, read_camera_yaml
+from ..calibration import read_camera_yaml
+from ..camera import Camera
 from .euroc import EurocFrame, EurocSequence, ImuParams, read_sensor_yaml
 from .kitti import KittiFrame, KittiSequence, read_kitti_calib
 from .replay import ReplayedSequence, replay_order

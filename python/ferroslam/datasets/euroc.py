@@ -23,8 +23,9 @@ from typing import Iterator, Optional, Union
 
 import numpy as np
 
+from ..calibration import ImuParams
 from ..camera import Camera
-from ..io import read_table
+from ..io import read_asl_floats, read_asl_rows, seconds_from_ns
 from ..stereo import StereoRectifier
 from ..transforms import poses_from_tum
 from .images import read_gray
@@ -41,21 +42,6 @@ class EurocFrame:
     timestamp_ns: int
     left_path: Path
     right_path: Optional[Path]
-
-
-@dataclass(frozen=True)
-class ImuParams:
-    """IMU noise model and mounting from ``imu0/sensor.yaml`` (continuous-time densities).
-
-    ``T_b_imu``: ``(4, 4)`` pose of the IMU in the body frame (identity in EuRoC).
-    """
-
-    gyroscope_noise_density: float  # rad / s / sqrt(Hz)
-    gyroscope_random_walk: float  # rad / s^2 / sqrt(Hz)
-    accelerometer_noise_density: float  # m / s^2 / sqrt(Hz)
-    accelerometer_random_walk: float  # m / s^3 / sqrt(Hz)
-    rate_hz: float
-    T_b_imu: np.ndarray
 
 
 def _yaml_value(text: str, where: str) -> object:
@@ -163,39 +149,6 @@ def _read_camera(folder: Path) -> tuple[Camera, np.ndarray]:
     return Camera(fu, fv, cu, cv, dist, int(width), int(height)), _T_BS(yaml, path)
 
 
-def _read_ns_rows(path: Path, n_columns: int, what: str) -> tuple[np.ndarray, list[list[str]]]:
-    """Rows of an ASL csv: nanosecond timestamps (strictly increasing) and the fields."""
-    rows = read_table(path, n_columns, what)
-    stamps = np.empty(len(rows), dtype=np.int64)
-    for r, (number, fields) in enumerate(rows):
-        try:
-            stamps[r] = int(fields[0])
-        except ValueError:
-            raise ValueError(f"{path}:{number}: bad nanosecond timestamp {fields[0]!r}") from None
-        if r and stamps[r] <= stamps[r - 1]:
-            raise ValueError(
-                f"{path}:{number}: timestamps out of order ({stamps[r]} ns after "
-                f"{stamps[r - 1]} ns)"
-            )
-    return stamps, [fields for _, fields in rows]
-
-
-def _seconds(ns: np.ndarray) -> np.ndarray:
-    # Split to keep every digit: 1.4e18 ns is beyond float64's exact integers.
-    ns = np.asarray(ns, dtype=np.int64)
-    return (ns // 10**9).astype(np.float64) + (ns % 10**9).astype(np.float64) * 1e-9
-
-
-def _read_floats(path: Path, rows: list[list[str]], columns: slice) -> np.ndarray:
-    try:
-        out = np.array([[float(v) for v in fields[columns]] for fields in rows], dtype=np.float64)
-    except ValueError:
-        raise ValueError(f"{path}: a value is not a number") from None
-    if not np.all(np.isfinite(out)):
-        raise ValueError(f"{path}: non-finite value")
-    return out
-
-
 class EurocSequence:
     """A EuRoC MAV sequence (see the module doc for the layout).
 
@@ -251,7 +204,7 @@ class EurocSequence:
             self.camera = cam0
             self.T_b_c = self.T_b_cam0.copy()
         self.timestamps_ns = left_ns
-        self.timestamps = _seconds(left_ns)
+        self.timestamps = seconds_from_ns(left_ns)
         self.frames = [
             EurocFrame(k, float(t), int(ns), left, right)
             for k, (t, ns, left, right) in enumerate(
@@ -260,7 +213,7 @@ class EurocSequence:
         ]
 
     def _read_frames(self, cam: str) -> tuple[np.ndarray, list[Path]]:
-        stamps, rows = _read_ns_rows(self.mav0 / cam / "data.csv", 2, f"EuRoC {cam} list")
+        stamps, rows = read_asl_rows(self.mav0 / cam / "data.csv", 2, f"EuRoC {cam} list")
         return stamps, [self.mav0 / cam / "data" / fields[1] for fields in rows]
 
     def _check_paired(self, left_ns: np.ndarray, right_ns: np.ndarray) -> None:
@@ -337,10 +290,10 @@ class EurocSequence:
         Raises ``FileNotFoundError`` naming a missing file, ``ValueError`` for bad rows.
         """
         path = self.groundtruth_path
-        stamps, rows = _read_ns_rows(path, 8, "EuRoC ground truth")
-        values = _read_floats(path, rows, slice(1, 8))  # p xyz, q wxyz
+        stamps, rows = read_asl_rows(path, 8, "EuRoC ground truth")
+        values = read_asl_floats(path, rows, slice(1, 8))  # p xyz, q wxyz
         T_w_b = poses_from_tum(np.concatenate([values[:, :3], values[:, 4:7], values[:, 3:4]], 1))
-        return _seconds(stamps), T_w_b @ self.T_b_c
+        return seconds_from_ns(stamps), T_w_b @ self.T_b_c
 
     def imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """IMU readings ``(t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2)`` in the IMU frame.
@@ -349,9 +302,9 @@ class EurocSequence:
         line) for malformed rows or timestamps out of order.
         """
         path = self.mav0 / "imu0" / "data.csv"
-        stamps, rows = _read_ns_rows(path, 7, "EuRoC IMU file")
-        values = _read_floats(path, rows, slice(1, 7))
-        return _seconds(stamps), values[:, :3], values[:, 3:6]
+        stamps, rows = read_asl_rows(path, 7, "EuRoC IMU file")
+        values = read_asl_floats(path, rows, slice(1, 7))
+        return seconds_from_ns(stamps), values[:, :3], values[:, 3:6]
 
     def imu_params(self) -> ImuParams:
         """Noise model and ``T_b_imu`` from ``imu0/sensor.yaml`` (``FileNotFoundError`` if

@@ -16,7 +16,8 @@ from typing import Iterator, Optional, Union
 
 import numpy as np
 
-from ..camera import Camera, read_camera_yaml
+from ..calibration import read_camera_yaml
+from ..camera import Camera
 from ..io import read_table, read_tum_trajectory
 from .images import read_depth, read_gray
 
