@@ -89,7 +89,7 @@ def test_python_dash_m_works(groundtruth_dir):
 
 def test_package_imports_without_native_module():
     assert ferroslam.__version__
-    assert issubclass(ferroslam.SlamError, Exception)
+    assert issubclass(ferroslam.SlamError, RuntimeError)
     assert ferroslam.metrics.ate and ferroslam.datasets.TumSequence
 
 

@@ -84,7 +84,7 @@ def test_stub_is_final_where_the_runtime_class_cannot_be_subclassed():
         assert "final" in decorators
         with pytest.raises(TypeError):
             type("Sub", (getattr(core, name),), {})
-    assert issubclass(core.SlamError, Exception)
+    assert issubclass(core.SlamError, RuntimeError)
 
 
 def test_system_options_in_stub_match_the_binding():

@@ -74,7 +74,7 @@ class _SlamOptions(TypedDict, total=False):
     """Matched map points a verified loop needs, >= 20 (MATLAB ``LoopClosureThreshold``;
     default 40, ORB-SLAM's)."""
 
-class SlamError(Exception):
+class SlamError(RuntimeError):
     """Base class of ferroslam errors that are not plain bad input (internal failures)."""
 
 @final

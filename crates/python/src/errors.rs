@@ -1,19 +1,24 @@
 //! The single place where core errors become Python exceptions.
 
+use std::path::Path;
+
 use ferroslam_slam::SlamError as CoreError;
+use ferroslam_vocabulary::VocabularyError;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyException, PyFileNotFoundError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::PyErr;
 
 create_exception!(
     ferroslam,
     SlamError,
-    PyException,
-    "Base class of ferroslam errors that are not plain bad input."
+    PyRuntimeError,
+    "An internal failure of the SLAM core (not bad input): a `RuntimeError`."
 );
 
-/// Bad configuration or input -> `ValueError` (with the core's message naming the problem);
-/// internal failures -> `SlamError`; a stage that failed in its thread -> `RuntimeError`.
+/// Two kinds, as in polars' error mapping: bad configuration or input -> `ValueError` (a
+/// missing map file -> `FileNotFoundError`), with the core's message naming the problem;
+/// internal failures (map invariants, solvers, a stage that failed in its thread) ->
+/// `SlamError`, a `RuntimeError`.
 pub fn to_py(err: CoreError) -> PyErr {
     match err {
         CoreError::InvalidConfig(_) | CoreError::InvalidInput(_) => {
@@ -23,7 +28,20 @@ pub fn to_py(err: CoreError) -> PyErr {
             not_found: true, ..
         } => PyFileNotFoundError::new_err(err.to_string()),
         CoreError::MapFile { .. } => PyValueError::new_err(err.to_string()),
-        CoreError::Map(_) | CoreError::Optim(_) => SlamError::new_err(err.to_string()),
-        CoreError::StageFailed { .. } => PyRuntimeError::new_err(err.to_string()),
+        CoreError::Map(_) | CoreError::Optim(_) | CoreError::StageFailed { .. } => {
+            SlamError::new_err(err.to_string())
+        }
+    }
+}
+
+/// A vocabulary error about the file at `path` as a Python exception naming the file.
+pub fn vocabulary_file_error(path: &Path, err: VocabularyError) -> PyErr {
+    let message = format!("{}: {err}", path.display());
+    match err {
+        VocabularyError::Io(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            PyFileNotFoundError::new_err(message)
+        }
+        VocabularyError::Io(_) => PyOSError::new_err(message),
+        _ => PyValueError::new_err(message),
     }
 }

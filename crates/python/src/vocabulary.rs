@@ -5,31 +5,20 @@
 //! anything wrong inside the file -> `ValueError`.
 
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use ferroslam_features::Descriptor;
 use ferroslam_vocabulary::{
-    BowVector, Database, EntryId, TrainParams, Vocabulary, VocabularyError, WordId,
+    BowVector, Database, EntryId, TrainParams, Vocabulary, WordId,
 };
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
 use crate::convert;
-
-/// A vocabulary error about the file at `path` as a Python exception naming the file.
-fn file_error(path: &Path, err: VocabularyError) -> PyErr {
-    let message = format!("{}: {err}", path.display());
-    match err {
-        VocabularyError::Io(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            PyFileNotFoundError::new_err(message)
-        }
-        VocabularyError::Io(_) => PyOSError::new_err(message),
-        _ => PyValueError::new_err(message),
-    }
-}
+use crate::errors::vocabulary_file_error as file_error;
 
 /// `obj` as `(N, 32)` uint8 descriptors; errors name the argument `name`.
 fn descriptor_rows(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Descriptor>> {
