@@ -105,9 +105,9 @@ pub struct AlignmentConfig {
     pub gravity_iterations: usize,
     /// Also estimate the accelerometer bias (RA-L 2017); needs rotation excitation, see
     /// [`min_rotation_for_accel_bias_rad`](Self::min_rotation_for_accel_bias_rad). Off by
-    /// default, as in VINS-Mono and ORB-SLAM3's first initialisation: on 10 s of real
-    /// EuRoC V1_01 flight it is confounded with the gravity tilt (see
-    /// `tests/alignment_real.rs`) and degrades gravity from 0.6 to 1.1 degrees.
+    /// default, as in VINS-Mono and ORB-SLAM3's first initialisation: on short real flights
+    /// it is confounded with the gravity tilt and degrades the gravity estimate (see
+    /// `tests/alignment_real.rs`).
     pub estimate_accel_bias: bool,
     /// Below this largest body rotation from the first keyframe (radians) the
     /// accelerometer bias is indistinguishable from gravity and is left at its prior.

@@ -21,8 +21,7 @@ const INITIAL_LAMBDA: f64 = 1e-5;
 /// than this: the pose is then within a few hundredths of its standard deviation of the
 /// round's optimum (what is left is at most that gain, far less once LM converges
 /// quadratically), and further iterations would only polish roundoff. ORB-SLAM's g2o
-/// always runs all 10: stopping here cuts motion-only BA from 1.8 to 1.25 ms per frame on
-/// fr1/rpy RGB-D.
+/// always runs all 10 (time saved: docs/benchmarks.md).
 const DECREASE_TOLERANCE: f64 = 1e-3;
 
 /// A fixed world point observed in the camera being optimised.
