@@ -54,10 +54,11 @@ class FakeSlamSystem:
     def options(self) -> dict:
         return {**self.EXTRACTOR_DEFAULTS, **self.config}
 
-    def track_rgbd(self, timestamp, keypoints, descriptors, depth_m):
+    def track_rgbd(self, timestamp, keypoints, descriptors, depth_m, *, colors=None):
         assert keypoints.dtype == np.float32 and keypoints.shape[1] == 5
         assert descriptors.dtype == np.uint8 and descriptors.shape == (len(keypoints), 32)
         assert depth_m.dtype == np.float32 and depth_m.shape == (len(keypoints),)
+        assert colors is None or (colors.dtype == np.uint8 and colors.shape == (len(keypoints), 3))
         self.calls.append(timestamp)
         if len(self.calls) == 1:
             return FakeTrackResult("not_initialized", None, False, 0, 1.0, 0.0)
@@ -94,3 +95,6 @@ class FakeSlamSystem:
 
     def map_points(self):
         return np.zeros((10, 3))
+
+    def map_point_colors(self):
+        return np.full((10, 3), 128, np.uint8)

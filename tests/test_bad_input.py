@@ -79,6 +79,47 @@ def test_keypoints_outside_the_image_are_refused_by_the_core():
         slam.track_mono(0.0, keypoints, np.zeros((1, 32), np.uint8))
 
 
+def _track_three_keypoints(slam, sensor, colors):
+    """One frame of three keypoints with ``colors`` through the sensor's track call."""
+    keypoints = np.array([[10.0 * k, 20.0, 0, 0.0, 1.0] for k in range(1, 4)], np.float32)
+    descriptors = np.zeros((3, 32), np.uint8)
+    if sensor == "mono":
+        return slam.track_mono(0.0, keypoints, descriptors, colors=colors)
+    if sensor == "rgbd":
+        return slam.track_rgbd(0.0, keypoints, descriptors, np.ones(3, np.float32),
+                               colors=colors)
+    image = [np.zeros((480, 640), np.uint8)]
+    return slam.track_stereo(0.0, keypoints, descriptors, image, keypoints, descriptors, image,
+                             colors=colors)
+
+
+@pytest.mark.parametrize("colors, error, match", [
+    (np.zeros((2, 3), np.uint8), ValueError,
+     r"colors \(2\) and (left_)?keypoints \(3\) must have the same length"),
+    (np.zeros((3, 4), np.uint8), ValueError,
+     r"colors must have shape \(N, 3\) RGB, got \(3, 4\)"),
+    # Wrong dtype or rank is a TypeError naming the argument, as for every array the track
+    # calls take (tests/test_core_api.py).
+    (np.zeros(9, np.uint8), TypeError,
+     r"colors must be a uint8 \(N, 3\) RGB array, got uint8 array of shape \(9,\)"),
+    (np.zeros((3, 3), np.float32), TypeError, "colors must be a uint8 .* got float32"),
+    ([[0, 0, 0]] * 3, TypeError, "colors must be a uint8 .* got list"),
+])
+@pytest.mark.parametrize("sensor", ["mono", "rgbd", "stereo"])
+@pytest.mark.parametrize("threaded", [False, True])
+def test_bad_colors_are_refused_naming_them(colors, error, match, sensor, threaded):
+    options = {"baseline": 0.1} if sensor == "stereo" else {}
+    slam = SlamSystem(500.0, 500.0, 320.0, 240.0, [], 640, 480, sensor=sensor,
+                      threaded=threaded, **options)
+    with pytest.raises(error, match=match):
+        _track_three_keypoints(slam, sensor, colors)
+    # Nothing was taken: the same frame with one colour per keypoint is.
+    _track_three_keypoints(slam, sensor, np.zeros((3, 3), np.uint8))
+    slam.wait()
+    results = slam.take_results()  # threaded mode only: there the result comes later
+    assert len(results) == int(threaded) and all(r.state == "not_initialized" for r in results)
+
+
 def test_a_pyramid_too_deep_for_the_image_is_refused_at_construction():
     with pytest.raises(ValueError, match="n_levels = 12 with scale_factor 2.*at most 4 levels"):
         MonoVSlam(CAMERA, scale_factor=2.0, num_levels=12)

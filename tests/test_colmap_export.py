@@ -140,18 +140,22 @@ def test_slam_keyframes_and_map_points_read_back(tmp_path, tum_desk):
     names = [frame_of[t].rgb_path.relative_to(seq.path).as_posix()
              for t in result.keyframes.timestamps]
     folder = write_colmap_model(tmp_path / "colmap", seq.camera, result.keyframe_ids,
-                                result.keyframes.poses, result.map_points, image_names=names)
+                                result.keyframes.poses, result.map_points,
+                                point_colors=result.map_point_colors, image_names=names)
 
     rec = pycolmap.Reconstruction(folder)
     assert rec.num_images() == len(result.keyframe_ids) >= 2
     assert rec.num_points3D() == len(result.map_points) > 100
     assert rec.camera(1).model_name == "FULL_OPENCV"  # TUM fr1 has k3 = 1.1633
     _check_images(rec, result.keyframe_ids, result.keyframes.poses, names)
-    # Without observations the points keep their positions, grey, with empty tracks.
-    xyz = np.array([rec.point3D(j + 1).xyz for j in range(len(result.map_points))])
-    np.testing.assert_array_equal(xyz, result.map_points)
-    assert all(rec.point3D(j).track.length() == 0 and rec.point3D(j).color.tolist() == [128] * 3
-               for j in rec.point3D_ids())
+    # Without observations the points keep their positions and image colours, with empty
+    # tracks.
+    points = [rec.point3D(j + 1) for j in range(len(result.map_points))]
+    np.testing.assert_array_equal([p.xyz for p in points], result.map_points)
+    colors = np.array([p.color for p in points])
+    np.testing.assert_array_equal(colors, result.map_point_colors)
+    assert len(np.unique(colors, axis=0)) > len(colors) // 2
+    assert all(p.track.length() == 0 for p in points)
 
 
 def test_text_files_have_colmap_headers_and_one_based_ids(tmp_path):
@@ -227,3 +231,9 @@ def test_cli_run_writes_the_chosen_trajectory_format_and_a_colmap_model(tmp_path
     model = pycolmap.Reconstruction(str(out / "colmap"))
     keyframes = np.loadtxt(out / "keyframes.txt", ndmin=2)
     assert model.num_images() == len(keyframes)
+    # The points in their image colours, as map.ply has them.
+    ply = (out / "map.ply").read_bytes().split(b"end_header\n")[1].decode().splitlines()
+    ply_rgb = np.loadtxt(ply, ndmin=2)[:, 3:6]
+    colmap_rgb = [model.point3D(j + 1).color for j in range(model.num_points3D())]
+    np.testing.assert_array_equal(colmap_rgb, ply_rgb)
+    assert np.abs(np.diff(ply_rgb, axis=1)).mean() > 5  # colour, not grey

@@ -66,6 +66,7 @@ def snapshot(system):
         "num_map_points": system.num_map_points, "num_resets": system.num_resets,
         "stamps": stamps, "poses": poses, "kf_ids": kf_ids, "kf_stamps": kf_stamps,
         "kf_poses": kf_poses, "map_points": system.map_points(),
+        "map_point_colors": system.map_point_colors(),
     }
 
 
@@ -77,6 +78,17 @@ def assert_same(a, b):
 
 def result_fields(r):
     return r.state, r.is_keyframe, r.num_tracked, None if r.T_w_c is None else r.T_w_c.tolist()
+
+
+def test_points_of_frames_without_colours_are_mid_grey(camera, frames):
+    """``colors`` left out: the points have none, and map_point_colors fills in the grey the
+    exporters draw uncoloured points with."""
+    system = make_system(camera)
+    for frame in frames:
+        system.track_rgbd(*frame)
+    colors = system.map_point_colors()
+    assert colors.dtype == np.uint8 and colors.shape == system.map_points().shape
+    assert len(colors) > 500 and (colors == 128).all()
 
 
 # --- arrays passed to track_rgbd --------------------------------------------------------------

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ferroslam.datasets import TumSequence
-from ferroslam.features import OrbExtractor, level_budgets, sample_depth
+from ferroslam.features import OrbExtractor, level_budgets, sample_colors, sample_depth
 
 
 @pytest.fixture(scope="module")
@@ -228,6 +228,27 @@ def test_sample_depth():
         sample_depth(np.zeros((4, 5, 3)), kp)
     with pytest.raises(ValueError, match="keypoints"):
         sample_depth(depth, np.zeros(5))
+
+
+def test_sample_colors_gives_rgb_at_the_rounded_pixel():
+    bgr = np.zeros((4, 5, 3), np.uint8)
+    bgr[1, 2] = (10, 20, 30)  # blue, green, red
+    kp = np.array([[2.2, 0.6], [4.6, 0.0], [np.nan, 1.0], [0.0, 0.0]], np.float32)
+    expected = [[30, 20, 10], [0, 0, 0], [0, 0, 0], [0, 0, 0]]
+    out = sample_colors(bgr, kp)
+    assert out.dtype == np.uint8
+    np.testing.assert_array_equal(out, expected)
+    bgra = np.concatenate([bgr, np.full((4, 5, 1), 255, np.uint8)], axis=2)
+    np.testing.assert_array_equal(sample_colors(bgra, kp), expected)
+    grey = bgr[:, :, 1]
+    np.testing.assert_array_equal(sample_colors(grey, kp), [[20] * 3] + [[0] * 3] * 3)
+    np.testing.assert_array_equal(sample_colors(grey[:, :, None], kp[:1]), [[20] * 3])
+    assert sample_colors(bgr, np.zeros((0, 5), np.float32)).shape == (0, 3)
+    for bad in (bgr.astype(np.float32), np.zeros((4, 5, 2), np.uint8), np.zeros(5, np.uint8)):
+        with pytest.raises(ValueError, match="image"):
+            sample_colors(bad, kp)
+    with pytest.raises(ValueError, match="keypoints"):
+        sample_colors(bgr, np.zeros(5))
 
 
 def test_real_depth_at_keypoints(tum_rpy, extractor):

@@ -96,6 +96,9 @@ def test_video_timestamps_come_from_the_stream(media):
     assert len(video) == N_FRAMES and not video.live and not video.has_groundtruth
     np.testing.assert_allclose(video.timestamps, np.arange(N_FRAMES) / 30.0, atol=1e-9)
     assert video.load_gray(3).shape == (480, 640) and video.load_gray(0).dtype == np.uint8
+    gray, color = video.load_gray_and_color(3)
+    assert color.shape == (480, 640, 3)
+    np.testing.assert_array_equal(gray, cv2.cvtColor(color, cv2.COLOR_BGR2GRAY))
     t_s, image = next(iter(video))
     assert t_s == 0.0 and image.shape == (480, 640, 3)
     with pytest.raises(ValueError, match="no calibration: .* --camera"):
@@ -110,6 +113,12 @@ def test_video_runs_from_the_command_line(video_run):
     assert summary["metrics"] == {} and "dropped_frames" not in summary
     for name in ("trajectory.txt", "keyframes.txt", "map.ply", "plot.png", "colmap"):
         assert (out / name).exists(), name
+    # The video is in colour, and so are the map points.
+    ply = (out / "map.ply").read_bytes()
+    header, body = ply.split(b"end_header\n")
+    assert b"property uchar red" in header and header.startswith(b"ply\nformat ascii")
+    rgb = np.loadtxt(body.decode().splitlines(), ndmin=2)[:, 3:6]
+    assert (rgb.max(axis=1) - rgb.min(axis=1)).mean() > 5
 
 
 def test_image_folder_runs_from_the_command_line(media, tmp_path):

@@ -46,6 +46,11 @@ def test_rpy_sequence_loads(tum_rpy):
 
     gray = seq.load_gray(0)
     assert gray.dtype == np.uint8 and gray.shape == (480, 640)
+    # One read of the file, the grey image bit for bit load_gray's (JPEG's stored luma).
+    same_gray, color = seq.load_gray_and_color(0)
+    np.testing.assert_array_equal(same_gray, gray)
+    assert color.dtype == np.uint8 and color.shape == (480, 640, 3)
+    assert np.abs(np.diff(color.astype(int), axis=2)).mean() > 5  # a colour image
     depth = seq.load_depth(0)
     assert depth.dtype == np.float32 and depth.shape == (480, 640)
     valid = depth[depth > 0]

@@ -16,7 +16,7 @@ import pytest
 
 from conftest import require_data
 from ferroslam.datasets import open_sequence
-from ferroslam.features import sample_depth
+from ferroslam.features import sample_colors, sample_depth
 from ferroslam.pipeline import make_extractor, run_sequence
 from ferroslam.viewer import RerunLogger, make_frame_callback
 
@@ -51,6 +51,12 @@ def _frames_of(rows: list[dict], component: str) -> list[int]:
     return [row["frame"] for row in rows if row.get(component) is not None]
 
 
+def _rgba(packed: list[int]) -> np.ndarray:
+    """``(N, 4)`` uint8 of colours as Rerun stores them, one ``0xRRGGBBAA`` u32 each."""
+    shifts = np.array([24, 16, 8, 0], np.uint32)
+    return ((np.asarray(packed, np.uint32)[:, None] >> shifts) & 0xFF).astype(np.uint8)
+
+
 @pytest.fixture(scope="module")
 def desk():
     seq = open_sequence(require_data("tum", "rgbd_dataset_freiburg1_desk"))
@@ -82,6 +88,10 @@ def test_recorded_run_holds_map_poses_and_images(tmp_path, desk):
     points = _cells(rows["/world/map/points"], "Points3D:positions")
     assert len(points) == 1 and len(points[0]) == len(run.map_points) > 500
     np.testing.assert_allclose(points[0], run.map_points, atol=1e-5)
+    (colors,) = _cells(rows["/world/map/points"], "Points3D:colors")
+    rgba = _rgba(colors)
+    np.testing.assert_array_equal(rgba[:, :3], run.map_point_colors)  # in their image colour
+    assert (rgba[:, 3] == 255).all() and len(np.unique(rgba, axis=0)) > len(rgba) // 2
     (strip,) = _cells(rows["/world/map/keyframes"], "LineStrips3D:strips")[0]
     np.testing.assert_allclose(strip, run.keyframes.poses[:, :3, 3], atol=1e-5)
     assert _cells(rows["/world/map/loops"], "LineStrips3D:strips") == [[]]
@@ -132,7 +142,8 @@ def test_frame_callback_logs_a_live_run(tmp_path, desk):
             bgr = cv2.imread(str(seq[i].rgb_path))
             keypoints, descriptors = extractor.detect(seq.load_gray(i))
             result = system.track_rgbd(float(seq.timestamps[i]), keypoints, descriptors,
-                                       sample_depth(seq.load_depth(i), keypoints))
+                                       sample_depth(seq.load_depth(i), keypoints),
+                                       colors=sample_colors(bgr, keypoints))
             on_frame(result, image=bgr, keypoints=keypoints, timestamp_s=seq.timestamps[i])
             keyframes += [i] if result.is_keyframe else []
             detected.append(keypoints[:, :2])
@@ -150,6 +161,9 @@ def test_frame_callback_logs_a_live_run(tmp_path, desk):
         np.testing.assert_allclose(uv, expected, atol=1e-3)
     assert keyframes[0] == 0
     assert _frames_of(rows["/world/map/points"], "Points3D:positions") == keyframes
+    # The map points in their image colours (SlamSystem.map_point_colors).
+    first = _rgba(_cells(rows["/world/map/points"], "Points3D:colors")[0])[:, :3]
+    assert np.abs(np.diff(first.astype(int), axis=1)).mean() > 5  # colour, not grey
 
 
 def test_frame_callback_takes_the_vslam_frame_result(tmp_path):

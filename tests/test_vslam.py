@@ -141,6 +141,28 @@ def test_saved_map_relocalises_and_stays_unchanged(tum, rgbd_run, tmp_path):
         assert np.abs(poses[:, :3, 3] - ref_poses[20:40, :3, 3]).max() < 0.02
 
 
+def test_map_points_take_the_colours_of_the_images_given(tum, rgbd_run, tmp_path):
+    """Grey images give grey points; colour images give each point its keypoint's colour,
+    and a saved map keeps them."""
+    vslam, _, _ = rgbd_run  # fed grey images
+    grey = vslam.map_point_colors()
+    assert grey.dtype == np.uint8 and grey.shape == vslam.map_points().shape
+    assert (grey == grey[:, :1]).all() and len(np.unique(grey[:, 0])) > 50
+
+    with RGBDVSlam(tum.camera, depth_scale_factor=5000, threaded=False) as colour:
+        for i in range(10):
+            colour.add_frame(tum.load_gray_and_color(i)[1], raw_depth(tum, i),
+                             timestamp=tum.timestamps[i])
+        points, colors = colour.map_points(), colour.map_point_colors()
+        colour.save_map(tmp_path / "colour.map")
+    assert len(colors) == len(points) > 500
+    assert np.abs(np.diff(colors.astype(int), axis=1)).mean() > 5  # not grey
+    with RGBDVSlam(tum.camera, depth_scale_factor=5000, threaded=False) as loaded:
+        loaded.load_map(tmp_path / "colour.map")
+        np.testing.assert_array_equal(loaded.map_points(), points)
+        np.testing.assert_array_equal(loaded.map_point_colors(), colors)
+
+
 def test_relocalises_without_a_vocabulary_too(tum, rgbd_run, tmp_path):
     """Without place recognition a loaded map is searched keyframe by keyframe."""
     vslam, _, _ = rgbd_run

@@ -165,6 +165,8 @@ class SlamSystem:
         keypoints: NDArray[np.float32],
         descriptors: NDArray[np.uint8],
         depth_m: NDArray[np.float32],
+        *,
+        colors: NDArray[np.uint8] | None = None,
     ) -> TrackResult | None:
         """Tracks one RGB-D frame (the GIL is released while it runs); the system must have
         been created with ``sensor="rgbd"``.
@@ -176,6 +178,9 @@ class SlamSystem:
             descriptors: (N, 32) uint8, 256-bit ORB.
             depth_m: (N,) float32 depth at each keypoint in metres (0, NaN or out of
                 ``depth_range`` = no depth).
+            colors: (N, 3) uint8 RGB of each keypoint (``ferroslam.features.sample_colors``);
+                a map point made from a keypoint keeps its colour (``map_point_colors``).
+                ``None``: the frame's points have no colour.
 
         Raises:
             TypeError: an array of the wrong dtype or rank (or not an array).
@@ -192,6 +197,8 @@ class SlamSystem:
         right_keypoints: NDArray[np.float32],
         right_descriptors: NDArray[np.uint8],
         right_pyramid: Sequence[NDArray[np.uint8]],
+        *,
+        colors: NDArray[np.uint8] | None = None,
     ) -> TrackResult | None:
         """Tracks one rectified stereo pair (the GIL is released while it runs).
 
@@ -206,6 +213,7 @@ class SlamSystem:
             left_pyramid, right_pyramid: the images' pyramids (level ``l`` scaled by
                 ``scale_factor ** -l``), 2-D uint8, same sizes left and right, at least
                 one level beyond the highest octave.
+            colors: (N, 3) uint8 RGB of each LEFT keypoint, as ``track_rgbd``'s.
 
         Raises:
             TypeError: an array of the wrong dtype or rank (or not an array).
@@ -218,6 +226,8 @@ class SlamSystem:
         timestamp: float,
         keypoints: NDArray[np.float32],
         descriptors: NDArray[np.uint8],
+        *,
+        colors: NDArray[np.uint8] | None = None,
     ) -> TrackResult | None:
         """Tracks one monocular frame (the GIL is released while it runs). Until the map
         exists every frame is offered to two-view initialisation (see
@@ -228,6 +238,7 @@ class SlamSystem:
             timestamp: seconds, finite, strictly after the previous accepted frame's.
             keypoints: (N, 5) float32 ``[x, y, octave, angle_deg, response]``, raw pixels.
             descriptors: (N, 32) uint8.
+            colors: (N, 3) uint8 RGB of each keypoint, as ``track_rgbd``'s.
 
         Raises:
             TypeError / ValueError: as ``track_rgbd``; a system not created with
@@ -291,6 +302,11 @@ class SlamSystem:
         live keyframes of the current map."""
     def map_points(self) -> NDArray[np.float64]:
         """World positions of the live map points, (M, 3) float64 metres."""
+    def map_point_colors(self) -> NDArray[np.uint8]:
+        """Colours of the live map points, (M, 3) uint8 RGB in the order of ``map_points``:
+        each the colour of the keypoint that created the point (the ``colors`` given with
+        its frame); grey ``(128, 128, 128)`` for points made from frames given without
+        colours, as the exporters draw uncoloured points."""
     def save_map(self, path: str | os.PathLike[str]) -> None:
         """Writes the map to ``path`` (versioned binary format with a checksum).
 

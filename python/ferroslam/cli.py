@@ -384,8 +384,9 @@ def _log_final_map(logger, result) -> None:
     if logger is None:
         return
     with logger:
-        logger.log_map(result.map_points, keyframe_poses_T_w_c=result.keyframes.poses,
-                       loops=result.loops, keyframe_ids=result.keyframe_ids)
+        logger.log_map(result.map_points, result.map_point_colors,
+                       keyframe_poses_T_w_c=result.keyframes.poses, loops=result.loops,
+                       keyframe_ids=result.keyframe_ids)
 
 
 def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
@@ -399,8 +400,8 @@ def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict
 
 
 def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None:
-    """Trajectories (in ``trajectory_format``), map points (PLY), the keyframes and points as
-    a COLMAP text model (``colmap/``) and plots; the plots show the estimate and map aligned
+    """Trajectories (in ``trajectory_format``), map points with their colours (PLY), the
+    keyframes and points as a COLMAP text model (``colmap/``) and plots; the plots show the estimate and map aligned
     to the ground truth when ATE could be computed."""
     import numpy as np
 
@@ -411,10 +412,11 @@ def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None
     for stem, trajectory in (("trajectory", result.trajectory), ("keyframes", result.keyframes)):
         write_trajectory(out / f"{stem}{suffix}", trajectory.timestamps, trajectory.poses,
                          format=trajectory_format)
-    write_ply(out / "map.ply", result.map_points)
+    write_ply(out / "map.ply", result.map_points, result.map_point_colors)
     if result.camera is not None:
         write_colmap_model(out / "colmap", result.camera, result.keyframe_ids,
-                           result.keyframes.poses, result.map_points)
+                           result.keyframes.poses, result.map_points,
+                           point_colors=result.map_point_colors)
     if not len(result.trajectory):
         return  # nothing tracked: nothing to draw
     ate = result.ate_frames

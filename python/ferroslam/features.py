@@ -33,7 +33,7 @@ import numpy as np
 from ferroslam import _core
 from ferroslam._brief import opencv_brief_tests
 
-__all__ = ["OrbExtractor", "sample_depth", "level_budgets"]
+__all__ = ["OrbExtractor", "level_budgets", "sample_colors", "sample_depth"]
 
 # ORB's smoothing before BRIEF: 7 x 7 Gaussian, sigma 2, separable (``cv2.GaussianBlur``
 # rounds differently and changes 0.2 bits per descriptor against ``cv2.ORB``).
@@ -210,6 +210,25 @@ class OrbExtractor:
         return self._brief.describe(smoothed, kp)
 
 
+def _pixels_at(keypoints: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray,
+                                                                         np.ndarray]:
+    """``(inside (N,) bool, rows, columns)`` of each keypoint's rounded raw pixel position in
+    an image of ``shape``; rows and columns only for the keypoints inside it.
+
+    Raises:
+        ValueError: keypoints not a real ``(N, >=2)`` array.
+    """
+    keypoints = np.asarray(keypoints)
+    if keypoints.ndim != 2 or keypoints.shape[1] < 2 or keypoints.dtype.kind not in "fiu":
+        raise ValueError(f"keypoints must be a real (N, >=2) array, got {keypoints.shape}")
+    with np.errstate(invalid="ignore"):
+        u = np.rint(keypoints[:, 0].astype(np.float64))
+        v = np.rint(keypoints[:, 1].astype(np.float64))
+    h, w = shape[:2]
+    inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+    return inside, v[inside].astype(np.intp), u[inside].astype(np.intp)
+
+
 def sample_depth(depth_m: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
     """Depth (metres) at each keypoint's rounded raw pixel position.
 
@@ -227,15 +246,36 @@ def sample_depth(depth_m: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
     depth_m = np.asarray(depth_m)
     if depth_m.ndim != 2 or depth_m.dtype.kind not in "fiu":
         raise ValueError(f"depth must be a 2-D real array, got {depth_m.dtype} {depth_m.shape}")
-    keypoints = np.asarray(keypoints)
-    if keypoints.ndim != 2 or keypoints.shape[1] < 2 or keypoints.dtype.kind not in "fiu":
-        raise ValueError(f"keypoints must be a real (N, >=2) array, got {keypoints.shape}")
-    out = np.zeros(keypoints.shape[0], np.float32)
-    with np.errstate(invalid="ignore"):
-        u = np.rint(keypoints[:, 0].astype(np.float64))
-        v = np.rint(keypoints[:, 1].astype(np.float64))
-    h, w = depth_m.shape
-    inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
-    d = depth_m[v[inside].astype(np.intp), u[inside].astype(np.intp)].astype(np.float32)
+    inside, rows, columns = _pixels_at(keypoints, depth_m.shape)
+    out = np.zeros(inside.shape[0], np.float32)
+    d = depth_m[rows, columns].astype(np.float32)
     out[inside] = np.where(np.isfinite(d) & (d > 0), d, np.float32(0))
+    return out
+
+
+def sample_colors(image: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """RGB colour of each keypoint: the pixel at its rounded raw position, as the map points
+    made from the keypoints keep it (``colors=`` of the ``SlamSystem.track_*`` calls).
+
+    Args:
+        image: the uint8 image the keypoints were detected in: ``(H, W, 3)`` BGR or
+            ``(H, W, 4)`` BGRA as OpenCV reads them, or ``(H, W)`` / ``(H, W, 1)`` grey
+            (giving grey colours).
+        keypoints: ``(N, >=2)`` array whose first two columns are ``x, y`` pixels.
+
+    Returns:
+        ``(N, 3)`` uint8 RGB; black for a keypoint outside the image (the core refuses those).
+
+    Raises:
+        ValueError: ``image`` not a uint8 image of those shapes, or keypoints not ``(N, >=2)``.
+    """
+    image = np.asarray(image)
+    channels = 1 if image.ndim == 2 else image.shape[2] if image.ndim == 3 else 0
+    if image.dtype != np.uint8 or channels not in (1, 3, 4):
+        raise ValueError(f"image must be a uint8 (H, W) grey or (H, W, 3) BGR image, got "
+                         f"{image.dtype} {image.shape}")
+    inside, rows, columns = _pixels_at(keypoints, image.shape)
+    out = np.zeros((inside.shape[0], 3), np.uint8)
+    pixels = image[rows, columns].reshape(len(rows), channels)
+    out[inside] = pixels if channels == 1 else pixels[:, 2::-1]  # BGR(A) -> RGB
     return out

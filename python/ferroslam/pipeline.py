@@ -16,7 +16,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import Camera
-from .features import OrbExtractor, sample_depth
+from .datasets import frame_images
+from .features import OrbExtractor, sample_colors, sample_depth
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .trajectory import Trajectory
 
@@ -43,8 +44,10 @@ class RunResult:
 
     ``trajectory``: final poses ``T_w_c`` of all tracked frames (after bundle adjustment);
     ``keyframes`` and ``keyframe_ids``: the keyframe poses; ``map_points (M, 3)`` world
-    points in metres; ``timings``: per-frame milliseconds (``load_ms``, ``extraction_ms``,
-    ``tracking_ms`` and ``mapping_ms`` as reported by the core, with their parts
+    points in metres and ``map_point_colors (M, 3)`` uint8 RGB, each the colour of the image
+    pixel the point was first seen at (``SlamSystem.map_point_colors``); ``timings``:
+    per-frame milliseconds (``load_ms``, ``extraction_ms``, ``tracking_ms`` and
+    ``mapping_ms`` as reported by the core, with their parts
     ``pose_optimisation_ms``, ``matching_ms`` = tracking minus pose optimisation (matching,
     local-map search, keyframe decision), ``local_ba_ms`` and ``loop_closing_ms`` (mapping
     inside the call only), ``track_call_ms`` measured around the call, ``frame_ms`` =
@@ -73,6 +76,7 @@ class RunResult:
     keyframes: Trajectory
     keyframe_ids: np.ndarray
     map_points: np.ndarray
+    map_point_colors: np.ndarray
     segments: Optional[np.ndarray] = None
     init_reasons: list = field(default_factory=list)
     loops: list = field(default_factory=list)
@@ -205,7 +209,7 @@ def _default_system_factory(*args, **kwargs):
 
 
 class _RgbdFeed:
-    """Loads colour + depth, extracts ORB, samples depth at the keypoints."""
+    """Loads colour + depth, extracts ORB, samples depth and colour at the keypoints."""
 
     def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
@@ -219,23 +223,24 @@ class _RgbdFeed:
         return {}
 
     def load(self, i: int):
-        gray = self.seq.load_gray(i)
+        gray, color = frame_images(self.seq, i)
         self.seq.camera.check_image(gray, f"image {i}")
-        return gray, self.seq.load_depth(i)
+        return gray, color, self.seq.load_depth(i)
 
     @staticmethod
     def image(data) -> np.ndarray:
-        """The tracked image of loaded ``data`` (for ``on_frame``)."""
-        return data[0]
+        """The image of loaded ``data`` (for ``on_frame``), in colour where there is."""
+        return data[1]
 
-    def features(self, data) -> tuple:
-        gray, depth = data
+    def features(self, data) -> tuple[tuple, np.ndarray]:
+        gray, color, depth = data
         keypoints, descriptors = self.extractor.detect(gray)
-        return keypoints, descriptors, sample_depth(depth, keypoints)
+        return ((keypoints, descriptors, sample_depth(depth, keypoints)),
+                sample_colors(color, keypoints))
 
     @staticmethod
-    def track(system, timestamp: float, features: tuple):
-        return system.track_rgbd(timestamp, *features)
+    def track(system, timestamp: float, features: tuple, colors: np.ndarray):
+        return system.track_rgbd(timestamp, *features, colors=colors)
 
 
 class _StereoFeed:
@@ -263,17 +268,18 @@ class _StereoFeed:
         """The tracked (left) image of a loaded pair (for ``on_frame``)."""
         return data[0]
 
-    def features(self, data) -> tuple:
+    def features(self, data) -> tuple[tuple, np.ndarray]:
         left, right = self.extractor.detect_pair(*data)
-        return (*left, *right)
+        return (*left, *right), sample_colors(data[0], left[0])
 
     @staticmethod
-    def track(system, timestamp: float, features: tuple):
-        return system.track_stereo(timestamp, *features)
+    def track(system, timestamp: float, features: tuple, colors: np.ndarray):
+        return system.track_stereo(timestamp, *features, colors=colors)
 
 
 class _MonoFeed:
-    """Loads one grey image per frame and extracts ORB."""
+    """Loads one grey image per frame (and its colour version where the sequence has one),
+    extracts ORB and samples the colour at the keypoints."""
 
     def __init__(self, seq) -> None:
         self.seq = seq
@@ -283,21 +289,23 @@ class _MonoFeed:
         return {}
 
     def load(self, i: int):
-        gray = self.seq.load_gray(i)
+        gray, color = frame_images(self.seq, i)
         self.seq.camera.check_image(gray, f"image {i}")
-        return gray
+        return gray, color
 
     @staticmethod
     def image(data) -> np.ndarray:
-        """The tracked image (for ``on_frame``)."""
-        return data
+        """The image of loaded ``data`` (for ``on_frame``), in colour where there is."""
+        return data[1]
 
-    def features(self, gray) -> tuple:
-        return self.extractor.detect(gray)
+    def features(self, data) -> tuple[tuple, np.ndarray]:
+        gray, color = data
+        keypoints, descriptors = self.extractor.detect(gray)
+        return (keypoints, descriptors), sample_colors(color, keypoints)
 
     @staticmethod
-    def track(system, timestamp: float, features: tuple):
-        return system.track_mono(timestamp, *features)
+    def track(system, timestamp: float, features: tuple, colors: np.ndarray):
+        return system.track_mono(timestamp, *features, colors=colors)
 
 
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
@@ -359,7 +367,9 @@ def run_sequence(
 
     Args:
         seq: a dataset sequence (``len``, ``load_gray(i)``, ``load_depth(i)``, ``timestamps``,
-            ``camera``, ``has_groundtruth``, ``groundtruth()``), e.g. ``TumSequence``.
+            ``camera``, ``has_groundtruth``, ``groundtruth()``), e.g. ``TumSequence``; a
+            sequence with ``load_gray_and_color(i)`` is read in colour too
+            (``ferroslam.datasets.frame_images``), so that map points take their image colour.
         config: keyword options for ``SlamSystem``, the extractor's among them (unknown
             keys: ``ValueError`` from the core; the rest take the defaults of the sensor and
             image width, ``ferroslam._core.default_options``) and
@@ -381,7 +391,8 @@ def run_sequence(
             ``gravity_magnitude`` and ``imu_time_offset_s`` (``t_imu = t_cam + offset``).
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
         on_frame: called after each frame as ``on_frame(result, image=, keypoints=,
-            timestamp_s=, system=)`` (the core's ``TrackResult``, the grey or left image, its
+            timestamp_s=, system=)`` (the core's ``TrackResult``, the frame's image (BGR where
+            the sequence has colour, else grey; the left one for stereo), its
             keypoints, the frame time, the ``SlamSystem``), e.g. a live view
             (``ferroslam.viewer.make_frame_callback``).
 
@@ -454,6 +465,7 @@ def _map_outputs(system) -> dict:
         loops=system.loops(),
         loop_stats=system.loop_stats(),
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
+        map_point_colors=np.asarray(system.map_point_colors(), dtype=np.uint8).reshape(-1, 3),
     )
 
 
@@ -537,7 +549,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
             t0 = time.perf_counter()
             data = feed.load(i)
             t1 = time.perf_counter()
-            features = feed.features(data)
+            features, colors = feed.features(data)
             t2 = time.perf_counter()
             if imu is not None:
                 imu_to = imu_batch_end(imu[0], float(seq.timestamps[i]), imu_period_s,
@@ -545,7 +557,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
                 if imu_to > imu_from:
                     system.add_imu(*(a[imu_from:imu_to] for a in imu))
                 imu_from = imu_to
-            res = feed.track(system, float(seq.timestamps[i]), features)
+            res = feed.track(system, float(seq.timestamps[i]), features, colors)
             if on_frame is not None:
                 on_frame(res, image=feed.image(data), keypoints=features[0],
                          timestamp_s=float(seq.timestamps[i]), system=system)

@@ -5,7 +5,7 @@ grey ``(H, W)`` uint8), to feed the vSLAM objects (``MonoVSlam.track_source``), 
 ``.live`` (True for cameras: frames come at the camera's pace whether or not they are
 tracked). The finite ones, :class:`VideoSource` and :class:`ImageFolderSource`, are also
 sequences for :func:`ferroslam.pipeline.run_sequence` (``len``, ``load_gray(i)``,
-``timestamps``, ``camera``, ``name``, ``has_groundtruth = False``). None carries a
+``load_gray_and_color(i)``, ``timestamps``, ``camera``, ``name``, ``has_groundtruth = False``). None carries a
 calibration: give it as ``camera=`` (e.g. ``ferroslam.load_calibration(path).cameras[0]``).
 
 :class:`CameraSource` and :class:`VideoSource` read through the same code (``cv2.VideoCapture``
@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from .camera import Camera
-from .datasets.images import IMAGE_EXTENSIONS, read_gray
+from .datasets.images import IMAGE_EXTENSIONS, read_gray, read_gray_and_color
 
 __all__ = ["CameraSource", "ImageFolderSource", "LatestFrameReader", "VideoSource",
            "open_source"]
@@ -156,9 +156,13 @@ class VideoSource(_CaptureSource):
         return len(self.timestamps)
 
     def load_gray(self, i: int) -> np.ndarray:
-        """Frame ``i`` in grey, ``(H, W)`` uint8. Read in order (as ``run_sequence`` does) each
-        frame is decoded once; any other order reopens the file and skips to the frame, since
-        seeking is not frame-exact in every codec."""
+        """Frame ``i`` in grey, ``(H, W)`` uint8 (see :meth:`load_gray_and_color`)."""
+        return self.load_gray_and_color(i)[0]
+
+    def load_gray_and_color(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``i`` in grey ``(H, W)`` and as decoded, ``(H, W, 3)`` BGR, uint8. Read in
+        order (as ``run_sequence`` does) each frame is decoded once; any other order reopens
+        the file and skips to the frame, since seeking is not frame-exact in every codec."""
         if not 0 <= i < len(self):
             raise IndexError(f"frame {i} of a {len(self)}-frame video")
         if self._reader is None or i < self._next:
@@ -168,7 +172,8 @@ class VideoSource(_CaptureSource):
         for _ in itertools.islice(times, i - self._next + 1):
             pass
         self._next = i + 1
-        return cv2.cvtColor(_retrieve(capture, self.name), cv2.COLOR_BGR2GRAY)
+        color = _retrieve(capture, self.name)
+        return cv2.cvtColor(color, cv2.COLOR_BGR2GRAY), color
 
 
 class CameraSource(_CaptureSource):
@@ -240,6 +245,11 @@ class ImageFolderSource(_Source):
     def load_gray(self, i: int) -> np.ndarray:
         """Image ``i`` in grey, ``(H, W)`` uint8."""
         return read_gray(self.paths[i])
+
+    def load_gray_and_color(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Image ``i`` in grey (as :meth:`load_gray`) and in colour, ``(H, W, 3)`` uint8 BGR,
+        from one read of the file."""
+        return read_gray_and_color(self.paths[i])
 
     def __iter__(self) -> Iterator[Frame]:
         for i, t_s in enumerate(self.timestamps):

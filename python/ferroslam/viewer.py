@@ -13,7 +13,8 @@ Frames, stated once for the whole module:
 * ``world/camera/image`` is the pinhole of the ``ferroslam.Camera`` (RDF) with the image
   and, below it, the keypoints in raw pixels.
 
-Entities: ``world/map/points`` (map points), ``world/map/keyframes`` (keyframe centres as
+Entities: ``world/map/points`` (map points in the colour of the image pixel each was
+first seen at), ``world/map/keyframes`` (keyframe centres as
 one line strip), ``world/map/loops`` (one segment per loop closure, between the two
 keyframes' centres), ``tracking/state`` (text log: state changes and loop closures),
 ``tracking/num_tracked`` (scalar). Timelines: ``frame`` (frame index) and ``time``
@@ -35,6 +36,7 @@ import numpy as np
 
 from ._validate import finite_array
 from .camera import Camera
+from .datasets import frame_images
 from .export import _colors_u8
 
 __all__ = ["RerunLogger", "make_frame_callback"]
@@ -200,10 +202,11 @@ class RerunLogger:
                 _loop_segments(loops, keyframe_ids, keyframe_poses_T_w_c), colors=(255, 0, 0)))
 
     def log_system(self, system: Any) -> None:
-        """Logs the current map of a ``ferroslam._core.SlamSystem``: points, keyframes and
-        loops (see :meth:`log_map`)."""
+        """Logs the current map of a ``ferroslam._core.SlamSystem``: points in their colours,
+        keyframes and loops (see :meth:`log_map`)."""
         ids, _, poses = system.keyframe_trajectory()
         self.log_map(np.asarray(system.map_points()).reshape(-1, 3),
+                     np.asarray(system.map_point_colors()).reshape(-1, 3),
                      keyframe_poses_T_w_c=np.asarray(poses).reshape(-1, 4, 4),
                      loops=system.loops(), keyframe_ids=np.asarray(ids).reshape(-1))
 
@@ -213,7 +216,8 @@ class RerunLogger:
         and final (bundle-adjusted) pose, then the map at the last frame.
 
         ``sequence``: the run's dataset sequence, to log each frame's image too (its
-        ``load_gray(i)`` and ``camera``); without it, ``result.camera`` gives the pinhole.
+        ``camera`` and its image, in colour where it has one: ``ferroslam.datasets.
+        frame_images``); without it, ``result.camera`` gives the pinhole.
         """
         camera = sequence.camera if sequence is not None else result.camera
         poses = dict(zip(result.trajectory.timestamps.tolist(), result.trajectory.poses))
@@ -221,11 +225,13 @@ class RerunLogger:
         for i, t in enumerate(result.timestamps.tolist()):
             self._set_time(i, t)
             if camera is not None:
-                self._log_view(camera, None if sequence is None else sequence.load_gray(i), None)
+                image = None if sequence is None else frame_images(sequence, i)[1]
+                self._log_view(camera, image, None)
             self._log_track(poses.get(t), result.states[i], int(result.num_tracked[i]),
                             t in closing)
-        self.log_map(result.map_points, keyframe_poses_T_w_c=result.keyframes.poses,
-                     loops=result.loops, keyframe_ids=result.keyframe_ids)
+        self.log_map(result.map_points, result.map_point_colors,
+                     keyframe_poses_T_w_c=result.keyframes.poses, loops=result.loops,
+                     keyframe_ids=result.keyframe_ids)
 
     # -- lifetime ---------------------------------------------------------------------------
     def close(self) -> None:

@@ -44,7 +44,7 @@ from typing import Any, Callable, Iterable, Optional, Sequence, TextIO, Union
 import numpy as np
 
 from .camera import Camera
-from .features import sample_depth
+from .features import sample_colors, sample_depth
 
 __all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
 
@@ -268,9 +268,9 @@ class _VSlam:
         return float(timestamp)
 
     def _track(self, started_s: float, timestamp: Optional[float], method: str, *args: Any,
-               imu: Optional[Sequence[np.ndarray]] = None) -> None:
-        """Hands a frame's features to the core; ``started_s``: ``time.perf_counter()`` at the
-        ``add_frame`` call (for the latency)."""
+               colors: np.ndarray, imu: Optional[Sequence[np.ndarray]] = None) -> None:
+        """Hands a frame's features and their ``colors`` (``(N, 3)`` uint8 RGB) to the core;
+        ``started_s``: ``time.perf_counter()`` at the ``add_frame`` call (for the latency)."""
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
@@ -283,7 +283,7 @@ class _VSlam:
                              f"{self._last_timestamp} s")
         if imu is not None:
             self._system.add_imu(*self._imu_batch(imu, t))
-        result = getattr(self._system, method)(t, *args)  # None when queued (threaded)
+        result = getattr(self._system, method)(t, *args, colors=colors)  # None when queued
         self._last_timestamp = t
         self._frames += 1
         self._in_flight.append((t, started_s))
@@ -447,6 +447,11 @@ class _VSlam:
         monocular)."""
         return np.asarray(self._system.map_points(), dtype=np.float64).reshape(-1, 3)
 
+    def map_point_colors(self) -> np.ndarray:
+        """Colours of the map points, ``(M, 3)`` uint8 RGB in the order of :meth:`map_points`:
+        each the pixel of the image the point was first seen in (grey images give grey)."""
+        return np.asarray(self._system.map_point_colors(), dtype=np.uint8).reshape(-1, 3)
+
     def inertial_alignment(self) -> Optional[dict]:
         """The camera-IMU alignment (``None`` without an IMU): status ``"waiting"``,
         ``"failed"`` (with the reason) or ``"aligned"`` with scale, gravity and biases (see
@@ -547,7 +552,8 @@ class MonoVSlam(_VSlam):
         started_s = time.perf_counter()
         self.intrinsics.check_image(image)
         keypoints, descriptors = self._extractor.detect(image)
-        self._track(started_s, timestamp, "track_mono", keypoints, descriptors, imu=imu)
+        self._track(started_s, timestamp, "track_mono", keypoints, descriptors,
+                    colors=sample_colors(image, keypoints), imu=imu)
 
     def track_source(self, source: Iterable[tuple[float, np.ndarray]], *,
                      drop_frames: Optional[bool] = None,
@@ -605,15 +611,16 @@ class StereoVSlam(_VSlam):
     def add_frame(self, left: np.ndarray, right: np.ndarray,
                   timestamp: Optional[float] = None,
                   imu: Optional[Sequence[np.ndarray]] = None) -> None:
-        """Adds a rectified pair of uint8 images of equal size (``imu`` as
-        :meth:`MonoVSlam.add_frame`)."""
+        """Adds a rectified pair of uint8 images of equal size, grey or BGR (the map points
+        take the left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
         started_s = time.perf_counter()
         self.intrinsics.check_image(left, "left image")
         left_features, right_features = self._extractor.detect_pair(left, right)
-        self._track(started_s, timestamp, "track_stereo", *left_features, *right_features, imu=imu)
+        self._track(started_s, timestamp, "track_stereo", *left_features, *right_features,
+                    colors=sample_colors(left, left_features[0]), imu=imu)
 
 
 class RGBDVSlam(_VSlam):
@@ -655,7 +662,8 @@ class RGBDVSlam(_VSlam):
         keypoints, descriptors = self._extractor.detect(color)
         depth_m = sample_depth(depth.astype(np.float64) / self.depth_scale_factor, keypoints)
         self._check_depth_scale(depth_m)
-        self._track(started_s, timestamp, "track_rgbd", keypoints, descriptors, depth_m, imu=imu)
+        self._track(started_s, timestamp, "track_rgbd", keypoints, descriptors, depth_m,
+                    colors=sample_colors(color, keypoints), imu=imu)
 
     def _check_depth_scale(self, depth_m: np.ndarray) -> None:
         """Warns once when a frame has depth at its keypoints but none of it inside

@@ -82,14 +82,16 @@ pub enum MapError {
     },
     /// The map file was written in a format version this build cannot read.
     #[error(
-        "map file format version {found} is not supported (this build reads version \
-         {supported}): load it with the ferroslam version that wrote it"
+        "map file format version {found} is not supported (this build reads versions \
+         {oldest} to {newest}): load it with the ferroslam version that wrote it"
     )]
     UnsupportedMapVersion {
         /// Version in the file.
         found: u32,
-        /// The version this build reads and writes.
-        supported: u32,
+        /// The oldest version this build reads.
+        oldest: u32,
+        /// The version this build writes, the newest it reads.
+        newest: u32,
     },
     /// The map file ends early.
     #[error("map file truncated while reading {what}: needed {needed} bytes, {available} left")]

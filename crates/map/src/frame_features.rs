@@ -4,12 +4,17 @@ use ferroslam_features::{Descriptor, ImageBounds, Keypoint, KeypointGrid};
 
 use crate::MapError;
 
-/// Keypoints of one frame with their descriptors, depths and virtual-right coordinates,
-/// plus the grid for radius search. Index `i` refers to the same feature in every array.
+/// An 8-bit colour: red, green, blue.
+pub type Rgb = [u8; 3];
+
+/// Keypoints of one frame with their descriptors, depths, virtual-right coordinates and
+/// (optionally) colours, plus the grid for radius search. Index `i` refers to the same
+/// feature in every array.
 ///
-/// Build it with [`FrameFeatures::new`], which checks the lengths; the fields are public for
-/// reading, and every accessor of this crate tolerates inconsistent lengths (missing
-/// entries read as "no depth", "monocular").
+/// Build it with [`FrameFeatures::new`] (and [`FrameFeatures::with_colors`]), which check
+/// the lengths; the fields are public for reading, and every accessor of this crate
+/// tolerates inconsistent lengths (missing entries read as "no depth", "monocular", "no
+/// colour").
 #[derive(Clone, Debug)]
 pub struct FrameFeatures {
     /// UNDISTORTED keypoints (px).
@@ -20,6 +25,9 @@ pub struct FrameFeatures {
     pub depth: Vec<f32>,
     /// Virtual right coordinate `u - bf / depth` (px); `< 0` means monocular.
     pub u_right: Vec<f32>,
+    /// Colour of the image at each keypoint, if the frame came with colours: a map point
+    /// takes the colour of its first observation ([`crate::MapPoint::color`]).
+    pub colors: Option<Vec<Rgb>>,
     /// Grid over `keypoints` for [`KeypointGrid::features_in_area`].
     pub grid: KeypointGrid,
 }
@@ -64,7 +72,26 @@ impl FrameFeatures {
             descriptors,
             depth,
             u_right,
+            colors: None,
             grid,
+        })
+    }
+
+    /// The same features with a colour per keypoint.
+    ///
+    /// # Errors
+    /// [`MapError::LengthMismatch`] unless there is one colour per keypoint.
+    pub fn with_colors(self, colors: Vec<Rgb>) -> Result<Self, MapError> {
+        if colors.len() != self.len() {
+            return Err(MapError::LengthMismatch {
+                field: "colors",
+                expected: self.len(),
+                got: colors.len(),
+            });
+        }
+        Ok(Self {
+            colors: Some(colors),
+            ..self
         })
     }
 
@@ -87,6 +114,11 @@ impl FrameFeatures {
     /// twice in ORB-SLAM's `nObs`); false for out-of-range `i`.
     pub fn is_stereo(&self, i: usize) -> bool {
         self.u_right.get(i).is_some_and(|&u| u >= 0.0)
+    }
+
+    /// Colour of keypoint `i`; `None` for a frame without colours or an out-of-range `i`.
+    pub fn color(&self, i: usize) -> Option<Rgb> {
+        self.colors.as_ref()?.get(i).copied()
     }
 }
 
@@ -161,5 +193,29 @@ mod tests {
             err,
             Err(MapError::LengthMismatch { field: "depth", .. })
         ));
+    }
+
+    #[test]
+    fn colors_are_optional_and_one_per_keypoint() {
+        let f = FrameFeatures::new(
+            vec![keypoint(1.0); 2],
+            vec![[0; 32]; 2],
+            vec![],
+            vec![],
+            BOUNDS,
+        )
+        .unwrap();
+        assert_eq!(f.color(0), None);
+        let err = f.clone().with_colors(vec![[1, 2, 3]]);
+        assert!(matches!(
+            err,
+            Err(MapError::LengthMismatch {
+                field: "colors",
+                expected: 2,
+                got: 1
+            })
+        ));
+        let f = f.with_colors(vec![[1, 2, 3], [4, 5, 6]]).unwrap();
+        assert_eq!((f.color(1), f.color(2)), (Some([4, 5, 6]), None));
     }
 }

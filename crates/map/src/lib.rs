@@ -69,7 +69,7 @@ pub mod rig;
 pub(crate) mod test_support;
 
 pub use error::MapError;
-pub use frame_features::FrameFeatures;
+pub use frame_features::{FrameFeatures, Rgb};
 pub use ids::{KeyFrameId, MapPointId};
 pub use keyframe::KeyFrame;
 pub use map::{Map, MapEdit, MapJournal, COVISIBILITY_THRESHOLD};

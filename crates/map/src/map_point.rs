@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use ferroslam_features::{Descriptor, ScalePyramid};
 use nalgebra::Vector3;
 
-use crate::{KeyFrameId, MapPointId};
+use crate::{KeyFrameId, MapPointId, Rgb};
 
 /// A 3-D map point (ORB-SLAM `MapPoint`).
 ///
@@ -26,6 +26,7 @@ pub struct MapPoint {
     pub(crate) first_keyframe: KeyFrameId,
     pub(crate) visible: u32,
     pub(crate) found: u32,
+    pub(crate) color: Option<Rgb>,
 }
 
 impl MapPoint {
@@ -44,6 +45,7 @@ impl MapPoint {
             // ORB-SLAM starts both counters at 1.
             visible: 1,
             found: 1,
+            color: None,
         }
     }
 
@@ -126,6 +128,14 @@ impl MapPoint {
     /// Times the point was matched in a tracked frame (starts at 1).
     pub fn found(&self) -> u32 {
         self.found
+    }
+
+    /// Colour of the image where the point was first observed: the colour of the first
+    /// keypoint linked to it ([`crate::Map::add_observation`]) that has one, which is the
+    /// creating keyframe's keypoint wherever points are made (created, then observed from
+    /// their reference keyframe first). `None` if that frame came without colours.
+    pub fn color(&self) -> Option<Rgb> {
+        self.color
     }
 
     /// `found / visible` (ORB-SLAM `GetFoundRatio`).

@@ -2,12 +2,13 @@
 //!
 //! Keyframe `k` sits at camera centre `(k, 0, 0)` looking down +z. Its keypoint `i` has
 //! octave `i % 8`, descriptor with the lowest `8 * k + i` bits set (capped at 256), and is
-//! stereo (u_right >= 0, counting twice in nObs) iff `i` is odd.
+//! stereo (u_right >= 0, counting twice in nObs) iff `i` is odd. In the coloured maps it has
+//! colour [`test_color`]`(k, i)`.
 
 use ferroslam_features::{ImageBounds, Keypoint, ScalePyramid};
 use nalgebra::{Isometry3, Vector3};
 
-use crate::{FrameFeatures, KeyFrameId, Map, MapPointId};
+use crate::{FrameFeatures, KeyFrameId, Map, MapPointId, Rgb};
 
 fn descriptor_with_bits(n: usize) -> [u8; 32] {
     let mut d = [0u8; 32];
@@ -42,13 +43,32 @@ fn features(k: usize, n: usize) -> FrameFeatures {
     FrameFeatures::new(keypoints, descriptors, depth, u_right, bounds).expect("consistent lengths")
 }
 
+/// Colour of keypoint `i` of keyframe `k` in the coloured maps (distinct for `k, i < 256`).
+pub(crate) fn test_color(k: usize, i: usize) -> Rgb {
+    [k as u8, i as u8, 200]
+}
+
 /// A map with `k` keyframes of `n` keypoints each and no points.
 pub(crate) fn map_with_keyframes(k: usize, n: usize) -> (Map, Vec<KeyFrameId>) {
+    map_of(k, n, false)
+}
+
+/// As [`map_with_keyframes`], with coloured keypoints.
+pub(crate) fn map_with_colored_keyframes(k: usize, n: usize) -> (Map, Vec<KeyFrameId>) {
+    map_of(k, n, true)
+}
+
+fn map_of(k: usize, n: usize, colored: bool) -> (Map, Vec<KeyFrameId>) {
     let mut map = Map::new(ScalePyramid::default());
     let ids = (0..k)
         .map(|i| {
             let t_w_c = Isometry3::translation(i as f64, 0.0, 0.0);
-            map.insert_keyframe(i as f64, i, t_w_c.inverse(), features(i, n))
+            let mut features = features(i, n);
+            if colored {
+                let colors = (0..n).map(|j| test_color(i, j)).collect();
+                features = features.with_colors(colors).expect("one per keypoint");
+            }
+            map.insert_keyframe(i as f64, i, t_w_c.inverse(), features)
         })
         .collect();
     (map, ids)

@@ -215,3 +215,36 @@ pub fn features(
     }
     Ok((kps, descs))
 }
+
+/// Optional `colors (N, 3)` uint8 RGB, one per keypoint of `keypoints` (its argument name,
+/// for messages) of which there are `n`.
+pub fn colors(
+    obj: Option<&Bound<'_, PyAny>>,
+    n: usize,
+    keypoints: &str,
+) -> PyResult<Option<Vec<[u8; 3]>>> {
+    let Some(obj) = obj.filter(|o| !o.is_none()) else {
+        return Ok(None);
+    };
+    let arr: PyReadonlyArray2<'_, u8> = array(obj, "colors", "a uint8 (N, 3) RGB array")?;
+    let shape = arr.shape();
+    if shape[1] != 3 {
+        return Err(PyValueError::new_err(format!(
+            "colors must have shape (N, 3) RGB, got {}",
+            shape_tuple(shape)
+        )));
+    }
+    if shape[0] != n {
+        return Err(PyValueError::new_err(format!(
+            "colors ({}) and {keypoints} ({n}) must have the same length: one RGB per keypoint",
+            shape[0]
+        )));
+    }
+    Ok(Some(
+        arr.as_array()
+            .rows()
+            .into_iter()
+            .map(|row| [row[0], row[1], row[2]])
+            .collect(),
+    ))
+}

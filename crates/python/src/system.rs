@@ -20,6 +20,10 @@ use crate::errors::to_py;
 use crate::inertial;
 use crate::vocabulary::PyVocabulary;
 
+/// What `map_point_colors` gives points without a colour: mid grey, as the exporters draw
+/// uncoloured points.
+const UNCOLORED: [u8; 3] = [128; 3];
+
 fn state_name(state: TrackingState) -> &'static str {
     match state {
         TrackingState::NotInitialized => "not_initialized",
@@ -223,7 +227,9 @@ impl PySlamSystem {
     /// Tracks one RGB-D frame (queues it in threaded mode and returns None).
     ///
     /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
-    /// descriptors: (N, 32) uint8; depth_m: (N,) float32 metres (0 = none).
+    /// descriptors: (N, 32) uint8; depth_m: (N,) float32 metres (0 = none); colors: None or
+    /// (N, 3) uint8 RGB, kept by the map points the keypoints create.
+    #[pyo3(signature = (timestamp, keypoints, descriptors, depth_m, *, colors = None))]
     fn track_rgbd(
         &self,
         py: Python<'_>,
@@ -231,6 +237,7 @@ impl PySlamSystem {
         keypoints: &Bound<'_, PyAny>,
         descriptors: &Bound<'_, PyAny>,
         depth_m: &Bound<'_, PyAny>,
+        colors: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Option<PyTrackResult>> {
         let (kps, descs) = convert::features(keypoints, descriptors, "")?;
         let depth_m: PyReadonlyArray1<'_, f32> =
@@ -243,11 +250,13 @@ impl PySlamSystem {
                 depth_m.len()
             )));
         }
+        let colors = convert::colors(colors, kps.len(), "keypoints")?;
         let frame = OwnedFrame::Rgbd {
             timestamp,
             keypoints: kps,
             descriptors: descs,
             depth_m: convert::floats(&depth_m),
+            colors,
         };
         self.engine()?.track(py, frame)
     }
@@ -256,7 +265,9 @@ impl PySlamSystem {
     ///
     /// left/right keypoints: (N, 5) float32 [x, y, octave, angle_deg, response] in rectified
     /// pixels; descriptors: (N, 32) uint8; pyramids: lists of 2-D uint8 arrays (level l is the
-    /// image scaled by scale_factor^-l, as used for detection), equal sizes left and right.
+    /// image scaled by scale_factor^-l, as used for detection), equal sizes left and right;
+    /// colors: None or (N, 3) uint8 RGB of the left keypoints.
+    #[pyo3(signature = (timestamp, left_keypoints, left_descriptors, left_pyramid, right_keypoints, right_descriptors, right_pyramid, *, colors = None))]
     #[allow(clippy::too_many_arguments)]
     fn track_stereo(
         &self,
@@ -268,13 +279,16 @@ impl PySlamSystem {
         right_keypoints: &Bound<'_, PyAny>,
         right_descriptors: &Bound<'_, PyAny>,
         right_pyramid: &Bound<'_, PyAny>,
+        colors: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Option<PyTrackResult>> {
         let (lk, ld) = convert::features(left_keypoints, left_descriptors, "left")?;
         let (rk, rd) = convert::features(right_keypoints, right_descriptors, "right")?;
+        let colors = convert::colors(colors, lk.len(), "left_keypoints")?;
         let frame = OwnedFrame::Stereo {
             timestamp,
             left: (lk, ld, convert::pyramid(left_pyramid, "left_pyramid")?),
             right: (rk, rd, convert::pyramid(right_pyramid, "right_pyramid")?),
+            colors,
         };
         self.engine()?.track(py, frame)
     }
@@ -282,19 +296,23 @@ impl PySlamSystem {
     /// Tracks one monocular frame (queues it in threaded mode and returns None).
     ///
     /// keypoints: (N, 5) float32 [x, y, octave, angle_deg, response], raw pixels;
-    /// descriptors: (N, 32) uint8.
+    /// descriptors: (N, 32) uint8; colors: None or (N, 3) uint8 RGB.
+    #[pyo3(signature = (timestamp, keypoints, descriptors, *, colors = None))]
     fn track_mono(
         &self,
         py: Python<'_>,
         timestamp: f64,
         keypoints: &Bound<'_, PyAny>,
         descriptors: &Bound<'_, PyAny>,
+        colors: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Option<PyTrackResult>> {
         let (kps, descs) = convert::features(keypoints, descriptors, "")?;
+        let colors = convert::colors(colors, kps.len(), "keypoints")?;
         let frame = OwnedFrame::Mono {
             timestamp,
             keypoints: kps,
             descriptors: descs,
+            colors,
         };
         self.engine()?.track(py, frame)
     }
@@ -474,6 +492,18 @@ impl PySlamSystem {
         Ok(PyArray2::from_owned_array(
             py,
             Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]),
+        ))
+    }
+
+    /// Colours of the map points, (M, 3) uint8 RGB in the order of map_points(): the colour
+    /// of the keypoint that created each; grey 128 for points made without colours.
+    fn map_point_colors<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u8>>> {
+        let colors = self.engine()?.run(py, |s| s.map_point_colors())?;
+        Ok(PyArray2::from_owned_array(
+            py,
+            Array2::from_shape_fn((colors.len(), 3), |(i, c)| {
+                colors[i].unwrap_or(UNCOLORED)[c]
+            }),
         ))
     }
 

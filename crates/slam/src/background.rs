@@ -15,6 +15,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use ferroslam_features::{Descriptor, GrayImage, Keypoint, StereoView};
+use ferroslam_map::Rgb;
 
 use crate::error::SlamError;
 use crate::frame::{MonoInput, RgbdInput, StereoInput};
@@ -38,6 +39,8 @@ pub enum OwnedFrame {
         keypoints: Vec<Keypoint>,
         /// Their descriptors.
         descriptors: Vec<Descriptor>,
+        /// Their colours, if known.
+        colors: Option<Vec<Rgb>>,
     },
     /// An RGB-D frame.
     Rgbd {
@@ -49,6 +52,8 @@ pub enum OwnedFrame {
         descriptors: Vec<Descriptor>,
         /// Depth at each keypoint, metres.
         depth_m: Vec<f32>,
+        /// Their colours, if known.
+        colors: Option<Vec<Rgb>>,
     },
     /// A rectified stereo pair: `(keypoints, descriptors, pyramid)` per side.
     Stereo {
@@ -58,6 +63,8 @@ pub enum OwnedFrame {
         left: (Vec<Keypoint>, Vec<Descriptor>, Vec<OwnedLevel>),
         /// Right image features and pyramid.
         right: (Vec<Keypoint>, Vec<Descriptor>, Vec<OwnedLevel>),
+        /// Colours of the left keypoints, if known.
+        colors: Option<Vec<Rgb>>,
     },
 }
 
@@ -90,26 +97,31 @@ impl OwnedFrame {
                 timestamp,
                 keypoints,
                 descriptors,
+                colors,
             } => f(Input::Mono(&MonoInput {
                 timestamp: *timestamp,
                 keypoints,
                 descriptors,
+                colors: colors.as_deref(),
             })),
             OwnedFrame::Rgbd {
                 timestamp,
                 keypoints,
                 descriptors,
                 depth_m,
+                colors,
             } => f(Input::Rgbd(&RgbdInput {
                 timestamp: *timestamp,
                 keypoints,
                 descriptors,
                 depth_m,
+                colors: colors.as_deref(),
             })),
             OwnedFrame::Stereo {
                 timestamp,
                 left,
                 right,
+                colors,
             } => {
                 let (lv, rv) = (views(&left.2)?, views(&right.2)?);
                 f(Input::Stereo(&StereoInput {
@@ -124,6 +136,7 @@ impl OwnedFrame {
                         descriptors: &right.1,
                         levels: &rv,
                     },
+                    colors: colors.as_deref(),
                 }))
             }
         }
@@ -320,6 +333,7 @@ mod tests {
             timestamp: t,
             keypoints: Vec::new(),
             descriptors: Vec::new(),
+            colors: None,
         }
     }
 

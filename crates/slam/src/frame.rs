@@ -5,7 +5,7 @@ use ferroslam_features::{
     ProjectionQuery, ScalePyramid, StereoView,
 };
 use ferroslam_geometry::camera::PinholeCamera;
-use ferroslam_map::{FrameFeatures, MapPointId};
+use ferroslam_map::{FrameFeatures, MapPointId, Rgb};
 use nalgebra::{Isometry3, Vector2, Vector3};
 
 use crate::context::{Context, InputShape};
@@ -44,12 +44,15 @@ pub struct RgbdInput<'a> {
     pub descriptors: &'a [Descriptor],
     /// Depth at each keypoint in metres; 0, negative or NaN means no measurement.
     pub depth_m: &'a [f32],
+    /// Colour of each keypoint, if known: the map points it creates keep it.
+    pub colors: Option<&'a [Rgb]>,
 }
 
 impl RgbdInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
     pub fn validate(&self, shape: &InputShape) -> Result<(), SlamError> {
-        validate_features(self.timestamp, self.keypoints, self.descriptors, shape)?;
+        let (keypoints, descriptors) = (self.keypoints, self.descriptors);
+        validate_features(self.timestamp, keypoints, descriptors, self.colors, shape)?;
         if self.depth_m.len() != self.keypoints.len() {
             return Err(SlamError::InvalidInput(format!(
                 "got {} keypoints and {} depths: lengths must match",
@@ -69,12 +72,15 @@ pub struct MonoInput<'a> {
     pub keypoints: &'a [Keypoint],
     /// 256-bit ORB descriptors, one per keypoint.
     pub descriptors: &'a [Descriptor],
+    /// Colour of each keypoint, if known: the map points it creates keep it.
+    pub colors: Option<&'a [Rgb]>,
 }
 
 impl MonoInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates and octaves beyond the pyramid.
     pub fn validate(&self, shape: &InputShape) -> Result<(), SlamError> {
-        validate_features(self.timestamp, self.keypoints, self.descriptors, shape)
+        let (keypoints, descriptors) = (self.keypoints, self.descriptors);
+        validate_features(self.timestamp, keypoints, descriptors, self.colors, shape)
     }
 }
 
@@ -87,15 +93,27 @@ pub struct StereoInput<'a> {
     pub left: StereoView<'a>,
     /// Right image: keypoints, descriptors, pyramid.
     pub right: StereoView<'a>,
+    /// Colour of each left keypoint, if known: the map points it creates keep it.
+    pub colors: Option<&'a [Rgb]>,
 }
 
 impl StereoInput<'_> {
     /// Rejects inconsistent lengths, non-finite coordinates, octaves beyond the pyramid,
     /// missing pyramid levels and left/right images of different sizes.
     pub fn validate(&self, shape: &InputShape) -> Result<(), SlamError> {
-        for (side, view) in [("left", &self.left), ("right", &self.right)] {
-            validate_features(self.timestamp, view.keypoints, view.descriptors, shape)
-                .map_err(|e| SlamError::InvalidInput(format!("{side} image: {e}")))?;
+        let sides = [
+            ("left", &self.left, self.colors),
+            ("right", &self.right, None),
+        ];
+        for (side, view, colors) in sides {
+            validate_features(
+                self.timestamp,
+                view.keypoints,
+                view.descriptors,
+                colors,
+                shape,
+            )
+            .map_err(|e| SlamError::InvalidInput(format!("{side} image: {e}")))?;
             let top = view.keypoints.iter().map(|k| k.octave as usize + 1).max();
             if view.levels.len() < top.unwrap_or(1) {
                 return Err(SlamError::InvalidInput(format!(
@@ -128,11 +146,12 @@ impl StereoInput<'_> {
 }
 
 /// Checks what every sensor's features share: finite time and coordinates inside the image,
-/// one descriptor per keypoint, octaves inside the pyramid.
+/// one descriptor (and colour, when given) per keypoint, octaves inside the pyramid.
 fn validate_features(
     timestamp: f64,
     keypoints: &[Keypoint],
     descriptors: &[Descriptor],
+    colors: Option<&[Rgb]>,
     shape: &InputShape,
 ) -> Result<(), SlamError> {
     let n_levels = shape.n_levels;
@@ -144,6 +163,12 @@ fn validate_features(
         return Err(SlamError::InvalidInput(format!(
             "got {n} keypoints and {} descriptors: lengths must match",
             descriptors.len()
+        )));
+    }
+    if let Some(colors) = colors.filter(|c| c.len() != n) {
+        return Err(SlamError::InvalidInput(format!(
+            "got {n} keypoints and {} colors: lengths must match",
+            colors.len()
         )));
     }
     if let Some(i) = keypoints
@@ -209,6 +234,7 @@ impl Frame {
             input.descriptors,
             depth,
             u_right,
+            input.colors,
             ctx.bounds,
         )
     }
@@ -228,6 +254,7 @@ impl Frame {
             input.descriptors,
             vec![-1.0; n],
             vec![-1.0; n],
+            input.colors,
             ctx.bounds,
         )
     }
@@ -262,10 +289,12 @@ impl Frame {
             input.left.descriptors,
             depth,
             u_right,
+            input.colors,
             ctx.bounds,
         )
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn new(
         index: usize,
         timestamp: f64,
@@ -273,10 +302,15 @@ impl Frame {
         descriptors: &[Descriptor],
         depth: Vec<f32>,
         u_right: Vec<f32>,
+        colors: Option<&[Rgb]>,
         bounds: ImageBounds,
     ) -> Result<Self, SlamError> {
         let n = keypoints.len();
-        let features = FrameFeatures::new(keypoints, descriptors.to_vec(), depth, u_right, bounds)?;
+        let mut features =
+            FrameFeatures::new(keypoints, descriptors.to_vec(), depth, u_right, bounds)?;
+        if let Some(colors) = colors {
+            features = features.with_colors(colors.to_vec())?;
+        }
         Ok(Self {
             index,
             timestamp,

@@ -844,6 +844,16 @@ impl SlamSystem {
             .filter_map(|m| self.map.map_point(m).map(|p| p.position()))
             .collect()
     }
+
+    /// Colour of every live map point, in the order of [`Self::map_points`] (see
+    /// [`ferroslam_map::MapPoint::color`]); `None` for points made from frames without colours.
+    pub fn map_point_colors(&self) -> Vec<Option<ferroslam_map::Rgb>> {
+        self.map
+            .map_point_ids()
+            .into_iter()
+            .filter_map(|m| self.map.map_point(m).map(|p| p.color()))
+            .collect()
+    }
 }
 
 fn map_file_error(path: &std::path::Path, e: ferroslam_map::MapError) -> SlamError {

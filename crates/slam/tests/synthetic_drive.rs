@@ -95,6 +95,7 @@ fn scale_error(disparity_sigma: f64, frames: usize) -> f64 {
                 keypoints: &kps,
                 descriptors: &descs,
                 depth_m: &depths,
+                colors: None,
             })
             .unwrap();
         assert_eq!(r.state, TrackingState::Ok, "frame {i}");

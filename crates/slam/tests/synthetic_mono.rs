@@ -62,6 +62,7 @@ fn run(
             timestamp: i as f64 / 30.0,
             keypoints: &kps,
             descriptors: &descs,
+            colors: None,
         };
         system.track_mono(&input).unwrap();
     }

@@ -111,6 +111,7 @@ fn input<'a>(
         keypoints,
         descriptors,
         depth_m,
+        colors: None,
     }
 }
 
@@ -242,6 +243,14 @@ fn rejects_bad_input_without_changing_state() {
     assert!(
         matches!(system.track_rgbd(&bad), Err(SlamError::InvalidInput(m)) if m.contains("non-finite"))
     );
+    let one_color = [[0u8; 3]];
+    let few_colors = RgbdInput {
+        colors: Some(&one_color),
+        ..input(1.0, &kps, &descs, &depth)
+    };
+    assert!(
+        matches!(system.track_rgbd(&few_colors), Err(SlamError::InvalidInput(m)) if m.contains("colors: lengths must match"))
+    );
     let good = input(0.1, &kps, &descs, &depth);
     assert_eq!(system.track_rgbd(&good).unwrap().state, TrackingState::Ok);
     assert_eq!(system.frame_trajectory().len(), 4);
@@ -273,6 +282,63 @@ fn resets_when_lost_right_after_initialisation() {
     let (kps, descs, depth) = scene.observe(3, &mut rng, 0.0);
     let next = input(1.1, &kps, &descs, &depth);
     assert_eq!(system.track_rgbd(&next).unwrap().state, TrackingState::Ok);
+}
+
+/// The colour the colour test gives a landmark: the first bytes of its (unique) descriptor.
+fn color_of(d: &Descriptor) -> [u8; 3] {
+    [d[0], d[1], d[2]]
+}
+
+/// Frames given with colours: every map point, made inline or by the mapping thread (whose
+/// edits reach the map by replay), has the colour of the landmark it was made from.
+#[test]
+fn map_points_keep_the_colour_of_the_keypoint_that_made_them() {
+    let scene = Scene::new(6, 1500);
+    // A keyframe every other frame: most points are made by local mapping.
+    let config = SlamConfig {
+        skip_max_frames: 2,
+        ..SlamConfig::default()
+    };
+    for concurrent in [false, true] {
+        let mut system = SlamSystem::new(scene.camera, config.clone()).unwrap();
+        system.set_concurrent_mapping(concurrent).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for i in 0..30 {
+            let (kps, descs, depth) = scene.observe(i, &mut rng, 0.5);
+            let colors: Vec<_> = descs.iter().map(color_of).collect();
+            let frame = RgbdInput {
+                colors: Some(&colors),
+                ..input(i as f64 / 30.0, &kps, &descs, &depth)
+            };
+            assert_eq!(system.track_rgbd(&frame).unwrap().state, TrackingState::Ok);
+        }
+        system.finish_mapping().unwrap();
+        let map = system.map();
+        assert!(
+            map.num_map_points() > 500,
+            "{} points",
+            map.num_map_points()
+        );
+        let later = map
+            .map_points()
+            .filter(|p| Some(p.first_keyframe()) != map.origin());
+        let (keyframes, later) = (map.num_keyframes(), later.count());
+        // Inline mapping is deterministic; how many keyframes the thread takes depends on
+        // its timing.
+        if !concurrent {
+            assert!(
+                keyframes > 5 && later > 20,
+                "{keyframes} keyframes, {later} later points"
+            );
+        }
+        for p in map.map_points() {
+            // Every observation of a landmark has its descriptor, so the point's is too.
+            let expected = color_of(p.descriptor());
+            assert_eq!(p.color(), Some(expected), "point {} ({concurrent})", p.id());
+        }
+        let colors = system.map_point_colors();
+        assert_eq!(colors.len(), system.map_points().len());
+    }
 }
 
 /// Local mapping in its own thread, frames fed as fast as tracking takes them: the same

@@ -4,14 +4,17 @@ Every sequence type offers ``len()``, indexing/iteration over frames, ``name``,
 ``timestamps`` (float64 seconds, strictly increasing), ``camera`` (intrinsics of the images
 ``load_gray`` returns), ``load_gray(i)`` (``(H, W)`` uint8), ``has_groundtruth`` and
 ``groundtruth()`` (``(timestamps (M,), T_w_c (M, 4, 4))`` of that camera). TUM adds
-``load_depth(i)``; stereo sequences (``is_stereo``) add ``load_stereo(i)`` (rectified
-``(left, right)``) and ``baseline_m``.
+``load_depth(i)`` and ``load_gray_and_color(i)`` (the grey image and the ``(H, W, 3)`` uint8
+BGR one, from one read of the file; see :func:`frame_images`); stereo sequences
+(``is_stereo``) add ``load_stereo(i)`` (rectified ``(left, right)``) and ``baseline_m``.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Union
+from typing import Any, Optional, Union
+
+import numpy as np
 
 from ..calibration import read_camera_yaml
 from ..camera import Camera
@@ -34,6 +37,7 @@ __all__ = [
     "TumSequence",
     "associate_greedy",
     "detect_format",
+    "frame_images",
     "is_sequence_folder",
     "open_sequence",
     "read_camera_yaml",
@@ -76,6 +80,17 @@ def is_sequence_folder(path: Union[str, Path]) -> bool:
     """Whether ``path`` is a folder in one of the dataset layouts (else ``ferroslam run``
     reads it as a folder of images, ``ferroslam.sources.ImageFolderSource``)."""
     return _layout(Path(path).expanduser()) is not None
+
+
+def frame_images(seq: Any, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``i`` of ``seq`` as it is tracked, grey ``(H, W)``, and as its map points are
+    coloured: ``(H, W, 3)`` BGR where the sequence has colour (``load_gray_and_color``), else
+    the grey image again (grey colours)."""
+    both = getattr(seq, "load_gray_and_color", None)
+    if both is not None:
+        return both(i)
+    gray = seq.load_gray(i)
+    return gray, gray
 
 
 def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str = "",

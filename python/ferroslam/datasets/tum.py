@@ -19,7 +19,7 @@ import numpy as np
 from ..calibration import read_camera_yaml
 from ..camera import Camera
 from ..io import read_table, read_tum_trajectory
-from .images import read_depth, read_gray
+from .images import read_depth, read_gray, read_gray_and_color
 
 __all__ = ["TUM_CAMERAS", "TumFrame", "TumSequence", "associate_greedy"]
 
@@ -175,6 +175,11 @@ class TumSequence:
     def load_gray(self, i: int) -> np.ndarray:
         """Grayscale image of frame ``i``: ``(H, W)`` uint8."""
         return read_gray(self.frames[i].rgb_path)
+
+    def load_gray_and_color(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``i`` in grey (as :meth:`load_gray`) and in colour, ``(H, W, 3)`` uint8 BGR
+        (OpenCV's order), from one read of the file."""
+        return read_gray_and_color(self.frames[i].rgb_path)
 
     def load_depth(self, i: int) -> np.ndarray:
         """Depth of frame ``i``: ``(H, W)`` float32 metres, 0 where there is no measurement."""

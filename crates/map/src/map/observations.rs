@@ -27,7 +27,8 @@ impl Map {
     /// Links keypoint `index` of `kf` with `mp`, both ways (ORB-SLAM `AddObservation` +
     /// `AddMapPoint`); existing covisibility edges between `kf` and the point's other
     /// observers gain one shared point. A stereo/RGB-D keypoint (`u_right >= 0`) adds 2 to
-    /// the point's `nObs`.
+    /// the point's `nObs`. A point without a colour takes the keypoint's
+    /// ([`crate::MapPoint::color`]).
     ///
     /// # Errors
     /// Unknown ids, [`MapError::KeypointOutOfRange`], [`MapError::SlotOccupied`] (the keypoint
@@ -191,12 +192,17 @@ impl Map {
     /// shared points with the point's other observers.
     fn link(&mut self, mp: MapPointId, kf: KeyFrameId, index: usize, shifts: &mut EdgeShifts) {
         let weight = self.observation_weight(kf, index);
+        let color = self
+            .keyframes
+            .get(&kf)
+            .and_then(|f| f.features.color(index));
         let Some(point) = self.map_points.get_mut(&mp) else {
             return;
         };
         let others: Vec<KeyFrameId> = point.observations.keys().copied().collect();
         point.observations.insert(kf, index);
         point.n_obs += weight;
+        point.color = point.color.or(color);
         // The creating keyframe is the preferred reference; otherwise any observer will do.
         if kf == point.first_keyframe || !point.observations.contains_key(&point.reference) {
             point.reference = kf;
@@ -261,7 +267,9 @@ impl Map {
 
 #[cfg(test)]
 mod tests {
-    use crate::test_support::{map_with_keyframes, observe_all};
+    use crate::test_support::{
+        map_with_colored_keyframes, map_with_keyframes, observe_all, test_color,
+    };
     use crate::{KeyFrameId, MapError, MapPointId};
     use nalgebra::Vector3;
 
@@ -278,6 +286,33 @@ mod tests {
         assert_eq!(point.observation(kfs[1]), Some(4));
         assert_eq!(map.keyframe(kfs[0]).unwrap().map_point(3), Some(mp));
         map.check_consistency().unwrap();
+    }
+
+    #[test]
+    fn a_point_takes_the_colour_of_its_first_coloured_observation() {
+        let (mut map, kfs) = map_with_colored_keyframes(3, 10);
+        let mp = observe_all(&mut map, &kfs, 5);
+        assert_eq!(map.map_point(mp).unwrap().color(), Some(test_color(0, 5)));
+        // Erasing the creating observation keeps the colour.
+        assert!(map.erase_observation(mp, kfs[0]));
+        assert_eq!(map.map_point(mp).unwrap().color(), Some(test_color(0, 5)));
+
+        // Keyframes without colours give none, until a coloured one observes the point.
+        let (mut plain, plain_kfs) = map_with_keyframes(1, 10);
+        let kf = plain.insert_keyframe(
+            1.0,
+            1,
+            nalgebra::Isometry3::identity(),
+            map.keyframe(kfs[2]).unwrap().features().clone(),
+        );
+        let mp = plain
+            .create_map_point(Vector3::new(0.0, 0.0, 5.0), plain_kfs[0])
+            .unwrap();
+        plain.add_observation(mp, plain_kfs[0], 6).unwrap();
+        assert_eq!(plain.map_point(mp).unwrap().color(), None);
+        plain.add_observation(mp, kf, 7).unwrap();
+        assert_eq!(plain.map_point(mp).unwrap().color(), Some(test_color(2, 7)));
+        plain.check_consistency().unwrap();
     }
 
     #[test]

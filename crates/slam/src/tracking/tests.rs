@@ -66,6 +66,7 @@ fn scene_with(sensor: Sensor, mapped: usize) -> (Context, Map, Frame, KeyFrameId
         keypoints: &keypoints,
         descriptors: &descriptors,
         depth_m: &depth,
+        colors: None,
     };
     let frame = Frame::from_rgbd(FRAME, &input, &ctx).unwrap();
     (ctx, map, frame, r)

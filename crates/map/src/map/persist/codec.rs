@@ -4,6 +4,9 @@
 //! Decoding never trusts a length: a collection of `n` items is refused unless the bytes left
 //! can hold `n` items of the type's smallest encoding ([`Codec::MIN_SIZE`]), so a corrupt
 //! length fails cleanly instead of allocating.
+//!
+//! Decoders read the layout of the file's format version ([`Decoder::version`]): a field a
+//! later version added is absent from older files and decodes as its "none" value.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -11,6 +14,7 @@ use ferroslam_features::{ImageBounds, Keypoint, KeypointGrid};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 use super::super::CulledKeyFrame;
+use super::{COLORS_SINCE, FORMAT_VERSION};
 use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
 /// Appends encoded values to a byte buffer.
@@ -44,15 +48,29 @@ pub(super) struct Decoder<'a> {
     pos: usize,
     /// What is being decoded, for error messages.
     pub(super) context: &'static str,
+    /// Format version of the file the bytes come from.
+    pub(super) version: u32,
 }
 
 impl<'a> Decoder<'a> {
+    /// A decoder of `bytes` in the current format version ([`FORMAT_VERSION`]).
     pub(super) fn new(bytes: &'a [u8], context: &'static str) -> Self {
         Self {
             bytes,
             pos: 0,
             context,
+            version: FORMAT_VERSION,
         }
+    }
+
+    /// The same decoder, reading the layout of format `version`.
+    pub(super) fn of_version(self, version: u32) -> Self {
+        Self { version, ..self }
+    }
+
+    /// Whether the file's format version has the fields added in `version`.
+    fn has(&self, version: u32) -> bool {
+        self.version >= version
     }
 
     pub(super) fn get<T: Codec>(&mut self) -> Result<T, MapError> {
@@ -337,9 +355,11 @@ impl Codec for ImageBounds {
     }
 }
 
-/// keypoints, descriptors, depth, u_right, grid bounds. The grid itself is rebuilt from the
-/// keypoints and bounds (deterministic). Lengths are kept as saved, even if inconsistent.
+/// keypoints, descriptors, depth, u_right, grid bounds, colours (version 4 on). The grid
+/// itself is rebuilt from the keypoints and bounds (deterministic). Lengths are kept as
+/// saved, even if inconsistent.
 impl Codec for FrameFeatures {
+    /// Version 3's: the smallest of every version read.
     const MIN_SIZE: usize = 4 * 8 + ImageBounds::MIN_SIZE;
     fn encode(&self, e: &mut Encoder) {
         e.put(&self.keypoints);
@@ -347,16 +367,19 @@ impl Codec for FrameFeatures {
         e.put(&self.depth);
         e.put(&self.u_right);
         e.put(&self.grid.bounds());
+        e.put(&self.colors);
     }
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let keypoints: Vec<Keypoint> = d.get()?;
         let (descriptors, depth, u_right) = (d.get()?, d.get()?, d.get()?);
         let grid = KeypointGrid::new(&keypoints, d.get()?);
+        let colors = if d.has(COLORS_SINCE) { d.get()? } else { None };
         Ok(FrameFeatures {
             keypoints,
             descriptors,
             depth,
             u_right,
+            colors,
             grid,
         })
     }
@@ -408,8 +431,9 @@ impl Codec for KeyFrame {
 }
 
 /// id, position, normal, min/max distance, descriptor, observations (keyframe -> keypoint),
-/// nObs, reference and first keyframe, visible and found counters.
+/// nObs, reference and first keyframe, visible and found counters, colour (version 4 on).
 impl Codec for MapPoint {
+    /// Version 3's: the smallest of every version read.
     const MIN_SIZE: usize = 4 + 24 + 24 + 8 + 8 + 32 + 8 + 8 + 4 + 4 + 4 + 4;
     fn encode(&self, e: &mut Encoder) {
         e.put(&self.id);
@@ -424,6 +448,7 @@ impl Codec for MapPoint {
         e.put(&self.first_keyframe);
         e.put(&self.visible);
         e.put(&self.found);
+        e.put(&self.color);
     }
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         Ok(MapPoint {
@@ -439,6 +464,7 @@ impl Codec for MapPoint {
             first_keyframe: d.get()?,
             visible: d.get()?,
             found: d.get()?,
+            color: if d.has(COLORS_SINCE) { d.get()? } else { None },
         })
     }
 }

@@ -1,6 +1,6 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 3, all numbers little-endian)
+//! # Format (version 4, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
@@ -20,7 +20,16 @@
 //! ```
 //! Encodings (`codec.rs`): `Vec<T>` = count u64 + items; `Option<T>` = tag u8 (0/1) + value;
 //! `usize` = u64; a pose = translation xyz + quaternion ijkw (f64, bit-exact); a keypoint =
-//! x, y f32, octave u8, angle f32, response f32; sets/maps = sorted unique `Vec`s.
+//! x, y f32, octave u8, angle f32, response f32; a colour = r, g, b u8; sets/maps = sorted
+//! unique `Vec`s.
+//!
+//! # Versions
+//! - 4: keyframe features end with their keypoint colours (`Option<Vec<colour>>`), map
+//!   points with their colour (`Option<colour>`).
+//! - 3: the sensor and camera record ("RIG_"). Version 3 files still load: as version 4
+//!   without colours (every point's [`crate::MapPoint::color`] is `None`); saving writes
+//!   version 4.
+//! - 2 and older are refused: their sensor is unknown.
 //!
 //! Everything the map holds is stored verbatim: keyframe features (without the keypoint grid,
 //! which is rebuilt from the keypoints and the stored grid bounds), poses, map-point slots,
@@ -72,9 +81,13 @@ use codec::{check_increasing, corrupt, Decoder, Encoder};
 pub const MAGIC_TEXT: &str = "FSLAMMAP";
 /// The magic bytes starting every map file.
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
-/// The map-file format version this build writes and reads. Version 3 added the sensor and
-/// camera record ([`crate::Rig`]); version 2 files are refused (their sensor is unknown).
-pub const FORMAT_VERSION: u32 = 3;
+/// The map-file format version this build writes (and the newest it reads); see the module
+/// docs for what each version added.
+pub const FORMAT_VERSION: u32 = 4;
+/// The oldest map-file format version this build reads.
+pub const OLDEST_READABLE_VERSION: u32 = 3;
+/// The version that added keypoint and map-point colours.
+const COLORS_SINCE: u32 = 4;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;
@@ -152,10 +165,11 @@ impl Map {
         let mut d = Decoder::new(&header, "the header");
         d.take(MAGIC.len())?;
         let version: u32 = d.get()?;
-        if version != FORMAT_VERSION {
+        if !(OLDEST_READABLE_VERSION..=FORMAT_VERSION).contains(&version) {
             return Err(MapError::UnsupportedMapVersion {
                 found: version,
-                supported: FORMAT_VERSION,
+                oldest: OLDEST_READABLE_VERSION,
+                newest: FORMAT_VERSION,
             });
         }
         let payload_len: u64 = d.get()?;
@@ -175,7 +189,7 @@ impl Map {
         if stored != computed {
             return Err(MapError::MapFileChecksum { stored, computed });
         }
-        Self::decode_payload(payload)
+        Self::decode_payload(payload, version)
     }
 
     /// [`Map::save`] to a file, created or replaced. The map is written to a new temporary
@@ -250,9 +264,9 @@ impl Map {
         file.bytes
     }
 
-    /// Decodes the sections and validates ids and invariants.
-    fn decode_payload(payload: &[u8]) -> Result<Map, MapError> {
-        let mut d = Decoder::new(payload, "the section table");
+    /// Decodes the sections of a file of format `version` and validates ids and invariants.
+    fn decode_payload(payload: &[u8], version: u32) -> Result<Map, MapError> {
+        let mut d = Decoder::new(payload, "the section table").of_version(version);
         let rig: Option<Rig> = read_section(&mut d, RIG, Decoder::get)?;
         let (scale_factor, n_levels): (f64, usize) =
             read_section(&mut d, PYRAMID, |d| Ok((d.get()?, d.get()?)))?;
@@ -342,7 +356,8 @@ fn read_section<'a, T>(
         )));
     }
     let len = usize::try_from(d.get::<u64>()?).unwrap_or(usize::MAX);
-    let mut body = Decoder::new(d.take(len)?, section.name);
+    let version = d.version;
+    let mut body = Decoder::new(d.take(len)?, section.name).of_version(version);
     let value = read(&mut body)?;
     if body.remaining() > 0 {
         return Err(corrupt(format!(

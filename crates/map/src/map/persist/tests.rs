@@ -5,14 +5,29 @@ use nalgebra::{Isometry3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::{fnv1a64, CHECKSUM_LEN, FORMAT_VERSION, HEADER_LEN};
-use crate::test_support::{map_with_keyframes, observe_all};
+use super::{fnv1a64, CHECKSUM_LEN, FORMAT_VERSION, HEADER_LEN, OLDEST_READABLE_VERSION};
+use crate::test_support::{map_with_colored_keyframes, map_with_keyframes, observe_all};
 use crate::{KeyFrameId, Map, MapError, MapPointId};
 
-/// Five keyframes with mono and stereo points, connections, refreshed point summaries and
-/// counters, a moved pose, a fused point, a culled keyframe and a point without observations.
+/// [`uncolored_sample_map`] as the build of format version 3 saved it.
+const SAMPLE_MAP_V3: &[u8] = include_bytes!(concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/data/sample_map_v3.fslam"
+));
+
+/// Five keyframes with coloured keypoints, mono and stereo points, connections, refreshed
+/// point summaries and counters, a moved pose, a fused point, a culled keyframe and a point
+/// without observations (nor colour).
 fn sample_map() -> (Map, Vec<KeyFrameId>) {
-    let (mut map, kfs) = map_with_keyframes(5, 60);
+    sample_map_from(map_with_colored_keyframes(5, 60))
+}
+
+/// [`sample_map`] without colours.
+fn uncolored_sample_map() -> (Map, Vec<KeyFrameId>) {
+    sample_map_from(map_with_keyframes(5, 60))
+}
+
+fn sample_map_from((mut map, kfs): (Map, Vec<KeyFrameId>)) -> (Map, Vec<KeyFrameId>) {
     for i in 0..20 {
         observe_all(&mut map, &kfs[..3], i);
     }
@@ -79,6 +94,7 @@ fn assert_same(a: &Map, b: &Map) {
         assert_eq!(f.descriptors, g.descriptors);
         assert_eq!(f.depth, g.depth);
         assert_eq!(f.u_right, g.u_right);
+        assert_eq!(f.colors, g.colors);
         assert_eq!(f.grid.bounds(), g.grid.bounds());
         let near = |h: &crate::FrameFeatures| {
             h.grid
@@ -103,6 +119,7 @@ fn assert_same(a: &Map, b: &Map) {
         assert_eq!(p.reference_keyframe(), q.reference_keyframe());
         assert_eq!(p.first_keyframe(), q.first_keyframe());
         assert_eq!((p.visible(), p.found()), (q.visible(), q.found()));
+        assert_eq!(p.color(), q.color());
     }
     // Every id ever allocated (and some never): tombstones resolve alike.
     for id in 0..64 {
@@ -115,6 +132,11 @@ fn assert_same(a: &Map, b: &Map) {
 #[test]
 fn round_trip_restores_every_observable() {
     let (mut map, kfs) = sample_map();
+    let colored = map.map_points().filter(|p| p.color().is_some()).count();
+    assert!(
+        colored > 0 && colored < map.num_map_points(),
+        "{colored} coloured points"
+    );
     let bytes = to_bytes(&map);
     let mut loaded = load(&bytes).unwrap();
     loaded.check_consistency().unwrap();
@@ -145,6 +167,19 @@ fn round_trip_restores_every_observable() {
     }
     assert_same(&map, &loaded);
     loaded.check_consistency().unwrap();
+}
+
+#[test]
+fn version_3_files_load_as_maps_without_colours() {
+    assert_eq!(SAMPLE_MAP_V3[8..12], 3u32.to_le_bytes());
+    let loaded = load(SAMPLE_MAP_V3).unwrap();
+    assert_same(&uncolored_sample_map().0, &loaded);
+    assert!(loaded.map_points().all(|p| p.color().is_none()));
+    assert!(loaded.keyframes().all(|k| k.features().colors.is_none()));
+    // Saved again, it is a current-version file of the same map.
+    let bytes = to_bytes(&loaded);
+    assert_eq!(bytes[8..12], FORMAT_VERSION.to_le_bytes());
+    assert_same(&loaded, &load(&bytes).unwrap());
 }
 
 #[test]
@@ -285,10 +320,13 @@ fn wrong_magic_and_version_are_named() {
         err,
         MapError::UnsupportedMapVersion {
             found: FORMAT_VERSION + 1,
-            supported: FORMAT_VERSION
+            oldest: OLDEST_READABLE_VERSION,
+            newest: FORMAT_VERSION
         }
     );
-    assert!(err.to_string().contains("version 4"), "{err}");
+    let message = format!("version {} is not supported", FORMAT_VERSION + 1);
+    assert!(err.to_string().contains(&message), "{err}");
+    assert!(err.to_string().contains("reads versions 3 to 4"), "{err}");
     // A version 2 file (before the sensor and camera record) is refused, not misread.
     bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
     let err = load(&bytes).unwrap_err();
