@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import ferroslam
-from ferroslam import cli, io, pipeline
+from ferroslam import cli, io, pipeline, session
 from ferroslam.datasets import TumSequence
 
 from fake_core import FakeSlamSystem
@@ -125,7 +125,7 @@ def test_run_sequence_with_fake_core(tum_rpy):
 
 def test_cli_run_writes_outputs(tum_desk, tmp_path, monkeypatch, capsys):
     seq = TumSequence(tum_desk)
-    monkeypatch.setattr(pipeline, "_default_system_factory", _fake_factory(seq))
+    monkeypatch.setattr(session, "_core_system", _fake_factory(seq))
     config = tmp_path / "config.json"
     config.write_text(json.dumps({"n_features": 500, "track_feature_range": [50, 100]}))
     out = tmp_path / "out"
@@ -147,7 +147,7 @@ def test_cli_run_writes_outputs(tum_desk, tmp_path, monkeypatch, capsys):
 
 def test_cli_run_reports_bad_config(tum_desk, tmp_path, monkeypatch, capsys):
     seq = TumSequence(tum_desk)
-    monkeypatch.setattr(pipeline, "_default_system_factory", _fake_factory(seq))
+    monkeypatch.setattr(session, "_core_system", _fake_factory(seq))
     config = tmp_path / "config.json"
     config.write_text('{"warp_speed": 9}')
     assert cli.main(["run", str(tum_desk), "--sensor", "rgbd", "--config", str(config),

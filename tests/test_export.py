@@ -148,7 +148,7 @@ def test_map_ply_of_a_real_run_holds_the_image_colours(tmp_path, rpy_colour_run)
     (exact equality, same decoder). Points whose reprojection moved further, or whose
     creating keyframe was culled, may miss: 90% must match. The same colours shuffled
     among the points match a few percent at most (measured 97% against 0.4%)."""
-    from ferroslam.cli import write_run_outputs
+    from ferroslam.outputs import write_run_outputs
 
     seq, result = rpy_colour_run
     write_run_outputs(result, tmp_path)

@@ -250,8 +250,8 @@ def execute_run(run: RunSpec, out_dir: Path) -> dict:
     """Track one run, write its outputs (as ``ferroslam run`` does) into its folder below
     ``out_dir`` and return its table row; any error becomes the row's ``status`` and
     ``error`` (the body of each Ray task, and of the serial loop of the benchmark)."""
-    from .cli import write_run_outputs
     from .datasets import open_sequence
+    from .outputs import write_run_outputs
     from .pipeline import run_sequence
 
     start = time.perf_counter()

@@ -13,9 +13,10 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from .metrics import ALIGNMENTS
+from .outputs import write_run_outputs
 from .pipeline import SENSORS
 
-__all__ = ["build_parser", "main", "write_run_outputs"]
+__all__ = ["build_parser", "main"]
 
 
 def _positive_int(text: str) -> int:
@@ -387,51 +388,6 @@ def _log_final_map(logger, result) -> None:
         logger.log_map(result.map_points, result.map_point_colors,
                        keyframe_poses_T_w_c=result.keyframes.poses, loops=result.loops,
                        keyframe_ids=result.keyframe_ids)
-
-
-def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
-    """Write what ``ferroslam run`` leaves in ``out`` (created) and return the summary put in
-    results.json; one function so that ``run``, ``demo`` and ``batch`` write the same files."""
-    out.mkdir(parents=True, exist_ok=True)
-    _write_outputs(result, out, result.sequence, trajectory_format)
-    summary = result.summary()
-    (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    return summary
-
-
-def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None:
-    """Trajectories (in ``trajectory_format``), map points with their colours (PLY), the
-    keyframes and points as a COLMAP text model (``colmap/``) and plots; the plots show the estimate and map aligned
-    to the ground truth when ATE could be computed."""
-    import numpy as np
-
-    from .export import write_colmap_model, write_ply, write_trajectory
-    from .plot import plot_overview, plot_trajectory_top_view
-
-    suffix = ".csv" if trajectory_format == "euroc" else ".txt"
-    for stem, trajectory in (("trajectory", result.trajectory), ("keyframes", result.keyframes)):
-        write_trajectory(out / f"{stem}{suffix}", trajectory.timestamps, trajectory.poses,
-                         format=trajectory_format)
-    write_ply(out / "map.ply", result.map_points, result.map_point_colors)
-    if result.camera is not None:
-        write_colmap_model(out / "colmap", result.camera, result.keyframe_ids,
-                           result.keyframes.poses, result.map_points,
-                           point_colors=result.map_point_colors)
-    if not len(result.trajectory):
-        return  # nothing tracked: nothing to draw
-    ate = result.ate_frames
-    if ate is not None and ate.alignment is not None:
-        s = ate.alignment
-        align = "Sim(3)" if result.scale_free else "SE(3)"
-        est, ref, title = ate.aligned, ate.reference, f"{name} ({align}-aligned to ground truth)"
-        points = result.map_points @ s[:3, :3].T + s[:3, 3]
-        keyframes = s @ result.keyframes.poses
-    else:
-        est, ref, title = result.trajectory, None, name
-        points, keyframes = result.map_points, result.keyframes.poses
-    plot_trajectory_top_view(est, ref, out / "trajectory_top.png", title=title)
-    plot_overview(est, ref, points, np.asarray(keyframes).reshape(-1, 4, 4), out / "plot.png",
-                  title=f"{title}, ATE {ate.rmse * 100:.2f} cm" if ate is not None else title)
 
 
 def _print_summary(summary: dict, out: Path) -> None:

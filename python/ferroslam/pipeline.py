@@ -17,21 +17,16 @@ from tqdm import tqdm
 
 from .camera import Camera
 from .datasets import frame_images
-from .features import OrbExtractor, sample_colors, sample_depth
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
+from .session import EXTRACTOR_KEYS, IMU_KEYS, Features, Session, load_vocabulary, make_extractor
 from .trajectory import Trajectory
+from .vslam import FrameResult, MonoVSlam
 
 __all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_extractor",
            "run_sequence", "run_source"]
 
 SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
 _INERTIAL = "-inertial"
-# Options of SlamSystem.set_imu (MATLAB NumPosesThreshold, AlignmentFraction).
-IMU_KEYS = ("num_poses_threshold", "alignment_fraction", "gravity_magnitude",
-            "imu_time_offset_s")
-# The extractor's options among the core's (SlamSystem.options holds them all, defaults
-# included: the ORB budget follows the image width).
-EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
 # Pipeline options that are not SlamSystem keywords.
 _PIPELINE_ONLY = ("vocabulary", "mapping_thread") + IMU_KEYS
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "matching_ms", "pose_optimisation_ms",
@@ -191,25 +186,8 @@ class RunError(ValueError):
         self.frame = frame
 
 
-def make_extractor(config: dict) -> OrbExtractor:
-    """ORB extractor from the extractor keys of a configuration (``SlamSystem.options``;
-    keys left out take ``OrbExtractor``'s defaults)."""
-    return OrbExtractor(**{k: config[k] for k in EXTRACTOR_KEYS if k in config})
-
-
-def _default_system_factory(*args, **kwargs):
-    try:
-        from ._core import SlamSystem  # the native module is only needed to actually run
-    except ImportError as err:
-        raise ImportError(
-            f"the native module ferroslam._core is not available ({err}); build it with "
-            "`maturin develop --release` in the repository root"
-        ) from err
-    return SlamSystem(*args, **kwargs)
-
-
 class _RgbdFeed:
-    """Loads colour + depth, extracts ORB, samples depth and colour at the keypoints."""
+    """Loads the grey and colour image and the depth of a frame."""
 
     def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
@@ -217,7 +195,6 @@ class _RgbdFeed:
                 f"{getattr(seq, 'name', seq)} has no depth images: use sensor 'stereo' or 'mono'"
             )
         self.seq = seq
-        self.extractor: Optional[OrbExtractor] = None  # set once the system's options are known
 
     def system_options(self) -> dict:
         return {}
@@ -232,20 +209,14 @@ class _RgbdFeed:
         """The image of loaded ``data`` (for ``on_frame``), in colour where there is."""
         return data[1]
 
-    def features(self, data) -> tuple[tuple, np.ndarray]:
-        gray, color, depth = data
-        keypoints, descriptors = self.extractor.detect(gray)
-        return ((keypoints, descriptors, sample_depth(depth, keypoints)),
-                sample_colors(color, keypoints))
-
     @staticmethod
-    def track(system, timestamp: float, features: tuple, colors: np.ndarray):
-        return system.track_rgbd(timestamp, *features, colors=colors)
+    def features(session: Session, data) -> Features:
+        gray, color, depth = data
+        return session.rgbd(gray, depth, color)
 
 
 class _StereoFeed:
-    """Loads a rectified pair and extracts ORB on both images at once
-    (:meth:`OrbExtractor.detect_pair`)."""
+    """Loads a rectified pair (both images are extracted at once)."""
 
     def __init__(self, seq) -> None:
         if not getattr(seq, "is_stereo", False):
@@ -253,7 +224,6 @@ class _StereoFeed:
                 f"{getattr(seq, 'name', seq)} is not a stereo sequence (no right images)"
             )
         self.seq = seq
-        self.extractor: Optional[OrbExtractor] = None
 
     def system_options(self) -> dict:
         return {"baseline": float(self.seq.baseline_m)}
@@ -268,22 +238,16 @@ class _StereoFeed:
         """The tracked (left) image of a loaded pair (for ``on_frame``)."""
         return data[0]
 
-    def features(self, data) -> tuple[tuple, np.ndarray]:
-        left, right = self.extractor.detect_pair(*data)
-        return (*left, *right), sample_colors(data[0], left[0])
-
     @staticmethod
-    def track(system, timestamp: float, features: tuple, colors: np.ndarray):
-        return system.track_stereo(timestamp, *features, colors=colors)
+    def features(session: Session, data) -> Features:
+        return session.stereo(*data)
 
 
 class _MonoFeed:
-    """Loads one grey image per frame (and its colour version where the sequence has one),
-    extracts ORB and samples the colour at the keypoints."""
+    """Loads one grey image per frame (and its colour version where the sequence has one)."""
 
     def __init__(self, seq) -> None:
         self.seq = seq
-        self.extractor: Optional[OrbExtractor] = None
 
     def system_options(self) -> dict:
         return {}
@@ -298,14 +262,9 @@ class _MonoFeed:
         """The image of loaded ``data`` (for ``on_frame``), in colour where there is."""
         return data[1]
 
-    def features(self, data) -> tuple[tuple, np.ndarray]:
-        gray, color = data
-        keypoints, descriptors = self.extractor.detect(gray)
-        return (keypoints, descriptors), sample_colors(color, keypoints)
-
     @staticmethod
-    def track(system, timestamp: float, features: tuple, colors: np.ndarray):
-        return system.track_mono(timestamp, *features, colors=colors)
+    def features(session: Session, data) -> Features:
+        return session.mono(*data)
 
 
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
@@ -316,20 +275,6 @@ def _longest_segment(result: RunResult) -> Trajectory:
         return result.trajectory
     longest = np.bincount(result.segments).argmax()
     return result.trajectory.subset(np.flatnonzero(result.segments == longest))
-
-
-def load_vocabulary(spec):
-    """A ``Vocabulary``: ``"default"`` (the one shipped in the package), a vocabulary file's
-    path, or a ``Vocabulary`` itself (returned as is)."""
-    from ._core import Vocabulary
-
-    if isinstance(spec, Vocabulary):
-        return spec
-    if spec == "default" or spec is True:
-        from .vocabulary import default_vocabulary
-
-        return default_vocabulary()
-    return Vocabulary.load(str(spec))
 
 
 def _evaluate(result: RunResult, gt: Trajectory) -> None:
@@ -413,20 +358,14 @@ def run_sequence(
         n = min(n, int(max_frames))
     core_config = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY}
     feed = _FEEDS[camera](seq)
-    cam = seq.camera
-    factory = system_factory or _default_system_factory
-    system = factory(cam.fx, cam.fy, cam.cx, cam.cy, cam.dist, cam.width, cam.height,
-                     sensor=camera, **{**feed.system_options(), **core_config})
-    feed.extractor = make_extractor(system.options)
-    if imu is not None:
-        system.set_imu(seq.imu_params(), seq.T_b_c,
-                       **{k: config[k] for k in IMU_KEYS if k in config})
-    vocabulary = config.get("vocabulary", "default")
-    if vocabulary:
-        system.set_vocabulary(load_vocabulary(vocabulary))
-    if config.get("mapping_thread"):
-        system.set_mapping_thread(True)
-    return _run(seq, system, feed, n, sensor, config, progress, realtime, imu, on_frame)
+    session = Session(
+        seq.camera, camera, {**feed.system_options(), **core_config},
+        vocabulary=config.get("vocabulary", "default"),
+        imu=seq.imu_params() if imu is not None else None,
+        T_b_c=seq.T_b_c if imu is not None else None,
+        imu_options={k: config[k] for k in IMU_KEYS if k in config},
+        mapping_thread=bool(config.get("mapping_thread")), system_factory=system_factory)
+    return _run(seq, session, feed, n, sensor, config, progress, realtime, imu, on_frame)
 
 
 def _imu_stream(seq, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -481,8 +420,6 @@ def run_source(source, config: Optional[dict] = None, max_frames: Optional[int] 
     ``config``: as :func:`run_sequence`'s (``SlamSystem`` options, ``vocabulary``,
     ``seed``); tracking and mapping run in background threads, so runs are not repeatable.
     """
-    from .vslam import FrameResult, MonoVSlam
-
     config = dict(config or {})
     core_options = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY + ("seed",)}
     records: list[FrameResult] = []
@@ -530,8 +467,9 @@ def _jsonable(value):
     return value
 
 
-def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
+def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progress: bool,
          realtime: bool, imu, on_frame: Optional[Callable[..., None]] = None) -> RunResult:
+    system = session.system
     timings = {name: np.full(n, np.nan) for name in _TIMINGS}
     states: list[str] = []
     init_reasons: list[Optional[str]] = []
@@ -549,7 +487,7 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
             t0 = time.perf_counter()
             data = feed.load(i)
             t1 = time.perf_counter()
-            features, colors = feed.features(data)
+            features = feed.features(session, data)
             t2 = time.perf_counter()
             if imu is not None:
                 imu_to = imu_batch_end(imu[0], float(seq.timestamps[i]), imu_period_s,
@@ -557,9 +495,9 @@ def _run(seq, system, feed, n: int, sensor: str, config: dict, progress: bool,
                 if imu_to > imu_from:
                     system.add_imu(*(a[imu_from:imu_to] for a in imu))
                 imu_from = imu_to
-            res = feed.track(system, float(seq.timestamps[i]), features, colors)
+            res = session.track(float(seq.timestamps[i]), features)
             if on_frame is not None:
-                on_frame(res, image=feed.image(data), keypoints=features[0],
+                on_frame(res, image=feed.image(data), keypoints=features.keypoints,
                          timestamp_s=float(seq.timestamps[i]), system=system)
         except Exception as err:  # noqa: BLE001 - raised again with the frames done
             failure = (i, err)

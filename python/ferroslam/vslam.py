@@ -44,7 +44,7 @@ from typing import Any, Callable, Iterable, Optional, Sequence, TextIO, Union
 import numpy as np
 
 from .camera import Camera
-from .features import sample_colors, sample_depth
+from .session import Features, Session
 
 __all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
 
@@ -202,28 +202,6 @@ class _VSlam:
                           ("loop_closure_threshold", "loop_closure_threshold")):
             if given[key] is not None:
                 given[key] = _positive_int(name, given[key])
-        from ._core import SlamSystem
-        from .pipeline import make_extractor
-
-        c = intrinsics
-        self._system = SlamSystem(
-            c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=self._sensor,
-            threaded=_flag("threaded", threaded), loop_closure=_flag("loop_closure", loop_closure),
-            seed=seed,
-            **{k: v for k, v in given.items() if v is not None}, **(core_options or {}),
-        )
-        options = self._system.options
-        self.scale_factor: float = options["scale_factor"]
-        self.num_levels: int = options["n_levels"]
-        self.max_num_points: int = options["n_features"]
-        self.skip_max_frames: int = options["skip_max_frames"]
-        self.loop_closure_threshold: int = options["loop_closure_threshold"]
-        self.track_feature_range: tuple[int, int] = self._system.track_feature_range
-        self._extractor = make_extractor(options)
-        if vocabulary is not None:
-            from .pipeline import load_vocabulary
-
-            self._system.set_vocabulary(load_vocabulary(vocabulary))
         self.imu = imu
         self._imu_period_s = 0.0
         self._imu_time_offset_s = float(imu_time_offset_s)
@@ -232,11 +210,24 @@ class _VSlam:
             if camera_to_imu_transform is None:
                 raise ValueError("imu needs camera_to_imu_transform: the (4, 4) camera pose in "
                                  "the IMU (body) frame, e.g. EuRoC's T_BS")
-            self._system.set_imu(imu, np.asarray(camera_to_imu_transform, dtype=np.float64),
-                                 num_poses_threshold=_positive_int("num_poses_threshold",
-                                                                   num_poses_threshold),
-                                 alignment_fraction=alignment_fraction,
-                                 imu_time_offset_s=imu_time_offset_s)
+        options = {"threaded": _flag("threaded", threaded),
+                   "loop_closure": _flag("loop_closure", loop_closure), "seed": seed,
+                   **{k: v for k, v in given.items() if v is not None}, **(core_options or {})}
+        self._session = Session(
+            intrinsics, self._sensor, options, vocabulary=vocabulary, imu=imu,
+            T_b_c=camera_to_imu_transform,
+            imu_options=dict(num_poses_threshold=_positive_int("num_poses_threshold",
+                                                               num_poses_threshold),
+                             alignment_fraction=alignment_fraction,
+                             imu_time_offset_s=imu_time_offset_s))
+        self._system = self._session.system
+        options = self._system.options
+        self.scale_factor: float = options["scale_factor"]
+        self.num_levels: int = options["n_levels"]
+        self.max_num_points: int = options["n_features"]
+        self.skip_max_frames: int = options["skip_max_frames"]
+        self.loop_closure_threshold: int = options["loop_closure_threshold"]
+        self.track_feature_range: tuple[int, int] = self._system.track_feature_range
         self.on_frame = on_frame
         self._frames = 0
         self._processed = 0
@@ -267,10 +258,10 @@ class _VSlam:
                 timestamp = self._last_timestamp + 1.0 / self.frame_rate_hz
         return float(timestamp)
 
-    def _track(self, started_s: float, timestamp: Optional[float], method: str, *args: Any,
-               colors: np.ndarray, imu: Optional[Sequence[np.ndarray]] = None) -> None:
-        """Hands a frame's features and their ``colors`` (``(N, 3)`` uint8 RGB) to the core;
-        ``started_s``: ``time.perf_counter()`` at the ``add_frame`` call (for the latency)."""
+    def _track(self, started_s: float, timestamp: Optional[float], features: Features,
+               imu: Optional[Sequence[np.ndarray]] = None) -> None:
+        """Hands a frame's features (with their colours) to the core; ``started_s``:
+        ``time.perf_counter()`` at the ``add_frame`` call (for the latency)."""
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
@@ -283,7 +274,7 @@ class _VSlam:
                              f"{self._last_timestamp} s")
         if imu is not None:
             self._system.add_imu(*self._imu_batch(imu, t))
-        result = getattr(self._system, method)(t, *args, colors=colors)  # None when queued
+        result = self._session.track(t, features)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
         self._in_flight.append((t, started_s))
@@ -551,9 +542,7 @@ class MonoVSlam(_VSlam):
         frame is then interpolated, not extrapolated)."""
         started_s = time.perf_counter()
         self.intrinsics.check_image(image)
-        keypoints, descriptors = self._extractor.detect(image)
-        self._track(started_s, timestamp, "track_mono", keypoints, descriptors,
-                    colors=sample_colors(image, keypoints), imu=imu)
+        self._track(started_s, timestamp, self._session.mono(image), imu=imu)
 
     def track_source(self, source: Iterable[tuple[float, np.ndarray]], *,
                      drop_frames: Optional[bool] = None,
@@ -618,9 +607,7 @@ class StereoVSlam(_VSlam):
                              f"{np.shape(right)}")
         started_s = time.perf_counter()
         self.intrinsics.check_image(left, "left image")
-        left_features, right_features = self._extractor.detect_pair(left, right)
-        self._track(started_s, timestamp, "track_stereo", *left_features, *right_features,
-                    colors=sample_colors(left, left_features[0]), imu=imu)
+        self._track(started_s, timestamp, self._session.stereo(left, right), imu=imu)
 
 
 class RGBDVSlam(_VSlam):
@@ -659,11 +646,9 @@ class RGBDVSlam(_VSlam):
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
         self.intrinsics.check_image(color, "color image")
-        keypoints, descriptors = self._extractor.detect(color)
-        depth_m = sample_depth(depth.astype(np.float64) / self.depth_scale_factor, keypoints)
-        self._check_depth_scale(depth_m)
-        self._track(started_s, timestamp, "track_rgbd", keypoints, descriptors, depth_m,
-                    colors=sample_colors(color, keypoints), imu=imu)
+        features = self._session.rgbd(color, depth.astype(np.float64) / self.depth_scale_factor)
+        self._check_depth_scale(features.args[2])
+        self._track(started_s, timestamp, features, imu=imu)
 
     def _check_depth_scale(self, depth_m: np.ndarray) -> None:
         """Warns once when a frame has depth at its keypoints but none of it inside
