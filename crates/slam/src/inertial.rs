@@ -427,8 +427,7 @@ impl Inertial {
         let gravity_w = self.gravity_w()?;
         // Not before the last refinement: the linear alignment re-estimates gravity and the
         // scale from the visual poses, which inertial BA under the earlier, cruder gravity
-        // (1-2 degrees off) would bend (synthetic V1_01 mono: 6 % scale error at 15 s
-        // instead of 1.5 %).
+        // would bend (a monocular map's scale error grew several times).
         if self.next_refinement().is_some() {
             return None;
         }
@@ -518,8 +517,8 @@ impl Inertial {
     /// the new alignment when one succeeded. The map is not changed here.
     ///
     /// Keyframes count from the map's start, culled ones included (local mapping culls
-    /// redundant keyframes, ~9 in 10 on the synthetic EuRoC flight, and would otherwise
-    /// starve the alignment): a culled keyframe's pose is the one the map keeps for it,
+    /// redundant keyframes, most of them on a slow flight, and would otherwise starve the
+    /// alignment): a culled keyframe's pose is the one the map keeps for it,
     /// relative to the keyframe that adopted it.
     pub(crate) fn try_align(&mut self, map: &Map) -> Option<InertialAlignment> {
         self.sync(map);
@@ -608,7 +607,7 @@ impl Inertial {
             gravity_magnitude: self.config.gravity_magnitude,
             min_keyframes: 3,
             // `align` estimates it only once the window rotates enough to tell it from
-            // gravity (not in the first ~2 s on EuRoC V1_01, but at 5 s and 15 s).
+            // gravity (on EuRoC, at the refinements rather than the first alignment).
             estimate_accel_bias: true,
             known_scale: self.known_scale,
             ..AlignmentConfig::default()

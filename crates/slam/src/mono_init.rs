@@ -136,9 +136,8 @@ impl MonoInitializer {
 
     /// ORB-SLAM `SearchForInitialization`: reference keypoints searched in a window of
     /// half-side `window_px` around their last match among the current keypoints of the same
-    /// octave (ratio 0.9, rotation
-    /// consistency, one-to-one). ORB-SLAM searches the finest level only; on KITTI's forward
-    /// motion that found 103 matches (73 triangulated) between frames 0 and 1, too few to start.
+    /// octave (ratio 0.9, rotation consistency, one-to-one). ORB-SLAM searches the finest
+    /// level only; under KITTI's forward motion that found too few matches to start.
     fn search(&self, reference: &Frame, frame: &Frame, window_px: f64) -> Vec<(usize, usize)> {
         let mut ids = Vec::new();
         let mut queries = Vec::new();

@@ -323,7 +323,7 @@ impl SlamSystem {
     /// Adds a tracked frame to the trajectory, anchored to its reference keyframe as the map
     /// was when the frame was tracked: a keyframe's frame is recorded before local mapping
     /// and loop closing move the keyframe, so that it moves with it (recorded after, it kept
-    /// its uncorrected pose: fr1/rpy with `ini_fast` 19, a 19.8 cm outlier at a loop).
+    /// its uncorrected pose: an outlier at each loop).
     fn record_frame(&mut self, frame: &Frame) {
         if let Some(r) = self.tracker.reference_kf {
             self.trajectory

@@ -551,10 +551,10 @@ impl Tracker {
     /// mapping (which is asked to finish early meanwhile); records the deferral.
     ///
     /// Monocular only, and at most one frame in a row: ORB-SLAM refuses monocular keyframes
-    /// whenever mapping is busy, which loses KITTI 06 fed at full speed (27 of 51 frames
-    /// tracked), and a deferral with weak tracking lost it in 2 of 15 runs. So tracking must
-    /// keep at least twice `TrackFeatureRange`'s lower limit (below which it is lost). With
-    /// depth a keyframe brings its own points at once; waiting costs little there.
+    /// whenever mapping is busy, which loses a forward-driving sequence fed at full speed
+    /// (KITTI 06), and a deferral with weak tracking lost it too. So tracking must keep at
+    /// least twice `TrackFeatureRange`'s lower limit (below which it is lost). With depth a
+    /// keyframe brings its own points at once; waiting costs little there.
     pub fn defer_keyframe(&mut self, frame_index: usize, ctx: &Context) -> bool {
         let deferred_last_frame = self
             .keyframe_deferred_at
@@ -573,9 +573,8 @@ impl Tracker {
     /// than `upper` points, or `skip_max_frames` frames after the last keyframe, is one.
     /// Monocular, fewer than `upper` points counts only below the reference ratio too
     /// (MATLAB's monocular example, `helperIsKeyFrame`): a monocular map tracks few points
-    /// (KITTI 06: about 100 of 2000 features), so the bare limit fired on every other frame
-    /// and tracking spent its time waiting for local mapping (31 keyframes in 51 frames, 26
-    /// with the ratio; frame median 22.4 -> 20.3 ms fed at full speed, ATE unchanged).
+    /// (on KITTI, a small share of its features), so the bare limit fired on most frames and
+    /// tracking spent its time waiting for local mapping.
     ///
     /// `mapping_idle` is ORB-SLAM's `c1b`: while local mapping is still busy with earlier
     /// keyframes, the reference-ratio rule only fires when tracking is weak (`c1c`: with
@@ -586,9 +585,8 @@ impl Tracker {
     /// With depth, idle mapping alone does not fire the ratio rule for a frame whose inliers
     /// are mostly (`tracking.redundant_view_share`) points three keyframes already observe: on a
     /// revisit the new reference keyframe's fused points outnumber what the next frame finds
-    /// again (fr1/rpy: about 760 against 450), so the rule would fire every frame or two,
-    /// each keyframe kept by culling for its few new close points. Exploring frames track
-    /// young points and are unaffected (fr1/rpy, 300 frames: 44 keyframes instead of 45).
+    /// again, so the rule would fire every frame or two, each keyframe kept by culling for its
+    /// few new close points. Exploring frames track young points and are barely affected.
     pub fn need_new_keyframe(
         &self,
         frame: &Frame,
