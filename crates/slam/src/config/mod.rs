@@ -215,39 +215,30 @@ mod tests {
     fn invalid_fields_are_named_by_section() {
         let ok = SlamConfig::for_sensor(Sensor::Monocular);
         assert!(ok.validate().is_ok());
+        // `section.field = value`: the expected name and the change that spoils it.
+        macro_rules! case {
+            ($s:ident . $f:ident = $v:expr) => {
+                (
+                    concat!(stringify!($s), ".", stringify!($f)),
+                    |c: &mut SlamConfig| c.$s.$f = $v,
+                )
+            };
+        }
         let cases: [(&str, fn(&mut SlamConfig)); 14] = [
-            ("extractor.n_features", |c| c.extractor.n_features = 0),
-            ("extractor.min_fast", |c| c.extractor.min_fast = 0),
-            ("extractor.min_fast", |c| c.extractor.min_fast = 21),
-            ("extractor.ini_fast", |c| c.extractor.ini_fast = 255),
-            ("depth.bf", |c| c.depth.bf = f64::NAN),
-            ("initialization.mono_window_px", |c| {
-                c.initialization.mono_window_px = 0.0
-            }),
-            ("tracking.post_relocalisation_frames", |c| {
-                c.tracking.post_relocalisation_frames = 0
-            }),
-            ("tracking.redundant_view_share", |c| {
-                c.tracking.redundant_view_share = 1.5
-            }),
-            ("mapping.min_ray_parallax_deg", |c| {
-                c.mapping.min_ray_parallax_deg = 90.0
-            }),
-            ("mapping.max_queued_keyframes", |c| {
-                c.mapping.max_queued_keyframes = 0
-            }),
-            ("place_recognition.group_size", |c| {
-                c.place_recognition.group_size = 0
-            }),
-            ("loop_closing.loop_closure_threshold", |c| {
-                c.loop_closing.loop_closure_threshold = 19
-            }),
-            ("inertial.refinement_spans_s", |c| {
-                c.inertial.refinement_spans_s = vec![15.0, 5.0]
-            }),
-            ("inertial.anchor_sigma_gyro_rad_s", |c| {
-                c.inertial.anchor_sigma_gyro_rad_s = -1.0
-            }),
+            case!(extractor.n_features = 0),
+            case!(extractor.min_fast = 0),
+            case!(extractor.min_fast = 21),
+            case!(extractor.ini_fast = 255),
+            case!(depth.bf = f64::NAN),
+            case!(initialization.mono_window_px = 0.0),
+            case!(tracking.post_relocalisation_frames = 0),
+            case!(tracking.redundant_view_share = 1.5),
+            case!(mapping.min_ray_parallax_deg = 90.0),
+            case!(mapping.max_queued_keyframes = 0),
+            case!(place_recognition.group_size = 0),
+            case!(loop_closing.loop_closure_threshold = 19),
+            case!(inertial.refinement_spans_s = vec![15.0, 5.0]),
+            case!(inertial.anchor_sigma_gyro_rad_s = -1.0),
         ];
         for (field, spoil) in cases {
             let mut bad = ok.clone();

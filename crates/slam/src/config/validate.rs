@@ -1,10 +1,7 @@
 //! [`SlamConfig::validate`]: every field of every section, named `section.field` in the
 //! error.
 
-use super::{
-    DepthConfig, ExtractorConfig, InertialTuning, InitializationConfig, LoopClosingConfig,
-    MappingConfig, PlaceRecognitionConfig, SlamConfig, TrackingConfig,
-};
+use super::SlamConfig;
 use crate::error::SlamError;
 
 /// The fields of one section, for messages that name `section.field`.
@@ -44,173 +41,109 @@ impl Section {
     }
 }
 
+/// `check!(s, >= min, self.a, self.b)` (counts), `check!(s, > 0, self.a)` (finite positive
+/// numbers) or `check!(s, <= max, self.a)` (numbers in `(0, max]`): each field named once,
+/// the error naming it `section.field`.
+macro_rules! check {
+    ($s:ident, >= $min:expr, $($c:ident . $f:ident),+ $(,)?) => {
+        $($s.at_least(stringify!($f), $c.$f, $min)?;)+
+    };
+    ($s:ident, > 0, $($c:ident . $f:ident),+ $(,)?) => {
+        $($s.positive(stringify!($f), $c.$f)?;)+
+    };
+    ($s:ident, <= $max:expr, $($c:ident . $f:ident),+ $(,)?) => {
+        $($s.fraction(stringify!($f), $c.$f, $max)?;)+
+    };
+}
+
 impl SlamConfig {
     /// Checks every field of every section; the error names the first invalid one as
     /// `section.field`.
     pub fn validate(&self) -> Result<(), SlamError> {
-        self.extractor.validate()?;
-        self.depth.validate()?;
-        self.initialization.validate()?;
-        self.tracking.validate()?;
-        self.mapping.validate()?;
-        self.place_recognition.validate()?;
-        self.loop_closing.validate()?;
-        self.inertial.validate()
-    }
-}
-
-impl ExtractorConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("extractor");
-        s.at_least("n_features", self.n_features, 1)?;
-        if !(0 < self.min_fast && self.min_fast <= self.ini_fast && self.ini_fast < 255) {
+        let (x, s) = (&self.extractor, Section("extractor"));
+        check!(s, >= 1, x.n_features);
+        if !(0 < x.min_fast && x.min_fast <= x.ini_fast && x.ini_fast < 255) {
             return Err(s.bad(
                 "ini_fast and extractor.min_fast",
                 "satisfy 0 < min_fast <= ini_fast < 255",
             ));
         }
-        if !(self.scale_factor.is_finite() && self.scale_factor > 1.0) {
+        if !(x.scale_factor.is_finite() && x.scale_factor > 1.0) {
             return Err(s.bad("scale_factor", "be > 1"));
         }
-        if !(1..=32).contains(&self.n_levels) {
+        if !(1..=32).contains(&x.n_levels) {
             return Err(s.bad("n_levels", "be in 1..=32"));
         }
-        Ok(())
-    }
-}
 
-impl DepthConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("depth");
-        if !(self.bf.is_finite() && self.bf > 0.0) {
+        let (d, s) = (&self.depth, Section("depth"));
+        if !(d.bf.is_finite() && d.bf > 0.0) {
             return Err(s.bad("bf", "be a positive number (fx * baseline)"));
         }
-        s.positive("depth_threshold", self.depth_threshold)?;
-        let (dmin, dmax) = self.depth_range;
+        check!(s, > 0, d.depth_threshold);
+        let (dmin, dmax) = d.depth_range;
         if !(dmin.is_finite() && !dmax.is_nan() && 0.0 <= dmin && dmin < dmax) {
             return Err(s.bad("depth_range", "be (min, max) with 0 <= min < max"));
         }
-        Ok(())
-    }
-}
 
-impl InitializationConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("initialization");
-        s.at_least("min_keypoints", self.min_keypoints, 1)?;
-        s.at_least("min_depth_points", self.min_depth_points, 1)?;
-        s.at_least("mono_min_keypoints", self.mono_min_keypoints, 1)?;
+        let (i, s) = (&self.initialization, Section("initialization"));
+        check!(s, >= 1, i.min_keypoints, i.min_depth_points, i.mono_min_keypoints);
         // The essential and homography solvers need 8 matches.
-        s.at_least("mono_min_matches", self.mono_min_matches, 8)?;
-        s.positive("mono_window_px", self.mono_window_px)?;
-        s.at_least("mono_min_points", self.mono_min_points, 1)
-    }
-}
+        check!(s, >= 8, i.mono_min_matches);
+        check!(s, >= 1, i.mono_min_points);
+        check!(s, > 0, i.mono_window_px);
 
-impl TrackingConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("tracking");
-        let (lo, hi) = self.track_feature_range;
-        if lo == 0 || lo >= hi {
+        let (t, s) = (&self.tracking, Section("tracking"));
+        let (lower, upper) = t.track_feature_range;
+        if lower == 0 || lower >= upper {
             return Err(s.bad(
                 "track_feature_range",
                 "be (lower, upper) with 0 < lower < upper",
             ));
         }
-        s.at_least("skip_max_frames", self.skip_max_frames, 1)?;
-        s.at_least(
-            "post_relocalisation_frames",
-            self.post_relocalisation_frames,
-            1,
-        )?;
-        s.at_least("relocalised_min_inliers", self.relocalised_min_inliers, 1)?;
-        s.at_least("min_search_matches", self.min_search_matches, 1)?;
+        check!(s, >= 1, t.skip_max_frames, t.post_relocalisation_frames);
+        check!(s, >= 1, t.relocalised_min_inliers, t.strong_pose_inliers);
+        check!(s, >= 1, t.min_search_matches, t.retry_search_matches);
+        check!(s, >= 1, t.max_local_keyframes, t.redundant_view_keyframes);
         // PnP-RANSAC needs 4 correspondences.
-        s.at_least("min_reference_matches", self.min_reference_matches, 4)?;
-        s.at_least("strong_pose_inliers", self.strong_pose_inliers, 1)?;
-        s.at_least("retry_search_matches", self.retry_search_matches, 1)?;
-        s.at_least("min_pose_inliers", self.min_pose_inliers, 4)?;
-        s.at_least("max_local_keyframes", self.max_local_keyframes, 1)?;
-        s.fraction("redundant_view_share", self.redundant_view_share, 1.0)?;
-        s.at_least("redundant_view_keyframes", self.redundant_view_keyframes, 1)?;
-        s.positive("relocalisation_window_s", self.relocalisation_window_s)?;
-        Ok(()) // min_keyframes_to_keep: any count (0 keeps every lost map)
-    }
-}
+        check!(s, >= 4, t.min_reference_matches, t.min_pose_inliers);
+        check!(s, <= 1.0, t.redundant_view_share);
+        check!(s, > 0, t.relocalisation_window_s);
+        // min_keyframes_to_keep: any count (0 keeps every lost map).
 
-impl MappingConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("mapping");
-        s.at_least("triangulation_neighbours", self.triangulation_neighbours, 1)?;
-        s.at_least(
-            "hurried_triangulation_neighbours",
-            self.hurried_triangulation_neighbours,
-            1,
-        )?;
-        s.at_least(
-            "always_searched_with_depth",
-            self.always_searched_with_depth,
-            1,
-        )?;
+        let (m, s) = (&self.mapping, Section("mapping"));
+        check!(s, >= 1, m.triangulation_neighbours, m.hurried_triangulation_neighbours);
+        check!(s, >= 1, m.always_searched_with_depth, m.max_queued_keyframes);
+        check!(s, >= 1, m.min_point_observations, m.redundant_observations);
         // min_points_to_search_on: any count (0 searches every neighbour).
-        if !(self.min_ray_parallax_deg > 0.0 && self.min_ray_parallax_deg < 90.0) {
+        if !(m.min_ray_parallax_deg > 0.0 && m.min_ray_parallax_deg < 90.0) {
+            let got = m.min_ray_parallax_deg;
             return Err(s.bad(
                 "min_ray_parallax_deg",
-                format_args!("be in (0, 90) degrees, got {}", self.min_ray_parallax_deg),
+                format_args!("be in (0, 90), got {got}"),
             ));
         }
-        s.at_least("min_point_observations", self.min_point_observations, 1)?;
-        s.at_least("redundant_observations", self.redundant_observations, 1)?;
-        if !(self.max_scene_depth_ratio > 1.0) {
-            return Err(s.bad(
-                "max_scene_depth_ratio",
-                format_args!("be > 1 (median depths), got {}", self.max_scene_depth_ratio),
-            ));
+        if !(m.max_scene_depth_ratio > 1.0) {
+            let got = m.max_scene_depth_ratio;
+            return Err(s.bad("max_scene_depth_ratio", format_args!("be > 1, got {got}")));
         }
-        s.at_least("max_queued_keyframes", self.max_queued_keyframes, 1)
-    }
-}
 
-impl PlaceRecognitionConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("place_recognition");
+        let (p, s) = (&self.place_recognition, Section("place_recognition"));
         // feature_levels_up: any level (past the vocabulary's depth, features group at the root).
-        s.at_least("group_size", self.group_size, 1)?;
-        s.at_least("max_retrieved", self.max_retrieved, 1)
-    }
-}
+        check!(s, >= 1, p.group_size, p.max_retrieved);
 
-impl LoopClosingConfig {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("loop_closing");
+        let (l, s) = (&self.loop_closing, Section("loop_closing"));
         // The Sim(3) RANSAC samples 3 correspondences.
-        s.at_least("min_stage_matches", self.min_stage_matches, 3)?;
+        check!(s, >= 3, l.min_stage_matches);
         // The verification needs `min_stage_matches` before its final count: a lower bound
         // would never apply.
-        s.at_least(
-            "loop_closure_threshold",
-            self.loop_closure_threshold,
-            self.min_stage_matches,
-        )?;
-        s.at_least("consistency", self.consistency, 1)?;
-        s.positive("sim3_huber_chi2", self.sim3_huber_chi2)?;
-        s.positive("guided_radius_px", self.guided_radius_px)?;
-        s.positive("projection_radius_px", self.projection_radius_px)?;
-        s.positive("fuse_radius_px", self.fuse_radius_px)?;
-        s.at_least(
-            "essential_graph_iterations",
-            self.essential_graph_iterations,
-            1,
-        )
+        check!(s, >= l.min_stage_matches, l.loop_closure_threshold);
+        check!(s, >= 1, l.consistency, l.essential_graph_iterations);
+        check!(s, > 0, l.sim3_huber_chi2, l.guided_radius_px);
+        check!(s, > 0, l.projection_radius_px, l.fuse_radius_px);
         // min_keyframes_between, strong_covisibility: any count.
-    }
-}
 
-impl InertialTuning {
-    fn validate(&self) -> Result<(), SlamError> {
-        let s = Section("inertial");
-        s.positive("init_keyframe_interval_s", self.init_keyframe_interval_s)?;
-        let spans = &self.refinement_spans_s;
+        let (n, s) = (&self.inertial, Section("inertial"));
+        let spans = &n.refinement_spans_s;
         let increasing = spans.windows(2).all(|w| w[0] < w[1]);
         if !(increasing && spans.iter().all(|t| t.is_finite() && *t > 0.0)) {
             return Err(s.bad(
@@ -218,14 +151,12 @@ impl InertialTuning {
                 format_args!("be positive seconds in increasing order, got {spans:?}"),
             ));
         }
-        s.at_least("window_keyframes", self.window_keyframes, 2)?;
-        s.positive("max_gyro_bias_rad_s", self.max_gyro_bias_rad_s)?;
-        s.positive("max_accel_bias_m_s2", self.max_accel_bias_m_s2)?;
-        s.positive("max_speed_m_s", self.max_speed_m_s)?;
-        s.positive("velocity_baseline_s", self.velocity_baseline_s)?;
-        s.positive("imu_only_max_s", self.imu_only_max_s)?;
-        s.positive("anchor_sigma_velocity_m_s", self.anchor_sigma_velocity_m_s)?;
-        s.positive("anchor_sigma_accel_m_s2", self.anchor_sigma_accel_m_s2)?;
-        s.positive("anchor_sigma_gyro_rad_s", self.anchor_sigma_gyro_rad_s)
+        check!(s, >= 2, n.window_keyframes);
+        check!(s, > 0, n.init_keyframe_interval_s, n.velocity_baseline_s);
+        check!(s, > 0, n.imu_only_max_s, n.max_speed_m_s);
+        check!(s, > 0, n.max_gyro_bias_rad_s, n.max_accel_bias_m_s2);
+        check!(s, > 0, n.anchor_sigma_velocity_m_s, n.anchor_sigma_accel_m_s2);
+        check!(s, > 0, n.anchor_sigma_gyro_rad_s);
+        Ok(())
     }
 }
