@@ -1,18 +1,22 @@
 //! `SlamSystem` keyword options <-> the core's `SlamConfig`, and `default_options`: the
 //! defaults the CLI, `run_sequence` and the vSLAM objects read.
+//!
+//! The options are flat keywords (`n_features`, `skip_max_frames`, ...), each the field of
+//! one section of the configuration. One table, [`OPTIONS`], says for each option which
+//! field it is, how its Python value is read and how the field is written back: [`parse`],
+//! [`options_dict`] and the unknown-option error all walk it. A value of the wrong type is a
+//! `TypeError` naming the option and the type expected; a value out of range is the core's
+//! `ValueError` from `SlamConfig::validate`, naming `section.field`.
 
 use ferroslam_slam::{Sensor, SlamConfig};
+use pyo3::conversion::FromPyObjectOwned;
 use pyo3::exceptions::{PyNotImplementedError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use pyo3::IntoPyObjectExt;
 
 /// Sensors the core can track.
 const SENSORS: [Sensor; 3] = [Sensor::Monocular, Sensor::Stereo, Sensor::Rgbd];
-
-/// Option names `SlamSystem` takes, in the order of [`options_dict`] (plus `baseline`).
-const OPTIONS: &str = "n_features, ini_fast, min_fast, scale_factor, n_levels, \
-                       track_feature_range, skip_max_frames, bf, baseline, depth_threshold, \
-                       depth_range, seed, loop_closure, loop_closure_threshold";
 
 /// The sensor named `name` ("mono", "stereo", "rgbd").
 pub fn sensor(name: &str) -> PyResult<Sensor> {
@@ -28,18 +32,135 @@ pub fn sensor(name: &str) -> PyResult<Sensor> {
         })
 }
 
-/// A two-element sequence (tuple, list or array) as a pair.
-fn pair<'py, T: pyo3::conversion::FromPyObjectOwned<'py> + Copy>(
-    key: &str,
+/// A configuration being read from keyword options, with what the stereo rule needs.
+struct Parsed {
+    config: SlamConfig,
+    /// `baseline`, metres, when given (stereo: `bf = fx * baseline`).
+    baseline: Option<f64>,
+    /// Whether `bf` was given.
+    bf_given: bool,
+}
+
+/// One keyword option: its name, how its value is read into the configuration and how its
+/// field is written back (`None`: not written back, see `baseline`).
+struct Opt {
+    name: &'static str,
+    read: fn(&mut Parsed, &Bound<'_, PyAny>) -> PyResult<()>,
+    write: Option<fn(&SlamConfig, Python<'_>) -> PyResult<Py<PyAny>>>,
+}
+
+/// An option that is the field `$field` (a path into the sections) of the configuration,
+/// read by `$read` (one of the typed readers below).
+macro_rules! field {
+    ($name:literal, $($field:ident).+, $read:ident) => {
+        Opt {
+            name: $name,
+            read: |p, value| {
+                p.config.$($field).+ = $read($name, value)?;
+                Ok(())
+            },
+            write: Some(|config, py| config.$($field).+.into_py_any(py)),
+        }
+    };
+}
+
+/// Every keyword option of `SlamSystem`, in the order of [`options_dict`] and of the
+/// unknown-option error.
+const OPTIONS: &[Opt] = &[
+    field!("n_features", extractor.n_features, int),
+    field!("ini_fast", extractor.ini_fast, int),
+    field!("min_fast", extractor.min_fast, int),
+    field!("scale_factor", extractor.scale_factor, number),
+    field!("n_levels", extractor.n_levels, int),
+    field!("track_feature_range", tracking.track_feature_range, pair),
+    field!("skip_max_frames", tracking.skip_max_frames, int),
+    Opt {
+        name: "bf",
+        read: |p, value| {
+            p.config.depth.bf = number("bf", value)?;
+            p.bf_given = true;
+            Ok(())
+        },
+        write: Some(|config, py| config.depth.bf.into_py_any(py)),
+    },
+    // A stereo rig's baseline, metres; written back as `bf`.
+    Opt {
+        name: "baseline",
+        read: |p, value| {
+            p.baseline = Some(number("baseline", value)?);
+            Ok(())
+        },
+        write: None,
+    },
+    field!("depth_threshold", depth.depth_threshold, number),
+    field!("depth_range", depth.depth_range, pair),
+    field!("seed", seed, int),
+    field!("loop_closure", loop_closing.loop_closure, flag),
+    field!(
+        "loop_closure_threshold",
+        loop_closing.loop_closure_threshold,
+        int
+    ),
+];
+
+/// The option names, comma-separated, for errors.
+fn option_names() -> String {
+    OPTIONS
+        .iter()
+        .map(|o| o.name)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// `TypeError`: `option` needs a value of type `expected`.
+fn wrong_type(option: &str, expected: &str, value: &Bound<'_, PyAny>) -> PyErr {
+    let got = value
+        .get_type()
+        .name()
+        .map_or_else(|_| "?".to_owned(), |n| n.to_string());
+    PyTypeError::new_err(format!("option {option}: expected {expected}, got {got}"))
+}
+
+/// An integer (Python int or anything with `__index__`, e.g. a numpy integer); one the
+/// field's type cannot hold is a `ValueError`.
+fn int<'py, T: FromPyObjectOwned<'py>>(option: &str, value: &Bound<'py, PyAny>) -> PyResult<T> {
+    value
+        .extract::<T>()
+        .map_err(|_| match value.extract::<i128>() {
+            Ok(n) => PyValueError::new_err(format!(
+                "option {option}: {n} is out of range for its type ({})",
+                std::any::type_name::<T>()
+            )),
+            Err(_) => wrong_type(option, "an int", value),
+        })
+}
+
+/// A real number (an int is accepted).
+fn number(option: &str, value: &Bound<'_, PyAny>) -> PyResult<f64> {
+    value
+        .extract()
+        .map_err(|_| wrong_type(option, "a number", value))
+}
+
+/// `True` or `False`.
+fn flag(option: &str, value: &Bound<'_, PyAny>) -> PyResult<bool> {
+    value
+        .extract()
+        .map_err(|_| wrong_type(option, "a bool", value))
+}
+
+/// A two-element sequence (tuple, list or array) of numbers as a pair.
+fn pair<'py, T: FromPyObjectOwned<'py> + Copy>(
+    option: &str,
     value: &Bound<'py, PyAny>,
 ) -> PyResult<(T, T)> {
     let items: Vec<T> = value.extract().map_err(|e| {
-        PyTypeError::new_err(format!("option {key}: expected a pair of numbers: {e}"))
+        PyTypeError::new_err(format!("option {option}: expected a pair of numbers: {e}"))
     })?;
     match items[..] {
         [a, b] => Ok((a, b)),
         _ => Err(PyValueError::new_err(format!(
-            "option {key}: expected 2 values, got {}",
+            "option {option}: expected 2 values, got {}",
             items.len()
         ))),
     }
@@ -56,41 +177,30 @@ pub fn parse(
     width_px: u32,
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<SlamConfig> {
-    let mut config = SlamConfig::for_camera(sensor, width_px);
-    let mut baseline: Option<f64> = None;
-    let mut bf_given = false;
+    let mut parsed = Parsed {
+        config: SlamConfig::for_camera(sensor, width_px),
+        baseline: None,
+        bf_given: false,
+    };
     for (key, value) in options.map(|o| o.iter()).into_iter().flatten() {
         let key: String = key.extract()?;
-        let wrong = |e: PyErr| PyTypeError::new_err(format!("option {key}: {e}"));
-        match key.as_str() {
-            "n_features" => config.n_features = value.extract().map_err(wrong)?,
-            "ini_fast" => config.ini_fast = value.extract().map_err(wrong)?,
-            "min_fast" => config.min_fast = value.extract().map_err(wrong)?,
-            "scale_factor" => config.scale_factor = value.extract().map_err(wrong)?,
-            "n_levels" => config.n_levels = value.extract().map_err(wrong)?,
-            "track_feature_range" => config.track_feature_range = pair(&key, &value)?,
-            "skip_max_frames" => config.skip_max_frames = value.extract().map_err(wrong)?,
-            "bf" => {
-                config.bf = value.extract().map_err(wrong)?;
-                bf_given = true;
-            }
-            "baseline" => baseline = Some(value.extract().map_err(wrong)?),
-            "depth_threshold" => config.depth_threshold = value.extract().map_err(wrong)?,
-            "depth_range" => config.depth_range = pair(&key, &value)?,
-            "seed" => config.seed = value.extract().map_err(wrong)?,
-            "loop_closure" => config.loop_closure = value.extract().map_err(wrong)?,
-            "loop_closure_threshold" => {
-                config.loop_closure_threshold = value.extract().map_err(wrong)?
-            }
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                    "unknown option {key:?}; known: {OPTIONS}"
-                )))
-            }
-        }
+        let Some(option) = OPTIONS.iter().find(|o| o.name == key) else {
+            return Err(PyValueError::new_err(format!(
+                "unknown option {key:?}; known: {}",
+                option_names()
+            )));
+        };
+        (option.read)(&mut parsed, &value)?;
     }
+    let Parsed {
+        mut config,
+        baseline,
+        bf_given,
+    } = parsed;
     match (sensor, baseline) {
-        (Sensor::Stereo, Some(b)) if b.is_finite() && b > 0.0 && !bf_given => config.bf = fx * b,
+        (Sensor::Stereo, Some(b)) if b.is_finite() && b > 0.0 && !bf_given => {
+            config.depth.bf = fx * b
+        }
         (Sensor::Stereo, Some(b)) if !bf_given => {
             return Err(PyValueError::new_err(format!(
                 "option baseline: must be a positive number of metres, got {b}"
@@ -115,19 +225,11 @@ pub fn parse(
 /// `config` as the keyword options that rebuild it (`bf` stands for a stereo `baseline`).
 pub fn options_dict<'py>(py: Python<'py>, config: &SlamConfig) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("n_features", config.n_features)?;
-    d.set_item("ini_fast", config.ini_fast)?;
-    d.set_item("min_fast", config.min_fast)?;
-    d.set_item("scale_factor", config.scale_factor)?;
-    d.set_item("n_levels", config.n_levels)?;
-    d.set_item("track_feature_range", config.track_feature_range)?;
-    d.set_item("skip_max_frames", config.skip_max_frames)?;
-    d.set_item("bf", config.bf)?;
-    d.set_item("depth_threshold", config.depth_threshold)?;
-    d.set_item("depth_range", config.depth_range)?;
-    d.set_item("seed", config.seed)?;
-    d.set_item("loop_closure", config.loop_closure)?;
-    d.set_item("loop_closure_threshold", config.loop_closure_threshold)?;
+    for option in OPTIONS {
+        if let Some(write) = option.write {
+            d.set_item(option.name, write(config, py)?)?;
+        }
+    }
     Ok(d)
 }
 

@@ -409,7 +409,7 @@ impl PySlamSystem {
     /// (lower, upper) tracked-point limits in use: the option given, else the sensor's default.
     #[getter]
     fn track_feature_range(&self) -> (usize, usize) {
-        self.config.track_feature_range
+        self.config.tracking.track_feature_range
     }
 
     /// Every option in use, as a dict of keyword options: those given, the defaults of the

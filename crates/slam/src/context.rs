@@ -40,10 +40,10 @@ impl Context {
             fy: camera.fy,
             cx: camera.cx,
             cy: camera.cy,
-            bf: config.bf,
+            bf: config.depth.bf,
         };
-        let close_depth_m = config.close_depth_m(camera.fx);
-        let baseline_m = config.bf / camera.fx;
+        let close_depth_m = config.depth.close_depth_m(camera.fx);
+        let baseline_m = config.depth.bf / camera.fx;
         Self {
             camera,
             bounds,
@@ -69,7 +69,7 @@ impl Context {
     /// What input frames must fit: pyramid depth and image size.
     pub fn input_shape(&self) -> InputShape {
         InputShape {
-            n_levels: self.config.n_levels,
+            n_levels: self.config.extractor.n_levels,
             width: self.camera.width,
             height: self.camera.height,
         }

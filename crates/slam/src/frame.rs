@@ -207,7 +207,7 @@ impl Frame {
         ctx: &Context,
     ) -> Result<Self, SlamError> {
         let (camera, config) = (&ctx.camera, &ctx.config);
-        let (dmin, dmax) = config.depth_range;
+        let (dmin, dmax) = config.depth.depth_range;
         let mut keypoints = Vec::with_capacity(input.keypoints.len());
         let mut depth = Vec::with_capacity(input.keypoints.len());
         let mut u_right = Vec::with_capacity(input.keypoints.len());
@@ -221,7 +221,7 @@ impl Frame {
             let d = d as f64;
             if d.is_finite() && d > dmin && d < dmax {
                 depth.push(d as f32);
-                u_right.push((uv.x - config.bf / d) as f32);
+                u_right.push((uv.x - config.depth.bf / d) as f32);
             } else {
                 depth.push(-1.0);
                 u_right.push(-1.0);
@@ -271,10 +271,10 @@ impl Frame {
             &input.left,
             &input.right,
             pyramid,
-            ctx.config.bf,
+            ctx.config.depth.bf,
             ctx.camera.fx,
         );
-        let (dmin, dmax) = ctx.config.depth_range;
+        let (dmin, dmax) = ctx.config.depth.depth_range;
         let (u_right, depth) = matches
             .iter()
             .map(|m| match m {

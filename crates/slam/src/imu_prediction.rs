@@ -3,14 +3,15 @@
 //!
 //! While vision tracks, the body poses of the recent frames are kept. When a frame fails,
 //! the body state at the last tracked frame `j` is fixed once (the anchor): its velocity
-//! follows from the tracked pose `k` about [`VELOCITY_BASELINE_S`] earlier and the IMU
+//! follows from the tracked pose `k` about `inertial.velocity_baseline_s` (of the
+//! configuration, [`crate::SlamConfig`]) earlier and the IMU
 //! preintegrated between them, exactly (no finite difference of noisy positions):
 //!
 //! ```text
 //! v_k = (p_j - p_k - g dt^2 / 2 - R_k dp) / dt,    v_j = v_k + g dt + R_k dv
 //! ```
 //!
-//! Every later frame up to [`IMU_ONLY_MAX_S`] after the anchor is predicted from it with the
+//! Every later frame up to `inertial.imu_only_max_s` after the anchor is predicted from it with the
 //! IMU preintegrated since (the newest keyframe's biases). The prediction is where tracking
 //! looks for the local map again, and the prior that the few matches it may find are fused
 //! with ([`ImuPrediction`]); with none, it is the frame's pose.
@@ -24,22 +25,8 @@ use ferroslam_imu::preintegration::{Matrix9, POS, ROT, VEL};
 use ferroslam_imu::{BiasWalkFactor, ImuState, InertialFactor, NavState};
 use nalgebra::{Isometry3, Translation3};
 
+use crate::config::InertialTuning;
 use crate::inertial::Inertial;
-
-/// Time over which the anchor's velocity is measured, seconds: long enough that millimetre
-/// pose noise gives millimetres per second, short enough that the bias error stays small.
-pub const VELOCITY_BASELINE_S: f64 = 0.5;
-/// Longest IMU-only stretch, seconds, after which the frame is lost (ORB-SLAM3's
-/// `time_recently_lost`).
-pub const IMU_ONLY_MAX_S: f64 = 5.0;
-
-/// Uncertainty (1 sigma) of the anchor state a prediction starts from, which the
-/// preintegration's own covariance does not hold: velocity (m/s), accelerometer bias and
-/// gravity tilt together (m/s^2), gyro bias (rad/s). On the synthetic V1_01 runs keyframe
-/// velocities are 2-7 cm/s off, the accelerometer bias 0.01-0.04 m/s^2 with gravity 0.2-1.4
-/// deg (0.03-0.24 m/s^2), the gyro bias 0.0003-0.0014 rad/s. Without it a prediction 1 s
-/// old claims millimetres and a few matches cannot move it.
-const ANCHOR_SIGMA: (f64, f64, f64) = (0.05, 0.1, 0.002);
 
 /// The IMU's prediction for a frame: its pose and the inertial constraint from the anchor.
 #[allow(non_snake_case)]
@@ -61,7 +48,7 @@ pub(crate) struct ImuPrediction {
 #[derive(Clone, Debug, Default)]
 pub(crate) struct ImuPredictor {
     /// `(timestamp, T_w_b)` of the frames tracked by vision in the last
-    /// [`VELOCITY_BASELINE_S`] and one more, oldest first.
+    /// `velocity_baseline_s` and one more, oldest first.
     tracked: VecDeque<(f64, Isometry3<f64>)>,
     /// Timestamp and state of the last tracked frame once a frame failed.
     anchor: Option<(f64, NavState)>,
@@ -70,18 +57,15 @@ pub(crate) struct ImuPredictor {
 impl ImuPredictor {
     /// Records a frame tracked by vision (ends any IMU-only stretch).
     #[allow(non_snake_case)]
-    pub(crate) fn record(
-        &mut self,
-        timestamp: f64,
-        T_w_c: &Isometry3<f64>,
-        T_b_c: &Isometry3<f64>,
-    ) {
+    pub(crate) fn record(&mut self, timestamp: f64, T_w_c: &Isometry3<f64>, inertial: &Inertial) {
         self.anchor = None;
+        let T_b_c = &inertial.config().T_b_c;
         self.tracked.push_back((timestamp, T_w_c * T_b_c.inverse()));
+        let baseline_s = inertial.tuning().velocity_baseline_s;
         while self
             .tracked
             .get(1)
-            .is_some_and(|&(t, _)| timestamp - t >= VELOCITY_BASELINE_S)
+            .is_some_and(|&(t, _)| timestamp - t >= baseline_s)
         {
             self.tracked.pop_front();
         }
@@ -94,18 +78,19 @@ impl ImuPredictor {
 
     /// The IMU's prediction for a frame at `timestamp` that vision could not localise;
     /// `None` before the alignment, without a tracked baseline of at least half
-    /// [`VELOCITY_BASELINE_S`], beyond [`IMU_ONLY_MAX_S`] or without IMU samples up to
+    /// `velocity_baseline_s`, beyond `imu_only_max_s` or without IMU samples up to
     /// `timestamp`.
     #[allow(non_snake_case)]
     pub(crate) fn predict(&mut self, timestamp: f64, inertial: &Inertial) -> Option<ImuPrediction> {
         let gravity_w = inertial.gravity_w()?;
+        let tuning = inertial.tuning();
         let (t_j, state_j) = match self.anchor {
             Some(anchor) => anchor,
             None => {
                 let &(t_k, T_w_bk) = self.tracked.front()?;
                 let &(t_j, T_w_bj) = self.tracked.back()?;
                 let dt = t_j - t_k;
-                if dt < 0.5 * VELOCITY_BASELINE_S {
+                if dt < 0.5 * tuning.velocity_baseline_s {
                     return None;
                 }
                 let delta = inertial.preintegrate(t_k, t_j)?.delta();
@@ -121,7 +106,7 @@ impl ImuPredictor {
                 *self.anchor.insert((t_j, state))
             }
         };
-        if timestamp - t_j > IMU_ONLY_MAX_S {
+        if timestamp - t_j > tuning.imu_only_max_s {
             return None;
         }
         let pre = inertial.preintegrate(t_j, timestamp)?;
@@ -138,18 +123,24 @@ impl ImuPredictor {
             predicted,
             bias_walk: BiasWalkFactor::new(&inertial.config().params, pre.dt()).ok()?,
             factor: InertialFactor::new(pre, gravity_w)
-                .and_then(|f| f.with_added_covariance(&anchor_covariance(timestamp - t_j)))
+                .and_then(|f| f.with_added_covariance(&anchor_covariance(timestamp - t_j, tuning)))
                 .ok()?,
         })
     }
 }
 
-/// [`ANCHOR_SIGMA`] propagated over `dt` seconds into the inertial residual `[r_R; r_v;
-/// r_p]`: a velocity error moves `r_v` by itself and `r_p` by `dt` times it, an acceleration
-/// error `r_v` by `dt` and `r_p` by `dt^2 / 2` times it, a gyro bias error `r_R` by `dt`
-/// times it (isotropic, so the anchor's orientation drops out).
-fn anchor_covariance(dt: f64) -> Matrix9 {
-    let (sv, sa, sg) = ANCHOR_SIGMA;
+/// The uncertainty of the anchor state a prediction starts from, which the
+/// preintegration's own covariance does not hold (`anchor_sigma_*` of the tuning),
+/// propagated over `dt` seconds into the inertial residual `[r_R; r_v; r_p]`: a velocity
+/// error moves `r_v` by itself and `r_p` by `dt` times it, an acceleration error `r_v` by
+/// `dt` and `r_p` by `dt^2 / 2` times it, a gyro bias error `r_R` by `dt` times it
+/// (isotropic, so the anchor's orientation drops out).
+fn anchor_covariance(dt: f64, tuning: &InertialTuning) -> Matrix9 {
+    let (sv, sa, sg) = (
+        tuning.anchor_sigma_velocity_m_s,
+        tuning.anchor_sigma_accel_m_s2,
+        tuning.anchor_sigma_gyro_rad_s,
+    );
     let (var_v, var_a) = (sv * sv, sa * sa);
     let mut c = Matrix9::zeros();
     let mut block = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>, value: f64| {

@@ -20,13 +20,14 @@
 //! as ORB-SLAM3's stereo-inertial initialisation does, so a static start aligns too).
 //! The world is NOT rotated: gravity is stored as `gravity_w` and `R_w_g` (gravity-aligned
 //! frame, z up, into the map's world), so poses already handed out stay valid.
-//! Until then a keyframe is inserted at least every [`INIT_KEYFRAME_INTERVAL_S`]
-//! (ORB-SLAM3). A failed attempt (no excitation yet, missing IMU data) is retried at the next keyframe.
+//! Until then a keyframe is inserted at least every `init_keyframe_interval_s`
+//! ([`InertialTuning`], ORB-SLAM3). A failed attempt (no excitation yet, missing IMU data)
+//! is retried at the next keyframe.
 //!
 //! # Refinements
 //!
 //! As ORB-SLAM3 re-initialises at ~5 s and ~15 s, the alignment is re-run when the keyframes
-//! since the first alignment span [`REFINEMENT_SPANS_S`], over the keyframes (live or
+//! since the first alignment span `refinement_spans_s`, over the keyframes (live or
 //! culled) of the newest span, at the poses the map holds now and with the biases found so
 //! far as priors. The scale found is relative to the current map, so a monocular map is
 //! multiplied by it again (the trajectory stays continuous). A failed refinement keeps the
@@ -41,16 +42,9 @@ use ferroslam_imu::{check_stream, check_units, BiasWalkFactor, ImuError, Inertia
 use ferroslam_map::{KeyFrameId, Map, MapError};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
+use crate::config::InertialTuning;
 use crate::error::SlamError;
-use crate::local_inertial_ba::{InertialWindow, INERTIAL_WINDOW_KEYFRAMES};
-
-/// Spans of keyframe time since the first alignment, seconds, after which the alignment is
-/// re-run over the newest keyframes of that span (ORB-SLAM3's refinements at ~5 s and ~15 s).
-pub const REFINEMENT_SPANS_S: [f64; 2] = [5.0, 15.0];
-
-/// Before the first alignment, a keyframe at least this often, seconds (ORB-SLAM3): the
-/// alignment needs poses spread over time, also while the camera barely moves.
-pub const INIT_KEYFRAME_INTERVAL_S: f64 = 0.25;
+use crate::local_inertial_ba::InertialWindow;
 
 pub use ferroslam_imu::{Bias, ImuMeasurement as ImuSample, ImuParams, Preintegrated};
 
@@ -148,7 +142,8 @@ pub struct InertialAlignment {
     /// factor the map was multiplied by, relative for a refinement; with depth: a check,
     /// ideally 1).
     pub scale: f64,
-    /// 0 for the first alignment, `k` for the refinement after `REFINEMENT_SPANS_S[k - 1]`.
+    /// 0 for the first alignment, `k` for the refinement after `refinement_spans_s[k - 1]`
+    /// ([`InertialTuning`]).
     pub refinement: usize,
     /// Whether the map was rescaled by [`scale`](Self::scale) (monocular only).
     pub map_rescaled: bool,
@@ -223,6 +218,7 @@ struct Seen {
 #[derive(Clone, Debug)]
 pub(crate) struct Inertial {
     config: InertialConfig,
+    tuning: InertialTuning,
     /// The map is metric (stereo, RGB-D): the alignment keeps its scale.
     known_scale: bool,
     samples: Vec<ImuSample>,
@@ -241,12 +237,18 @@ pub(crate) struct Inertial {
 }
 
 impl Inertial {
-    /// `known_scale` for a metric map (stereo, RGB-D).
-    pub(crate) fn new(config: InertialConfig, known_scale: bool) -> Result<Self, SlamError> {
+    /// `known_scale` for a metric map (stereo, RGB-D); `tuning` is the system's (validated
+    /// with it).
+    pub(crate) fn new(
+        config: InertialConfig,
+        tuning: InertialTuning,
+        known_scale: bool,
+    ) -> Result<Self, SlamError> {
         config.validate()?;
         let needed = config.num_poses_threshold;
         Ok(Self {
             config,
+            tuning,
             known_scale,
             samples: Vec::new(),
             keyframes: BTreeMap::new(),
@@ -263,6 +265,10 @@ impl Inertial {
 
     pub(crate) fn config(&self) -> &InertialConfig {
         &self.config
+    }
+
+    pub(crate) fn tuning(&self) -> &InertialTuning {
+        &self.tuning
     }
 
     pub(crate) fn status(&self) -> &AlignmentStatus {
@@ -421,8 +427,7 @@ impl Inertial {
         let gravity_w = self.gravity_w()?;
         // Not before the last refinement: the linear alignment re-estimates gravity and the
         // scale from the visual poses, which inertial BA under the earlier, cruder gravity
-        // (1-2 degrees off) would bend (synthetic V1_01 mono: 6 % scale error at 15 s
-        // instead of 1.5 %).
+        // would bend (a monocular map's scale error grew several times).
         if self.next_refinement().is_some() {
             return None;
         }
@@ -448,7 +453,7 @@ impl Inertial {
             self.states.insert(id, state);
         }
         let mut ids = vec![live.last()?.0];
-        while ids.len() < INERTIAL_WINDOW_KEYFRAMES {
+        while ids.len() < self.tuning.window_keyframes {
             let oldest = *ids.last()?;
             match self.keyframes.get(&oldest) {
                 Some(imu) if self.states.contains_key(&imu.previous) => ids.push(imu.previous),
@@ -495,11 +500,11 @@ impl Inertial {
         }
     }
 
-    /// Index into [`REFINEMENT_SPANS_S`] of the next alignment (0 before the first one,
+    /// Index into `refinement_spans_s` of the next alignment (0 before the first one,
     /// which [`InertialAlignment::refinement`] counts as 0 too), `None` when all are done.
     fn next_refinement(&self) -> Option<usize> {
         match &self.status {
-            AlignmentStatus::Aligned(a) if a.refinement < REFINEMENT_SPANS_S.len() => {
+            AlignmentStatus::Aligned(a) if a.refinement < self.tuning.refinement_spans_s.len() => {
                 Some(a.refinement)
             }
             AlignmentStatus::Aligned(_) => None,
@@ -512,13 +517,13 @@ impl Inertial {
     /// the new alignment when one succeeded. The map is not changed here.
     ///
     /// Keyframes count from the map's start, culled ones included (local mapping culls
-    /// redundant keyframes, ~9 in 10 on the synthetic EuRoC flight, and would otherwise
-    /// starve the alignment): a culled keyframe's pose is the one the map keeps for it,
+    /// redundant keyframes, most of them on a slow flight, and would otherwise starve the
+    /// alignment): a culled keyframe's pose is the one the map keeps for it,
     /// relative to the keyframe that adopted it.
     pub(crate) fn try_align(&mut self, map: &Map) -> Option<InertialAlignment> {
         self.sync(map);
         if let (AlignmentStatus::Aligned(a), Some(t0)) = (&self.status, self.first_aligned_s) {
-            let span = *REFINEMENT_SPANS_S.get(a.refinement)?;
+            let span = *self.tuning.refinement_spans_s.get(a.refinement)?;
             let newest = self.history.last()?.timestamp;
             if newest - t0 < span {
                 return None;
@@ -602,13 +607,13 @@ impl Inertial {
             gravity_magnitude: self.config.gravity_magnitude,
             min_keyframes: 3,
             // `align` estimates it only once the window rotates enough to tell it from
-            // gravity (not in the first ~2 s on EuRoC V1_01, but at 5 s and 15 s).
+            // gravity (on EuRoC, at the refinements rather than the first alignment).
             estimate_accel_bias: true,
             known_scale: self.known_scale,
             ..AlignmentConfig::default()
         };
         let out = align(&poses, &self.config.T_b_c, &pres, &config).map_err(|e| e.to_string())?;
-        check_plausible(&out)?;
+        check_plausible(&out, &self.tuning)?;
         Ok(InertialAlignment {
             scale: out.scale,
             refinement: 0,
@@ -649,40 +654,36 @@ impl Inertial {
     }
 }
 
-/// Largest gyro bias an alignment may find, rad/s (29 deg/s): MEMS gyro biases stay within a
-/// few deg/s (EuRoC's ADIS16448: 0.08 rad/s). Beyond, the readings do not describe the
-/// rotation vision sees: another unit (deg/s during slow motion), a constant, wrong axes.
-pub const MAX_GYRO_BIAS_RAD_S: f64 = 0.5;
-/// Largest accelerometer bias an alignment may find, m/s^2 (MEMS: a few tenths).
-pub const MAX_ACCEL_BIAS_M_S2: f64 = 2.0;
-/// Largest keyframe speed an alignment may find, m/s (360 km/h): garbage IMU data (cm/s^2
-/// that passed the unit checks, samples from another clock) "aligns" at hundreds of m/s.
-pub const MAX_SPEED_M_S: f64 = 100.0;
-
-/// Refuses an alignment whose biases or velocities (m/s) no real IMU and camera produce,
-/// naming the sensor to check.
-fn check_plausible(out: &ferroslam_imu::alignment::Alignment) -> Result<(), String> {
+/// Refuses an alignment whose biases or velocities (m/s) no real IMU and camera produce
+/// (the `max_*` bounds of `tuning`), naming the sensor to check.
+fn check_plausible(
+    out: &ferroslam_imu::alignment::Alignment,
+    tuning: &InertialTuning,
+) -> Result<(), String> {
     let gyro = out.gyro_bias.norm();
-    if gyro > MAX_GYRO_BIAS_RAD_S {
+    let max_gyro = tuning.max_gyro_bias_rad_s;
+    if gyro > max_gyro {
         return Err(format!(
             "gyroscope: matching the rotation vision sees needs a gyro bias of {gyro:.2} rad/s, \
-             beyond any MEMS gyro's ({MAX_GYRO_BIAS_RAD_S} rad/s): check the gyroscope's unit \
+             beyond any MEMS gyro's ({max_gyro} rad/s): check the gyroscope's unit \
              (deg/s instead of rad/s?), its axes (T_b_c) and imu_time_offset_s"
         ));
     }
     let accel = out.accel_bias.norm();
-    if accel > MAX_ACCEL_BIAS_M_S2 {
+    let max_accel = tuning.max_accel_bias_m_s2;
+    if accel > max_accel {
         return Err(format!(
             "accelerometer: the alignment needs an accelerometer bias of {accel:.2} m/s^2, \
-             beyond any MEMS accelerometer's ({MAX_ACCEL_BIAS_M_S2} m/s^2): check its unit \
+             beyond any MEMS accelerometer's ({max_accel} m/s^2): check its unit \
              (m/s^2) and axes (T_b_c)"
         ));
     }
     let speed = out.velocities.iter().map(|v| v.norm()).fold(0.0, f64::max);
-    if speed > MAX_SPEED_M_S {
+    let max_speed = tuning.max_speed_m_s;
+    if speed > max_speed {
         return Err(format!(
             "accelerometer: the alignment puts the camera at {speed:.0} m/s, beyond \
-             {MAX_SPEED_M_S} m/s: check the accelerometer's unit (m/s^2), the IMU timestamps \
+             {max_speed} m/s: check the accelerometer's unit (m/s^2), the IMU timestamps \
              and imu_time_offset_s"
         ));
     }
@@ -767,7 +768,7 @@ mod tests {
         // The IMU clock runs 12 ms ahead: t_imu = t_cam + 0.012.
         let mut c = config();
         c.imu_time_offset_s = 0.012;
-        let mut inertial = Inertial::new(c, false).unwrap();
+        let mut inertial = Inertial::new(c, InertialTuning::default(), false).unwrap();
         inertial.add(&[sample(1.012), sample(1.017)]).unwrap();
         let stamps: Vec<f64> = inertial.samples.iter().map(|s| s.t_s).collect();
         assert!((stamps[0] - 1.0).abs() < 1e-12 && (stamps[1] - 1.005).abs() < 1e-12);
@@ -788,24 +789,27 @@ mod tests {
             velocities: vec![Vector3::new(0.3, 0.0, 0.1); 3],
             acceleration_excitation: 1.0,
         };
-        assert_eq!(check_plausible(&plausible), Ok(()));
+        let tuning = InertialTuning::default();
+        assert_eq!(check_plausible(&plausible, &tuning), Ok(()));
         let constant_gyro = ferroslam_imu::alignment::Alignment {
             gyro_bias: Vector3::new(0.0, 0.0, 3.0),
             ..plausible.clone()
         };
-        assert!(check_plausible(&constant_gyro)
+        assert!(check_plausible(&constant_gyro, &tuning)
             .unwrap_err()
             .starts_with("gyroscope: matching the rotation vision sees needs a gyro bias of 3.00"));
         let fast = ferroslam_imu::alignment::Alignment {
             velocities: vec![Vector3::new(442.0, 0.0, 0.0)],
             ..plausible.clone()
         };
-        assert!(check_plausible(&fast).unwrap_err().contains("442 m/s"));
+        assert!(check_plausible(&fast, &tuning)
+            .unwrap_err()
+            .contains("442 m/s"));
         let biased = ferroslam_imu::alignment::Alignment {
             accel_bias: Vector3::new(0.0, 5.0, 0.0),
             ..plausible
         };
-        assert!(check_plausible(&biased)
+        assert!(check_plausible(&biased, &tuning)
             .unwrap_err()
             .starts_with("accelerometer"));
     }
@@ -822,7 +826,7 @@ mod tests {
 
     #[test]
     fn bad_samples_are_refused_and_leave_the_buffer_unchanged() {
-        let mut inertial = Inertial::new(config(), false).unwrap();
+        let mut inertial = Inertial::new(config(), InertialTuning::default(), false).unwrap();
         inertial.add(&[sample(0.0), sample(0.005)]).unwrap();
         let err = inertial.add(&[sample(0.01), sample(0.008)]).unwrap_err();
         assert!(err.to_string().contains("not after"), "{err}");
@@ -847,7 +851,7 @@ mod tests {
 
     #[test]
     fn refinements_follow_the_first_alignment_then_stop() {
-        let mut inertial = Inertial::new(config(), false).unwrap();
+        let mut inertial = Inertial::new(config(), InertialTuning::default(), false).unwrap();
         assert_eq!(inertial.next_refinement(), Some(0));
         let aligned = |refinement| {
             AlignmentStatus::Aligned(InertialAlignment {

@@ -30,7 +30,10 @@ mod tracking;
 mod trajectory;
 
 pub use background::{BackgroundSlam, OwnedFrame};
-pub use config::{Sensor, SlamConfig};
+pub use config::{
+    DepthConfig, ExtractorConfig, InertialTuning, InitializationConfig, LoopClosingConfig,
+    MappingConfig, PlaceRecognitionConfig, Sensor, SlamConfig, TrackingConfig,
+};
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
 pub use inertial::{
@@ -41,6 +44,6 @@ pub use input_guard::InputGuard;
 pub use local_mapping::MappingReport;
 pub use loop_closing::{LoopClosure, LoopStats};
 pub use mono_init::InitStatus;
-pub use place_recognition::{PlaceRecognition, FEATURE_LEVELS_UP};
+pub use place_recognition::PlaceRecognition;
 pub use system::{SlamSystem, TrackResult};
 pub use tracking::TrackingState;

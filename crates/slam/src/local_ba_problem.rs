@@ -52,6 +52,8 @@ pub(crate) struct LocalProblem {
     points: Vec<MapPointId>,
     /// `(point, keyframe)` of each observation.
     obs_keys: Vec<(MapPointId, KeyFrameId)>,
+    /// `mapping.max_scene_depth_ratio` of the configuration.
+    max_scene_depth_ratio: f64,
 }
 
 impl LocalProblem {
@@ -121,6 +123,7 @@ impl LocalProblem {
             pose_ids,
             points,
             obs_keys,
+            max_scene_depth_ratio: ctx.config.mapping.max_scene_depth_ratio,
         };
         (problem, index)
     }
@@ -158,7 +161,8 @@ impl LocalProblem {
     }
 
     /// Marks bad the points bundle adjustment left farther from their reference keyframe
-    /// than [`MAX_SCENE_DEPTH_RATIO`] times that keyframe's scene median depth.
+    /// than `mapping.max_scene_depth_ratio` times that keyframe's scene median depth (BA
+    /// slides points seen along nearly parallel rays out of the scene).
     fn drop_points_beyond_the_scene(&self, map: &mut Map) {
         let mut medians: HashMap<KeyFrameId, Option<f64>> = HashMap::new();
         for &m in &self.points {
@@ -170,18 +174,10 @@ impl LocalProblem {
             let median = *medians
                 .entry(reference)
                 .or_insert_with(|| map.scene_median_depth(reference));
-            if median.is_some_and(|d| (position - centre).norm() > MAX_SCENE_DEPTH_RATIO * d) {
+            let too_far = |d: f64| (position - centre).norm() > self.max_scene_depth_ratio * d;
+            if median.is_some_and(too_far) {
                 map.set_map_point_bad(m);
             }
         }
     }
 }
-
-/// Largest distance of a point from its reference keyframe after bundle adjustment, in that
-/// keyframe's scene median depths. Points seen along nearly parallel rays (a monocular pair
-/// at a short baseline, a static stereo rig's points seen without disparity) are barely
-/// constrained in depth, and BA can slide them out to hundreds of times the scene (KITTI 01
-/// monocular: 64 000 map units against a median of 1; EuRoC V1_01 stereo-inertial: 822 m
-/// in a room). Stereo points within `bf / MIN_DISPARITY_PX` stay (KITTI: 386 m against a
-/// median of about 16 m).
-const MAX_SCENE_DEPTH_RATIO: f64 = 40.0;

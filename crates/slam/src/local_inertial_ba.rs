@@ -1,9 +1,10 @@
 //! Local visual-inertial bundle adjustment of a new keyframe once the camera and the IMU
 //! are aligned (ORB-SLAM3 `Optimizer::LocalInertialBA`).
 //!
-//! The window is the newest keyframes in time order joined by their preintegrated IMU
-//! ([`InertialWindow`], built by tracking from the inertial state); its oldest keyframe is
-//! held fixed, pose and IMU state, as ORB-SLAM3 holds the keyframe before its window. The
+//! The window is the newest keyframes (`inertial.window_keyframes` of the configuration) in
+//! time order joined by their preintegrated IMU ([`InertialWindow`], built by tracking from
+//! the inertial state); its oldest keyframe is held fixed, pose and IMU state, as ORB-SLAM3
+//! holds the keyframe before its window. The
 //! other window keyframes and the new keyframe's covisible keyframes are optimised with every
 //! point they see (the covisible ones without IMU terms), the remaining observers held
 //! fixed. Velocities and biases come back in the window.
@@ -18,9 +19,6 @@ use nalgebra::{Isometry3, Vector3};
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::local_ba_problem::LocalProblem;
-
-/// Keyframes of the window, the fixed oldest one included (ORB-SLAM3 optimises 10).
-pub const INERTIAL_WINDOW_KEYFRAMES: usize = 11;
 
 /// The IMU side of a local inertial BA: keyframes oldest first, their states and the
 /// factors between consecutive ones. `keyframes[0]` is held fixed.

@@ -15,58 +15,12 @@ use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector2, Vector3};
 
-use crate::config::Sensor;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::unproject_depth;
 use crate::local_ba_problem::adjust_around;
 use crate::local_inertial_ba::{local_inertial_bundle_adjust, InertialWindow};
 use crate::point_fusion::fuse_with_neighbours;
-
-/// Covisible keyframes searched for new points and fusion (ORB-SLAM: 10 with depth, 20
-/// monocular, where triangulation is the only source of points).
-fn triangulation_neighbours(sensor: Sensor) -> usize {
-    if sensor.has_depth() {
-        10
-    } else {
-        20
-    }
-}
-/// Least ray parallax for triangulating a feature without close depth, degrees. Monocular
-/// maps use ORB-SLAM's 1.15 deg (nothing else makes points); with a depth sensor, points
-/// that poorly conditioned drifted the metric scale (KITTI 01 stereo: ATE 0.70 m at 1.15 deg,
-/// 0.59 m at 5 deg).
-fn min_ray_parallax_deg(sensor: Sensor) -> f64 {
-    if sensor.has_depth() {
-        5.0
-    } else {
-        1.15
-    }
-}
-/// Least baseline of a monocular keyframe pair, as a fraction of the scene's median depth,
-/// for it to triangulate: the baseline that gives a point at that depth the least ray
-/// parallax (tan 1.15 deg, 2.0 %). ORB-SLAM takes 1 %; below tan(parallax), only points
-/// closer than the median, or whose rays are that far off through pose error (a rotation
-/// error of a degree between keyframes tracked through motion blur), pass the parallax
-/// check, and the latter are mapped too close: the map, and the translations tracked
-/// against it, shrink. TUM fr1/rpy monocular at the camera's pace (mapping thread, 5
-/// alternating runs each): tracked through its blurred frames, the map's median depth fell
-/// to a tenth of the true one (per the depth images) within 30 frames; ATE 4.70 -> 2.26 cm,
-/// 230 -> 255 frames tracked. KITTI 06 (forward motion, wide baselines) unchanged.
-fn min_mono_baseline_depth_ratio(sensor: Sensor) -> f64 {
-    min_ray_parallax_deg(sensor).to_radians().tan()
-}
-/// Observations a point needs to survive its first keyframes (stereo/RGB-D count 2 each, so
-/// ORB-SLAM asks for more than 3 with depth and more than 2 monocular).
-fn min_point_observations(sensor: Sensor) -> usize {
-    if sensor.has_depth() {
-        3
-    } else {
-        2
-    }
-}
-/// Observations that make a keyframe's point redundant (ORB-SLAM `KeyFrameCulling`).
-const REDUNDANT_OBSERVATIONS: usize = 3;
 
 /// What one keyframe's local mapping did, for logs and tests.
 #[derive(Clone, Debug, Default)]
@@ -90,46 +44,17 @@ pub struct MappingReport {
     pub interrupted: bool,
 }
 
-/// Covisible keyframes searched for new points when mapping is hurried (see [`Interrupt`]).
-/// With depth, the best 3: a keyframe's close points come from its own depth, and the
-/// further neighbours delay local BA and the next keyframe (KITTI 01 stereo fed at full
-/// speed, 16 alternating runs each: ATE 59 against 66 cm, frame p95 44 against 53 ms; TUM
-/// fr1/rpy RGB-D unchanged). Monocular maps search them all: there the further neighbours'
-/// wider baselines hold the scale (KITTI 06 fed at full speed, 54 runs each: the best 3
-/// alone gave 5.1 against 4.1 cm ATE over the run, though 0.84 against 0.96 cm over frames
-/// 37-40).
-fn hurried_triangulation_neighbours(sensor: Sensor) -> usize {
-    if sensor.has_depth() {
-        3
-    } else {
-        triangulation_neighbours(sensor)
-    }
-}
-
-/// Covisible keyframes a keyframe with depth always searches for new points. Past them, its
-/// search stops after the first neighbour that brings fewer than [`MIN_POINTS_TO_SEARCH_ON`]:
-/// neighbours come by decreasing covisibility, the further ones bring a few points each (a
-/// keyframe's close points come from its own depth), and each search costs about as much as
-/// the best's. Mapping inline: KITTI 01 stereo ATE 66.8 -> 57.4 cm and 16.7 -> 12.1 ms per
-/// keyframe; fr1/rpy RGB-D 2.73 -> 2.67 cm; EuRoC unchanged; thresholds from 3 to 20 all gave
-/// 57-59 cm and 2.67 cm. Fed at full speed (alternating runs): KITTI 01 median ATE 60.2 ->
-/// 58.1 cm over 10 runs each; fr1/rpy 2.76 -> 2.75 cm over 12. Monocular maps search on:
-/// there the further neighbours' wider baselines hold the scale (KITTI 06 inline 3.97 ->
-/// 4.03 cm with 5, 4.30 cm with 10; fed at full speed with 10, 3.95 -> 5.83 cm over 12 runs).
-const ALWAYS_SEARCHED_WITH_DEPTH: usize = 2;
-/// See [`ALWAYS_SEARCHED_WITH_DEPTH`].
-const MIN_POINTS_TO_SEARCH_ON: usize = 5;
-
 /// What tells local mapping to finish a keyframe sooner (concurrent mapping).
 ///
 /// Tracking waits to insert a keyframe ([`Self::requested`]): local mapping then skips the
 /// rest of the current keyframe's optional work (triangulation with further neighbours,
 /// fusion, local BA, keyframe culling), as ORB-SLAM's `LocalMapping` does when
 /// `CheckNewKeyFrames()` finds a keyframe queued. Without it, tracking would wait for the
-/// whole of it (KITTI stereo: ~40 ms per keyframe, a keyframe almost every frame).
+/// whole of it (on KITTI stereo, with a keyframe almost every frame, that is most frames).
 ///
 /// Frames come faster than local mapping processed the last keyframe (`hurried`):
-/// triangulation searches fewer neighbours ([`hurried_triangulation_neighbours`]).
+/// triangulation searches fewer neighbours (`mapping.hurried_triangulation_neighbours` of
+/// the configuration).
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Interrupt<'a> {
     waiting: Option<&'a AtomicBool>,
@@ -239,7 +164,7 @@ impl LocalMapper {
             return Ok(());
         }
         report.fused_points +=
-            fuse_with_neighbours(kf, map, ctx, triangulation_neighbours(ctx.config.sensor))?;
+            fuse_with_neighbours(kf, map, ctx, ctx.config.mapping.triangulation_neighbours)?;
         Ok(())
     }
 
@@ -268,7 +193,7 @@ impl LocalMapper {
     /// frames that should have seen it, or if two keyframes later it has too few observations;
     /// after three keyframes it is proven.
     fn cull_recent_points(&mut self, current: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
-        let min_obs = min_point_observations(ctx.config.sensor);
+        let min_obs = ctx.config.mapping.min_point_observations;
         let mut culled = 0;
         let mut kept = Vec::with_capacity(self.recent_points.len());
         for &m in &self.recent_points {
@@ -291,7 +216,7 @@ impl LocalMapper {
     /// when their stereo parallax beats the ray parallax. After the best neighbour, stops
     /// when `interrupt` is requested; searches fewer neighbours when it is hurried; with
     /// depth, stops after a neighbour that brought few points (see
-    /// [`ALWAYS_SEARCHED_WITH_DEPTH`]). Calls
+    /// `mapping.always_searched_with_depth`). Calls
     /// `points_added` after each neighbour that brought points, so the best neighbours'
     /// points, most of them, can be used before the search ends.
     fn create_new_points(
@@ -302,11 +227,11 @@ impl LocalMapper {
         interrupt: Interrupt<'_>,
         points_added: &mut dyn FnMut(&mut Map),
     ) -> Result<usize, SlamError> {
-        let sensor = ctx.config.sensor;
+        let (sensor, config) = (ctx.config.sensor, &ctx.config.mapping);
         let n_neighbours = if interrupt.hurried {
-            hurried_triangulation_neighbours(sensor)
+            config.hurried_triangulation_neighbours
         } else {
-            triangulation_neighbours(sensor)
+            config.triangulation_neighbours
         };
         let neighbours = map.best_covisibles(kf, n_neighbours);
         let median_depth = map.scene_median_depth(kf);
@@ -326,7 +251,7 @@ impl LocalMapper {
             let too_short = if sensor.has_depth() {
                 baseline < ctx.baseline_m
             } else {
-                median_depth.is_none_or(|d| baseline / d < min_mono_baseline_depth_ratio(sensor))
+                median_depth.is_none_or(|d| baseline / d < config.min_baseline_depth_ratio())
             };
             if too_short {
                 continue;
@@ -384,8 +309,8 @@ impl LocalMapper {
                 new_points.push((p_w, i1, i2));
             }
             let last = sensor.has_depth()
-                && n >= ALWAYS_SEARCHED_WITH_DEPTH
-                && new_points.len() < MIN_POINTS_TO_SEARCH_ON;
+                && n >= config.always_searched_with_depth
+                && new_points.len() < config.min_points_to_search_on;
             if !new_points.is_empty() {
                 for (p_w, i1, i2) in new_points {
                     let m = map.create_map_point(p_w, kf)?;
@@ -423,6 +348,7 @@ impl LocalMapper {
     /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close
     /// points are seen, at the same or a finer scale, by at least three other keyframes.
     fn cull_keyframes(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
+        let redundant = ctx.config.mapping.redundant_observations;
         let mut culled = 0;
         for (candidate, _) in map.covisibles(kf) {
             if Some(candidate) == map.origin() {
@@ -442,7 +368,7 @@ impl LocalMapper {
                     continue;
                 }
                 n_points += 1;
-                if p.num_observations() <= REDUNDANT_OBSERVATIONS {
+                if p.num_observations() <= redundant {
                     continue;
                 }
                 let level = f.keypoints[i].octave;
@@ -454,9 +380,9 @@ impl LocalMapper {
                         map.keyframe(**k2)
                             .is_some_and(|k2| k2.features().keypoints[**i2].octave <= level + 1)
                     })
-                    .take(REDUNDANT_OBSERVATIONS)
+                    .take(redundant)
                     .count();
-                if n_finer >= REDUNDANT_OBSERVATIONS {
+                if n_finer >= redundant {
                     n_redundant += 1;
                 }
             }
@@ -547,11 +473,11 @@ impl<'a> View<'a> {
 /// close/far rule), so far and depthless features are triangulated from the two rays, and only
 /// with enough parallax; the reprojection check that follows
 /// still holds a triangulated point to any disparity measured for it. See
-/// [`min_ray_parallax_deg`].
+/// `mapping.min_ray_parallax_deg` of the configuration.
 ///
 /// ORB-SLAM2's code also back-projects far depth here and ray-triangulates from 1.15 deg of
-/// parallax; on KITTI 01 (stereo, 51 frames) that inflated the path by 6.7 %, against 4.6 %
-/// with these rules (ATE 0.97 -> 0.67 m; TUM fr1/rpy RGB-D unchanged at 2.8 cm).
+/// parallax; on KITTI stereo that inflated the path (the metric scale drifted), and TUM
+/// RGB-D gained nothing from it.
 fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Option<Vector3<f64>> {
     let depth = [0, 1].map(|k| views[k].features.depth[idx[k]] as f64);
     let closest = (0..2)
@@ -563,7 +489,7 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
     let xn = [0, 1].map(|k| ctx.camera.unproject(&views[k].pixel(idx[k])));
     let rays = [0, 1].map(|k| views[k].T_w_c.rotation * xn[k]);
     let cos_rays = rays[0].dot(&rays[1]) / (rays[0].norm() * rays[1].norm());
-    if cos_rays > min_ray_parallax_deg(ctx.config.sensor).to_radians().cos() {
+    if cos_rays > ctx.config.mapping.min_ray_parallax_deg.to_radians().cos() {
         return None;
     }
     triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &xn[0], &xn[1])
@@ -578,7 +504,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::config::SlamConfig;
+    use crate::config::{Sensor, SlamConfig};
 
     /// [`scene_sharing`] with 50 points shared with each of `n_others` other keyframes.
     fn scene(n_others: usize, sensor: Sensor) -> (Context, Map, KeyFrameId) {
@@ -606,10 +532,8 @@ mod tests {
         let n_others = shared.len();
         let camera =
             PinholeCamera::new(500.0, 500.0, 320.0, 240.0, RadTan::default(), 640, 480).unwrap();
-        let config = SlamConfig {
-            depth_threshold: 100.0,
-            ..SlamConfig::for_sensor(sensor)
-        };
+        let mut config = SlamConfig::for_sensor(sensor);
+        config.depth.depth_threshold = 100.0;
         let ctx = Context::new(camera, config);
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut point = || {

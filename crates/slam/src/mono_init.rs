@@ -14,24 +14,24 @@ use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::local_ba_problem::adjust_around;
 
-/// Keypoints a frame needs to serve in an initialisation pair (ORB-SLAM).
-const MIN_KEYPOINTS: usize = 100;
-/// Matches a pair needs; with fewer the reference is replaced (ORB-SLAM).
-const MIN_MATCHES: usize = 100;
-/// Half-side of the window around a feature's last match where it is searched, pixels.
-const WINDOW_PX: f64 = 100.0;
-/// Map points the second keyframe must keep after bundle adjustment (ORB-SLAM).
-const MIN_INITIAL_POINTS: usize = 100;
-
 /// Why the last frame did not start the map; for status reports.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum InitStatus {
-    /// No reference frame yet (or it was just replaced by this frame).
-    #[error("waiting for a reference frame with more than {MIN_KEYPOINTS} keypoints")]
-    WaitingForReference,
+    /// No reference frame yet (or it was just replaced by this frame): one needs more than
+    /// `min_keypoints` keypoints (`initialization.mono_min_keypoints`).
+    #[error("waiting for a reference frame with more than {min_keypoints} keypoints")]
+    WaitingForReference {
+        /// Keypoints a reference frame needs (more than these).
+        min_keypoints: usize,
+    },
     /// Too few matches with the reference: this frame became the new reference.
-    #[error("{0} matches with the reference frame (need {MIN_MATCHES}): new reference")]
-    TooFewMatches(usize),
+    #[error("{found} matches with the reference frame (need {needed}): new reference")]
+    TooFewMatches {
+        /// Matches found.
+        found: usize,
+        /// Matches needed (`initialization.mono_min_matches`).
+        needed: usize,
+    },
     /// The two-view reconstruction refused the pair (degenerate motion): the reason.
     #[error("two-view reconstruction refused: {0}")]
     Refused(String),
@@ -68,19 +68,24 @@ impl MonoInitializer {
     /// Offers `frame` (undistorted features) as the second view; `Ok` with the pair when it
     /// initialises, `Err` with the reason otherwise.
     pub fn add_frame(&mut self, frame: &Frame, ctx: &Context) -> Result<TwoViewPair, InitStatus> {
+        let init = &ctx.config.initialization;
+        let min_keypoints = init.mono_min_keypoints;
         let Some(reference) = self
             .reference
             .as_ref()
-            .filter(|_| frame.len() > MIN_KEYPOINTS)
+            .filter(|_| frame.len() > min_keypoints)
         else {
-            self.set_reference(frame);
-            return Err(InitStatus::WaitingForReference);
+            self.set_reference(frame, min_keypoints);
+            return Err(InitStatus::WaitingForReference { min_keypoints });
         };
-        let matches = self.search(reference, frame);
-        if matches.len() < MIN_MATCHES {
-            let n = matches.len();
-            self.set_reference(frame);
-            return Err(InitStatus::TooFewMatches(n));
+        let matches = self.search(reference, frame, init.mono_window_px);
+        if matches.len() < init.mono_min_matches {
+            let found = matches.len();
+            self.set_reference(frame, min_keypoints);
+            return Err(InitStatus::TooFewMatches {
+                found,
+                needed: init.mono_min_matches,
+            });
         }
         for &(i, j) in &matches {
             let kp = &frame.features.keypoints[j];
@@ -113,8 +118,10 @@ impl MonoInitializer {
         }
     }
 
-    fn set_reference(&mut self, frame: &Frame) {
-        if frame.len() > MIN_KEYPOINTS {
+    /// Makes `frame` the reference if it has more than `min_keypoints` keypoints, else
+    /// forgets the reference.
+    fn set_reference(&mut self, frame: &Frame, min_keypoints: usize) {
+        if frame.len() > min_keypoints {
             self.prev_matched = frame
                 .features
                 .keypoints
@@ -127,18 +134,18 @@ impl MonoInitializer {
         }
     }
 
-    /// ORB-SLAM `SearchForInitialization`: reference keypoints searched in a window around
-    /// their last match among the current keypoints of the same octave (ratio 0.9, rotation
-    /// consistency, one-to-one). ORB-SLAM searches the finest level only; on KITTI's forward
-    /// motion that found 103 matches (73 triangulated) between frames 0 and 1, too few to start.
-    fn search(&self, reference: &Frame, frame: &Frame) -> Vec<(usize, usize)> {
+    /// ORB-SLAM `SearchForInitialization`: reference keypoints searched in a window of
+    /// half-side `window_px` around their last match among the current keypoints of the same
+    /// octave (ratio 0.9, rotation consistency, one-to-one). ORB-SLAM searches the finest
+    /// level only; under KITTI's forward motion that found too few matches to start.
+    fn search(&self, reference: &Frame, frame: &Frame, window_px: f64) -> Vec<(usize, usize)> {
         let mut ids = Vec::new();
         let mut queries = Vec::new();
         for (i, kp) in reference.features.keypoints.iter().enumerate() {
             queries.push(ProjectionQuery {
                 u: self.prev_matched[i].x,
                 v: self.prev_matched[i].y,
-                radius: WINDOW_PX,
+                radius: window_px,
                 min_level: kp.octave,
                 max_level: kp.octave,
                 descriptor: reference.features.descriptors[i],
@@ -220,10 +227,11 @@ pub fn create_initial_map(
 
     let median_depth = map.scene_median_depth(kf1);
     let tracked = map.tracked_points(kf2, 1);
-    let (Some(depth), true) = (median_depth, tracked >= MIN_INITIAL_POINTS) else {
+    let needed = ctx.config.initialization.mono_min_points;
+    let (Some(depth), true) = (median_depth, tracked >= needed) else {
         map.clear();
         return Ok(Err(InitStatus::RejectedAfterBa(format!(
-            "{tracked} points left after bundle adjustment (need {MIN_INITIAL_POINTS})"
+            "{tracked} points left after bundle adjustment (need {needed})"
         ))));
     };
     let inv = 1.0 / depth;

@@ -11,16 +11,12 @@ use ferroslam_features::Descriptor;
 use ferroslam_map::{KeyFrameId, Map};
 use ferroslam_vocabulary::{BowVector, Database, FeatureVector, Vocabulary};
 
-/// Levels above the leaves at which feature vectors group features (ORB-SLAM: 4).
-pub const FEATURE_LEVELS_UP: u32 = 4;
-/// Covisible keyframes whose scores a candidate accumulates (ORB-SLAM: 10).
-const GROUP_SIZE: usize = 10;
-/// Keyframes retrieved from the database before grouping.
-const MAX_RETRIEVED: usize = 50;
+use crate::config::PlaceRecognitionConfig;
 
 /// Bag-of-words index of the live keyframes.
 pub struct PlaceRecognition {
     vocabulary: Arc<Vocabulary>,
+    config: PlaceRecognitionConfig,
     database: Database,
     bows: HashMap<KeyFrameId, (BowVector, FeatureVector)>,
 }
@@ -34,10 +30,12 @@ impl std::fmt::Debug for PlaceRecognition {
 }
 
 impl PlaceRecognition {
-    /// An empty index over `vocabulary`.
-    pub fn new(vocabulary: Arc<Vocabulary>) -> Self {
+    /// An empty index over `vocabulary`, with the feature-vector level, group size and
+    /// retrieval count of `config`.
+    pub fn new(vocabulary: Arc<Vocabulary>, config: PlaceRecognitionConfig) -> Self {
         Self {
             vocabulary,
+            config,
             database: Database::new(),
             bows: HashMap::new(),
         }
@@ -50,7 +48,9 @@ impl PlaceRecognition {
 
     /// Bag of words of a set of descriptors.
     pub fn bow(&self, descriptors: &[Descriptor]) -> BowVector {
-        self.vocabulary.transform(descriptors, FEATURE_LEVELS_UP).0
+        self.vocabulary
+            .transform(descriptors, self.config.feature_levels_up)
+            .0
     }
 
     /// Indexes keyframe `kf` of `map` (no-op if it is gone or already indexed); whether it
@@ -64,7 +64,7 @@ impl PlaceRecognition {
         };
         let entry = self
             .vocabulary
-            .transform(&k.features().descriptors, FEATURE_LEVELS_UP);
+            .transform(&k.features().descriptors, self.config.feature_levels_up);
         self.insert(kf, entry);
         true
     }
@@ -146,13 +146,13 @@ impl PlaceRecognition {
         let bow = self.bow(descriptors);
         let scores: HashMap<KeyFrameId, f64> = self
             .database
-            .query(&bow, MAX_RETRIEVED, |id| {
+            .query(&bow, self.config.max_retrieved, |id| {
                 map.keyframe(KeyFrameId(id)).is_some()
             })
             .into_iter()
             .map(|(id, s)| (KeyFrameId(id), s))
             .collect();
-        best_of_groups(&scores, map)
+        best_of_groups(&scores, map, self.config.group_size)
     }
 
     /// Keyframes indexed keyframe `kf` may close a loop with (ORB-SLAM
@@ -184,19 +184,23 @@ impl PlaceRecognition {
                 (score >= min_score).then_some((id, score))
             })
             .collect();
-        best_of_groups(&scores, map)
+        best_of_groups(&scores, map, self.config.group_size)
     }
 }
 
 /// ORB-SLAM's covisibility grouping of retrieved keyframes: each keyframe's score plus its
-/// [`GROUP_SIZE`] best covisible keyframes' scores; the best-scoring keyframe of every group
+/// `group_size` best covisible keyframes' scores; the best-scoring keyframe of every group
 /// totalling at least 0.75 of the best total is kept, best group first.
-fn best_of_groups(scores: &HashMap<KeyFrameId, f64>, map: &Map) -> Vec<KeyFrameId> {
+fn best_of_groups(
+    scores: &HashMap<KeyFrameId, f64>,
+    map: &Map,
+    group_size: usize,
+) -> Vec<KeyFrameId> {
     let mut groups: Vec<(f64, KeyFrameId)> = scores
         .iter()
         .map(|(&kf, &score)| {
             let (mut total, mut best) = (score, (score, kf));
-            for n in map.best_covisibles(kf, GROUP_SIZE) {
+            for n in map.best_covisibles(kf, group_size) {
                 if let Some(&s) = scores.get(&n) {
                     total += s;
                     if s > best.0 {

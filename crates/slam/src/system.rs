@@ -16,16 +16,15 @@ use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::imu_prediction::ImuPredictor;
 use crate::inertial::{
     rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig, Preintegrated,
-    INIT_KEYFRAME_INTERVAL_S,
 };
 use crate::input_guard::InputGuard;
 use crate::keyframe_insertion::insert_keyframe;
 use crate::local_mapping::MappingReport;
 use crate::loop_closing::{LoopClosure, LoopStats};
-use crate::mapping::{KeyFrameWork, Mapped, Mapping, MAX_QUEUED_KEYFRAMES};
+use crate::mapping::{KeyFrameWork, Mapped, Mapping};
 use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
-use crate::tracking::{Tracker, TrackingState, MIN_INIT_DEPTH_POINTS, MIN_INIT_KEYPOINTS};
+use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
 use ferroslam_vocabulary::Vocabulary;
 use std::sync::Arc;
@@ -58,15 +57,10 @@ pub struct TrackResult {
     pub loop_closure: Option<LoopClosure>,
 }
 
-/// How long a lost monocular map keeps trying to relocalise before a new map segment
-/// starts, seconds. ORB-SLAM3 waits up to 3 s; a second loses fewer frames to the wait.
-const RELOCALISATION_WINDOW_S: f64 = 1.0;
-/// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM).
-const MIN_KEYFRAMES_TO_KEEP: usize = 5;
-
 /// The SLAM system: tracking and local mapping run inline, in call order (deterministic).
 ///
-/// A monocular system that stays lost for [`RELOCALISATION_WINDOW_S`] closes the current map
+/// A monocular system that stays lost for `tracking.relocalisation_window_s` of its
+/// configuration ([`SlamConfig`]) closes the current map
 /// as a *segment* (its frame poses are kept, in that segment's own frame and scale) and
 /// initialises a new map from the following frames.
 pub struct SlamSystem {
@@ -103,14 +97,17 @@ impl SlamSystem {
     /// Creates a system for `camera` (the calibration of the raw keypoints) and `config`.
     pub fn new(camera: PinholeCamera, config: SlamConfig) -> Result<Self, SlamError> {
         config.validate()?;
-        config.check_pyramid(camera.width, camera.height)?;
+        config
+            .extractor
+            .check_pyramid(camera.width, camera.height)?;
         let ctx = Context::new(camera, config);
         let guard = InputGuard::new(
             ctx.config.sensor,
             ctx.input_shape(),
             ctx.camera.is_distorted(),
         );
-        let pyramid = ScalePyramid::new(ctx.config.scale_factor, ctx.config.n_levels)
+        let extractor = &ctx.config.extractor;
+        let pyramid = ScalePyramid::new(extractor.scale_factor, extractor.n_levels)
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
         let mut map = Map::new(pyramid);
         map.set_rig(ctx.rig());
@@ -228,11 +225,8 @@ impl SlamSystem {
             )?;
         }
         if let (true, Some(inertial)) = (tracked, self.inertial.as_ref()) {
-            self.predictor.record(
-                frame.timestamp,
-                &frame.T_c_w.inverse(),
-                &inertial.config().T_b_c,
-            );
+            self.predictor
+                .record(frame.timestamp, &frame.T_c_w.inverse(), inertial);
         }
         let tracking_ms = start.elapsed().as_secs_f64() * 1e3;
         let mut result = TrackResult {
@@ -274,7 +268,7 @@ impl SlamSystem {
         // frames would be tracked against a map missing the points of several keyframes
         // (fatal for monocular maps, which only grow by triangulation), so it waits, or
         // leaves the keyframe to the next frame (see `Tracker::defer_keyframe`).
-        if new_keyframe && self.mapping.backlog() >= MAX_QUEUED_KEYFRAMES {
+        if new_keyframe && self.mapping.backlog() >= self.ctx.config.mapping.max_queued_keyframes {
             self.mapping.interrupt();
             if self.tracker.defer_keyframe(frame.index, &self.ctx) {
                 new_keyframe = false;
@@ -329,7 +323,7 @@ impl SlamSystem {
     /// Adds a tracked frame to the trajectory, anchored to its reference keyframe as the map
     /// was when the frame was tracked: a keyframe's frame is recorded before local mapping
     /// and loop closing move the keyframe, so that it moves with it (recorded after, it kept
-    /// its uncorrected pose: fr1/rpy with `ini_fast` 19, a 19.8 cm outlier at a loop).
+    /// its uncorrected pose: an outlier at each loop).
     fn record_frame(&mut self, frame: &Frame) {
         if let Some(r) = self.tracker.reference_kf {
             self.trajectory
@@ -478,19 +472,20 @@ impl SlamSystem {
     }
 
     /// A lost map with few keyframes is discarded (ORB-SLAM); a lost monocular map that does
-    /// not relocalise within [`RELOCALISATION_WINDOW_S`] is closed as a segment. Maps with
+    /// not relocalise within `tracking.relocalisation_window_s` is closed as a segment. Maps with
     /// depth, and any map in localisation-only mode, wait for relocalisation.
     fn handle_lost(&mut self, timestamp: f64) {
         // A map being localised in is never discarded or closed.
         if self.tracker.state != TrackingState::Lost || self.localization_only {
             return;
         }
-        if self.map.num_keyframes() <= MIN_KEYFRAMES_TO_KEEP {
+        if self.map.num_keyframes() <= self.ctx.config.tracking.min_keyframes_to_keep {
             self.reset();
             return;
         }
         let since = *self.lost_since.get_or_insert(timestamp);
-        if !self.ctx.config.sensor.has_depth() && timestamp - since >= RELOCALISATION_WINDOW_S {
+        let window_s = self.ctx.config.tracking.relocalisation_window_s;
+        if !self.ctx.config.sensor.has_depth() && timestamp - since >= window_s {
             self.segments.push(self.trajectory.poses(&self.map));
             self.clear_map();
         }
@@ -530,13 +525,14 @@ impl SlamSystem {
         Ok(Ok(T_w_c))
     }
 
-    /// Creates the map from the first frame with [`MIN_INIT_KEYPOINTS`] keypoints, of which at
-    /// least [`MIN_INIT_DEPTH_POINTS`] have depth (ORB-SLAM `StereoInitialization` asks for the
-    /// keypoints only): the camera is the world origin and every feature with depth becomes a
+    /// Creates the map from the first frame with `initialization.min_keypoints` keypoints, of
+    /// which at least `initialization.min_depth_points` have depth (ORB-SLAM
+    /// `StereoInitialization` asks for the keypoints only): the camera is the world origin and every feature with depth becomes a
     /// map point.
     fn initialise(&mut self, mut frame: Frame) -> Result<Option<Isometry3<f64>>, SlamError> {
         let with_depth = frame.features.depth.iter().filter(|&&z| z > 0.0).count();
-        if frame.features.keypoints.len() < MIN_INIT_KEYPOINTS || with_depth < MIN_INIT_DEPTH_POINTS
+        let init = &self.ctx.config.initialization;
+        if frame.features.keypoints.len() < init.min_keypoints || with_depth < init.min_depth_points
         {
             return Ok(None);
         }
@@ -587,7 +583,9 @@ impl SlamSystem {
     /// # Errors
     /// `InvalidConfig` naming the bad value; the system is unchanged then.
     pub fn set_imu(&mut self, config: InertialConfig) -> Result<(), SlamError> {
-        self.inertial = Some(Inertial::new(config, self.ctx.config.sensor.has_depth())?);
+        let known_scale = self.ctx.config.sensor.has_depth();
+        let tuning = self.ctx.config.inertial.clone();
+        self.inertial = Some(Inertial::new(config, tuning, known_scale)?);
         Ok(())
     }
 
@@ -635,13 +633,15 @@ impl SlamSystem {
     }
 
     /// Whether a frame at `timestamp` must become a keyframe for the camera-IMU alignment
-    /// (not aligned yet and [`INIT_KEYFRAME_INTERVAL_S`] since the newest keyframe).
+    /// (not aligned yet and `inertial.init_keyframe_interval_s` since the newest keyframe).
     fn inertial_keyframe_due(&self, timestamp: f64) -> bool {
         let waiting = self.inertial.as_ref().is_some_and(|i| !i.is_aligned());
         let newest = self.map.keyframes().map(|k| k.timestamp()).reduce(f64::max);
         waiting
             && self.tracker.matches_inliers > 15
-            && newest.is_some_and(|t| timestamp - t >= INIT_KEYFRAME_INTERVAL_S)
+            && newest.is_some_and(|t| {
+                timestamp - t >= self.ctx.config.inertial.init_keyframe_interval_s
+            })
     }
 
     /// Preintegrates the new keyframe's IMU and, when due, aligns camera and IMU: a
@@ -671,7 +671,7 @@ impl SlamSystem {
     /// is relocalised against the keyframes it recognises (ORB-SLAM), instead of the last
     /// reference keyframe's neighbourhood (or, in a loaded map, every keyframe).
     pub fn set_vocabulary(&mut self, vocabulary: Arc<Vocabulary>) {
-        self.place = Some(PlaceRecognition::new(vocabulary));
+        self.place = Some(PlaceRecognition::new(vocabulary, self.ctx.config.place_recognition));
         self.index_keyframes();
     }
 

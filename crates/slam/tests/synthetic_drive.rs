@@ -6,7 +6,7 @@
 
 use ferroslam_features::{Descriptor, Keypoint};
 use ferroslam_geometry::camera::{test_cameras, PinholeCamera};
-use ferroslam_slam::{RgbdInput, SlamConfig, SlamSystem, TrackingState};
+use ferroslam_slam::{DepthConfig, RgbdInput, SlamConfig, SlamSystem, TrackingState};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -51,11 +51,11 @@ fn scale_error(disparity_sigma: f64, frames: usize) -> f64 {
         let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
         sigma * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
     };
-    let config = SlamConfig {
+    let mut config = SlamConfig::default();
+    config.depth = DepthConfig {
         bf,
         depth_threshold: 35.0,
         depth_range: (0.0, f64::INFINITY),
-        ..SlamConfig::default()
     };
     let mut system = SlamSystem::new(cam, config).unwrap();
     for i in 0..frames {

@@ -5,9 +5,7 @@
 use ferroslam_features::{Descriptor, Keypoint};
 use ferroslam_geometry::camera::{test_cameras, ImageBounds, PinholeCamera};
 use ferroslam_geometry::se3;
-use ferroslam_slam::{
-    RgbdInput, SlamConfig, SlamError, SlamSystem, TrackingState, FEATURE_LEVELS_UP,
-};
+use ferroslam_slam::{RgbdInput, SlamConfig, SlamError, SlamSystem, TrackingState};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -197,10 +195,8 @@ fn tracks_a_synthetic_path_with_millimetre_accuracy() {
 fn loses_tracking_without_features_and_relocalises() {
     let scene = Scene::new(2, 1500);
     // A keyframe every other frame, so the map is past ORB-SLAM's reset-when-lost size (5).
-    let config = SlamConfig {
-        skip_max_frames: 2,
-        ..SlamConfig::default()
-    };
+    let mut config = SlamConfig::default();
+    config.tracking.skip_max_frames = 2;
     let mut system = run_with(&scene, 40, 0.0, config);
     assert!(
         system.map().num_keyframes() > 5,
@@ -259,10 +255,8 @@ fn rejects_bad_input_without_changing_state() {
 #[test]
 fn invalid_configuration_is_named() {
     let (_, camera) = test_cameras().into_iter().next().unwrap();
-    let config = SlamConfig {
-        track_feature_range: (50, 10),
-        ..SlamConfig::default()
-    };
+    let mut config = SlamConfig::default();
+    config.tracking.track_feature_range = (50, 10);
     let err = SlamSystem::new(camera, config).err().unwrap();
     assert!(err.to_string().contains("track_feature_range"), "{err}");
 }
@@ -399,10 +393,8 @@ fn concurrent_mapping_hands_its_keyframe_index_to_relocalisation() {
     };
     let vocabulary =
         std::sync::Arc::new(ferroslam_vocabulary::Vocabulary::train(&training, &params).unwrap());
-    let config = SlamConfig {
-        skip_max_frames: 2,
-        ..SlamConfig::default()
-    };
+    let mut config = SlamConfig::default();
+    config.tracking.skip_max_frames = 2;
     let mut system = SlamSystem::new(scene.camera, config).unwrap();
     system.set_vocabulary(std::sync::Arc::clone(&vocabulary));
     system.set_concurrent_mapping(true).unwrap();
@@ -415,7 +407,8 @@ fn concurrent_mapping_hands_its_keyframe_index_to_relocalisation() {
     assert_eq!(place.len(), map.num_keyframes());
     for kf in map.keyframe_ids() {
         let descriptors = &map.keyframe(kf).unwrap().features().descriptors;
-        let words = vocabulary.transform(descriptors, FEATURE_LEVELS_UP);
+        let levels_up = SlamConfig::default().place_recognition.feature_levels_up;
+        let words = vocabulary.transform(descriptors, levels_up);
         assert_eq!(place.entry(kf), Some(&words), "{kf:?}");
     }
     let empty = input(2.0, &[], &[], &[]);

@@ -14,10 +14,6 @@ use crate::context::Context;
 use crate::error::SlamError;
 use crate::point_fusion::fuse_points_into;
 
-/// Window of the fusion of the loop's points into the corrected neighbourhood, pixels at
-/// level 0 (ORB-SLAM `SearchAndFuse`: 4).
-const FUSE_RADIUS_PX: f64 = 4.0;
-
 /// Corrects the loop `found` detected at `current`; returns the essential graph's cost
 /// before and after optimisation.
 pub(super) fn correct_loop(
@@ -99,8 +95,9 @@ pub(super) fn correct_loop(
         .collect();
     let mut loop_points = loop_points;
     loop_points.sort_unstable();
+    let radius_px = ctx.config.loop_closing.fuse_radius_px;
     for &k in &connected {
-        fuse_points_into(map, k, &loop_points, ctx, FUSE_RADIUS_PX)?;
+        fuse_points_into(map, k, &loop_points, ctx, radius_px)?;
     }
 
     // Links that appear only through the fused points join the two sides of the loop.
@@ -132,6 +129,7 @@ pub(super) fn correct_loop(
             loop_links: &loop_links,
             corrected_points: &corrected_points,
         },
+        &ctx.config.loop_closing,
     )?;
     map.add_loop_edge(current, found.loop_kf)?;
     Ok(costs)

@@ -6,10 +6,6 @@ use ferroslam_map::{KeyFrameId, Map};
 
 use crate::place_recognition::PlaceRecognition;
 
-/// Consecutive keyframes whose candidate groups must overlap before a candidate is verified
-/// (ORB-SLAM `mnCovisibilityConsistencyTh`).
-const CONSISTENCY_THRESHOLD: usize = 3;
-
 /// The candidate groups of the previous keyframe with their consistency counts.
 #[derive(Debug, Default)]
 pub(super) struct LoopDetector {
@@ -34,12 +30,14 @@ impl LoopDetector {
     /// keyframes it is connected to, so a candidate must look more like `kf` than its own
     /// neighbours do. Each candidate's group is itself plus its connected keyframes; a group
     /// sharing a keyframe with a group of the previous keyframe inherits its count plus one,
-    /// and its candidate is returned once the count reaches [`CONSISTENCY_THRESHOLD`].
+    /// and its candidate is returned once the count reaches `consistency`
+    /// (`loop_closing.consistency` of the configuration).
     pub(super) fn consistent_candidates(
         &mut self,
         kf: KeyFrameId,
         map: &Map,
         place: &PlaceRecognition,
+        consistency: usize,
     ) -> Vec<KeyFrameId> {
         self.had_candidates = false;
         let min_score = map
@@ -72,7 +70,7 @@ impl LoopDetector {
                     next.push((group.clone(), count));
                     inherited[g] = true;
                 }
-                if count >= CONSISTENCY_THRESHOLD && !enough.contains(&candidate) {
+                if count >= consistency && !enough.contains(&candidate) {
                     enough.push(candidate);
                 }
             }

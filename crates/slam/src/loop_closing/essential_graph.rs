@@ -1,7 +1,7 @@
 //! Sim(3) pose-graph optimisation over the essential graph (ORB-SLAM
 //! `Optimizer::OptimizeEssentialGraph`): every keyframe is a vertex; edges are the spanning
 //! tree, the loop edges (old and new) and the covisibility edges of at least
-//! [`STRONG_COVISIBILITY`] shared points. Measurements are the relative poses before the loop
+//! `loop_closing.strong_covisibility` shared points ([`LoopClosingConfig`]). Measurements are the relative poses before the loop
 //! correction (the new loop links: after it), so the graph spreads the loop's error over
 //! the trajectory. Map points then follow their reference keyframe.
 
@@ -15,12 +15,8 @@ use ferroslam_optim::{
 use nalgebra::{SMatrix, Vector3};
 
 use super::verification::pose_of;
+use crate::config::LoopClosingConfig;
 use crate::error::SlamError;
-
-/// Covisibility weight that makes an edge part of the essential graph (ORB-SLAM: 100).
-const STRONG_COVISIBILITY: usize = 100;
-/// Levenberg-Marquardt iterations (ORB-SLAM: 20).
-const ITERATIONS: usize = 20;
 
 /// What the correction step hands to the optimisation.
 pub(super) struct EssentialGraphInput<'a> {
@@ -39,11 +35,13 @@ pub(super) struct EssentialGraphInput<'a> {
 }
 
 /// Optimises every keyframe pose and moves every map point; returns the graph's cost before
-/// and after.
+/// and after. `config` gives the strong-covisibility weight and the iterations.
 pub(super) fn optimize_essential_graph(
     map: &mut Map,
     input: &EssentialGraphInput<'_>,
+    config: &LoopClosingConfig,
 ) -> Result<(f64, f64), SlamError> {
+    let strong = config.strong_covisibility;
     let ids = map.keyframe_ids();
     let index: HashMap<KeyFrameId, usize> = ids.iter().enumerate().map(|(i, k)| (*k, i)).collect();
     let rigid = |k: KeyFrameId| Sim3::from_isometry(map.keyframe(k).expect("keyframe").T_c_w());
@@ -78,7 +76,7 @@ pub(super) fn optimize_essential_graph(
             let Some(&j) = index.get(n) else { continue };
             let weight = map.keyframe(*k).map_or(0, |kf| kf.weight(*n));
             let is_loop_pair = *k == input.current && *n == input.loop_kf;
-            if weight < STRONG_COVISIBILITY && !is_loop_pair {
+            if weight < strong && !is_loop_pair {
                 continue;
             }
             add(&mut graph, i, j, &initial[i], &initial[j]);
@@ -90,7 +88,7 @@ pub(super) fn optimize_essential_graph(
             .parent()
             .into_iter()
             .chain(kf.loop_edges().iter().copied())
-            .chain(kf.covisibles_with_min_weight(STRONG_COVISIBILITY));
+            .chain(kf.covisibles_with_min_weight(strong));
         for n in neighbours {
             if let Some(&j) = index.get(&n) {
                 add(&mut graph, i, j, &measured[i], &measured[j]);
@@ -99,7 +97,7 @@ pub(super) fn optimize_essential_graph(
     }
     let symbolic = SymbolicPoseGraph::new(&graph)?;
     let options = PoseGraphOptions {
-        max_iterations: ITERATIONS,
+        max_iterations: config.essential_graph_iterations,
         ..PoseGraphOptions::default()
     };
     let report = optimize_pose_graph(&mut graph, &symbolic, &options)?;

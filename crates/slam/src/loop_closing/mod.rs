@@ -59,9 +59,6 @@ pub struct LoopStats {
     pub rejected: usize,
 }
 
-/// Keyframes that must pass after a loop, and map size, before detection runs (ORB-SLAM: 10).
-const MIN_KEYFRAMES_BETWEEN: u32 = 10;
-
 /// Loop detection and correction state.
 #[derive(Debug, Default)]
 pub struct LoopCloser {
@@ -93,14 +90,18 @@ impl LoopCloser {
         ctx: &Context,
         place: &PlaceRecognition,
     ) -> Result<Option<LoopClosure>, SlamError> {
+        let config = &ctx.config.loop_closing;
+        let between = config.min_keyframes_between;
         let too_soon = self
             .last_loop
-            .is_some_and(|l| kf.0 < l.0 + MIN_KEYFRAMES_BETWEEN);
-        if map.num_keyframes() <= MIN_KEYFRAMES_BETWEEN as usize || too_soon {
+            .is_some_and(|l| (kf.0 as usize) < l.0 as usize + between);
+        if map.num_keyframes() <= between || too_soon {
             return Ok(None);
         }
         self.stats.keyframes_checked += 1;
-        let candidates = self.detector.consistent_candidates(kf, map, place);
+        let candidates = self
+            .detector
+            .consistent_candidates(kf, map, place, config.consistency);
         if self.detector.had_candidates() {
             self.stats.with_candidates += 1;
         }

@@ -19,16 +19,8 @@ use crate::context::Context;
 use crate::frustum::visible_point;
 use crate::place_recognition::PlaceRecognition;
 
-/// Matches needed at each verification stage before the final count (ORB-SLAM: 20).
-const MIN_STAGE_MATCHES: usize = 20;
 /// chi2 threshold of a reprojection at 2 degrees of freedom, 99 % (RANSAC inliers).
 const CHI2_2DOF: f64 = 9.21;
-/// Huber threshold of the Sim(3) refinement (ORB-SLAM `OptimizeSim3`: 10).
-const REFINE_CHI2: f64 = 10.0;
-/// Window of the Sim(3)-guided search, pixels at level 0 (ORB-SLAM: 7.5).
-const GUIDED_RADIUS_PX: f64 = 7.5;
-/// Window of the final projection of the loop's points, pixels at level 0 (ORB-SLAM: 10).
-const PROJECTION_RADIUS_PX: f64 = 10.0;
 
 /// A verified loop between the current keyframe and `loop_kf`.
 #[derive(Clone, Debug)]
@@ -65,15 +57,16 @@ pub(crate) fn verify_loop(
 ) -> Option<LoopMatch> {
     let fv1 = place.feature_vector(current)?;
     let fv2 = place.feature_vector(candidate)?;
+    let config = &ctx.config.loop_closing;
     let mut matches = match_by_bow(map, (current, fv1), (candidate, fv2), 0.75);
-    if matches.iter().flatten().count() < MIN_STAGE_MATCHES {
+    if matches.iter().flatten().count() < config.min_stage_matches {
         return None;
     }
     let fix_scale = ctx.config.sensor.has_depth();
     let (_, pairs) = correspondences(map, current, candidate, &matches);
     let params = Sim3RansacParams {
         probability: 0.99,
-        min_inliers: MIN_STAGE_MATCHES,
+        min_inliers: config.min_stage_matches,
         max_iterations: 300,
         fix_scale,
     };
@@ -95,7 +88,7 @@ pub(crate) fn verify_loop(
         current,
         candidate,
         &ransac.S_12,
-        GUIDED_RADIUS_PX,
+        config.guided_radius_px,
         &mut matches,
     );
     let (ids, pairs) = correspondences(map, current, candidate, &matches);
@@ -103,11 +96,11 @@ pub(crate) fn verify_loop(
         &ransac.S_12,
         &pairs,
         &ctx.intrinsics,
-        REFINE_CHI2,
+        config.sim3_huber_chi2,
         fix_scale,
     )
     .ok()?;
-    if refined.num_inliers < MIN_STAGE_MATCHES {
+    if refined.num_inliers < config.min_stage_matches {
         return None;
     }
     let S_12 = refined.S_12;
@@ -137,7 +130,7 @@ pub(crate) fn verify_loop(
         queries.push(ProjectionQuery {
             u: vis.u,
             v: vis.v,
-            radius: PROJECTION_RADIUS_PX * map.pyramid().scale[vis.level as usize],
+            radius: config.projection_radius_px * map.pyramid().scale[vis.level as usize],
             min_level: vis.level.saturating_sub(1),
             max_level: vis.level,
             descriptor: *map.map_point(m)?.descriptor(),
@@ -166,7 +159,7 @@ pub(crate) fn verify_loop(
         }
     }
     let num_matches = matched.iter().flatten().count();
-    (num_matches >= ctx.config.loop_closure_threshold).then_some(LoopMatch {
+    (num_matches >= config.loop_closure_threshold).then_some(LoopMatch {
         loop_kf: candidate,
         S_cw,
         matched,

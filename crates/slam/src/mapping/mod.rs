@@ -19,13 +19,6 @@ use thread::MappingThread;
 use crate::context::Context;
 use crate::error::SlamError;
 
-/// Keyframes the mapping thread may have queued or in progress when tracking wants another;
-/// tracking then waits for them, or, monocular, may leave the keyframe to the next frame
-/// ([`crate::tracking::Tracker::defer_keyframe`]). ORB-SLAM instead refuses monocular
-/// keyframes while mapping is busy and queues up to 3 with depth, which loses tracking when
-/// frames come faster than real time.
-pub(crate) const MAX_QUEUED_KEYFRAMES: usize = 1;
-
 /// Where the mapping pipeline runs.
 pub(crate) enum Mapping {
     /// In the tracking call that inserts the keyframe.

@@ -128,7 +128,10 @@ impl MappingPipeline {
         } = self;
         match (&job.vocabulary, &*place) {
             (Some(v), Some(p)) if Arc::ptr_eq(v, p.vocabulary()) => {}
-            (Some(v), _) => *place = Some(PlaceRecognition::new(Arc::clone(v))),
+            (Some(v), _) => {
+                let config = ctx.config.place_recognition;
+                *place = Some(PlaceRecognition::new(Arc::clone(v), config));
+            }
             (None, _) => *place = None,
         }
         mapper.rename_recent_points(&job.renamed);
@@ -169,7 +172,7 @@ impl MappingPipeline {
                     };
                     // Indexed after culling, before loop detection queries it.
                     indexed.extend(place.sync(map));
-                    if !ctx.config.loop_closure || map.keyframe(work.kf).is_none() {
+                    if !ctx.config.loop_closing.loop_closure || map.keyframe(work.kf).is_none() {
                         return Ok(None);
                     }
                     let loops = Instant::now();

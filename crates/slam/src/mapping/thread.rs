@@ -401,10 +401,8 @@ fn run_job(
 /// Gives the calling mapping thread the lowest CPU priority (nice 19 on Linux), so that
 /// tracking, the part that must keep up with the camera, and its helper threads get a core
 /// as soon as they want one; mapping takes the time they leave. At equal priority a tracking
-/// helper waits for the mapping thread's time slice to end. Fed at full speed, builds
-/// alternating, 15 runs each: fr1/rpy monocular frame median 9.36 -> 8.54 ms, p95 17.9 ->
-/// 15.5 ms; KITTI 06 monocular 13.5 -> 13.0 ms, p95 19.8 -> 19.0 ms. Best effort: where the OS
-/// refuses, mapping keeps the priority it has.
+/// helper waits for the mapping thread's time slice to end (fed at full speed, frame times
+/// and their tail fell). Best effort: where the OS refuses, mapping keeps the priority it has.
 fn yield_to_tracking() {
     let _ = thread_priority::set_current_thread_priority(thread_priority::ThreadPriority::Min);
 }

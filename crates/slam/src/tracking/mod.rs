@@ -32,32 +32,9 @@ pub enum TrackingState {
     /// The last frame could not be localised.
     Lost,
     /// Vision could not localise the last frame; its pose is the IMU's prediction (an
-    /// aligned visual-inertial map, for at most `imu_prediction::IMU_ONLY_MAX_S`).
+    /// aligned visual-inertial map, for at most `inertial.imu_only_max_s` of the configuration).
     RecentlyLost,
 }
-
-/// Minimum matches for the motion model and reference keyframe searches (ORB-SLAM).
-const MIN_SEARCH_MATCHES: usize = 20;
-const MIN_REFERENCE_MATCHES: usize = 15;
-/// Motion-model inliers above which the pose is trusted without a PnP cross-check.
-const STRONG_POSE_INLIERS: usize = 50;
-/// Below this many motion-model matches the search is repeated with twice the radius.
-const RETRY_SEARCH_MATCHES: usize = 100;
-/// Minimum inliers after pose optimisation before the local map refinement.
-const MIN_POSE_INLIERS: usize = 10;
-/// Keypoints a stereo or RGB-D frame needs to start the map (ORB-SLAM: more than 500); of
-/// them, those with depth become its points.
-pub const MIN_INIT_KEYPOINTS: usize = 500;
-/// Of those, keypoints with depth the first keyframe needs: as many points as a monocular
-/// initial map needs (`mono_init`); fewer cannot be tracked (a pair whose right image is
-/// the left one has none).
-pub const MIN_INIT_DEPTH_POINTS: usize = 100;
-/// Local keyframes kept for local-map tracking.
-const MAX_LOCAL_KEYFRAMES: usize = 80;
-/// A frame with depth whose inliers are at least this share of points already observed by
-/// `REDUNDANT_VIEW_KEYFRAMES` keyframes views mapped structure (see `need_new_keyframe`).
-const REDUNDANT_VIEW_SHARE: f64 = 0.8;
-const REDUNDANT_VIEW_KEYFRAMES: usize = 3;
 
 /// The state machine of tracking between frames.
 #[derive(Debug)]
@@ -144,12 +121,13 @@ impl Tracker {
                 } else {
                     0
                 };
-                if by_motion >= STRONG_POSE_INLIERS {
+                if by_motion >= ctx.config.tracking.strong_pose_inliers {
                     true
                 } else {
                     // A weak motion-model pose under fast rotation is often wrong: let
                     // PnP against the reference keyframe compete and keep the better one.
-                    let motion_guess = (by_motion >= MIN_POSE_INLIERS).then(|| frame.clone());
+                    let min_inliers = ctx.config.tracking.min_pose_inliers;
+                    let motion_guess = (by_motion >= min_inliers).then(|| frame.clone());
                     let candidates = self.reference_neighbourhood(map);
                     let by_pnp = self.relocalise(frame, map, ctx, candidates)?;
                     match motion_guess {
@@ -157,7 +135,7 @@ impl Tracker {
                             *frame = guess;
                             true
                         }
-                        _ => by_pnp >= MIN_POSE_INLIERS,
+                        _ => by_pnp >= min_inliers,
                     }
                 }
             }
@@ -166,7 +144,8 @@ impl Tracker {
                     Some(p) => p.relocalisation_candidates(&frame.features.descriptors, map),
                     None => self.reference_neighbourhood(map),
                 };
-                let found = self.relocalise(frame, map, ctx, candidates)? >= MIN_POSE_INLIERS;
+                let found = self.relocalise(frame, map, ctx, candidates)?
+                    >= ctx.config.tracking.min_pose_inliers;
                 if found {
                     self.last_relocalisation_frame = Some(frame.index);
                 }
@@ -211,9 +190,10 @@ impl Tracker {
         self.update_local_points(map);
         self.search_local_points(frame, map, ctx, 5.0)?;
         let searched = frame.map_points.clone();
-        if searched.iter().flatten().count() >= MIN_SEARCH_MATCHES {
+        let tracking = &ctx.config.tracking;
+        if searched.iter().flatten().count() >= tracking.min_search_matches {
             self.optimize_pose(frame, map, ctx)?;
-            if discard_outliers(frame) >= MIN_POSE_INLIERS
+            if discard_outliers(frame) >= tracking.min_pose_inliers
                 && self.track_local_map(frame, map, ctx)?
             {
                 self.state = TrackingState::Ok;
@@ -327,16 +307,17 @@ impl Tracker {
         frame.clear_associations();
         let radius_px = 15.0;
         let mut found = search_last_frame(frame, last, map, ctx, radius_px);
-        if found < RETRY_SEARCH_MATCHES {
+        let tracking = &ctx.config.tracking;
+        if found < tracking.retry_search_matches {
             frame.clear_associations();
             found = search_last_frame(frame, last, map, ctx, 2.0 * radius_px);
         }
-        if found < MIN_SEARCH_MATCHES {
+        if found < tracking.min_search_matches {
             return Ok(0);
         }
         self.optimize_pose(frame, map, ctx)?;
         let inliers = discard_outliers(frame);
-        Ok(if inliers >= MIN_POSE_INLIERS {
+        Ok(if inliers >= tracking.min_pose_inliers {
             inliers
         } else {
             0
@@ -358,9 +339,10 @@ impl Tracker {
         ctx: &Context,
         candidates: Vec<KeyFrameId>,
     ) -> Result<usize, SlamError> {
+        let tracking = &ctx.config.tracking;
         for kf in candidates {
             frame.clear_associations();
-            if match_keyframe(frame, kf, map, 0.75) < MIN_REFERENCE_MATCHES {
+            if match_keyframe(frame, kf, map, 0.75) < tracking.min_reference_matches {
                 continue;
             }
             let matched: Vec<(usize, MapPointId)> = frame
@@ -385,7 +367,7 @@ impl Tracker {
                 .map(|&(i, _)| map.pyramid().sigma2[frame.features.keypoints[i].octave as usize])
                 .collect();
             let options = PnpRansacOptions {
-                min_inliers: MIN_POSE_INLIERS,
+                min_inliers: tracking.min_pose_inliers,
                 seed: ctx.config.seed ^ frame.index as u64,
                 ..PnpRansacOptions::default()
             };
@@ -401,7 +383,7 @@ impl Tracker {
             frame.T_c_w = solution.T_c_w;
             self.optimize_pose(frame, map, ctx)?;
             let inliers = discard_outliers(frame);
-            if inliers >= MIN_POSE_INLIERS {
+            if inliers >= tracking.min_pose_inliers {
                 self.reference_kf = Some(kf);
                 return Ok(inliers);
             }
@@ -430,13 +412,15 @@ impl Tracker {
         ctx: &Context,
     ) -> Result<bool, SlamError> {
         frame.vo_points.iter_mut().for_each(|p| *p = None);
-        self.update_local_keyframes(frame, map);
+        self.update_local_keyframes(frame, map, ctx.config.tracking.max_local_keyframes);
         self.update_local_points(map);
         // ORB-SLAM: a wider search right after relocalisation, and a stricter inlier count
-        // for a second (`max_frames`) while the relocalised pose is still unconfirmed.
+        // while the relocalised pose is still unconfirmed.
+        let tracking = &ctx.config.tracking;
         let since_relocalisation = self.last_relocalisation_frame.map(|f| frame.index - f);
         let recently_relocalised = since_relocalisation.is_some_and(|n| n < 2);
-        let unconfirmed = since_relocalisation.is_some_and(|n| n < ctx.config.skip_max_frames);
+        let unconfirmed =
+            since_relocalisation.is_some_and(|n| n < tracking.post_relocalisation_frames);
         self.search_local_points(
             frame,
             map,
@@ -460,16 +444,16 @@ impl Tracker {
         }
         self.matches_inliers = inliers;
         let min_inliers = if unconfirmed {
-            50
+            tracking.relocalised_min_inliers
         } else {
-            ctx.config.track_feature_range.0
+            tracking.track_feature_range.0
         };
         Ok(inliers >= min_inliers)
     }
 
     /// Local keyframes: those observing the frame's points, their best covisibles, children and
     /// parents (ORB-SLAM `UpdateLocalKeyFrames`); the most voted one becomes the reference.
-    fn update_local_keyframes(&mut self, frame: &Frame, map: &Map) {
+    fn update_local_keyframes(&mut self, frame: &Frame, map: &Map, max_keyframes: usize) {
         let mut votes: HashMap<KeyFrameId, usize> = HashMap::new();
         for m in frame.map_points.iter().flatten() {
             if let Some(p) = map.map_point(*m) {
@@ -487,7 +471,7 @@ impl Tracker {
         let mut seen: HashSet<KeyFrameId> = local.iter().copied().collect();
         let first_ring = local.clone();
         for kf in first_ring {
-            if local.len() >= MAX_LOCAL_KEYFRAMES {
+            if local.len() >= max_keyframes {
                 break;
             }
             let Some(k) = map.keyframe(kf) else { continue };
@@ -567,17 +551,17 @@ impl Tracker {
     /// mapping (which is asked to finish early meanwhile); records the deferral.
     ///
     /// Monocular only, and at most one frame in a row: ORB-SLAM refuses monocular keyframes
-    /// whenever mapping is busy, which loses KITTI 06 fed at full speed (27 of 51 frames
-    /// tracked), and a deferral with weak tracking lost it in 2 of 15 runs. So tracking must
-    /// keep at least twice `TrackFeatureRange`'s lower limit (below which it is lost). With
-    /// depth a keyframe brings its own points at once; waiting costs little there.
+    /// whenever mapping is busy, which loses a forward-driving sequence fed at full speed
+    /// (KITTI 06), and a deferral with weak tracking lost it too. So tracking must keep at
+    /// least twice `TrackFeatureRange`'s lower limit (below which it is lost). With depth a
+    /// keyframe brings its own points at once; waiting costs little there.
     pub fn defer_keyframe(&mut self, frame_index: usize, ctx: &Context) -> bool {
         let deferred_last_frame = self
             .keyframe_deferred_at
             .is_some_and(|f| f + 1 == frame_index);
         let defer = !ctx.config.sensor.has_depth()
             && !deferred_last_frame
-            && self.matches_inliers >= 2 * ctx.config.track_feature_range.0;
+            && self.matches_inliers >= 2 * ctx.config.tracking.track_feature_range.0;
         if defer {
             self.keyframe_deferred_at = Some(frame_index);
         }
@@ -589,9 +573,8 @@ impl Tracker {
     /// than `upper` points, or `skip_max_frames` frames after the last keyframe, is one.
     /// Monocular, fewer than `upper` points counts only below the reference ratio too
     /// (MATLAB's monocular example, `helperIsKeyFrame`): a monocular map tracks few points
-    /// (KITTI 06: about 100 of 2000 features), so the bare limit fired on every other frame
-    /// and tracking spent its time waiting for local mapping (31 keyframes in 51 frames, 26
-    /// with the ratio; frame median 22.4 -> 20.3 ms fed at full speed, ATE unchanged).
+    /// (on KITTI, a small share of its features), so the bare limit fired on most frames and
+    /// tracking spent its time waiting for local mapping.
     ///
     /// `mapping_idle` is ORB-SLAM's `c1b`: while local mapping is still busy with earlier
     /// keyframes, the reference-ratio rule only fires when tracking is weak (`c1c`: with
@@ -600,11 +583,10 @@ impl Tracker {
     /// run's map (and the time to track against it) keeps growing.
     ///
     /// With depth, idle mapping alone does not fire the ratio rule for a frame whose inliers
-    /// are mostly (`REDUNDANT_VIEW_SHARE`) points three keyframes already observe: on a
+    /// are mostly (`tracking.redundant_view_share`) points three keyframes already observe: on a
     /// revisit the new reference keyframe's fused points outnumber what the next frame finds
-    /// again (fr1/rpy: about 760 against 450), so the rule would fire every frame or two,
-    /// each keyframe kept by culling for its few new close points. Exploring frames track
-    /// young points and are unaffected (fr1/rpy, 300 frames: 44 keyframes instead of 45).
+    /// again, so the rule would fire every frame or two, each keyframe kept by culling for its
+    /// few new close points. Exploring frames track young points and are barely affected.
     pub fn need_new_keyframe(
         &self,
         frame: &Frame,
@@ -616,11 +598,12 @@ impl Tracker {
             return false;
         };
         let n_kfs = map.num_keyframes();
-        let max_frames = ctx.config.skip_max_frames;
+        let tracking = &ctx.config.tracking;
+        let window = tracking.post_relocalisation_frames;
         if self
             .last_relocalisation_frame
-            .is_some_and(|f| frame.index < f + max_frames)
-            && n_kfs > max_frames
+            .is_some_and(|f| frame.index < f + window)
+            && n_kfs > window
         {
             return false;
         }
@@ -650,16 +633,16 @@ impl Tracker {
         // left untracked, when mapping can take the keyframe). Monocular, the upper limit
         // also needs the reference ratio, as in MATLAB's monocular example.
         let below_ratio = (inliers as f64) < ref_matches * ratio;
-        let few_tracked = inliers < ctx.config.track_feature_range.1
+        let few_tracked = inliers < tracking.track_feature_range.1
             && (ctx.config.sensor.has_depth() || below_ratio);
-        let matlab = few_tracked || since_kf >= max_frames;
+        let matlab = few_tracked || since_kf >= tracking.skip_max_frames;
         let weak =
             ctx.config.sensor.has_depth() && ((inliers as f64) < 0.25 * ref_matches || need_close);
         // The redundancy count walks every inlier's point: only when it decides.
         let views_mapped_structure = || {
             ctx.config.sensor.has_depth()
-                && (inliers_seen_by(frame, map, REDUNDANT_VIEW_KEYFRAMES) as f64)
-                    >= REDUNDANT_VIEW_SHARE * inliers as f64
+                && (inliers_seen_by(frame, map, tracking.redundant_view_keyframes) as f64)
+                    >= tracking.redundant_view_share * inliers as f64
         };
         let orb_slam =
             (below_ratio || need_close) && (weak || (mapping_idle && !views_mapped_structure()));

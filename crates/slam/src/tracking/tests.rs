@@ -111,7 +111,7 @@ fn monocular_upper_limit_needs_the_reference_ratio() {
     // reference seeing 100.
     for sensor in [Sensor::Monocular, Sensor::Rgbd] {
         let (ctx, map, frame, r) = scene_with(sensor, 100);
-        assert!(95 < ctx.config.track_feature_range.1);
+        assert!(95 < ctx.config.tracking.track_feature_range.1);
         let near_reference = tracker(r, 95, RECENT);
         let expected = sensor.has_depth(); // MATLAB's bare limit, with depth only
         assert_eq!(
@@ -126,7 +126,7 @@ fn monocular_upper_limit_needs_the_reference_ratio() {
 #[test]
 fn monocular_keyframes_wait_at_most_one_frame_for_busy_mapping() {
     let (mono, _, _, r) = scene_with(Sensor::Monocular, N);
-    let lower = mono.config.track_feature_range.0;
+    let lower = mono.config.tracking.track_feature_range.0;
     let mut t = tracker(r, 2 * lower, RECENT);
     assert!(t.defer_keyframe(10, &mono));
     assert!(!t.defer_keyframe(11, &mono), "deferred on the frame before");

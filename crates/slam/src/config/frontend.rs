@@ -1,0 +1,247 @@
+//! The sections of the front end: ORB extraction, measured depth, map initialisation and
+//! tracking.
+
+use ferroslam_features::extractor::EDGE_PX;
+
+use super::Sensor;
+use crate::error::SlamError;
+
+/// Shorter side of the coarsest pyramid level, pixels: room for a keypoint with its
+/// descriptor's border on both sides.
+pub const MIN_LEVEL_SIDE_PX: usize = 2 * EDGE_PX + 1;
+
+/// ORB keypoints per image column of the default budget. ORB-SLAM's settings keep about
+/// this density across cameras: 1000 features at 640 px wide (TUM), 1200 at 752 (EuRoC),
+/// 2000 at 1241 (KITTI). Wider images see more of the scene, and far, slow-moving features
+/// are what tracking at speed keeps; the image height does not change the choices.
+const FEATURES_PER_COLUMN: f64 = 1000.0 / 640.0;
+/// Bounds of the default budget: below 500 keypoints a stereo or RGB-D map cannot start
+/// ([`InitializationConfig::min_keypoints`]); above 2000, ORB-SLAM's largest setting,
+/// extraction and matching time grow faster than tracking gains.
+const DEFAULT_FEATURES_RANGE: (usize, usize) = (500, 2000);
+
+/// The default ORB budget for images `width_px` wide: [`FEATURES_PER_COLUMN`] per column,
+/// rounded to a hundred, within [`DEFAULT_FEATURES_RANGE`] (640 px: 1000, 752: 1200,
+/// 1241: 1900).
+pub(super) fn default_n_features(width_px: u32) -> usize {
+    let n = (f64::from(width_px) * FEATURES_PER_COLUMN / 100.0).round() as usize * 100;
+    n.clamp(DEFAULT_FEATURES_RANGE.0, DEFAULT_FEATURES_RANGE.1)
+}
+
+/// ORB extraction: budget, FAST thresholds and scale pyramid (ORB-SLAM's `ORBextractor`
+/// settings).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExtractorConfig {
+    /// ORB keypoints extracted per image (ORB-SLAM `nFeatures`; MATLAB `MaxNumPoints`); the
+    /// preset follows the image width, see [`Self::for_width`].
+    pub n_features: usize,
+    /// FAST threshold tried first in every cell of the extractor's grid, intensity levels
+    /// (ORB-SLAM `iniThFAST`: 20).
+    pub ini_fast: u8,
+    /// FAST threshold of the cells where `ini_fast` finds no corner, intensity levels
+    /// (ORB-SLAM `minThFAST`: 7).
+    pub min_fast: u8,
+    /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`: 1.2).
+    pub scale_factor: f64,
+    /// Number of ORB pyramid levels (ORB-SLAM `nLevels`: 8).
+    pub n_levels: usize,
+}
+
+impl ExtractorConfig {
+    /// ORB-SLAM's TUM settings (FAST 20 / 7, 8 levels of 1.2) with the budget of images
+    /// `width_px` wide: 1000 keypoints per 640 columns, rounded to a hundred, within
+    /// 500..=2000 (640 px: 1000, 752: 1200, 1241: 1900).
+    pub fn for_width(width_px: u32) -> Self {
+        Self {
+            n_features: default_n_features(width_px),
+            ini_fast: 20,
+            min_fast: 7,
+            scale_factor: 1.2,
+            n_levels: 8,
+        }
+    }
+
+    /// Checks that every pyramid level of a `width_px` x `height_px` image keeps room for
+    /// keypoints: [`MIN_LEVEL_SIDE_PX`] on its shorter side. A pyramid too deep for the image
+    /// (`scale_factor` 2 with 12 levels shrinks 640x480 to under a pixel) would fail inside
+    /// the extractor at the first frame.
+    pub fn check_pyramid(&self, width_px: u32, height_px: u32) -> Result<(), SlamError> {
+        let side = f64::from(width_px.min(height_px));
+        let coarsest = side / self.scale_factor.powi(self.n_levels as i32 - 1);
+        if coarsest >= MIN_LEVEL_SIDE_PX as f64 {
+            return Ok(());
+        }
+        let fitting = if side < MIN_LEVEL_SIDE_PX as f64 {
+            0
+        } else {
+            ((side / MIN_LEVEL_SIDE_PX as f64).ln() / self.scale_factor.ln()).floor() as usize + 1
+        };
+        Err(SlamError::InvalidConfig(format!(
+            "extractor.n_levels = {} with extractor.scale_factor {} shrinks the \
+             {width_px}x{height_px} images to {coarsest:.1} px on the shorter side at the \
+             coarsest level; levels need at least {MIN_LEVEL_SIDE_PX} px (keypoints keep \
+             {EDGE_PX} px from the border): at most {fitting} levels fit",
+            self.n_levels, self.scale_factor
+        )))
+    }
+}
+
+/// Measured depth (stereo disparity or a depth camera): which depths count, and which are
+/// close enough to trust from one view (ORB-SLAM's close/far rule).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthConfig {
+    /// Stereo baseline times fx, metres * pixels; with RGB-D, that of the virtual right camera
+    /// (ORB-SLAM `Camera.bf`; 40 for the TUM RGB-D cameras). The bindings set a stereo rig's
+    /// from its baseline.
+    pub bf: f64,
+    /// Points closer than this many baselines are "close": their measured depth is trusted
+    /// (ORB-SLAM `ThDepth`: 40).
+    pub depth_threshold: f64,
+    /// `(min, max)` valid measured depth, metres; other depths count as missing. `max` may be
+    /// infinite.
+    pub depth_range: (f64, f64),
+}
+
+impl DepthConfig {
+    /// ORB-SLAM's TUM values (`bf` 40, `ThDepth` 40); depth within (0.1, 8.0) m for RGB-D
+    /// (a structured-light camera's working range), unbounded for stereo (the disparity
+    /// search bounds it).
+    pub fn for_sensor(sensor: Sensor) -> Self {
+        Self {
+            bf: 40.0,
+            depth_threshold: 40.0,
+            depth_range: if sensor == Sensor::Stereo {
+                (0.0, f64::INFINITY)
+            } else {
+                (0.1, 8.0)
+            },
+        }
+    }
+
+    /// Depth below which a point is close enough to trust its measured depth, metres.
+    pub fn close_depth_m(&self, fx: f64) -> f64 {
+        self.bf * self.depth_threshold / fx
+    }
+}
+
+/// Starting a map: from the first frame with enough depth (stereo, RGB-D), or from a
+/// monocular two-view pair (ORB-SLAM `StereoInitialization`, `MonocularInitialization`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InitializationConfig {
+    /// Keypoints a stereo or RGB-D frame needs to start the map (ORB-SLAM: more than 500); of
+    /// them, those with depth become its points.
+    pub min_keypoints: usize,
+    /// Of those, keypoints with depth the first keyframe needs: as many points as a
+    /// monocular initial map needs (`mono_min_points`); fewer cannot be tracked (a pair whose
+    /// right image is the left one has none).
+    pub min_depth_points: usize,
+    /// Keypoints (more than this) a frame needs to serve in a monocular initialisation pair
+    /// (ORB-SLAM: 100).
+    pub mono_min_keypoints: usize,
+    /// Matches a monocular pair needs; with fewer the reference frame is replaced (ORB-SLAM:
+    /// 100).
+    pub mono_min_matches: usize,
+    /// Half-side of the window around a reference feature's last match where it is
+    /// searched, pixels (ORB-SLAM `SearchForInitialization`: 100).
+    pub mono_window_px: f64,
+    /// Map points the second keyframe must keep after the initial bundle adjustment
+    /// (ORB-SLAM: 100).
+    pub mono_min_points: usize,
+}
+
+impl Default for InitializationConfig {
+    fn default() -> Self {
+        Self {
+            min_keypoints: 500,
+            min_depth_points: 100,
+            mono_min_keypoints: 100,
+            mono_min_matches: 100,
+            mono_window_px: 100.0,
+            mono_min_points: 100,
+        }
+    }
+}
+
+/// Tracking: matching thresholds, the keyframe decision and what happens when tracking is
+/// lost (ORB-SLAM `Tracking`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackingConfig {
+    /// `(lower, upper)` tracked-feature limits: below `lower` tracking is lost; below `upper`
+    /// the frame becomes a keyframe (MATLAB `TrackFeatureRange`; monocular, only when it also
+    /// tracks under 0.9 of its reference keyframe's points); above it, only ORB-SLAM's rules
+    /// or `skip_max_frames` make one. See [`Self::for_sensor`].
+    pub track_feature_range: (usize, usize),
+    /// Maximum number of frames between two keyframes (MATLAB `SkipMaxFrames`; ORB-SLAM
+    /// `mMaxFrames`, one second of frames: 30).
+    pub skip_max_frames: usize,
+    /// Frames after a relocalisation during which the pose counts as unconfirmed (it needs
+    /// `relocalised_min_inliers`) and, once the map holds more keyframes than this, no
+    /// keyframe is made (ORB-SLAM reuses `mMaxFrames`, one second of frames: 30).
+    pub post_relocalisation_frames: usize,
+    /// Inliers an unconfirmed relocalised pose needs against the local map (ORB-SLAM: 50).
+    pub relocalised_min_inliers: usize,
+    /// Matches the motion-model search needs before pose optimisation (ORB-SLAM: 20).
+    pub min_search_matches: usize,
+    /// Descriptor matches a candidate keyframe needs before PnP-RANSAC, in reference-keyframe
+    /// tracking and relocalisation (ORB-SLAM: 15).
+    pub min_reference_matches: usize,
+    /// Motion-model inliers above which the pose is trusted without a PnP cross-check against
+    /// the reference keyframe: a weak motion-model pose under fast rotation is often wrong
+    /// (ORB-SLAM has no cross-check).
+    pub strong_pose_inliers: usize,
+    /// Below this many motion-model matches the search is repeated with twice the radius
+    /// (ORB-SLAM retries only below `min_search_matches`; here a weak search is widened too,
+    /// as its count decides the PnP cross-check, `strong_pose_inliers`).
+    pub retry_search_matches: usize,
+    /// Inliers a pose needs after motion-only BA, before the local-map refinement (ORB-SLAM:
+    /// 10).
+    pub min_pose_inliers: usize,
+    /// Local keyframes kept for local-map tracking (ORB-SLAM: 80).
+    pub max_local_keyframes: usize,
+    /// With depth, a frame whose inliers are at least this share of points already observed
+    /// by `redundant_view_keyframes` keyframes views mapped structure: idle mapping alone does
+    /// not make it a keyframe (revisits would add one every frame or two).
+    pub redundant_view_share: f64,
+    /// Observing keyframes that make a point "mapped structure" for `redundant_view_share`
+    /// (three, as keyframe culling's `mapping.redundant_observations`).
+    pub redundant_view_keyframes: usize,
+    /// How long a lost monocular map keeps trying to relocalise before a new map segment
+    /// starts, seconds. ORB-SLAM3 waits up to 3 s; a second loses fewer frames to the wait.
+    pub relocalisation_window_s: f64,
+    /// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM: 5).
+    pub min_keyframes_to_keep: usize,
+}
+
+impl TrackingConfig {
+    /// The preset of `sensor`: MATLAB's `TrackFeatureRange` (30, 100), except with an RGB-D
+    /// sensor (30, 250), and ORB-SLAM's thresholds.
+    ///
+    /// With depth, a new keyframe's own points count for ORB-SLAM's reference ratio only once
+    /// another keyframe sees them, so the ratio rule fires near the points tracked when the
+    /// keyframe was made: with the upper limit at 100, keyframes came as tracking fell to
+    /// about 100 points, and those poses (fast rotations) erred by centimetres frame to
+    /// frame; 250 makes keyframes earlier and more often. Stereo keeps 100: on KITTI a
+    /// keyframe is made almost every frame already, and a higher limit did not help.
+    pub fn for_sensor(sensor: Sensor) -> Self {
+        Self {
+            track_feature_range: if sensor == Sensor::Rgbd {
+                (30, 250)
+            } else {
+                (30, 100)
+            },
+            skip_max_frames: 30,
+            post_relocalisation_frames: 30,
+            relocalised_min_inliers: 50,
+            min_search_matches: 20,
+            min_reference_matches: 15,
+            strong_pose_inliers: 50,
+            retry_search_matches: 100,
+            min_pose_inliers: 10,
+            max_local_keyframes: 80,
+            redundant_view_share: 0.8,
+            redundant_view_keyframes: 3,
+            relocalisation_window_s: 1.0,
+            min_keyframes_to_keep: 5,
+        }
+    }
+}

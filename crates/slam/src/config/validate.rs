@@ -1,0 +1,162 @@
+//! [`SlamConfig::validate`]: every field of every section, named `section.field` in the
+//! error.
+
+use super::SlamConfig;
+use crate::error::SlamError;
+
+/// The fields of one section, for messages that name `section.field`.
+struct Section(&'static str);
+
+impl Section {
+    /// `InvalidConfig("section.field must ...")`.
+    fn bad(&self, field: &str, rule: impl std::fmt::Display) -> SlamError {
+        SlamError::InvalidConfig(format!("{}.{field} must {rule}", self.0))
+    }
+
+    /// A count of at least `min`.
+    fn at_least(&self, field: &str, value: usize, min: usize) -> Result<(), SlamError> {
+        if value >= min {
+            Ok(())
+        } else {
+            Err(self.bad(field, format_args!("be >= {min}")))
+        }
+    }
+
+    /// A finite number above 0.
+    fn positive(&self, field: &str, value: f64) -> Result<(), SlamError> {
+        if value.is_finite() && value > 0.0 {
+            Ok(())
+        } else {
+            Err(self.bad(field, format_args!("be a positive number, got {value}")))
+        }
+    }
+
+    /// A number in `(0, max]`.
+    fn fraction(&self, field: &str, value: f64, max: f64) -> Result<(), SlamError> {
+        if value > 0.0 && value <= max {
+            Ok(())
+        } else {
+            Err(self.bad(field, format_args!("be in (0, {max}], got {value}")))
+        }
+    }
+}
+
+/// `check!(s, >= min, self.a, self.b)` (counts), `check!(s, > 0, self.a)` (finite positive
+/// numbers) or `check!(s, <= max, self.a)` (numbers in `(0, max]`): each field named once,
+/// the error naming it `section.field`.
+macro_rules! check {
+    ($s:ident, >= $min:expr, $($c:ident . $f:ident),+ $(,)?) => {
+        $($s.at_least(stringify!($f), $c.$f, $min)?;)+
+    };
+    ($s:ident, > 0, $($c:ident . $f:ident),+ $(,)?) => {
+        $($s.positive(stringify!($f), $c.$f)?;)+
+    };
+    ($s:ident, <= $max:expr, $($c:ident . $f:ident),+ $(,)?) => {
+        $($s.fraction(stringify!($f), $c.$f, $max)?;)+
+    };
+}
+
+impl SlamConfig {
+    /// Checks every field of every section; the error names the first invalid one as
+    /// `section.field`.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        let (x, s) = (&self.extractor, Section("extractor"));
+        check!(s, >= 1, x.n_features);
+        if !(0 < x.min_fast && x.min_fast <= x.ini_fast && x.ini_fast < 255) {
+            return Err(s.bad(
+                "ini_fast and extractor.min_fast",
+                "satisfy 0 < min_fast <= ini_fast < 255",
+            ));
+        }
+        if !(x.scale_factor.is_finite() && x.scale_factor > 1.0) {
+            return Err(s.bad("scale_factor", "be > 1"));
+        }
+        if !(1..=32).contains(&x.n_levels) {
+            return Err(s.bad("n_levels", "be in 1..=32"));
+        }
+
+        let (d, s) = (&self.depth, Section("depth"));
+        if !(d.bf.is_finite() && d.bf > 0.0) {
+            return Err(s.bad("bf", "be a positive number (fx * baseline)"));
+        }
+        check!(s, > 0, d.depth_threshold);
+        let (dmin, dmax) = d.depth_range;
+        if !(dmin.is_finite() && !dmax.is_nan() && 0.0 <= dmin && dmin < dmax) {
+            return Err(s.bad("depth_range", "be (min, max) with 0 <= min < max"));
+        }
+
+        let (i, s) = (&self.initialization, Section("initialization"));
+        check!(s, >= 1, i.min_keypoints, i.min_depth_points, i.mono_min_keypoints);
+        // The essential and homography solvers need 8 matches.
+        check!(s, >= 8, i.mono_min_matches);
+        check!(s, >= 1, i.mono_min_points);
+        check!(s, > 0, i.mono_window_px);
+
+        let (t, s) = (&self.tracking, Section("tracking"));
+        let (lower, upper) = t.track_feature_range;
+        if lower == 0 || lower >= upper {
+            return Err(s.bad(
+                "track_feature_range",
+                "be (lower, upper) with 0 < lower < upper",
+            ));
+        }
+        check!(s, >= 1, t.skip_max_frames, t.post_relocalisation_frames);
+        check!(s, >= 1, t.relocalised_min_inliers, t.strong_pose_inliers);
+        check!(s, >= 1, t.min_search_matches, t.retry_search_matches);
+        check!(s, >= 1, t.max_local_keyframes, t.redundant_view_keyframes);
+        // PnP-RANSAC needs 4 correspondences.
+        check!(s, >= 4, t.min_reference_matches, t.min_pose_inliers);
+        check!(s, <= 1.0, t.redundant_view_share);
+        check!(s, > 0, t.relocalisation_window_s);
+        // min_keyframes_to_keep: any count (0 keeps every lost map).
+
+        let (m, s) = (&self.mapping, Section("mapping"));
+        check!(s, >= 1, m.triangulation_neighbours, m.hurried_triangulation_neighbours);
+        check!(s, >= 1, m.always_searched_with_depth, m.max_queued_keyframes);
+        check!(s, >= 1, m.min_point_observations, m.redundant_observations);
+        // min_points_to_search_on: any count (0 searches every neighbour).
+        if !(m.min_ray_parallax_deg > 0.0 && m.min_ray_parallax_deg < 90.0) {
+            let got = m.min_ray_parallax_deg;
+            return Err(s.bad(
+                "min_ray_parallax_deg",
+                format_args!("be in (0, 90), got {got}"),
+            ));
+        }
+        if !(m.max_scene_depth_ratio > 1.0) {
+            let got = m.max_scene_depth_ratio;
+            return Err(s.bad("max_scene_depth_ratio", format_args!("be > 1, got {got}")));
+        }
+
+        let (p, s) = (&self.place_recognition, Section("place_recognition"));
+        // feature_levels_up: any level (past the vocabulary's depth, features group at the root).
+        check!(s, >= 1, p.group_size, p.max_retrieved);
+
+        let (l, s) = (&self.loop_closing, Section("loop_closing"));
+        // The Sim(3) RANSAC samples 3 correspondences.
+        check!(s, >= 3, l.min_stage_matches);
+        // The verification needs `min_stage_matches` before its final count: a lower bound
+        // would never apply.
+        check!(s, >= l.min_stage_matches, l.loop_closure_threshold);
+        check!(s, >= 1, l.consistency, l.essential_graph_iterations);
+        check!(s, > 0, l.sim3_huber_chi2, l.guided_radius_px);
+        check!(s, > 0, l.projection_radius_px, l.fuse_radius_px);
+        // min_keyframes_between, strong_covisibility: any count.
+
+        let (n, s) = (&self.inertial, Section("inertial"));
+        let spans = &n.refinement_spans_s;
+        let increasing = spans.windows(2).all(|w| w[0] < w[1]);
+        if !(increasing && spans.iter().all(|t| t.is_finite() && *t > 0.0)) {
+            return Err(s.bad(
+                "refinement_spans_s",
+                format_args!("be positive seconds in increasing order, got {spans:?}"),
+            ));
+        }
+        check!(s, >= 2, n.window_keyframes);
+        check!(s, > 0, n.init_keyframe_interval_s, n.velocity_baseline_s);
+        check!(s, > 0, n.imu_only_max_s, n.max_speed_m_s);
+        check!(s, > 0, n.max_gyro_bias_rad_s, n.max_accel_bias_m_s2);
+        check!(s, > 0, n.anchor_sigma_velocity_m_s, n.anchor_sigma_accel_m_s2);
+        check!(s, > 0, n.anchor_sigma_gyro_rad_s);
+        Ok(())
+    }
+}
