@@ -24,4 +24,21 @@ pub enum FeaturesError {
         /// Buffer length, bytes.
         len: usize,
     },
+    /// An image is too small for the pyramid asked of it.
+    #[error(
+        "image {width}x{height} is too small for the pyramid: level {level} would be \
+         {level_width}x{level_height} px; use fewer levels or a smaller scale factor"
+    )]
+    ImageTooSmall {
+        /// Image width, pixels.
+        width: usize,
+        /// Image height, pixels.
+        height: usize,
+        /// The first level without pixels.
+        level: usize,
+        /// Its width, pixels.
+        level_width: usize,
+        /// Its height, pixels.
+        level_height: usize,
+    },
 }
