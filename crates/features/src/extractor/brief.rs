@@ -4,13 +4,15 @@
 //!
 //! The comparisons are OpenCV's, to the bit: the pattern is rotated in `f32` (`x cos - y sin`,
 //! `x sin + y cos`), offsets are rounded half to even, and bit `k` of byte `i` is
-//! `I(first) < I(second)` of test `8 i + k`. With OpenCV's tests on levels smoothed as OpenCV's ORB smooths them ([`smooth_for_brief`]), the descriptors
+//! `I(first) < I(second)` of test `8 i + k`. With OpenCV's tests ([`BriefPattern::opencv`])
+//! on levels smoothed as OpenCV's ORB smooths them ([`smooth_for_brief`]), the descriptors
 //! equal those of the ORB implementation the vocabulary was trained with.
 //!
 //! [`smooth_for_brief`]: super::smoothing::smooth_for_brief
 
 use rayon::prelude::*;
 
+use super::opencv_brief_tests::OPENCV_BRIEF_TESTS;
 use super::rounding::round_half_even;
 use crate::{Descriptor, GrayImage};
 
@@ -47,6 +49,14 @@ impl BriefPattern {
             .map(|[x, y]| f32::from(x).hypot(f32::from(y)))
             .fold(0.0, f32::max);
         Self { xs, ys, reach_px }
+    }
+
+    /// OpenCV's ORB pattern ([`OPENCV_BRIEF_TESTS`]).
+    pub fn opencv() -> Self {
+        Self::new(&OPENCV_BRIEF_TESTS.map(|[x1, y1, x2, y2]| BriefTest {
+            first: [x1, y1],
+            second: [x2, y2],
+        }))
     }
 
     /// Largest distance (pixels) of a test pixel from the centre: a corner needs this much
@@ -174,6 +184,14 @@ mod tests {
             p.describe(&img_a, 24, 24, 0.0),
             p.describe(&img_b, 24, 24, 0.0)
         );
+    }
+
+    #[test]
+    fn opencv_tests_fit_inside_the_border_keypoints_keep() {
+        let reach = BriefPattern::opencv().reach_px();
+        assert!(reach.round() < super::super::EDGE_PX as f32, "{reach}");
+        // one test compares a pixel with itself in none
+        assert!(OPENCV_BRIEF_TESTS.iter().all(|[x1, y1, x2, y2]| (x1, y1) != (x2, y2)));
     }
 
     #[test]

@@ -4,16 +4,17 @@
 //! - per level, FAST ([`fast`]) at the initial threshold with the per-cell fallback to the
 //!   low one ([`threshold_fallback`]), the even spread to the level's budget ([`quadtree`])
 //!   and the intensity-centroid orientation ([`orientation`]): [`detect_level`];
-//! - the rotated BRIEF descriptors ([`brief`]) on
+//! - the rotated BRIEF descriptors ([`brief`], OpenCV's tests in [`opencv_brief_tests`]) on
 //!   the levels smoothed as OpenCV's ORB smooths them ([`smoothing`]).
 //!
 //! The pyramid and the smoothing equal OpenCV's bit for bit, so the descriptors equal
-//! `cv2.ORB`'s on the same keypoints (with OpenCV's tests). Coordinates are integer pixels of
-//! the level the corner was found on (x right, y down).
+//! `cv2.ORB`'s on the same keypoints. Coordinates are integer pixels of the level the corner
+//! was found on (x right, y down).
 
 pub mod brief;
 pub mod fast;
 pub mod image_pyramid;
+pub mod opencv_brief_tests;
 pub mod orientation;
 pub mod quadtree;
 pub mod resize;
