@@ -191,7 +191,9 @@ mod tests {
         let reach = BriefPattern::opencv().reach_px();
         assert!(reach.round() < super::super::EDGE_PX as f32, "{reach}");
         // one test compares a pixel with itself in none
-        assert!(OPENCV_BRIEF_TESTS.iter().all(|[x1, y1, x2, y2]| (x1, y1) != (x2, y2)));
+        assert!(OPENCV_BRIEF_TESTS
+            .iter()
+            .all(|[x1, y1, x2, y2]| (x1, y1) != (x2, y2)));
     }
 
     #[test]

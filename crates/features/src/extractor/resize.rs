@@ -136,10 +136,18 @@ mod tests {
 
     #[test]
     fn a_constant_image_stays_constant() {
-        for (w, h, dw, dh) in [(640, 480, 533, 400), (37, 11, 5, 9), (1, 1, 3, 2), (9, 2, 1, 1)] {
+        for (w, h, dw, dh) in [
+            (640, 480, 533, 400),
+            (37, 11, 5, 9),
+            (1, 1, 3, 2),
+            (9, 2, 1, 1),
+        ] {
             for v in [0, 1, 128, 254, 255] {
                 let out = resize(w, h, &vec![v; w * h], dw, dh);
-                assert!(out.iter().all(|&o| o == v), "{w}x{h} -> {dw}x{dh}, value {v}");
+                assert!(
+                    out.iter().all(|&o| o == v),
+                    "{w}x{h} -> {dw}x{dh}, value {v}"
+                );
             }
         }
     }
@@ -170,7 +178,10 @@ mod tests {
         // 6 -> 5: s = 1.2, x = 1.2 u + 0.1
         let t = taps(6, 5);
         let weights: Vec<[u32; 2]> = t.iter().map(|t| t.weights).collect();
-        assert_eq!(weights, [[230, 26], [179, 77], [128, 128], [77, 179], [26, 230]]);
+        assert_eq!(
+            weights,
+            [[230, 26], [179, 77], [128, 128], [77, 179], [26, 230]]
+        );
         let firsts: Vec<usize> = t.iter().map(|t| t.first).collect();
         assert_eq!(firsts, [0, 1, 2, 3, 4]);
         // 2 -> 4: x = 0.5 u - 0.25, the first sample before the first centre, the last
@@ -185,7 +196,18 @@ mod tests {
             second: 1,
             weights: [192, 64],
         };
-        assert_eq!(taps(2, 4), [clamped(0), second, Tap { weights: [64, 192], ..second }, clamped(1)]);
+        assert_eq!(
+            taps(2, 4),
+            [
+                clamped(0),
+                second,
+                Tap {
+                    weights: [64, 192],
+                    ..second
+                },
+                clamped(1)
+            ]
+        );
     }
 
     #[test]

@@ -83,7 +83,9 @@ fn filter_row(row: &[u8], padded: &mut [f32], out: &mut [f32]) {
     }
     for (x, o) in out.iter_mut().enumerate().skip(fused) {
         let taps = padded[x..].iter().zip(KERNEL);
-        *o = taps.skip(1).fold(padded[x] * KERNEL[0], |s, (&p, k)| s + p * k);
+        *o = taps
+            .skip(1)
+            .fold(padded[x] * KERNEL[0], |s, (&p, k)| s + p * k);
     }
 }
 
