@@ -24,6 +24,9 @@ pub enum FeaturesError {
         /// Buffer length, bytes.
         len: usize,
     },
+    /// An ORB extractor setting is out of range (the message names it and its valid range).
+    #[error("invalid ORB extractor configuration: {0}")]
+    InvalidOrbConfig(String),
     /// An image is too small for the pyramid asked of it.
     #[error(
         "image {width}x{height} is too small for the pyramid: level {level} would be \

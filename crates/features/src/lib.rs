@@ -1,5 +1,5 @@
 //! ORB features for the ferroslam core: ORB-SLAM's extractor (image pyramid, FAST, even
-//! spread, orientation, rotated BRIEF), descriptor and keypoint types, the
+//! spread, orientation, rotated BRIEF; [`OrbExtractor`]), descriptor and keypoint types, the
 //! scale pyramid, the keypoint grid used for radius search, and the Hamming matchers of
 //! ORB-SLAM2/3.
 //!
@@ -27,7 +27,7 @@ pub mod stereo;
 
 pub use descriptor::{hamming, Descriptor};
 pub use error::FeaturesError;
-pub use extractor::ImagePyramid;
+pub use extractor::{Features, ImagePyramid, OrbConfig, OrbExtractor};
 pub use grid::{ImageBounds, KeypointGrid};
 pub use image::{GrayImage, OwnedGrayImage};
 pub use keypoint::Keypoint;

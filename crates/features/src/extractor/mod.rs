@@ -1,4 +1,5 @@
-//! ORB-SLAM's `ORBextractor`. Its stages:
+//! ORB-SLAM's `ORBextractor`, whole: [`OrbExtractor`] takes a grey image and gives keypoints,
+//! descriptors and the pyramid. Its stages:
 //!
 //! - the image pyramid ([`image_pyramid`], resized by [`resize`]), as OpenCV's ORB builds it;
 //! - per level, FAST ([`fast`]) at the initial threshold with the per-cell fallback to the
@@ -8,13 +9,14 @@
 //!   the levels smoothed as OpenCV's ORB smooths them ([`smoothing`]).
 //!
 //! The pyramid and the smoothing equal OpenCV's bit for bit, so the descriptors equal
-//! `cv2.ORB`'s on the same keypoints. Coordinates are integer pixels of the level the corner
-//! was found on (x right, y down).
+//! `cv2.ORB`'s on the same keypoints. Below [`OrbExtractor`], coordinates are integer pixels
+//! of the level the corner was found on (x right, y down).
 
 pub mod brief;
 pub mod fast;
 pub mod image_pyramid;
 pub mod opencv_brief_tests;
+pub mod orb_extractor;
 pub mod orientation;
 pub mod quadtree;
 pub mod resize;
@@ -23,6 +25,7 @@ pub mod smoothing;
 pub mod threshold_fallback;
 
 pub use image_pyramid::ImagePyramid;
+pub use orb_extractor::{Features, OrbConfig, OrbExtractor};
 
 use rayon::prelude::*;
 
