@@ -29,14 +29,19 @@ pub enum FeaturesError {
     InvalidOrbConfig(String),
     /// An image is too small for the pyramid asked of it.
     #[error(
-        "image {width}x{height} is too small for the pyramid: level {level} would be \
-         {level_width}x{level_height} px; use fewer levels or a smaller scale factor"
+        "image {width}x{height} is too small for {n_levels} pyramid levels of scale \
+         {scale_factor}: level {level} would be {level_width}x{level_height} px; use fewer \
+         levels or a smaller scale factor"
     )]
     ImageTooSmall {
         /// Image width, pixels.
         width: usize,
         /// Image height, pixels.
         height: usize,
+        /// Levels asked for.
+        n_levels: usize,
+        /// Scale between neighbouring levels.
+        scale_factor: f64,
         /// The first level without pixels.
         level: usize,
         /// Its width, pixels.

@@ -1,5 +1,6 @@
 //! The single place where core errors become Python exceptions.
 
+use ferroslam_features::FeaturesError;
 use ferroslam_slam::SlamError as CoreError;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyException, PyFileNotFoundError, PyRuntimeError, PyValueError};
@@ -25,5 +26,16 @@ pub fn to_py(err: CoreError) -> PyErr {
         CoreError::MapFile { .. } => PyValueError::new_err(err.to_string()),
         CoreError::Map(_) | CoreError::Optim(_) => SlamError::new_err(err.to_string()),
         CoreError::StageFailed { .. } => PyRuntimeError::new_err(err.to_string()),
+    }
+}
+
+/// Feature-extraction errors are all bad input or settings -> `ValueError` (the message names
+/// the problem).
+pub fn features_to_py(err: FeaturesError) -> PyErr {
+    match err {
+        FeaturesError::InvalidPyramid { .. }
+        | FeaturesError::InvalidImage { .. }
+        | FeaturesError::InvalidOrbConfig(_)
+        | FeaturesError::ImageTooSmall { .. } => PyValueError::new_err(err.to_string()),
     }
 }

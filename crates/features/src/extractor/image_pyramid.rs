@@ -35,6 +35,8 @@ impl ImagePyramid {
                     return Err(FeaturesError::ImageTooSmall {
                         width,
                         height,
+                        n_levels,
+                        scale_factor,
                         level,
                         level_width,
                         level_height,
@@ -122,6 +124,8 @@ mod tests {
             FeaturesError::ImageTooSmall {
                 width: 20,
                 height: 10,
+                n_levels: 6,
+                scale_factor: 2.0,
                 level: 5,
                 level_width: 1,
                 level_height: 0
