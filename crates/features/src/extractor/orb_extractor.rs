@@ -157,6 +157,13 @@ impl OrbExtractor {
     /// # Errors
     /// [`FeaturesError::ImageTooSmall`] when a pyramid level would have no pixels.
     pub fn extract(&self, image: &GrayImage<'_>) -> Result<Features, FeaturesError> {
+        // Called from outside rayon's pool, each parallel loop below would wake its threads
+        // and wait for them; inside it (one entry per image) they just share the work.
+        rayon::scope(|_| self.extract_in_pool(image))
+    }
+
+    /// [`OrbExtractor::extract`], on a thread of rayon's pool.
+    fn extract_in_pool(&self, image: &GrayImage<'_>) -> Result<Features, FeaturesError> {
         let pyramid = ImagePyramid::build(image, self.config.scale_factor, self.config.n_levels)?;
         let levels = pyramid.views();
         let (per_level, smoothed) = rayon::join(

@@ -7,86 +7,90 @@
 //! likewise. Along each axis the sample interpolates pixels `floor(x)` and `floor(x) + 1` with
 //! weights in 8.8 fixed point, `w1 = round_half_even(256 frac(x))` and `w0 = 256 - w1`; a
 //! sample before the first pixel centre takes the first pixel, one past the last the last.
-//! Rows are interpolated first, exactly (`w0 a + w1 b` < 2^16), then columns, with a single
-//! rounding at the end: `(w0 h0 + w1 h1 + 2^15) >> 16`.
+//! The value is `(wy0 (wx0 a + wx1 b) + wy1 (wx0 c + wx1 d) + 2^15) >> 16`, rounded once: the
+//! sums are exact integers, so OpenCV's order (along x first) and ours (along y first, which
+//! vectorises) give the same value.
 //!
 //! (OpenCV halves an image by averaging 2 x 2 blocks instead, `(a + b + c + d + 2) >> 2`:
 //! the same values, as both weights are then 128.)
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::image::{GrayImage, OwnedGrayImage};
 
 /// 1 in 8.8 fixed point.
-const ONE: u32 = 256;
+const ONE: u16 = 256;
 
-/// Output rows per parallel task: the source rows a task needs are interpolated once within
-/// it, and the first one again by the previous task.
+/// Output rows per parallel task.
 const ROWS_PER_TASK: usize = 16;
 
-/// Where one output pixel samples along one axis: two source indices and their weights
-/// (8.8 fixed point, summing to 1).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Tap {
-    first: usize,
-    second: usize,
-    weights: [u32; 2],
+/// Where the output pixels sample along one axis: output `u` blends source pixels `first[u]`
+/// and `first[u] + 1` with weights `ONE - w1[u]` and `w1[u]` (8.8 fixed point). A sample
+/// clamped to an end pixel has `w1 = 0`, so its second pixel (maybe one past the end) counts
+/// for nothing.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct Taps {
+    first: Vec<u32>,
+    w1: Vec<u16>,
 }
 
-/// The taps of the `dst` output pixels along an axis of `src` source pixels (both >= 1).
-fn taps(src: usize, dst: usize) -> Vec<Tap> {
-    let scale = 1.0 / (dst as f64 / src as f64);
-    let clamped = |i| Tap {
-        first: i,
-        second: i,
-        weights: [ONE, 0],
-    };
-    (0..dst)
-        .map(|u| {
-            let x = scale * (u as f64 + 0.5) - 0.5;
-            let i = x.floor();
-            if i < 0.0 || src == 1 {
-                clamped(0)
-            } else if i as usize >= src - 1 {
-                clamped(src - 1)
-            } else {
-                let w1 = ((x - i) * f64::from(ONE)).round_ties_even() as u32;
-                Tap {
-                    first: i as usize,
-                    second: i as usize + 1,
-                    weights: [ONE - w1, w1],
+impl Taps {
+    /// The taps of `dst` output pixels along an axis of `src` source pixels (both >= 1).
+    fn new(src: usize, dst: usize) -> Self {
+        let scale = 1.0 / (dst as f64 / src as f64);
+        let (first, w1) = (0..dst)
+            .map(|u| {
+                let x = scale * (u as f64 + 0.5) - 0.5;
+                let i = x.floor();
+                if i < 0.0 || src == 1 {
+                    (0, 0)
+                } else if i as usize >= src - 1 {
+                    ((src - 1) as u32, 0)
+                } else {
+                    let w1 = ((x - i) * f64::from(ONE)).round_ties_even() as u16;
+                    (i as u32, w1)
                 }
-            }
-        })
-        .collect()
+            })
+            .unzip();
+        Self { first, w1 }
+    }
 }
 
-/// The source rows of one task, interpolated along x: row `y` in slot `y % 2`. The two rows
-/// an output row needs are equal or neighbours, so they never share a slot.
-struct InterpolatedRows<'a> {
-    src: GrayImage<'a>,
-    x_taps: &'a [Tap],
-    row_in_slot: [Option<usize>; 2],
-    slots: [Vec<u16>; 2],
+/// Two output rows are resized together, one in each 32-bit half of a `u64`: a vertical blend
+/// stays below 2^16 and the horizontal one below 2^25, so one 64-bit multiply-add serves both
+/// rows without carrying from one into the other.
+const LANE_BITS: u32 = 32;
+
+/// The vertical blends of two output rows: `out[x]` holds
+/// `(ONE - w1) a0[x] + w1 a1[x]` (exact, at most 256 * 255) of each row `(a0, a1, w1)`, the
+/// first row in the low half.
+#[multiversion(targets("x86_64+avx2"))]
+fn blend_rows(rows: [(&[u8], &[u8], u16); 2], out: &mut [u64]) {
+    let [(a0, a1, wa), (b0, b1, wb)] = rows;
+    let (wa0, wa1) = (u64::from(ONE - wa), u64::from(wa));
+    let (wb0, wb1) = (u64::from(ONE - wb), u64::from(wb));
+    let pixels = a0.iter().zip(a1).zip(b0.iter().zip(b1));
+    for (o, ((&a0, &a1), (&b0, &b1))) in out.iter_mut().zip(pixels) {
+        let a = wa0 * u64::from(a0) + wa1 * u64::from(a1);
+        let b = wb0 * u64::from(b0) + wb1 * u64::from(b1);
+        *o = a | (b << LANE_BITS);
+    }
 }
 
-impl InterpolatedRows<'_> {
-    /// Source rows `y0` and `y1` (`y1 == y0` or `y0 + 1`), interpolated along x.
-    fn pair(&mut self, y0: usize, y1: usize) -> (&[u16], &[u16]) {
-        for y in [y0, y1] {
-            let slot = y % 2;
-            if self.row_in_slot[slot] != Some(y) {
-                let w = self.src.width();
-                let row = &self.src.pixels()[y * w..(y + 1) * w];
-                for (out, t) in self.slots[slot].iter_mut().zip(self.x_taps) {
-                    let (a, b) = (u32::from(row[t.first]), u32::from(row[t.second]));
-                    // < 256 * 255 + 1: no overflow
-                    *out = (t.weights[0] * a + t.weights[1] * b) as u16;
-                }
-                self.row_in_slot[slot] = Some(y);
-            }
-        }
-        (&self.slots[y0 % 2], &self.slots[y1 % 2])
+/// The two rows blended by [`blend_rows`] (one more entry readable past the last pixel)
+/// interpolated at the taps and rounded, into `out0` and `out1`.
+#[multiversion(targets("x86_64+avx2"))]
+fn interpolate(blended: &[u64], taps: &Taps, out0: &mut [u8], out1: &mut [u8]) {
+    const HALF: u64 = 1 << 15;
+    let columns = taps.first.iter().zip(&taps.w1);
+    for ((o0, o1), (&first, &w1)) in out0.iter_mut().zip(out1).zip(columns) {
+        let i = first as usize;
+        let (w0, w1) = (u64::from(ONE - w1), u64::from(w1));
+        let s = w0 * blended[i] + w1 * blended[i + 1] + (HALF | HALF << LANE_BITS);
+        // each half is below 2^24 + 2^15: shifted down by 16 it is at most 255
+        *o0 = (s >> 16) as u8;
+        *o1 = (s >> (LANE_BITS + 16)) as u8;
     }
 }
 
@@ -99,25 +103,31 @@ pub fn resize_linear_exact(
     if width == 0 || height == 0 {
         return None;
     }
-    let x_taps = taps(src.width(), width);
-    let y_taps = taps(src.height(), height);
+    let (sw, sh) = (src.width(), src.height());
+    let x_taps = Taps::new(sw, width);
+    let y_taps = Taps::new(sh, height);
+    let source_rows = |y: usize| {
+        let (y0, w1) = (y_taps.first[y] as usize, y_taps.w1[y]);
+        let row = |y: usize| &src.pixels()[y * sw..(y + 1) * sw];
+        (row(y0), row((y0 + 1).min(sh - 1)), w1)
+    };
     let mut out = vec![0u8; width * height];
     out.par_chunks_mut(ROWS_PER_TASK * width)
-        .zip(y_taps.par_chunks(ROWS_PER_TASK))
-        .for_each(|(rows, y_taps)| {
-            let mut lines = InterpolatedRows {
-                src: *src,
-                x_taps: &x_taps,
-                row_in_slot: [None; 2],
-                slots: [vec![0; width], vec![0; width]],
-            };
-            for (row, t) in rows.chunks_exact_mut(width).zip(y_taps) {
-                let (h0, h1) = lines.pair(t.first, t.second);
-                let [w0, w1] = t.weights;
-                for ((o, &a), &b) in row.iter_mut().zip(h0).zip(h1) {
-                    // < 2^24 + 2^15, and the shift leaves at most 255
-                    *o = ((w0 * u32::from(a) + w1 * u32::from(b) + (1 << 15)) >> 16) as u8;
-                }
+        .enumerate()
+        .for_each(|(task, rows)| {
+            // one entry more, read with weight 0 by taps clamped to the last pixel
+            let mut blended = vec![0u64; sw + 1];
+            let mut spare = vec![0u8; width];
+            for (pair, out_rows) in rows.chunks_mut(2 * width).enumerate() {
+                let y = task * ROWS_PER_TASK + 2 * pair;
+                let (out0, out1) = out_rows.split_at_mut(width);
+                // an odd last row is resized twice, the copy into `spare`
+                let (y1, out1) = match out1.is_empty() {
+                    true => (y, &mut spare[..]),
+                    false => (y + 1, out1),
+                };
+                blend_rows([source_rows(y), source_rows(y1)], &mut blended[..sw]);
+                interpolate(&blended, &x_taps, out0, out1);
             }
         });
     OwnedGrayImage::new(width, height, out).ok()
@@ -176,38 +186,14 @@ mod tests {
     #[test]
     fn taps_follow_opencv_sampling() {
         // 6 -> 5: s = 1.2, x = 1.2 u + 0.1
-        let t = taps(6, 5);
-        let weights: Vec<[u32; 2]> = t.iter().map(|t| t.weights).collect();
-        assert_eq!(
-            weights,
-            [[230, 26], [179, 77], [128, 128], [77, 179], [26, 230]]
-        );
-        let firsts: Vec<usize> = t.iter().map(|t| t.first).collect();
-        assert_eq!(firsts, [0, 1, 2, 3, 4]);
+        let t = Taps::new(6, 5);
+        assert_eq!(t.first, [0, 1, 2, 3, 4]);
+        assert_eq!(t.w1, [26, 77, 128, 179, 230]);
         // 2 -> 4: x = 0.5 u - 0.25, the first sample before the first centre, the last
         // (1.25) past the last
-        let clamped = |i| Tap {
-            first: i,
-            second: i,
-            weights: [256, 0],
-        };
-        let second = Tap {
-            first: 0,
-            second: 1,
-            weights: [192, 64],
-        };
-        assert_eq!(
-            taps(2, 4),
-            [
-                clamped(0),
-                second,
-                Tap {
-                    weights: [64, 192],
-                    ..second
-                },
-                clamped(1)
-            ]
-        );
+        let t = Taps::new(2, 4);
+        assert_eq!(t.first, [0, 0, 0, 1]);
+        assert_eq!(t.w1, [0, 64, 192, 0]);
     }
 
     #[test]

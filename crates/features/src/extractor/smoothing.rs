@@ -71,39 +71,54 @@ fn fused_column_columns(width: usize) -> usize {
 #[multiversion(targets("x86_64+avx2+fma"))]
 fn filter_row(row: &[u8], padded: &mut [f32], out: &mut [f32]) {
     let w = row.len();
-    for (i, p) in padded.iter_mut().enumerate() {
-        *p = f32::from(row[reflect_101(i as isize - RADIUS as isize, w)]);
+    for (p, &v) in padded[RADIUS..RADIUS + w].iter_mut().zip(row) {
+        *p = f32::from(v);
     }
+    for i in 0..RADIUS {
+        let (before, after) = (i as isize - RADIUS as isize, (w + i) as isize);
+        padded[i] = f32::from(row[reflect_101(before, w)]);
+        padded[RADIUS + w + i] = f32::from(row[reflect_101(after, w)]);
+    }
+    // tap k of output x is padded[x + k]; slices of equal length, so the loop vectorises
+    let taps: [&[f32]; 2 * RADIUS + 1] = std::array::from_fn(|k| &padded[k..k + w]);
+    let k = KERNEL;
     let fused = fused_row_columns(w);
-    out[..fused].fill(0.0);
-    for (k, &weight) in KERNEL.iter().enumerate() {
-        for (o, &p) in out[..fused].iter_mut().zip(&padded[k..]) {
-            *o = p.mul_add(weight, *o);
-        }
+    for (x, o) in out[..fused].iter_mut().enumerate() {
+        let s = taps[0][x] * k[0];
+        let s = taps[1][x].mul_add(k[1], s);
+        let s = taps[2][x].mul_add(k[2], s);
+        let s = taps[3][x].mul_add(k[3], s);
+        let s = taps[4][x].mul_add(k[4], s);
+        let s = taps[5][x].mul_add(k[5], s);
+        *o = taps[6][x].mul_add(k[6], s);
     }
     for (x, o) in out.iter_mut().enumerate().skip(fused) {
-        let taps = padded[x..].iter().zip(KERNEL);
-        *o = taps
-            .skip(1)
-            .fold(padded[x] * KERNEL[0], |s, (&p, k)| s + p * k);
+        let s = taps[0][x] * k[0] + taps[1][x] * k[1];
+        let s = s + taps[2][x] * k[2] + taps[3][x] * k[3];
+        *o = s + taps[4][x] * k[4] + taps[5][x] * k[5] + taps[6][x] * k[6];
     }
 }
 
 /// One output row from the x-filtered rows `y - 3 ..= y + 3` (`rows[3]` the centre).
 #[multiversion(targets("x86_64+avx2+fma"))]
 fn filter_column(rows: [&[f32]; 2 * RADIUS + 1], out: &mut [u8]) {
-    let fused = fused_column_columns(out.len());
-    for (x, o) in out.iter_mut().enumerate() {
-        let mut c = KERNEL[RADIUS] * rows[RADIUS][x];
-        for j in 1..=RADIUS {
-            let pair = rows[RADIUS + j][x] + rows[RADIUS - j][x];
-            c = if x < fused {
-                pair.mul_add(KERNEL[RADIUS + j], c)
-            } else {
-                c + KERNEL[RADIUS + j] * pair
-            };
-        }
-        *o = round_half_even(c).clamp(0, 255) as u8;
+    let w = out.len();
+    let r = rows.map(|row| &row[..w]);
+    let [k3, k4, k5, k6] = [KERNEL[3], KERNEL[4], KERNEL[5], KERNEL[6]];
+    let to_u8 = |c: f32| round_half_even(c).clamp(0, 255) as u8;
+    let (fused, unfused) = out.split_at_mut(fused_column_columns(w));
+    for (x, o) in fused.iter_mut().enumerate() {
+        let c = k3 * r[3][x];
+        let c = (r[4][x] + r[2][x]).mul_add(k4, c);
+        let c = (r[5][x] + r[1][x]).mul_add(k5, c);
+        *o = to_u8((r[6][x] + r[0][x]).mul_add(k6, c));
+    }
+    let start = fused.len();
+    for (x, o) in (start..).zip(unfused) {
+        let c = k3 * r[3][x];
+        let c = c + k4 * (r[4][x] + r[2][x]);
+        let c = c + k5 * (r[5][x] + r[1][x]);
+        *o = to_u8(c + k6 * (r[6][x] + r[0][x]));
     }
 }
 
