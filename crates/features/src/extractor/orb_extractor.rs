@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use super::brief::BriefPattern;
 use super::image_pyramid::ImagePyramid;
 use super::smoothing::smooth_for_brief;
-use super::{detect_pyramid, FastThresholds};
+use super::{detect_pyramid, FastThresholds, OrientedCorner};
 use crate::{Descriptor, FeaturesError, GrayImage, Keypoint};
 
 /// Most pyramid levels an extractor builds.
@@ -171,23 +171,19 @@ impl OrbExtractor {
             || levels.par_iter().map(smooth_for_brief).collect::<Vec<_>>(),
         );
         let smoothed: Vec<GrayImage<'_>> = smoothed.iter().map(|l| l.view()).collect();
-        let corners: Vec<(usize, usize, usize, f32)> = per_level
-            .iter()
+        let found: Vec<(usize, OrientedCorner)> = per_level
+            .into_iter()
             .enumerate()
-            .flat_map(|(l, level)| {
-                level.iter().map(move |c| {
-                    let (x, y) = (c.corner.x as usize, c.corner.y as usize);
-                    (l, x, y, c.angle_deg)
-                })
-            })
+            .flat_map(|(l, level)| level.into_iter().map(move |c| (l, c)))
+            .collect();
+        let corners: Vec<(usize, usize, usize, f32)> = found
+            .iter()
+            .map(|&(l, c)| (l, c.corner.x as usize, c.corner.y as usize, c.angle_deg))
             .collect();
         let described = self.brief.describe_all(&smoothed, &corners);
-        let found = per_level
-            .iter()
-            .enumerate()
-            .flat_map(|(l, level)| level.iter().map(move |c| (l, c)));
         // Corners keep EDGE_PX > the tests' reach from the border: all are described.
         let (keypoints, descriptors): (Vec<Keypoint>, Vec<Descriptor>) = found
+            .into_iter()
             .zip(described)
             .filter_map(|((l, c), d)| {
                 let keypoint = Keypoint {

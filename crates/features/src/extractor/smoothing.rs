@@ -8,11 +8,11 @@
 //! `c(y) = K[3] r(y)`, then `+ K[3 + j] (r(y + j) + r(y - j))` for `j = 1, 2, 3`; `c` rounded
 //! half to even and saturated to `0..=255`.
 //!
-//! Bit for bit, the rounding of each step matters: OpenCV's AVX2 kernels (x86-64 with FMA, the
-//! code its x86-64 builds run there) fuse each multiply-add, its scalar loops for the columns
-//! left over do not. The row pass fuses the first `32 floor(w / 32)` columns of a `w` px row
-//! ([`fused_row_columns`]); the column pass 32 at a time, then 16 once, then 4 at a time
-//! ([`fused_column_columns`]). An OpenCV build without AVX2 rounds a few pixels per image one
+//! Bit for bit, the rounding of each step matters. On a CPU with AVX2 and FMA, OpenCV's x86-64
+//! builds run vector kernels that fuse each multiply-add, and scalar loops, unfused, for the
+//! columns left over: the row pass fuses the first `32 floor(w / 32)` columns of a `w` px row
+//! ([`fused_row_columns`]), the column pass 32 at a time, then 16 once, then 4 at a time
+//! ([`fused_column_columns`]). OpenCV on a CPU without them rounds a few pixels per image one
 //! grey level differently.
 
 use multiversion::multiversion;
