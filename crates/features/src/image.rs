@@ -80,17 +80,7 @@ impl OwnedGrayImage {
         })
     }
 
-    /// Width in pixels.
-    pub fn width(&self) -> usize {
-        self.width
-    }
-
-    /// Height in pixels.
-    pub fn height(&self) -> usize {
-        self.height
-    }
-
-    /// The image, borrowed.
+    /// The image, borrowed (its size: `view().width()`, `view().height()`).
     pub fn view(&self) -> GrayImage<'_> {
         GrayImage {
             width: self.width,

@@ -34,7 +34,7 @@ fn level_arrays(py: Python<'_>, pyramid: ImagePyramid) -> Vec<Bound<'_, PyArray2
         .into_levels()
         .into_iter()
         .map(|level| {
-            let (w, h) = (level.width(), level.height());
+            let (w, h) = (level.view().width(), level.view().height());
             let pixels = Array2::from_shape_vec((h, w), level.into_pixels())
                 .unwrap_or_else(|_| unreachable!("a level holds width x height pixels"));
             PyArray2::from_owned_array(py, pixels)

@@ -144,7 +144,7 @@ mod tests {
         let sizes: Vec<(usize, usize)> = pyramid
             .levels()
             .iter()
-            .map(|l| (l.width(), l.height()))
+            .map(|l| (l.view().width(), l.view().height()))
             .collect();
         assert_eq!(sizes, ImagePyramid::level_sizes(w, h, 1.3, 5).unwrap());
         assert_eq!(pyramid.views()[0].pixels(), &data[..]);

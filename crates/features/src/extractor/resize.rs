@@ -140,7 +140,7 @@ mod tests {
     fn resize(w: usize, h: usize, data: &[u8], dw: usize, dh: usize) -> Vec<u8> {
         let src = GrayImage::new(w, h, data).unwrap();
         let out = resize_linear_exact(&src, dw, dh).unwrap();
-        assert_eq!((out.width(), out.height()), (dw, dh));
+        assert_eq!((out.view().width(), out.view().height()), (dw, dh));
         out.into_pixels()
     }
 
