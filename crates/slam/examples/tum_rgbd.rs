@@ -172,26 +172,39 @@ fn rgb_to_gray(rgb: &[u8]) -> Vec<u8> {
         .collect()
 }
 
-/// A colour image (RGB PNG or YCbCr JPEG) in grey.
-fn read_gray(path: &Path) -> Result<OwnedGrayImage, Error> {
+/// `(width, height, samples)` of a PNG of colour type and bit depth `kind` (16-bit samples
+/// big-endian); `what` names the kind in the error.
+fn read_png(
+    path: &Path,
+    kind: (png::ColorType, png::BitDepth),
+    what: &str,
+) -> Result<(usize, usize, Vec<u8>), Error> {
     let context = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     let reader = BufReader::new(File::open(path).map_err(|e| context(&e))?);
+    let mut png = png::Decoder::new(reader)
+        .read_info()
+        .map_err(|e| context(&e))?;
+    let mut buf = vec![0; png.output_buffer_size().ok_or("PNG too large")?];
+    let info = png.next_frame(&mut buf).map_err(|e| context(&e))?;
+    if (info.color_type, info.bit_depth) != kind {
+        return Err(context(&format!("expected {what}")).into());
+    }
+    buf.truncate(info.buffer_size());
+    Ok((info.width as usize, info.height as usize, buf))
+}
+
+/// A colour image (RGB PNG or YCbCr JPEG) in grey.
+fn read_gray(path: &Path) -> Result<OwnedGrayImage, Error> {
     let is_png = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
     let (width, height, gray) = if is_png {
-        let mut png = png::Decoder::new(reader)
-            .read_info()
-            .map_err(|e| context(&e))?;
-        let mut buf = vec![0; png.output_buffer_size().ok_or("PNG too large")?];
-        let info = png.next_frame(&mut buf).map_err(|e| context(&e))?;
-        if (info.color_type, info.bit_depth) != (png::ColorType::Rgb, png::BitDepth::Eight) {
-            return Err(context(&"expected an 8-bit RGB PNG").into());
-        }
-        buf.truncate(info.buffer_size());
-        let gray = rgb_to_gray(&buf);
-        (info.width as usize, info.height as usize, gray)
+        let kind = (png::ColorType::Rgb, png::BitDepth::Eight);
+        let (width, height, rgb) = read_png(path, kind, "an 8-bit RGB PNG")?;
+        (width, height, rgb_to_gray(&rgb))
     } else {
+        let context = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+        let reader = BufReader::new(File::open(path).map_err(|e| context(&e))?);
         let mut jpeg = jpeg_decoder::Decoder::new(reader);
         // "RGB": no conversion, so the channels stay Y, Cb, Cr
         jpeg.set_color_transform(jpeg_decoder::ColorTransform::RGB);
@@ -208,21 +221,13 @@ fn read_gray(path: &Path) -> Result<OwnedGrayImage, Error> {
 
 /// A 16-bit depth PNG in metres, with its width.
 fn read_depth_m(path: &Path) -> Result<(usize, Vec<f32>), Error> {
-    let context = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
-    let reader = BufReader::new(File::open(path).map_err(|e| context(&e))?);
-    let mut png = png::Decoder::new(reader)
-        .read_info()
-        .map_err(|e| context(&e))?;
-    let mut buf = vec![0; png.output_buffer_size().ok_or("PNG too large")?];
-    let info = png.next_frame(&mut buf).map_err(|e| context(&e))?;
-    if (info.color_type, info.bit_depth) != (png::ColorType::Grayscale, png::BitDepth::Sixteen) {
-        return Err(context(&"expected a 16-bit grey PNG").into());
-    }
-    let depth = buf[..info.buffer_size()]
+    let kind = (png::ColorType::Grayscale, png::BitDepth::Sixteen);
+    let (width, _, samples) = read_png(path, kind, "a 16-bit grey PNG")?;
+    let depth = samples
         .chunks_exact(2)
         .map(|be| f32::from(u16::from_be_bytes([be[0], be[1]])) / DEPTH_FACTOR)
         .collect();
-    Ok((info.width as usize, depth))
+    Ok((width, depth))
 }
 
 /// Depth (m) at the pixel nearest `(x, y)`, 0 outside the image.
