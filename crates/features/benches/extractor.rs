@@ -1,7 +1,8 @@
 //! The ORB extractor, whole and by stage, with ORB-SLAM's settings (1000 features, 8 levels of
-//! scale 1.2): the image pyramid, the smoothing of its levels for BRIEF, keypoint detection
-//! (FAST, fallback, spread, orientation) on level 0 alone and on the pyramid, rotated BRIEF of
-//! the pyramid's corners, and `OrbExtractor::extract`; on the first TUM fr1/rpy frame
+//! scale 1.2): the image pyramid, the smoothing of its levels for BRIEF (each called from
+//! outside rayon's pool, and both inside it as `OrbExtractor::extract` runs them), keypoint
+//! detection (FAST, fallback, spread, orientation) on level 0 alone and on the pyramid, rotated
+//! BRIEF of the pyramid's corners, and `OrbExtractor::extract`; on the first TUM fr1/rpy frame
 //! (640 x 480, from `FERROSLAM_DATA`, default `../shared/data` beside the repository) and on a
 //! seeded synthetic image of random blobs (corners everywhere, the hard case).
 
@@ -70,6 +71,19 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
     let image = GrayImage::new(w, h, &base).expect("w x h pixels");
     c.bench_function(&format!("{name}: ImagePyramid::build 8 levels"), |b| {
         b.iter(|| black_box(ImagePyramid::build(&image, config.scale_factor, 8)))
+    });
+    c.bench_function(&format!("{name}: pyramid + smoothing, in the pool"), |b| {
+        // as OrbExtractor::extract runs them: one entry into rayon's pool
+        b.iter(|| {
+            rayon::scope(|_| {
+                let pyramid = ImagePyramid::build(&image, config.scale_factor, 8);
+                let levels = pyramid
+                    .as_ref()
+                    .map(ImagePyramid::views)
+                    .unwrap_or_default();
+                black_box(levels.par_iter().map(smooth_for_brief).collect::<Vec<_>>())
+            })
+        })
     });
     let pyramid = ImagePyramid::build(&image, config.scale_factor, 8).expect("640 x 480");
     let views = pyramid.views();
