@@ -121,7 +121,7 @@ def test_bad_colors_are_refused_naming_them(colors, error, match, sensor, thread
 
 
 def test_a_pyramid_too_deep_for_the_image_is_refused_at_construction():
-    with pytest.raises(ValueError, match="n_levels = 12 with scale_factor 2.*at most 4 levels"):
+    with pytest.raises(ValueError, match="extractor.n_levels = 12 with extractor.scale_factor 2.*at most 4 levels"):
         MonoVSlam(CAMERA, scale_factor=2.0, num_levels=12)
 
 
@@ -377,11 +377,11 @@ def test_match_stereo_refuses_pyramids_of_different_sizes():
                      [np.zeros((240, 320), np.uint8)], fx=500.0, baseline=0.1)
 
 
-def test_detect_orb_corners_names_a_negative_budget():
-    from ferroslam._core import detect_orb_corners
+def test_orb_extractor_names_a_negative_setting():
+    from ferroslam._core import OrbExtractor
 
-    with pytest.raises(ValueError, match="budgets must be a list of keypoint counts"):
-        detect_orb_corners([np.zeros((100, 100), np.uint8)], [-5], ini_fast=20, min_fast=7)
+    with pytest.raises(ValueError, match="n_levels = -5 is out of range"):
+        OrbExtractor(n_levels=-5)
 
 
 def test_plot_to_a_path_under_a_file_names_the_path(tmp_path):

@@ -1,15 +1,21 @@
-"""ORB extraction: count, spread, orientation, descriptors, validation, speed."""
+"""ORB extraction: count, spread, orientation, pyramid, descriptors, validation, speed."""
 
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from ferroslam import _core
 from ferroslam.datasets import TumSequence
 from ferroslam.features import OrbExtractor, level_budgets, sample_colors, sample_depth
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import opencv_brief_tests  # noqa: E402  (the generator of the core's BRIEF table)
 
 
 @pytest.fixture(scope="module")
@@ -97,9 +103,36 @@ def test_orientation_matches_opencv(frames):
     assert diff.max() < 0.1  # OpenCV's fastAtan2 is approximate
 
 
+@pytest.mark.parametrize("scale_factor, n_levels", [(1.2, 8), (1.1, 12), (1.5, 5), (2.0, 4),
+                                                    (1.3, 6)])
+def test_pyramid_levels_equal_opencv_resize(frames, scale_factor, n_levels):
+    """Each level is ``cv2.resize(previous, round(size / s^l), INTER_LINEAR_EXACT)``, to the
+    pixel, on real frames cropped to odd and even sizes."""
+    extractor = OrbExtractor(scale_factor=scale_factor, n_levels=n_levels)
+    for gray in (frames[0], frames[3][:479, :637], frames[1][3:400, 1:], frames[2][:301, :333]):
+        levels = extractor.pyramid(gray)
+        assert len(levels) == n_levels
+        np.testing.assert_array_equal(levels[0], gray)
+        h, w = gray.shape
+        for level in range(1, n_levels):
+            size = (int(round(w / scale_factor**level)), int(round(h / scale_factor**level)))
+            want = cv2.resize(levels[level - 1], size, interpolation=cv2.INTER_LINEAR_EXACT)
+            assert levels[level].dtype == np.uint8
+            np.testing.assert_array_equal(levels[level], want, err_msg=f"level {level}")
+
+
+def test_pyramid_is_the_one_detection_used(frames, extractor):
+    _, _, levels = extractor.detect_with_pyramid(frames[1])
+    alone = extractor.pyramid(frames[1])
+    assert len(levels) == len(alone) == extractor.n_levels
+    for got, want in zip(levels, alone):
+        np.testing.assert_array_equal(got, want)
+
+
 def test_descriptors_equal_opencv_orb_bit_for_bit(frames, extractor):
-    """Our BRIEF (Rust core, OpenCV's tests read off cv2.ORB) against cv2.ORB.compute on the
-    whole image, which builds and smooths its own pyramid: every keypoint, every bit."""
+    """Our pyramid, smoothing and BRIEF (Rust core, OpenCV's tests as data) against
+    cv2.ORB.compute on the whole image, which builds and smooths its own pyramid: every
+    keypoint, every bit."""
     orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)
     for gray in frames:
         kp, desc = extractor.detect(gray)
@@ -110,11 +143,17 @@ def test_descriptors_equal_opencv_orb_bit_for_bit(frames, extractor):
         np.testing.assert_array_equal(desc, cv_desc)
 
 
-def test_brief_tests_read_off_opencv():
-    from ferroslam._brief import opencv_brief_tests
+def test_committed_brief_table_equals_opencv():
+    """The core's table (crates/features/src/extractor/opencv_brief_tests.rs) is what the probe
+    reads off the installed cv2.ORB."""
+    committed = opencv_brief_tests.read_table()
+    probed = opencv_brief_tests.opencv_brief_tests()
+    assert probed.shape == (256, 4) and probed.dtype == np.int32
+    np.testing.assert_array_equal(committed, probed)
 
-    tests = opencv_brief_tests()
-    assert tests.shape == (256, 4) and tests.dtype == np.int32
+
+def test_brief_probe_reads_opencv_tests():
+    tests = opencv_brief_tests.opencv_brief_tests()
     # ORB's learned tests lie in its 31 x 31 patch, and no test compares a pixel with itself.
     assert np.abs(tests).max() <= 15
     assert np.all(np.any(tests[:, :2] != tests[:, 2:], axis=1))
@@ -129,25 +168,19 @@ def test_brief_tests_read_off_opencv():
         assert np.unpackbits(d[0], bitorder="little")[i] == 1
 
 
-def test_brief_pattern_rejects_bad_input():
-    from ferroslam import _core
-    from ferroslam._brief import opencv_brief_tests
+def test_extraction_calls_no_opencv_image_operation(frames, extractor, monkeypatch):
+    """Only the colour conversion may use OpenCV: pyramid, smoothing and ORB are the core's."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("OpenCV image operation called during extraction")
 
-    with pytest.raises(ValueError, match=r"shape \(256, 4\)"):
-        _core.BriefPattern(np.zeros((255, 4), np.int32))
-    with pytest.raises(ValueError, match="not in \\[-31, 31\\]"):
-        _core.BriefPattern(np.full((256, 4), 40, np.int32))
-    with pytest.raises(TypeError, match="tests must be an int32"):
-        _core.BriefPattern(np.zeros((256, 4), np.float64))
-    brief = _core.BriefPattern(opencv_brief_tests())
-    level = np.zeros((60, 60), np.uint8)
-    with pytest.raises(ValueError, match="row 0 has no level 0 or lies closer to its border"):
-        brief.describe([level], np.array([[5, 30, 0, 0, 1]], np.float32))
-    with pytest.raises(ValueError, match="row 0 has no level 1"):
-        brief.describe([level], np.array([[30, 30, 1, 0, 1]], np.float32))
-    with pytest.raises(ValueError, match="must be non-negative integers"):
-        brief.describe([level], np.array([[30.5, 30, 0, 0, 1]], np.float32))
-    assert brief.describe([level], np.array([[30, 30, 0, 45, 1]], np.float32)).shape == (1, 32)
+    want = extractor.detect(frames[0])
+    for name in ("resize", "sepFilter2D", "GaussianBlur", "filter2D", "pyrDown", "ORB_create",
+                 "FastFeatureDetector_create", "copyMakeBorder"):
+        monkeypatch.setattr(cv2, name, refuse)
+    got = extractor.detect(cv2.cvtColor(frames[0], cv2.COLOR_GRAY2BGR))
+    np.testing.assert_array_equal(got[0], want[0])
+    extractor.detect_pair(frames[0], frames[1])
+    extractor.pyramid(frames[0])
 
 
 def test_rotation_invariance(frames, extractor):
@@ -197,20 +230,19 @@ def test_input_validation(extractor):
             OrbExtractor(**kwargs)
 
 
-def test_detect_pair_equals_two_detections_and_restores_opencv_threads(frames, extractor):
-    threads = cv2.getNumThreads()
+def test_detect_pair_equals_two_detections(frames, extractor):
     left, right = extractor.detect_pair(frames[0], frames[1])
     for got, image in ((left, frames[0]), (right, frames[1])):
         want = extractor.detect_with_pyramid(image)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
         assert len(got[2]) == len(want[2])
-    assert cv2.getNumThreads() == threads
+        for a, b in zip(got[2], want[2]):
+            np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="dtype must be uint8"):
         extractor.detect_pair(frames[0], frames[1].astype(np.float32))
     with pytest.raises(ValueError, match="empty"):
         extractor.detect_pair(np.zeros((0, 640), np.uint8), frames[1])
-    assert cv2.getNumThreads() == threads
 
 
 def test_sample_depth():
@@ -272,14 +304,23 @@ def test_speed_report(frames, extractor):
     assert median < 100.0
 
 
-def test_core_detection_rejects_bad_input():
-    from ferroslam import _core
-
-    level = np.zeros((60, 60), np.uint8)
-    with pytest.raises(ValueError, match="one count per level"):
-        _core.detect_orb_corners([level], [10, 10], ini_fast=20, min_fast=7)
-    with pytest.raises(ValueError, match="min_fast <= ini_fast"):
-        _core.detect_orb_corners([level], [10], ini_fast=5, min_fast=7)
-    with pytest.raises(TypeError, match=r"levels\[0\] must be a 2-D uint8 array"):
-        _core.detect_orb_corners([level.astype(np.float32)], [10], ini_fast=20, min_fast=7)
-    assert _core.detect_orb_corners([level], [10], ini_fast=20, min_fast=7).shape == (0, 5)
+def test_core_extractor_rejects_bad_input():
+    for kwargs, name in ((dict(n_features=0), "n_features"), (dict(n_features=-5), "n_features"),
+                         (dict(scale_factor=1.0), "scale_factor"),
+                         (dict(scale_factor=float("nan")), "scale_factor"),
+                         (dict(n_levels=33), "n_levels"), (dict(ini_fast=300), "ini_fast"),
+                         (dict(ini_fast=5, min_fast=7), "min_fast <= ini_fast")):
+        with pytest.raises(ValueError, match=name):
+            _core.OrbExtractor(**kwargs)
+    core = _core.OrbExtractor()
+    assert core.level_budgets == [217, 181, 151, 126, 105, 87, 73, 60]
+    with pytest.raises(TypeError, match="image must be a 2-D uint8 array, got float32"):
+        core.extract(np.zeros((60, 60), np.float32))
+    with pytest.raises(TypeError, match="right must be a 2-D uint8 array"):
+        core.extract_stereo(np.zeros((60, 60), np.uint8), np.zeros((60, 60, 3), np.uint8))
+    with pytest.raises(ValueError, match="image is an empty image"):
+        core.extract(np.zeros((0, 60), np.uint8))
+    with pytest.raises(ValueError, match="too small for 8 pyramid levels of scale 1.2: level 4"):
+        core.extract(np.zeros((1, 1), np.uint8))
+    kp, desc, levels = core.extract(np.zeros((60, 60), np.uint8)[::2, ::2])  # a strided view
+    assert kp.shape == (0, 5) and desc.shape == (0, 32) and levels[0].shape == (30, 30)

@@ -19,8 +19,8 @@ else:
     from typing_extensions import Unpack
 
 __all__ = [
-    "BriefPattern", "KeyframeDatabase", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
-    "__version__", "default_options", "detect_orb_corners", "match_stereo",
+    "KeyframeDatabase", "OrbExtractor", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
+    "__version__", "default_options", "match_stereo",
 ]
 
 __version__: str
@@ -459,55 +459,65 @@ def match_stereo(
         TypeError / ValueError: as ``SlamSystem.track_stereo``; non-positive fx or baseline.
     """
 
-def detect_orb_corners(
-    levels: Sequence[NDArray[np.uint8]],
-    budgets: Sequence[int],
-    *,
-    ini_fast: int,
-    min_fast: int,
-) -> NDArray[np.float32]:
-    """ORB-SLAM's keypoint detection on a pyramid (``OrbExtractor`` describes them): FAST at
-    ``min_fast``, the per-cell ``ini_fast`` fallback, the even spread to ``budgets[l]`` corners
-    on level ``l`` and the intensity-centroid orientation.
-
-    Returns ``(N, 5)`` float32 rows ``[x, y, level, angle_deg, score]`` in LEVEL pixels,
-    grouped by level; corners keep 19 level pixels from the border.
-
-    Raises:
-        TypeError: a level is not a 2-D uint8 array.
-        ValueError: empty level, one budget per level not given, thresholds not
-            ``0 < min_fast <= ini_fast``.
-    """
+_Features = tuple[NDArray[np.float32], NDArray[np.uint8], list[NDArray[np.uint8]]]
 
 @final
-class BriefPattern:
-    """ORB's rotated BRIEF with given tests (``OrbExtractor`` passes OpenCV's, read off
-    ``cv2.ORB`` by ``ferroslam._brief``, so that the descriptors are OpenCV's bit for bit).
+class OrbExtractor:
+    """ORB-SLAM's ORB extractor, whole, in the core (``crates/features/src/extractor/``): the
+    image pyramid (OpenCV's ``INTER_LINEAR_EXACT``, bit for bit), FAST with the per-cell
+    threshold fallback, the even spread, the intensity-centroid orientation and rotated BRIEF
+    with OpenCV's tests on levels smoothed as OpenCV's ORB smooths them, so the descriptors
+    equal ``cv2.ORB``'s bit for bit. Each call releases the GIL.
 
     Args:
-        tests: ``(256, 4)`` int32 rows ``[x1, y1, x2, y2]`` (pixels, x right, y down, each
-            in [-31, 31]): bit ``k`` of byte ``i`` is ``I(x1, y1) < I(x2, y2)`` of row
-            ``8 i + k``, the offsets turned by the keypoint's angle.
+        n_features: keypoints wanted per image (>= 1).
+        scale_factor: scale between neighbouring pyramid levels (finite, > 1).
+        n_levels: pyramid levels, in [1, 32].
+        ini_fast: FAST threshold tried first in every grid cell.
+        min_fast: FAST threshold of the cells where ``ini_fast`` finds no corner
+            (``0 < min_fast <= ini_fast < 255``).
 
     Raises:
-        TypeError: ``tests`` is not an int32 array.
-        ValueError: not ``(256, 4)``, or an offset outside [-31, 31].
+        ValueError: a setting out of range, named.
     """
 
-    def __new__(cls, tests: NDArray[np.int32]) -> BriefPattern: ...
-    def describe(
-        self, smoothed: Sequence[NDArray[np.uint8]], keypoints: NDArray[np.float32]
-    ) -> NDArray[np.uint8]:
-        """Descriptors ``(N, 32)`` uint8 of ``keypoints`` (``(N, 5)`` float32 rows ``[x, y,
-        level, angle_deg, score]`` in LEVEL pixels, as ``detect_orb_corners`` gives them) on
-        ``smoothed``, the pyramid's levels each smoothed as ORB smooths them (7 x 7 Gaussian,
-        sigma 2); all keypoints in parallel.
+    def __new__(
+        cls,
+        *,
+        n_features: int = 1000,
+        scale_factor: float = 1.2,
+        n_levels: int = 8,
+        ini_fast: int = 20,
+        min_fast: int = 7,
+    ) -> OrbExtractor: ...
+    @property
+    def level_budgets(self) -> list[int]:
+        """Keypoints wanted per pyramid level, finest first (a geometric series summing to
+        ``n_features``)."""
+    def extract(self, image: NDArray[np.uint8]) -> _Features:
+        """``(keypoints, descriptors, pyramid)`` of an ``(H, W)`` uint8 grey image:
+        keypoints ``(N, 5)`` float32 ``[x, y, octave, angle_deg, response]`` in raw level-0
+        pixels, grouped by octave (``angle_deg`` in [0, 360), ``response`` the FAST score);
+        descriptors ``(N, 32)`` uint8; the pyramid's levels, finest (a copy of the image)
+        first, ``(round(H / s^l), round(W / s^l))`` uint8.
 
         Raises:
-            TypeError: a level is not a 2-D uint8 array, keypoints not float32.
-            ValueError: keypoints not ``(N, 5)``; a level, x or y not a non-negative integer
-                or the angle not finite; a keypoint on a missing level or closer to its
-                level's border than the tests reach.
+            TypeError: ``image`` is not a 2-D uint8 array.
+            ValueError: empty image; a pyramid level would have no pixels.
+        """
+    def extract_stereo(
+        self, left: NDArray[np.uint8], right: NDArray[np.uint8]
+    ) -> tuple[_Features, _Features]:
+        """``extract`` of both images of a stereo pair in one call, in parallel.
+
+        Raises:
+            TypeError / ValueError: as ``extract``, for either image (the message names it).
+        """
+    def pyramid(self, image: NDArray[np.uint8]) -> list[NDArray[np.uint8]]:
+        """The image pyramid ``extract`` builds, alone.
+
+        Raises:
+            TypeError / ValueError: as ``extract``.
         """
 
 # --- Place recognition: Vocabulary and KeyframeDatabase (crates/python/src/vocabulary.rs) ---

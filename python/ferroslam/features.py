@@ -1,23 +1,24 @@
 """ORB features spread evenly over the image, as ORB-SLAM's ``ORBextractor`` does.
 
-Pipeline per frame (Mur-Artal et al., ORB-SLAM, T-RO 2015, section III-A):
+The whole extraction runs in the Rust core (``ferroslam._core.OrbExtractor``,
+``crates/features/src/extractor/``), one call per image, without the GIL (Mur-Artal et al.,
+ORB-SLAM, T-RO 2015, section III-A):
 
-1. Image pyramid: ``n_levels`` levels, each ``scale_factor`` smaller than the previous.
+1. Image pyramid: ``n_levels`` levels, each ``scale_factor`` smaller than the previous and
+   resized from it as OpenCV's ORB resizes (``INTER_LINEAR_EXACT``, bit for bit).
 2. Feature budget per level from a geometric series, so that finer levels (more area)
    get more features; the budgets sum to ``n_features``.
-3. In the Rust core (``ferroslam._core.detect_orb_corners``, all levels in parallel): FAST
-   corners per level at ``min_fast``; on a grid of ~30 px cells, a cell that has corners
-   scoring ``>= ini_fast`` keeps only those; a quadtree-like spread keeps the level's budget
-   (the best corner of every cell at the deepest depth that fits, then the next strongest);
-   orientation by intensity centroid over a circular patch of radius 15.
-4. Rotated BRIEF (256 bits) in the Rust core (``_core.BriefPattern``, all keypoints in
-   parallel) on each level smoothed as OpenCV's ORB smooths it, with OpenCV's tests
-   (:mod:`ferroslam._brief` reads them off ``cv2.ORB``).
+3. All levels in parallel: FAST corners at ``min_fast``; on a grid of ~30 px cells, a cell
+   that has corners scoring ``>= ini_fast`` keeps only those; a quadtree-like spread keeps
+   the level's budget (the best corner of every cell at the deepest depth that fits, then
+   the next strongest); orientation by intensity centroid over a circular patch of radius 15.
+4. Rotated BRIEF (256 bits) with OpenCV's tests (a table in the crate, generated from
+   ``cv2.ORB`` by ``scripts/opencv_brief_tests.py``) on each level smoothed as OpenCV's ORB
+   smooths it (7 x 7 Gaussian, sigma 2, bit for bit).
 
-The pyramid is resized with ``INTER_LINEAR_EXACT``, as OpenCV's ORB builds its own, so the
-descriptors equal ``cv2.ORB.compute`` on the whole image bit for bit (ORB-SLAM resizes with
-``INTER_LINEAR``; its levels differ by 1-3 grey levels, enough to change 3 descriptor bits
-in 256 on average).
+So the descriptors equal ``cv2.ORB.compute`` on the whole image bit for bit (ORB-SLAM resizes
+with ``INTER_LINEAR``; its levels differ by 1-3 grey levels, enough to change 3 descriptor bits
+in 256 on average). Colour images are converted to grey with OpenCV first.
 
 Keypoints are in RAW (distorted) level-0 pixel coordinates; undistortion is up to the
 consumer (the Rust core receives the distortion coefficients).
@@ -25,30 +26,27 @@ consumer (the Rust core receives the distortion coefficients).
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor, wait
+import numbers
 
 import cv2
 import numpy as np
 
 from ferroslam import _core
-from ferroslam._brief import opencv_brief_tests
 
 __all__ = ["OrbExtractor", "level_budgets", "sample_colors", "sample_depth"]
 
-# ORB's smoothing before BRIEF: 7 x 7 Gaussian, sigma 2, separable (``cv2.GaussianBlur``
-# rounds differently and changes 0.2 bits per descriptor against ``cv2.ORB``).
-_SMOOTHING = cv2.getGaussianKernel(7, 2)
+_Features = tuple[np.ndarray, np.ndarray, list[np.ndarray]]
 
 
 def level_budgets(n_features: int, scale_factor: float, n_levels: int) -> np.ndarray:
     """Features per pyramid level: ``n * (1 - f) / (1 - f^L) * f^l`` with ``f = 1/scale``.
 
     Rounded per level; the coarsest level takes the remainder (never negative).
+
+    Raises:
+        ValueError: invalid parameters (as :class:`OrbExtractor`).
     """
-    f = 1.0 / scale_factor
-    per = n_features * (1 - f) / (1 - f**n_levels) if n_levels > 1 else float(n_features)
-    budgets = np.array([int(round(per * f**level)) for level in range(n_levels - 1)], int)
-    return np.append(budgets, max(n_features - int(budgets.sum()), 0))
+    return OrbExtractor(n_features, scale_factor, n_levels).budgets
 
 
 def _validate_gray(image: np.ndarray) -> np.ndarray:
@@ -67,7 +65,14 @@ def _validate_gray(image: np.ndarray) -> np.ndarray:
         image = cv2.cvtColor(image, code)
     elif image.ndim != 2:
         raise ValueError(f"image must be (H, W) or (H, W, 3) BGR, got shape {image.shape}")
-    return np.ascontiguousarray(image)
+    return image
+
+
+def _integer(name: str, value: object) -> int:
+    """``value`` as an ``int`` if it is a whole number (``1000.0`` too); else ``ValueError``."""
+    if isinstance(value, numbers.Real) and float(value).is_integer():
+        return int(value)
+    raise ValueError(f"{name} must be an integer, got {value!r}")
 
 
 class OrbExtractor:
@@ -76,12 +81,13 @@ class OrbExtractor:
     Args:
         n_features: total keypoints wanted per image (fewer on textureless images).
         scale_factor: scale between consecutive pyramid levels (> 1).
-        n_levels: number of pyramid levels (>= 1).
+        n_levels: number of pyramid levels, in [1, 32].
         ini_fast: FAST threshold tried first in every cell.
-        min_fast: FAST threshold used in cells where ``ini_fast`` finds no corner.
+        min_fast: FAST threshold used in cells where ``ini_fast`` finds no corner
+            (``0 < min_fast <= ini_fast < 255``).
 
     Raises:
-        ValueError: invalid parameters.
+        ValueError: invalid parameters, naming the first.
     """
 
     def __init__(
@@ -92,23 +98,17 @@ class OrbExtractor:
         ini_fast: int = 20,
         min_fast: int = 7,
     ) -> None:
-        if int(n_features) != n_features or n_features < 1:
-            raise ValueError(f"n_features must be a positive integer, got {n_features}")
-        if not (np.isfinite(scale_factor) and scale_factor > 1.0):
-            raise ValueError(f"scale_factor must be > 1, got {scale_factor}")
-        if int(n_levels) != n_levels or not 1 <= n_levels <= 32:
-            raise ValueError(f"n_levels must be an integer in [1, 32], got {n_levels}")
-        if not 0 < min_fast <= ini_fast < 255:
-            raise ValueError(f"need 0 < min_fast <= ini_fast < 255, got {min_fast}, {ini_fast}")
+        self._core = _core.OrbExtractor(
+            n_features=_integer("n_features", n_features), scale_factor=float(scale_factor),
+            n_levels=_integer("n_levels", n_levels), ini_fast=_integer("ini_fast", ini_fast),
+            min_fast=_integer("min_fast", min_fast))
         self.n_features = int(n_features)
         self.scale_factor = float(scale_factor)
         self.n_levels = int(n_levels)
         self.ini_fast = int(ini_fast)
         self.min_fast = int(min_fast)
         self.scales = self.scale_factor ** np.arange(self.n_levels)
-        self.budgets = level_budgets(self.n_features, self.scale_factor, self.n_levels)
-        self._brief = _core.BriefPattern(opencv_brief_tests())
-        self._second_thread: ThreadPoolExecutor | None = None
+        self.budgets = np.array(self._core.level_budgets, int)
 
     def __repr__(self) -> str:
         return (
@@ -117,18 +117,13 @@ class OrbExtractor:
         )
 
     def pyramid(self, gray: np.ndarray) -> list[np.ndarray]:
-        """Image pyramid: each level resized from the previous, bilinear (OpenCV ORB's
-        ``INTER_LINEAR_EXACT``, see the module doc)."""
-        levels = [gray]
-        h, w = gray.shape
-        for level, scale in enumerate(self.scales[1:], start=1):
-            size = (int(round(w / scale)), int(round(h / scale)))
-            if min(size) < 1:
-                raise ValueError(
-                    f"image {w}x{h} is too small for {self.n_levels} pyramid levels of scale "
-                    f"{self.scale_factor}: level {level} would be {size[0]}x{size[1]} px")
-            levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR_EXACT))
-        return levels
+        """Image pyramid, finest first: each level resized from the previous, bilinear
+        (OpenCV ORB's ``INTER_LINEAR_EXACT``, see the module doc).
+
+        Raises:
+            ValueError: as :meth:`detect`; the image too small for the pyramid.
+        """
+        return self._core.pyramid(_validate_gray(gray))
 
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Detect and describe ORB features.
@@ -143,71 +138,28 @@ class OrbExtractor:
             Rows are grouped by octave.
 
         Raises:
-            ValueError: wrong dtype or shape, empty image, NaN values.
+            ValueError: wrong dtype or shape, empty image, NaN values, an image too small
+                for the pyramid.
         """
         keypoints, descriptors, _ = self.detect_with_pyramid(gray)
         return keypoints, descriptors
 
-    def detect_with_pyramid(
-        self, gray: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    def detect_with_pyramid(self, gray: np.ndarray) -> _Features:
         """As :meth:`detect`, also returning the pyramid the corners were found on.
 
         Stereo matching refines disparities on these levels (ORB-SLAM correlates patches on
         the keypoint's level).
         """
-        return self._detect(gray)
+        return self._core.extract(_validate_gray(gray))
 
-    def detect_pair(
-        self, left: np.ndarray, right: np.ndarray
-    ) -> tuple[tuple[np.ndarray, np.ndarray, list[np.ndarray]],
-               tuple[np.ndarray, np.ndarray, list[np.ndarray]]]:
-        """:meth:`detect_with_pyramid` on both images of a stereo pair at once, the right one
-        on a second thread (OpenCV and the Rust core release the GIL).
-
-        OpenCV's own thread pool is held to one thread meanwhile: the two extractions fill two
-        cores, and its workers would only contend with them (KITTI stereo, 2 cores: frame
-        median 36 -> 33 ms).
+    def detect_pair(self, left: np.ndarray, right: np.ndarray) -> tuple[_Features, _Features]:
+        """:meth:`detect_with_pyramid` on both images of a stereo pair, in parallel in one call
+        to the core.
 
         Raises:
             ValueError: as :meth:`detect`, for either image.
         """
-        cv_threads = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-        try:
-            right_job = self._worker().submit(self._detect, right)
-            try:
-                left_features = self._detect(left)
-            finally:
-                wait([right_job])  # never leave the right image's extraction running
-            return left_features, right_job.result()
-        finally:
-            cv2.setNumThreads(cv_threads)
-
-    def _worker(self) -> ThreadPoolExecutor:
-        """The second thread of :meth:`detect_pair`."""
-        if self._second_thread is None:
-            self._second_thread = ThreadPoolExecutor(1, thread_name_prefix="ferroslam-orb")
-        return self._second_thread
-
-    def _detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-        gray = _validate_gray(gray)
-        levels = self.pyramid(gray)
-        kp = _core.detect_orb_corners(
-            levels, self.budgets.tolist(), ini_fast=self.ini_fast, min_fast=self.min_fast
-        )
-        if kp.shape[0] == 0:
-            return np.zeros((0, 5), np.float32), np.zeros((0, 32), np.uint8), levels
-        descriptors = self._describe(levels, kp)
-        kp[:, :2] *= self.scales.astype(np.float32)[kp[:, 2].astype(np.intp), None]
-        return kp, descriptors, levels
-
-    def _describe(self, levels: list[np.ndarray], kp: np.ndarray) -> np.ndarray:
-        """Descriptors of ``kp`` (level pixels): each level smoothed by OpenCV as its ORB
-        smooths it, then all keypoints described in parallel in the Rust core."""
-        smoothed = [cv2.sepFilter2D(level, -1, _SMOOTHING, _SMOOTHING,
-                                    borderType=cv2.BORDER_REFLECT_101) for level in levels]
-        return self._brief.describe(smoothed, kp)
+        return self._core.extract_stereo(_validate_gray(left), _validate_gray(right))
 
 
 def _pixels_at(keypoints: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray,

@@ -1,24 +1,20 @@
-//! ORB-SLAM keypoint detection (FAST, fallback, spread, orientation): level 0 alone and the
-//! 8-level pyramid (budgets of 1000 features), then rotated BRIEF of the pyramid's corners
-//! (seeded random tests: OpenCV's come from `cv2.ORB` at run time), on the first TUM fr1/rpy
-//! frame (640 x 480, from `FERROSLAM_DATA`, default `../shared/data` beside the repository)
-//! and on a seeded synthetic image of random blobs (corners everywhere, the hard case).
+//! The ORB extractor, whole and by stage, with ORB-SLAM's settings (1000 features, 8 levels of
+//! scale 1.2): the image pyramid, the smoothing of its levels for BRIEF (each called from
+//! outside rayon's pool, and both inside it as `OrbExtractor::extract` runs them), keypoint
+//! detection (FAST, fallback, spread, orientation) on level 0 alone and on the pyramid, rotated
+//! BRIEF of the pyramid's corners, and `OrbExtractor::extract`; on the first TUM fr1/rpy frame
+//! (640 x 480, from `FERROSLAM_DATA`, default `../shared/data` beside the repository) and on a
+//! seeded synthetic image of random blobs (corners everywhere, the hard case).
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use ferroslam_features::extractor::brief::{BriefPattern, BriefTest};
-use ferroslam_features::extractor::{
-    detect_level, detect_pyramid, fast::fast_corners, FastThresholds,
-};
-use ferroslam_features::GrayImage;
+use ferroslam_features::extractor::smoothing::smooth_for_brief;
+use ferroslam_features::extractor::{brief::BriefPattern, ImagePyramid};
+use ferroslam_features::extractor::{detect_level, detect_pyramid, fast::fast_corners};
+use ferroslam_features::{GrayImage, OrbConfig, OrbExtractor};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use std::hint::black_box;
-
-const FAST: FastThresholds = FastThresholds {
-    initial: 20,
-    min: 7,
-};
-const BUDGETS: [usize; 8] = [217, 181, 151, 126, 105, 87, 73, 60];
 
 /// Random blobs on a smooth gradient: corners everywhere, like a cluttered room.
 fn textured(w: usize, h: usize, rng: &mut ChaCha8Rng) -> Vec<u8> {
@@ -69,30 +65,31 @@ fn tum_frame() -> Option<(usize, usize, Vec<u8>)> {
     Some((usize::from(info.width), usize::from(info.height), gray))
 }
 
-/// Bilinear halving by `scale` (enough for a benchmark pyramid).
-fn downscale(src: &[u8], w: usize, h: usize, scale: f64) -> (usize, usize, Vec<u8>) {
-    let (nw, nh) = (
-        (w as f64 / scale).round() as usize,
-        (h as f64 / scale).round() as usize,
-    );
-    let data = (0..nh)
-        .flat_map(|y| (0..nw).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            src[((y as f64 * scale) as usize).min(h - 1) * w
-                + ((x as f64 * scale) as usize).min(w - 1)]
-        })
-        .collect();
-    (nw, nh, data)
-}
-
 fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u8>)) {
-    let levels: Vec<(usize, usize, Vec<u8>)> = (0..8)
-        .map(|l| downscale(&base, w, h, 1.2f64.powi(l)))
-        .collect();
-    let views: Vec<GrayImage<'_>> = levels
-        .iter()
-        .map(|(w, h, d)| GrayImage::new(*w, *h, d).unwrap())
-        .collect();
+    let config = OrbConfig::default();
+    let (fast, budgets) = (config.fast, config.level_budgets());
+    let image = GrayImage::new(w, h, &base).expect("w x h pixels");
+    c.bench_function(&format!("{name}: ImagePyramid::build 8 levels"), |b| {
+        b.iter(|| black_box(ImagePyramid::build(&image, config.scale_factor, 8)))
+    });
+    c.bench_function(&format!("{name}: pyramid + smoothing, in the pool"), |b| {
+        // as OrbExtractor::extract runs them: one entry into rayon's pool
+        b.iter(|| {
+            rayon::scope(|_| {
+                let pyramid = ImagePyramid::build(&image, config.scale_factor, 8);
+                let levels = pyramid
+                    .as_ref()
+                    .map(ImagePyramid::views)
+                    .unwrap_or_default();
+                black_box(levels.par_iter().map(smooth_for_brief).collect::<Vec<_>>())
+            })
+        })
+    });
+    let pyramid = ImagePyramid::build(&image, config.scale_factor, 8).expect("640 x 480");
+    let views = pyramid.views();
+    c.bench_function(&format!("{name}: smooth_for_brief 8 levels"), |b| {
+        b.iter(|| black_box(views.par_iter().map(smooth_for_brief).collect::<Vec<_>>()))
+    });
     c.bench_function(&format!("{name}: fast_corners level 0 (t = 7)"), |b| {
         b.iter(|| black_box(fast_corners(&views[0], 7, 19)))
     });
@@ -100,12 +97,12 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
         b.iter(|| black_box(fast_corners(&views[0], 20, 19)))
     });
     c.bench_function(&format!("{name}: detect_level level 0"), |b| {
-        b.iter(|| black_box(detect_level(&views[0], BUDGETS[0], FAST)))
+        b.iter(|| black_box(detect_level(&views[0], budgets[0], fast)))
     });
     c.bench_function(&format!("{name}: detect_pyramid 8 levels"), |b| {
-        b.iter(|| black_box(detect_pyramid(&views, &BUDGETS, FAST)))
+        b.iter(|| black_box(detect_pyramid(&views, &budgets, fast)))
     });
-    let corners: Vec<(usize, usize, usize, f32)> = detect_pyramid(&views, &BUDGETS, FAST)
+    let corners: Vec<(usize, usize, usize, f32)> = detect_pyramid(&views, &budgets, fast)
         .iter()
         .enumerate()
         .flat_map(|(l, level)| {
@@ -114,16 +111,16 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
                 .map(move |c| (l, c.corner.x as usize, c.corner.y as usize, c.angle_deg))
         })
         .collect();
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let mut offset = || [rng.random_range(-13..=13), rng.random_range(-13..=13)];
-    let tests = std::array::from_fn(|_| BriefTest {
-        first: offset(),
-        second: offset(),
-    });
-    let brief = BriefPattern::new(&tests);
+    let smoothed: Vec<_> = views.iter().map(smooth_for_brief).collect();
+    let smoothed: Vec<GrayImage<'_>> = smoothed.iter().map(|l| l.view()).collect();
+    let brief = BriefPattern::opencv();
     let n = corners.len();
     c.bench_function(&format!("{name}: BRIEF describe_all ({n} corners)"), |b| {
-        b.iter(|| black_box(brief.describe_all(&views, &corners)))
+        b.iter(|| black_box(brief.describe_all(&smoothed, &corners)))
+    });
+    let extractor = OrbExtractor::new(config).expect("ORB-SLAM's settings");
+    c.bench_function(&format!("{name}: OrbExtractor::extract"), |b| {
+        b.iter(|| black_box(extractor.extract(&image)))
     });
 }
 

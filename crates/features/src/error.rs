@@ -24,4 +24,29 @@ pub enum FeaturesError {
         /// Buffer length, bytes.
         len: usize,
     },
+    /// An ORB extractor setting is out of range (the message names it and its valid range).
+    #[error("invalid ORB extractor configuration: {0}")]
+    InvalidOrbConfig(String),
+    /// An image is too small for the pyramid asked of it.
+    #[error(
+        "image {width}x{height} is too small for {n_levels} pyramid levels of scale \
+         {scale_factor}: level {level} would be {level_width}x{level_height} px; use fewer \
+         levels or a smaller scale factor"
+    )]
+    ImageTooSmall {
+        /// Image width, pixels.
+        width: usize,
+        /// Image height, pixels.
+        height: usize,
+        /// Levels asked for.
+        n_levels: usize,
+        /// Scale between neighbouring levels.
+        scale_factor: f64,
+        /// The first level without pixels.
+        level: usize,
+        /// Its width, pixels.
+        level_width: usize,
+        /// Its height, pixels.
+        level_height: usize,
+    },
 }

@@ -1,4 +1,5 @@
-//! Borrowed 8-bit grayscale images (one pyramid level each), row-major without padding.
+//! 8-bit grayscale images (one pyramid level each), row-major without padding: borrowed
+//! ([`GrayImage`]) and owned ([`OwnedGrayImage`]).
 
 use crate::error::FeaturesError;
 
@@ -56,6 +57,44 @@ impl<'a> GrayImage<'a> {
     }
 }
 
+/// An owned `height x width` 8-bit grayscale image; [`OwnedGrayImage::view`] borrows it as a
+/// [`GrayImage`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OwnedGrayImage {
+    width: usize,
+    height: usize,
+    data: Vec<u8>,
+}
+
+impl OwnedGrayImage {
+    /// Takes `data` (row-major, `width * height` bytes).
+    ///
+    /// # Errors
+    /// As [`GrayImage::new`].
+    pub fn new(width: usize, height: usize, data: Vec<u8>) -> Result<Self, FeaturesError> {
+        GrayImage::new(width, height, &data)?;
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// The image, borrowed (its size: `view().width()`, `view().height()`).
+    pub fn view(&self) -> GrayImage<'_> {
+        GrayImage {
+            width: self.width,
+            height: self.height,
+            data: &self.data,
+        }
+    }
+
+    /// The pixels, row-major (`[y * width + x]`).
+    pub fn into_pixels(self) -> Vec<u8> {
+        self.data
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -65,6 +104,9 @@ mod tests {
         assert!(GrayImage::new(4, 3, &[0; 11]).is_err());
         assert!(GrayImage::new(0, 0, &[]).is_err());
         assert!(GrayImage::new(4, 3, &[0; 12]).is_ok());
+        assert!(OwnedGrayImage::new(4, 3, vec![0; 11]).is_err());
+        let owned = OwnedGrayImage::new(4, 3, (0..12).collect()).unwrap();
+        assert_eq!(owned.view().row_span(1, 2, 3), Some(&[9, 10, 11][..]));
     }
 
     #[test]

@@ -141,9 +141,26 @@ pub fn f64_array<'py>(py: Python<'py>, values: Vec<f64>) -> Bound<'py, PyArray1<
     PyArray1::from_owned_array(py, Array1::from(values))
 }
 
-/// An image pyramid given as a sequence of 2-D uint8 arrays: `(width, height, pixels)` per
-/// level, pixels copied row-major (numpy views need not be contiguous, and the callers read
-/// them with the GIL released, when Python code could write to the arrays).
+/// A 2-D uint8 array as `(width, height, pixels)`, the pixels copied row-major (numpy views
+/// need not be contiguous, and the callers read them with the GIL released, when Python code
+/// could write to the array).
+pub fn gray_image(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(usize, usize, Vec<u8>)> {
+    let img: Image<'_, u8> = array(obj, name, "a 2-D uint8 array")?;
+    let shape = img.shape();
+    if shape[0] == 0 || shape[1] == 0 {
+        return Err(PyValueError::new_err(format!(
+            "{name} is an empty image (shape {})",
+            shape_tuple(shape)
+        )));
+    }
+    let pixels = match img.as_slice() {
+        Ok(contiguous) => contiguous.to_vec(),
+        Err(_) => img.as_array().iter().copied().collect(),
+    };
+    Ok((shape[1], shape[0], pixels))
+}
+
+/// An image pyramid given as a sequence of 2-D uint8 arrays: [`gray_image`] per level.
 pub fn pyramid(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<(usize, usize, Vec<u8>)>> {
     let levels: Vec<Bound<'_, PyAny>> = obj.extract().map_err(|_| {
         PyTypeError::new_err(format!(
@@ -158,20 +175,7 @@ pub fn pyramid(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<(usize, usize
     levels
         .iter()
         .enumerate()
-        .map(|(l, level)| {
-            let img: Image<'_, u8> = array(level, &format!("{name}[{l}]"), "a 2-D uint8 array")?;
-            let shape = img.shape();
-            if shape[0] == 0 || shape[1] == 0 {
-                return Err(PyValueError::new_err(format!(
-                    "{name}[{l}] is an empty image"
-                )));
-            }
-            let pixels = match img.as_slice() {
-                Ok(contiguous) => contiguous.to_vec(),
-                Err(_) => img.as_array().iter().copied().collect(),
-            };
-            Ok((shape[1], shape[0], pixels))
-        })
+        .map(|(l, level)| gray_image(level, &format!("{name}[{l}]")))
         .collect()
 }
 

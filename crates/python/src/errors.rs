@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use ferroslam_features::FeaturesError;
 use ferroslam_slam::SlamError as CoreError;
 use ferroslam_vocabulary::VocabularyError;
 use pyo3::create_exception;
@@ -43,5 +44,16 @@ pub fn vocabulary_file_error(path: &Path, err: VocabularyError) -> PyErr {
         }
         VocabularyError::Io(_) => PyOSError::new_err(message),
         _ => PyValueError::new_err(message),
+    }
+}
+
+/// Feature-extraction errors are all bad input or settings -> `ValueError` (the message names
+/// the problem).
+pub fn features_to_py(err: FeaturesError) -> PyErr {
+    match err {
+        FeaturesError::InvalidPyramid { .. }
+        | FeaturesError::InvalidImage { .. }
+        | FeaturesError::InvalidOrbConfig(_)
+        | FeaturesError::ImageTooSmall { .. } => PyValueError::new_err(err.to_string()),
     }
 }

@@ -1,163 +1,152 @@
-//! The Python extractor's core: `detect_orb_corners` (ORB-SLAM's per-level keypoint detection)
-//! and `BriefPattern` (the rotated BRIEF descriptors).
+//! `OrbExtractor`: the core's whole ORB extractor, one GIL-free call per image or stereo pair.
 
-use ferroslam_features::extractor::brief::{BriefPattern, BriefTest};
-use ferroslam_features::extractor::{detect_pyramid, FastThresholds};
+use ferroslam_features::extractor::FastThresholds;
+use ferroslam_features::{
+    Features, FeaturesError, GrayImage, ImagePyramid, OrbConfig, OrbExtractor,
+};
 use numpy::ndarray::Array2;
-use numpy::{PyArray2, PyReadonlyArray2};
-use pyo3::exceptions::PyValueError;
+use numpy::PyArray2;
 use pyo3::prelude::*;
 
 use crate::convert;
+use crate::errors::features_to_py;
 
-/// FAST corners on every pyramid level, the per-cell threshold fallback, the even spread to
-/// each level's budget and the intensity-centroid orientation (ORB-SLAM's `ORBextractor`
-/// without the descriptors).
-///
-/// Returns `(N, 5)` float32 rows `[x, y, level, angle_deg, score]` in LEVEL pixels, grouped
-/// by level, each level in spread order.
-#[pyfunction]
-#[pyo3(signature = (levels, budgets, *, ini_fast, min_fast))]
-pub fn detect_orb_corners<'py>(
-    py: Python<'py>,
-    levels: &Bound<'py, PyAny>,
-    budgets: &Bound<'py, PyAny>,
-    ini_fast: u8,
-    min_fast: u8,
-) -> PyResult<Bound<'py, PyArray2<f32>>> {
-    let budgets: Vec<usize> = budgets.extract().map_err(|_| {
-        PyValueError::new_err(format!(
-            "budgets must be a list of keypoint counts >= 0, one per level, got {budgets}"
-        ))
-    })?;
-    if !(0 < min_fast && min_fast <= ini_fast) {
-        return Err(PyValueError::new_err(format!(
-            "need 0 < min_fast <= ini_fast, got min_fast = {min_fast}, ini_fast = {ini_fast}"
-        )));
-    }
-    let pixels = convert::pyramid(levels, "levels")?;
-    if budgets.len() != pixels.len() {
-        return Err(PyValueError::new_err(format!(
-            "budgets ({}) must give one count per level ({})",
-            budgets.len(),
-            pixels.len()
-        )));
-    }
-    let views = convert::views(&pixels).map_err(|e| PyValueError::new_err(e.to_string()))?;
-    let fast = FastThresholds {
-        initial: ini_fast,
-        min: min_fast,
-    };
-    let per_level = py.detach(|| detect_pyramid(&views, &budgets, fast));
-    let n = per_level.iter().map(Vec::len).sum();
-    let mut rows = Array2::<f32>::zeros((n, 5));
-    let all = per_level
-        .iter()
-        .enumerate()
-        .flat_map(|(l, corners)| corners.iter().map(move |c| (l, c)));
-    for (mut row, (l, c)) in rows.rows_mut().into_iter().zip(all) {
-        let values = [
-            c.corner.x as f32,
-            c.corner.y as f32,
-            l as f32,
-            c.angle_deg,
-            c.corner.score,
-        ];
-        row.iter_mut().zip(values).for_each(|(o, v)| *o = v);
-    }
-    Ok(PyArray2::from_owned_array(py, rows))
+/// `(keypoints (N, 5) float32, descriptors (N, 32) uint8, pyramid [2-D uint8 arrays])`.
+type FeatureArrays<'py> = (
+    Bound<'py, PyArray2<f32>>,
+    Bound<'py, PyArray2<u8>>,
+    Vec<Bound<'py, PyArray2<u8>>>,
+);
+
+/// ORB-SLAM's ORB extractor with OpenCV's descriptors, all in the core.
+#[pyclass(name = "OrbExtractor", module = "ferroslam._core", frozen)]
+pub struct PyOrbExtractor(OrbExtractor);
+
+/// `value` of setting `name` as a `T`, or the error naming it.
+fn setting<T: TryFrom<i64>>(name: &str, value: i64) -> Result<T, FeaturesError> {
+    T::try_from(value)
+        .map_err(|_| FeaturesError::InvalidOrbConfig(format!("{name} = {value} is out of range")))
 }
 
-/// ORB's rotated BRIEF with a given set of 256 tests (`OrbExtractor` reads OpenCV's off
-/// `cv2.ORB`, so that the descriptors are OpenCV's bit for bit).
-#[pyclass(name = "BriefPattern", module = "ferroslam._core", frozen)]
-pub struct PyBriefPattern(BriefPattern);
+/// The levels of `pyramid` as 2-D uint8 arrays (their pixels moved, not copied).
+fn level_arrays(py: Python<'_>, pyramid: ImagePyramid) -> Vec<Bound<'_, PyArray2<u8>>> {
+    pyramid
+        .into_levels()
+        .into_iter()
+        .map(|level| {
+            let (w, h) = (level.view().width(), level.view().height());
+            let pixels = Array2::from_shape_vec((h, w), level.into_pixels())
+                .unwrap_or_else(|_| unreachable!("a level holds width x height pixels"));
+            PyArray2::from_owned_array(py, pixels)
+        })
+        .collect()
+}
+
+/// `features` as numpy arrays.
+fn arrays(py: Python<'_>, features: Features) -> FeatureArrays<'_> {
+    let n = features.keypoints.len();
+    let keypoints = Array2::from_shape_fn((n, 5), |(i, c)| {
+        let k = &features.keypoints[i];
+        [k.x, k.y, f32::from(k.octave), k.angle_deg, k.response][c]
+    });
+    let descriptors = Array2::from_shape_fn((n, 32), |(i, b)| features.descriptors[i][b]);
+    (
+        PyArray2::from_owned_array(py, keypoints),
+        PyArray2::from_owned_array(py, descriptors),
+        level_arrays(py, features.pyramid),
+    )
+}
 
 #[pymethods]
-impl PyBriefPattern {
-    /// `tests`: `(256, 4)` int32 rows `[x1, y1, x2, y2]`, bit `k` of byte `i` being
-    /// `I(x1, y1) < I(x2, y2)` of row `8 i + k` (offsets in pixels, at most 31 from the centre).
+impl PyOrbExtractor {
+    /// Settings as ORB-SLAM's `ORBextractor` takes them; a `ValueError` names an invalid one.
     #[new]
-    fn new(tests: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let arr: PyReadonlyArray2<'_, i32> =
-            convert::array(tests, "tests", "an int32 (256, 4) array")?;
-        let a = arr.as_array();
-        if a.shape() != [256, 4] {
-            return Err(PyValueError::new_err(format!(
-                "tests must have shape (256, 4), got {:?}",
-                a.shape()
-            )));
-        }
-        let offset = |v: i32| {
-            i8::try_from(v)
-                .ok()
-                .filter(|o| o.unsigned_abs() <= 31)
-                .ok_or_else(|| {
-                    PyValueError::new_err(format!("test offset {v} is not in [-31, 31]"))
-                })
+    #[pyo3(signature = (*, n_features = 1000, scale_factor = 1.2, n_levels = 8, ini_fast = 20,
+                        min_fast = 7))]
+    fn new(
+        n_features: i64,
+        scale_factor: f64,
+        n_levels: i64,
+        ini_fast: i64,
+        min_fast: i64,
+    ) -> PyResult<Self> {
+        let config = || -> Result<OrbConfig, FeaturesError> {
+            Ok(OrbConfig {
+                n_features: setting("n_features", n_features)?,
+                scale_factor,
+                n_levels: setting("n_levels", n_levels)?,
+                fast: FastThresholds {
+                    initial: setting("ini_fast", ini_fast)?,
+                    min: setting("min_fast", min_fast)?,
+                },
+            })
         };
-        let mut tests = [BriefTest {
-            first: [0; 2],
-            second: [0; 2],
-        }; 256];
-        for (test, row) in tests.iter_mut().zip(a.rows()) {
-            *test = BriefTest {
-                first: [offset(row[0])?, offset(row[1])?],
-                second: [offset(row[2])?, offset(row[3])?],
-            };
-        }
-        Ok(Self(BriefPattern::new(&tests)))
+        config()
+            .and_then(OrbExtractor::new)
+            .map(Self)
+            .map_err(features_to_py)
     }
 
-    /// Descriptors `(N, 32)` uint8 of `keypoints` (`(N, 5)` float32 rows `[x, y, level,
-    /// angle_deg, score]` in LEVEL pixels, as `detect_orb_corners` gives them) on the
-    /// `smoothed` pyramid (each level Gaussian-smoothed as ORB smooths it).
-    fn describe<'py>(
+    /// Keypoints wanted per pyramid level, finest first (they sum to n_features).
+    #[getter]
+    fn level_budgets(&self) -> Vec<usize> {
+        self.0.level_budgets().to_vec()
+    }
+
+    /// `(keypoints (N, 5) float32 [x, y, octave, angle_deg, response] in raw level-0 pixels,
+    /// descriptors (N, 32) uint8, pyramid)` of a `(H, W)` uint8 grey image.
+    fn extract<'py>(
         &self,
         py: Python<'py>,
-        smoothed: &Bound<'py, PyAny>,
-        keypoints: &Bound<'py, PyAny>,
-    ) -> PyResult<Bound<'py, PyArray2<u8>>> {
-        let pixels = convert::pyramid(smoothed, "smoothed")?;
-        let views = convert::views(&pixels).map_err(|e| PyValueError::new_err(e.to_string()))?;
-        let kp: PyReadonlyArray2<'_, f32> =
-            convert::array(keypoints, "keypoints", "a float32 (N, 5) array")?;
-        let kp = kp.as_array();
-        if kp.ncols() != 5 {
-            return Err(PyValueError::new_err(format!(
-                "keypoints must have shape (N, 5), got {:?}",
-                kp.shape()
-            )));
-        }
-        let pixel = |v: f32| (v.is_finite() && v >= 0.0 && v.fract() == 0.0).then_some(v as usize);
-        let corners = kp
-            .rows()
-            .into_iter()
-            .enumerate()
-            .map(
-                |(i, r)| match (pixel(r[2]), pixel(r[0]), pixel(r[1]), r[3].is_finite()) {
-                    (Some(l), Some(x), Some(y), true) => Ok((l, x, y, r[3])),
-                    _ => Err(PyValueError::new_err(format!(
-                        "keypoints row {i}: level, x and y must be non-negative integers and the \
-                     angle finite, got {:?}",
-                        r.to_vec()
-                    ))),
-                },
-            )
-            .collect::<PyResult<Vec<_>>>()?;
-        let described = py.detach(|| self.0.describe_all(&views, &corners));
-        let mut out = Array2::<u8>::zeros((corners.len(), 32));
-        for (i, (mut row, d)) in out.rows_mut().into_iter().zip(described).enumerate() {
-            let d = d.ok_or_else(|| {
-                PyValueError::new_err(format!(
-                    "keypoints row {i} has no level {} or lies closer to its border than the \
-                     pattern reaches ({:.1} px)",
-                    corners[i].0,
-                    self.0.reach_px()
-                ))
-            })?;
-            row.iter_mut().zip(d).for_each(|(o, v)| *o = v);
-        }
-        Ok(PyArray2::from_owned_array(py, out))
+        image: &Bound<'py, PyAny>,
+    ) -> PyResult<FeatureArrays<'py>> {
+        let (w, h, pixels) = convert::gray_image(image, "image")?;
+        let features = py.detach(|| {
+            let image = GrayImage::new(w, h, &pixels)?;
+            self.0.extract(&image)
+        });
+        Ok(arrays(py, features.map_err(features_to_py)?))
+    }
+
+    /// The image pyramid of a `(H, W)` uint8 grey image alone, finest (a copy of the image)
+    /// first.
+    fn pyramid<'py>(
+        &self,
+        py: Python<'py>,
+        image: &Bound<'py, PyAny>,
+    ) -> PyResult<Vec<Bound<'py, PyArray2<u8>>>> {
+        let (w, h, pixels) = convert::gray_image(image, "image")?;
+        let c = self.0.config();
+        let pyramid = py.detach(|| {
+            let image = GrayImage::new(w, h, &pixels)?;
+            ImagePyramid::build(&image, c.scale_factor, c.n_levels)
+        });
+        Ok(level_arrays(py, pyramid.map_err(features_to_py)?))
+    }
+
+    /// `extract` of both images of a stereo pair, in parallel, in one call.
+    fn extract_stereo<'py>(
+        &self,
+        py: Python<'py>,
+        left: &Bound<'py, PyAny>,
+        right: &Bound<'py, PyAny>,
+    ) -> PyResult<(FeatureArrays<'py>, FeatureArrays<'py>)> {
+        let (lw, lh, left) = convert::gray_image(left, "left")?;
+        let (rw, rh, right) = convert::gray_image(right, "right")?;
+        let features = py.detach(|| {
+            let left = GrayImage::new(lw, lh, &left)?;
+            let right = GrayImage::new(rw, rh, &right)?;
+            self.0.extract_stereo(&left, &right)
+        });
+        let (left, right) = features.map_err(features_to_py)?;
+        Ok((arrays(py, left), arrays(py, right)))
+    }
+
+    fn __repr__(&self) -> String {
+        let c = self.0.config();
+        format!(
+            "OrbExtractor(n_features={}, scale_factor={}, n_levels={}, ini_fast={}, min_fast={})",
+            c.n_features, c.scale_factor, c.n_levels, c.fast.initial, c.fast.min
+        )
     }
 }

@@ -23,8 +23,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<system::PyTrackResult>()?;
     m.add_function(wrap_pyfunction!(config::default_options, m)?)?;
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
-    m.add_function(wrap_pyfunction!(extractor::detect_orb_corners, m)?)?;
-    m.add_class::<extractor::PyBriefPattern>()?;
+    m.add_class::<extractor::PyOrbExtractor>()?;
     m.add_class::<vocabulary::PyVocabulary>()?;
     m.add_class::<vocabulary::PyKeyframeDatabase>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -6,6 +6,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::convert;
+use crate::errors::features_to_py;
 
 /// `(u_right (N,), depth_m (N,))` float32 arrays.
 type StereoArrays<'py> = (Bound<'py, PyArray1<f32>>, Bound<'py, PyArray1<f32>>);
@@ -57,12 +58,12 @@ pub fn match_stereo<'py>(
             "keypoint octaves exceed the number of pyramid levels given",
         ));
     }
-    let pyramid = ScalePyramid::new(scale_factor, lp.len().max(rp.len()))
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let pyramid =
+        ScalePyramid::new(scale_factor, lp.len().max(rp.len())).map_err(features_to_py)?;
     let views = (convert::views(&lp), convert::views(&rp));
     let (li, ri) = match views {
         (Ok(l), Ok(r)) => (l, r),
-        (Err(e), _) | (_, Err(e)) => return Err(PyValueError::new_err(e.to_string())),
+        (Err(e), _) | (_, Err(e)) => return Err(features_to_py(e)),
     };
     let left = StereoView {
         keypoints: &lk,

@@ -289,10 +289,8 @@ fn color_of(d: &Descriptor) -> [u8; 3] {
 fn map_points_keep_the_colour_of_the_keypoint_that_made_them() {
     let scene = Scene::new(6, 1500);
     // A keyframe every other frame: most points are made by local mapping.
-    let config = SlamConfig {
-        skip_max_frames: 2,
-        ..SlamConfig::default()
-    };
+    let mut config = SlamConfig::default();
+    config.tracking.skip_max_frames = 2;
     for concurrent in [false, true] {
         let mut system = SlamSystem::new(scene.camera, config.clone()).unwrap();
         system.set_concurrent_mapping(concurrent).unwrap();

@@ -4,12 +4,16 @@
 //!
 //! The comparisons are OpenCV's, to the bit: the pattern is rotated in `f32` (`x cos - y sin`,
 //! `x sin + y cos`), offsets are rounded half to even, and bit `k` of byte `i` is
-//! `I(first) < I(second)` of test `8 i + k`. The image must be smoothed as ORB smooths it
-//! (a 7 x 7 Gaussian, sigma 2): that and the test pairs are the caller's, so that the
-//! descriptors equal those of the ORB implementation the vocabulary was trained with.
+//! `I(first) < I(second)` of test `8 i + k`. With OpenCV's tests ([`BriefPattern::opencv`])
+//! on levels smoothed as OpenCV's ORB smooths them ([`smooth_for_brief`]), the descriptors
+//! equal those of the ORB implementation the vocabulary was trained with.
+//!
+//! [`smooth_for_brief`]: super::smoothing::smooth_for_brief
 
 use rayon::prelude::*;
 
+use super::opencv_brief_tests::OPENCV_BRIEF_TESTS;
+use super::rounding::round_half_even;
 use crate::{Descriptor, GrayImage};
 
 /// Offsets (pixels, x right, y down) of the two pixels one test compares, before rotation.
@@ -45,6 +49,14 @@ impl BriefPattern {
             .map(|[x, y]| f32::from(x).hypot(f32::from(y)))
             .fold(0.0, f32::max);
         Self { xs, ys, reach_px }
+    }
+
+    /// OpenCV's ORB pattern ([`OPENCV_BRIEF_TESTS`]).
+    pub fn opencv() -> Self {
+        Self::new(&OPENCV_BRIEF_TESTS.map(|[x1, y1, x2, y2]| BriefTest {
+            first: [x1, y1],
+            second: [x2, y2],
+        }))
     }
 
     /// Largest distance (pixels) of a test pixel from the centre: a corner needs this much
@@ -106,16 +118,6 @@ impl BriefPattern {
     }
 }
 
-/// `v` rounded to the nearest integer, ties to even (OpenCV's `cvRound`), for `|v| < 2^22`.
-/// `v + 1.5 * 2^23` keeps no fraction bits, so the FPU rounds it so, and its bits then count
-/// whole units up from 1.5 * 2^23: integer arithmetic that vectorises, where
-/// `f32::round_ties_even` is a library call on x86-64 without SSE4.1 (BRIEF 4x slower).
-#[inline(always)]
-fn round_half_even(v: f32) -> i32 {
-    const SHIFT: f32 = 12_582_912.0;
-    (v + SHIFT).to_bits() as i32 - SHIFT.to_bits() as i32
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -139,23 +141,6 @@ mod tests {
         (0..side * side)
             .map(|i| ((i * 7919 + 13) % 251) as u8 ^ ((i / side) as u8).wrapping_mul(31))
             .collect()
-    }
-
-    #[test]
-    fn rounding_is_to_nearest_with_ties_to_even() {
-        let cases = [
-            (0.5, 0),
-            (1.5, 2),
-            (2.5, 2),
-            (-0.5, 0),
-            (-1.5, -2),
-            (2.4999, 2),
-            (-2.6, -3),
-            (17.0, 17),
-        ];
-        for (v, want) in cases {
-            assert_eq!(round_half_even(v), want, "{v}");
-        }
     }
 
     #[test]
@@ -199,6 +184,16 @@ mod tests {
             p.describe(&img_a, 24, 24, 0.0),
             p.describe(&img_b, 24, 24, 0.0)
         );
+    }
+
+    #[test]
+    fn opencv_tests_fit_inside_the_border_keypoints_keep() {
+        let reach = BriefPattern::opencv().reach_px();
+        assert!(reach.round() < super::super::EDGE_PX as f32, "{reach}");
+        // one test compares a pixel with itself in none
+        assert!(OPENCV_BRIEF_TESTS
+            .iter()
+            .all(|[x1, y1, x2, y2]| (x1, y1) != (x2, y2)));
     }
 
     #[test]

@@ -1,15 +1,31 @@
-//! ORB-SLAM's `ORBextractor` on an image pyramid: per level, FAST ([`fast`]) at the
-//! initial threshold with the per-cell fallback to the low one ([`threshold_fallback`]), the
-//! even spread to the level's budget ([`quadtree`]) and the intensity-centroid orientation
-//! ([`orientation`]); then the rotated BRIEF descriptors ([`brief`]) on the smoothed levels.
+//! ORB-SLAM's `ORBextractor`, whole: [`OrbExtractor`] takes a grey image and gives keypoints,
+//! descriptors and the pyramid. Its stages:
 //!
-//! Coordinates are integer pixels of the level the corner was found on (x right, y down).
+//! - the image pyramid ([`image_pyramid`], resized by [`resize`]), as OpenCV's ORB builds it;
+//! - per level, FAST ([`fast`]) at the initial threshold with the per-cell fallback to the
+//!   low one ([`threshold_fallback`]), the even spread to the level's budget ([`quadtree`])
+//!   and the intensity-centroid orientation ([`orientation`]): [`detect_level`];
+//! - the rotated BRIEF descriptors ([`brief`], OpenCV's tests in [`opencv_brief_tests`]) on
+//!   the levels smoothed as OpenCV's ORB smooths them ([`smoothing`]).
+//!
+//! The pyramid and the smoothing equal OpenCV's bit for bit, so the descriptors equal
+//! `cv2.ORB`'s on the same keypoints. Below [`OrbExtractor`], coordinates are integer pixels
+//! of the level the corner was found on (x right, y down).
 
 pub mod brief;
 pub mod fast;
+pub mod image_pyramid;
+pub mod opencv_brief_tests;
+pub mod orb_extractor;
 pub mod orientation;
 pub mod quadtree;
+pub mod resize;
+mod rounding;
+pub mod smoothing;
 pub mod threshold_fallback;
+
+pub use image_pyramid::ImagePyramid;
+pub use orb_extractor::{Features, OrbConfig, OrbExtractor};
 
 use rayon::prelude::*;
 
