@@ -97,8 +97,9 @@ pub struct PlaceRecognitionConfig {
     pub feature_levels_up: u32,
     /// Covisible keyframes whose scores a candidate accumulates (ORB-SLAM: 10).
     pub group_size: usize,
-    /// Keyframes retrieved from the database before grouping (the best-scoring; the rest
-    /// would not reach 0.75 of the best group).
+    /// Keyframes retrieved from the database, best-scoring first, before grouping (ORB-SLAM
+    /// keeps every keyframe sharing at least 80 % of the most words any shares; a fixed count
+    /// bounds the cost of a query).
     pub max_retrieved: usize,
 }
 

@@ -173,7 +173,7 @@ pub struct TrackingConfig {
     pub track_feature_range: (usize, usize),
     /// ORB-SLAM's keyframe rule: a frame tracking fewer than this share of its reference
     /// keyframe's points is a keyframe when mapping can take it (ORB-SLAM `thRefRatio`: 0.75
-    /// with depth, 0.9 monocular, whose points come only from keyframes).
+    /// with depth, 0.9 monocular).
     pub reference_ratio: f64,
     /// `reference_ratio` while the map has a single keyframe (ORB-SLAM: 0.4).
     pub first_keyframes_reference_ratio: f64,

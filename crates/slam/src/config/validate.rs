@@ -125,7 +125,7 @@ impl SlamConfig {
                 format_args!("be in (0, 90), got {got}"),
             ));
         }
-        if !(m.max_scene_depth_ratio > 1.0) {
+        if m.max_scene_depth_ratio.is_nan() || m.max_scene_depth_ratio <= 1.0 {
             let got = m.max_scene_depth_ratio;
             return Err(s.bad("max_scene_depth_ratio", format_args!("be > 1, got {got}")));
         }
