@@ -62,7 +62,8 @@ impl ExtractorConfig {
     }
 
     /// Checks that every pyramid level of a `width_px` x `height_px` image keeps room for
-    /// keypoints: [`MIN_LEVEL_SIDE_PX`] on its shorter side. A pyramid too deep for the image
+    /// keypoints: a keypoint with its descriptor's border on both sides (`MIN_LEVEL_SIDE_PX`,
+    /// pixels) on its shorter side. A pyramid too deep for the image
     /// (`scale_factor` 2 with 12 levels shrinks 640x480 to under a pixel) would fail inside
     /// the extractor at the first frame.
     pub fn check_pyramid(&self, width_px: u32, height_px: u32) -> Result<(), SlamError> {
