@@ -254,7 +254,18 @@ BAD_OPTIONS = {
     "scale_factor NaN": ({"scale_factor": float("nan")}, ValueError, "scale_factor must be > 1"),
     "n_levels 0": ({"n_levels": 0}, ValueError, "n_levels must be in 1..=32"),
     "n_levels 33": ({"n_levels": 33}, ValueError, "n_levels must be in 1..=32"),
-    "n_levels 2.5": ({"n_levels": 2.5}, TypeError, "option n_levels"),
+    "n_levels 2.5": ({"n_levels": 2.5}, TypeError, "option n_levels: expected an int, got float"),
+    "seed str": ({"seed": "7"}, TypeError, "option seed: expected an int, got str"),
+    "scale_factor str": ({"scale_factor": "1.2"}, TypeError,
+                         "option scale_factor: expected a number, got str"),
+    "loop_closure str": ({"loop_closure": "yes"}, TypeError,
+                         "option loop_closure: expected a bool, got str"),
+    "ini_fast 300": ({"ini_fast": 300}, ValueError, "option ini_fast: 300 is out of range"),
+    "n_features -5": ({"n_features": -5}, ValueError, "option n_features: -5 is out of range"),
+    "depth_threshold 0": ({"depth_threshold": 0.0}, ValueError,
+                          "depth.depth_threshold must be a positive number, got 0"),
+    "loop_closure_threshold 19": ({"loop_closure_threshold": 19}, ValueError,
+                                  "loop_closing.loop_closure_threshold must be >= 20"),
     "track_feature_range reversed": ({"track_feature_range": (50, 10)}, ValueError,
                                      "track_feature_range must be (lower, upper) with 0 < lower"),
     "track_feature_range scalar": ({"track_feature_range": 50}, TypeError,
@@ -275,6 +286,15 @@ def test_bad_options(camera, case):
     options, error, message = BAD_OPTIONS[case]
     with pytest.raises(error, match=re.escape(message)):
         make_system(camera, **options)
+
+
+def test_options_round_trip(camera):
+    # The options a system reports are the defaults of its sensor and width, and rebuild it.
+    system = make_system(camera, seed=np.int64(3), n_features=np.int64(1100))
+    options = system.options
+    expected = {**core.default_options("rgbd", camera.width), "seed": 3, "n_features": 1100}
+    assert options == expected
+    assert make_system(camera, **options).options == options
 
 
 def test_fake_core_knows_the_same_options(camera):

@@ -31,10 +31,14 @@ _Sensor = Literal["mono", "stereo", "rgbd"]
 _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 
 class _SlamOptions(TypedDict, total=False):
-    """Keyword options of ``SlamSystem``; any other name raises ``ValueError``.
+    """Keyword options of ``SlamSystem``; any other name raises ``ValueError`` listing the
+    valid ones. A value of the wrong type raises ``TypeError`` naming the option and the type
+    expected; a value out of range, ``ValueError`` naming the field of the core's
+    configuration it sets (``tracking.skip_max_frames``, ``depth.bf``, ...).
 
     Omitted options take the defaults of the sensor and image width
-    (:func:`default_options`, ``SlamConfig::for_camera`` in ``crates/slam/src/config.rs``).
+    (:func:`default_options`, the presets ``SlamConfig::for_camera`` in
+    ``crates/slam/src/config/``).
     """
 
     n_features: int

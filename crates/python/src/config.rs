@@ -41,12 +41,17 @@ struct Parsed {
     bf_given: bool,
 }
 
+/// Reads an option's Python value into the configuration being built.
+type Reader = fn(&mut Parsed, &Bound<'_, PyAny>) -> PyResult<()>;
+/// An option's value in a configuration, as a Python object.
+type Writer = fn(&SlamConfig, Python<'_>) -> PyResult<Py<PyAny>>;
+
 /// One keyword option: its name, how its value is read into the configuration and how its
 /// field is written back (`None`: not written back, see `baseline`).
 struct Opt {
     name: &'static str,
-    read: fn(&mut Parsed, &Bound<'_, PyAny>) -> PyResult<()>,
-    write: Option<fn(&SlamConfig, Python<'_>) -> PyResult<Py<PyAny>>>,
+    read: Reader,
+    write: Option<Writer>,
 }
 
 /// An option that is the field `$field` (a path into the sections) of the configuration,

@@ -189,17 +189,20 @@ impl LocalMapper {
         Ok(())
     }
 
-    /// ORB-SLAM `MapPointCulling`: a recent point dies if found in less than a quarter of the
-    /// frames that should have seen it, or if two keyframes later it has too few observations;
+    /// ORB-SLAM `MapPointCulling`: a recent point dies if found in less than
+    /// `mapping.min_found_ratio` of the frames that should have seen it, or if two keyframes later it has too few observations;
     /// after three keyframes it is proven.
     fn cull_recent_points(&mut self, current: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
-        let min_obs = ctx.config.mapping.min_point_observations;
+        let (min_obs, min_found) = (
+            ctx.config.mapping.min_point_observations,
+            ctx.config.mapping.min_found_ratio,
+        );
         let mut culled = 0;
         let mut kept = Vec::with_capacity(self.recent_points.len());
         for &m in &self.recent_points {
             let Some(p) = map.map_point(m) else { continue };
             let age = current.0.saturating_sub(p.first_keyframe().0);
-            if p.found_ratio() < 0.25 || (age >= 2 && p.num_observations() <= min_obs) {
+            if p.found_ratio() < min_found || (age >= 2 && p.num_observations() <= min_obs) {
                 map.set_map_point_bad(m);
                 culled += 1;
             } else if age < 3 {
@@ -345,10 +348,12 @@ impl LocalMapper {
         adjust_around(kf, map, ctx, record)
     }
 
-    /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when 90% of its close
-    /// points are seen, at the same or a finer scale, by at least three other keyframes.
+    /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when more than
+    /// `mapping.redundant_keyframe_share` of its close points are seen, at the same or a finer
+    /// scale, by at least `mapping.redundant_observations` other keyframes.
     fn cull_keyframes(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
         let redundant = ctx.config.mapping.redundant_observations;
+        let share = ctx.config.mapping.redundant_keyframe_share;
         let mut culled = 0;
         for (candidate, _) in map.covisibles(kf) {
             if Some(candidate) == map.origin() {
@@ -387,7 +392,7 @@ impl LocalMapper {
                 }
             }
             if n_points > 0
-                && n_redundant as f64 > 0.9 * n_points as f64
+                && n_redundant as f64 > share * n_points as f64
                 && map.set_keyframe_bad(candidate)
             {
                 culled += 1;

@@ -637,11 +637,10 @@ impl SlamSystem {
     fn inertial_keyframe_due(&self, timestamp: f64) -> bool {
         let waiting = self.inertial.as_ref().is_some_and(|i| !i.is_aligned());
         let newest = self.map.keyframes().map(|k| k.timestamp()).reduce(f64::max);
+        let (tracking, inertial) = (&self.ctx.config.tracking, &self.ctx.config.inertial);
         waiting
-            && self.tracker.matches_inliers > 15
-            && newest.is_some_and(|t| {
-                timestamp - t >= self.ctx.config.inertial.init_keyframe_interval_s
-            })
+            && self.tracker.matches_inliers > tracking.min_keyframe_inliers
+            && newest.is_some_and(|t| timestamp - t >= inertial.init_keyframe_interval_s)
     }
 
     /// Preintegrates the new keyframe's IMU and, when due, aligns camera and IMU: a
@@ -671,7 +670,8 @@ impl SlamSystem {
     /// is relocalised against the keyframes it recognises (ORB-SLAM), instead of the last
     /// reference keyframe's neighbourhood (or, in a loaded map, every keyframe).
     pub fn set_vocabulary(&mut self, vocabulary: Arc<Vocabulary>) {
-        self.place = Some(PlaceRecognition::new(vocabulary, self.ctx.config.place_recognition));
+        let config = self.ctx.config.place_recognition;
+        self.place = Some(PlaceRecognition::new(vocabulary, config));
         self.index_keyframes();
     }
 

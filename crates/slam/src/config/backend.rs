@@ -32,9 +32,15 @@ pub struct MappingConfig {
     /// Observations a point needs to survive its first keyframes (stereo/RGB-D count 2 each,
     /// so ORB-SLAM asks for more than 3 with depth and more than 2 monocular).
     pub min_point_observations: usize,
+    /// A recent point found in less than this share of the frames that should have seen it
+    /// dies (ORB-SLAM `MapPointCulling`: 0.25).
+    pub min_found_ratio: f64,
     /// Observations by other keyframes, at the same or a finer scale, that make a keyframe's
     /// point redundant (ORB-SLAM `KeyFrameCulling`: 3).
     pub redundant_observations: usize,
+    /// A keyframe with more than this share of redundant close points is culled (ORB-SLAM
+    /// `KeyFrameCulling`: 0.9).
+    pub redundant_keyframe_share: f64,
     /// Largest distance of a point from its reference keyframe after bundle adjustment, in
     /// that keyframe's scene median depths. Points seen along nearly parallel rays (a
     /// monocular pair at a short baseline, a static stereo rig's points seen without
@@ -62,7 +68,9 @@ impl MappingConfig {
             min_points_to_search_on: 5,
             min_ray_parallax_deg: if depth { 5.0 } else { 1.15 },
             min_point_observations: if depth { 3 } else { 2 },
+            min_found_ratio: 0.25,
             redundant_observations: 3,
+            redundant_keyframe_share: 0.9,
             max_scene_depth_ratio: 40.0,
             max_queued_keyframes: 1,
         }
@@ -89,8 +97,9 @@ pub struct PlaceRecognitionConfig {
     pub feature_levels_up: u32,
     /// Covisible keyframes whose scores a candidate accumulates (ORB-SLAM: 10).
     pub group_size: usize,
-    /// Keyframes retrieved from the database before grouping (the best-scoring; the rest
-    /// would not reach 0.75 of the best group).
+    /// Keyframes retrieved from the database, best-scoring first, before grouping (ORB-SLAM
+    /// keeps every keyframe sharing at least 80 % of the most words any shares; a fixed count
+    /// bounds the cost of a query).
     pub max_retrieved: usize,
 }
 

@@ -62,7 +62,8 @@ impl ExtractorConfig {
     }
 
     /// Checks that every pyramid level of a `width_px` x `height_px` image keeps room for
-    /// keypoints: [`MIN_LEVEL_SIDE_PX`] on its shorter side. A pyramid too deep for the image
+    /// keypoints: a keypoint with its descriptor's border on both sides (`MIN_LEVEL_SIDE_PX`,
+    /// pixels) on its shorter side. A pyramid too deep for the image
     /// (`scale_factor` 2 with 12 levels shrinks 640x480 to under a pixel) would fail inside
     /// the extractor at the first frame.
     pub fn check_pyramid(&self, width_px: u32, height_px: u32) -> Result<(), SlamError> {
@@ -77,7 +78,7 @@ impl ExtractorConfig {
             ((side / MIN_LEVEL_SIDE_PX as f64).ln() / self.scale_factor.ln()).floor() as usize + 1
         };
         Err(SlamError::InvalidConfig(format!(
-            "extractor.n_levels = {} with extractor.scale_factor {} shrinks the \
+            "extractor.n_levels = {} with scale_factor {} shrinks the \
              {width_px}x{height_px} images to {coarsest:.1} px on the shorter side at the \
              coarsest level; levels need at least {MIN_LEVEL_SIDE_PX} px (keypoints keep \
              {EDGE_PX} px from the border): at most {fitting} levels fit",
@@ -168,9 +169,27 @@ impl Default for InitializationConfig {
 pub struct TrackingConfig {
     /// `(lower, upper)` tracked-feature limits: below `lower` tracking is lost; below `upper`
     /// the frame becomes a keyframe (MATLAB `TrackFeatureRange`; monocular, only when it also
-    /// tracks under 0.9 of its reference keyframe's points); above it, only ORB-SLAM's rules
-    /// or `skip_max_frames` make one. See [`Self::for_sensor`].
+    /// tracks under `reference_ratio` of its reference keyframe's points); above it, only
+    /// ORB-SLAM's rules or `skip_max_frames` make one. See [`Self::for_sensor`].
     pub track_feature_range: (usize, usize),
+    /// ORB-SLAM's keyframe rule: a frame tracking fewer than this share of its reference
+    /// keyframe's points is a keyframe when mapping can take it (ORB-SLAM `thRefRatio`: 0.75
+    /// with depth, 0.9 monocular).
+    pub reference_ratio: f64,
+    /// `reference_ratio` while the map has a single keyframe (ORB-SLAM: 0.4).
+    pub first_keyframes_reference_ratio: f64,
+    /// With depth, tracking is weak, and a keyframe is made even while mapping is busy, below
+    /// this share of the reference keyframe's points (ORB-SLAM `c1c`: 0.25).
+    pub weak_tracking_share: f64,
+    /// With depth, close structure counts as left untracked (a keyframe is needed) when fewer
+    /// than this many close points are tracked and more than `close_untracked_min` are not
+    /// (ORB-SLAM `bNeedToInsertClose`: 100).
+    pub close_tracked_max: usize,
+    /// See `close_tracked_max` (ORB-SLAM: 70).
+    pub close_untracked_min: usize,
+    /// A keyframe needs more inliers than this, whatever rule asks for it (ORB-SLAM `c2`: 15);
+    /// the same holds for the keyframes the inertial alignment asks for.
+    pub min_keyframe_inliers: usize,
     /// Maximum number of frames between two keyframes (MATLAB `SkipMaxFrames`; ORB-SLAM
     /// `mMaxFrames`, one second of frames: 30).
     pub skip_max_frames: usize,
@@ -229,6 +248,12 @@ impl TrackingConfig {
             } else {
                 (30, 100)
             },
+            reference_ratio: if sensor.has_depth() { 0.75 } else { 0.9 },
+            first_keyframes_reference_ratio: 0.4,
+            weak_tracking_share: 0.25,
+            close_tracked_max: 100,
+            close_untracked_min: 70,
+            min_keyframe_inliers: 15,
             skip_max_frames: 30,
             post_relocalisation_frames: 30,
             relocalised_min_inliers: 50,

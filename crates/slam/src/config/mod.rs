@@ -137,50 +137,34 @@ mod tests {
     /// The values that depend on the sensor are those of its preset.
     #[test]
     fn presets_hold_the_sensor_rules() {
-        let [mono, stereo, rgbd] =
-            [Sensor::Monocular, Sensor::Stereo, Sensor::Rgbd].map(SlamConfig::for_sensor);
-        assert_eq!(mono.tracking.track_feature_range, (30, 100));
-        assert_eq!(stereo.tracking.track_feature_range, (30, 100));
-        assert_eq!(rgbd.tracking.track_feature_range, (30, 250));
-        assert_eq!(stereo.depth.depth_range, (0.0, f64::INFINITY));
-        assert_eq!(rgbd.depth.depth_range, (0.1, 8.0));
+        let presets = [Sensor::Monocular, Sensor::Stereo, Sensor::Rgbd].map(SlamConfig::for_sensor);
+        // The field of each preset: monocular, stereo, RGB-D.
+        macro_rules! per_sensor {
+            ($($path:ident).+) => {
+                [0, 1, 2].map(|k| presets[k].$($path).+)
+            };
+        }
+        let limits = per_sensor!(tracking.track_feature_range);
+        assert_eq!(limits, [(30, 100), (30, 100), (30, 250)]);
+        let depths = per_sensor!(depth.depth_range);
+        assert_eq!(depths[1..], [(0.0, f64::INFINITY), (0.1, 8.0)]);
+        assert_eq!(per_sensor!(tracking.reference_ratio), [0.9, 0.75, 0.75]);
+        assert_eq!(per_sensor!(mapping.triangulation_neighbours), [20, 10, 10]);
         assert_eq!(
-            [
-                mono.mapping.triangulation_neighbours,
-                stereo.mapping.triangulation_neighbours
-            ],
-            [20, 10]
+            per_sensor!(mapping.hurried_triangulation_neighbours),
+            [20, 3, 3]
         );
+        assert_eq!(per_sensor!(mapping.min_ray_parallax_deg), [1.15, 5.0, 5.0]);
+        assert_eq!(per_sensor!(mapping.min_point_observations), [2, 3, 3]);
+        let mono = &presets[0];
+        let tan = 1.15f64.to_radians().tan();
+        assert_eq!(mono.mapping.min_baseline_depth_ratio(), tan);
+        let tracking = &mono.tracking;
         assert_eq!(
-            [
-                mono.mapping.hurried_triangulation_neighbours,
-                rgbd.mapping.hurried_triangulation_neighbours
-            ],
-            [20, 3]
+            tracking.post_relocalisation_frames,
+            tracking.skip_max_frames
         );
-        assert_eq!(
-            [
-                mono.mapping.min_ray_parallax_deg,
-                rgbd.mapping.min_ray_parallax_deg
-            ],
-            [1.15, 5.0]
-        );
-        assert_eq!(
-            [
-                mono.mapping.min_point_observations,
-                rgbd.mapping.min_point_observations
-            ],
-            [2, 3]
-        );
-        assert_eq!(
-            mono.mapping.min_baseline_depth_ratio(),
-            1.15f64.to_radians().tan()
-        );
-        assert_eq!(
-            mono.tracking.post_relocalisation_frames,
-            mono.tracking.skip_max_frames
-        );
-        for preset in [mono, stereo, rgbd] {
+        for preset in presets {
             assert!(preset.validate().is_ok(), "{preset:?}");
         }
     }

@@ -106,7 +106,9 @@ impl SlamConfig {
         check!(s, >= 1, t.max_local_keyframes, t.redundant_view_keyframes);
         // PnP-RANSAC needs 4 correspondences.
         check!(s, >= 4, t.min_reference_matches, t.min_pose_inliers);
-        check!(s, <= 1.0, t.redundant_view_share);
+        check!(s, <= 1.0, t.redundant_view_share, t.weak_tracking_share);
+        check!(s, <= 1.0, t.reference_ratio, t.first_keyframes_reference_ratio);
+        // close_tracked_max, close_untracked_min, min_keyframe_inliers: any count.
         check!(s, > 0, t.relocalisation_window_s);
         // min_keyframes_to_keep: any count (0 keeps every lost map).
 
@@ -114,6 +116,7 @@ impl SlamConfig {
         check!(s, >= 1, m.triangulation_neighbours, m.hurried_triangulation_neighbours);
         check!(s, >= 1, m.always_searched_with_depth, m.max_queued_keyframes);
         check!(s, >= 1, m.min_point_observations, m.redundant_observations);
+        check!(s, <= 1.0, m.min_found_ratio, m.redundant_keyframe_share);
         // min_points_to_search_on: any count (0 searches every neighbour).
         if !(m.min_ray_parallax_deg > 0.0 && m.min_ray_parallax_deg < 90.0) {
             let got = m.min_ray_parallax_deg;
@@ -122,7 +125,7 @@ impl SlamConfig {
                 format_args!("be in (0, 90), got {got}"),
             ));
         }
-        if !(m.max_scene_depth_ratio > 1.0) {
+        if m.max_scene_depth_ratio.is_nan() || m.max_scene_depth_ratio <= 1.0 {
             let got = m.max_scene_depth_ratio;
             return Err(s.bad("max_scene_depth_ratio", format_args!("be > 1, got {got}")));
         }

@@ -568,7 +568,7 @@ impl Tracker {
         defer
     }
 
-    /// ORB-SLAM's keyframe decision (reference ratio 0.75 with depth, 0.9 monocular), with
+    /// ORB-SLAM's keyframe decision (`tracking.reference_ratio` of the configuration), with
     /// MATLAB's `TrackFeatureRange` upper limit and `SkipMaxFrames`: a frame tracking fewer
     /// than `upper` points, or `skip_max_frames` frames after the last keyframe, is one.
     /// Monocular, fewer than `upper` points counts only below the reference ratio too
@@ -578,7 +578,8 @@ impl Tracker {
     ///
     /// `mapping_idle` is ORB-SLAM's `c1b`: while local mapping is still busy with earlier
     /// keyframes, the reference-ratio rule only fires when tracking is weak (`c1c`: with
-    /// depth, a quarter of the reference's points or close structure left untracked). Without
+    /// depth, `weak_tracking_share` of the reference's points or close structure left
+    /// untracked). Without
     /// it every revisit of a mapped place adds keyframes as fast as frames come, and a long
     /// run's map (and the time to track against it) keeps growing.
     ///
@@ -620,13 +621,14 @@ impl Tracker {
                 }
             }
         }
-        let need_close = tracked_close < 100 && untracked_close > 70;
+        let need_close = tracked_close < tracking.close_tracked_max
+            && untracked_close > tracking.close_untracked_min;
         let inliers = self.matches_inliers;
         let since_kf = frame.index.saturating_sub(self.last_keyframe_frame);
-        let ratio = match (n_kfs < 2, ctx.config.sensor.has_depth()) {
-            (true, _) => 0.4,
-            (false, true) => 0.75,
-            (false, false) => 0.9,
+        let ratio = if n_kfs < 2 {
+            tracking.first_keyframes_reference_ratio
+        } else {
+            tracking.reference_ratio
         };
         // MATLAB's rule (fewer tracked points than the upper limit, or SkipMaxFrames reached)
         // or ORB-SLAM's (tracking much less than the reference keyframe, or close structure
@@ -636,8 +638,8 @@ impl Tracker {
         let few_tracked = inliers < tracking.track_feature_range.1
             && (ctx.config.sensor.has_depth() || below_ratio);
         let matlab = few_tracked || since_kf >= tracking.skip_max_frames;
-        let weak =
-            ctx.config.sensor.has_depth() && ((inliers as f64) < 0.25 * ref_matches || need_close);
+        let weak = ctx.config.sensor.has_depth()
+            && ((inliers as f64) < tracking.weak_tracking_share * ref_matches || need_close);
         // The redundancy count walks every inlier's point: only when it decides.
         let views_mapped_structure = || {
             ctx.config.sensor.has_depth()
@@ -646,7 +648,7 @@ impl Tracker {
         };
         let orb_slam =
             (below_ratio || need_close) && (weak || (mapping_idle && !views_mapped_structure()));
-        (matlab || orb_slam) && inliers > 15
+        (matlab || orb_slam) && inliers > tracking.min_keyframe_inliers
     }
 }
 
