@@ -121,7 +121,7 @@ def test_bad_colors_are_refused_naming_them(colors, error, match, sensor, thread
 
 
 def test_a_pyramid_too_deep_for_the_image_is_refused_at_construction():
-    with pytest.raises(ValueError, match="extractor.n_levels = 12 with extractor.scale_factor 2.*at most 4 levels"):
+    with pytest.raises(ValueError, match="extractor.n_levels = 12 with scale_factor 2.*at most 4 levels"):
         MonoVSlam(CAMERA, scale_factor=2.0, num_levels=12)
 
 
