@@ -228,8 +228,12 @@ fn ring<'r, const N: usize>(rows: &[&'r [u8]; 7], x: usize, k: usize) -> &'r [u8
 #[inline(always)] // into score_row's AVX2 version
 fn compass_candidate<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> bool {
     let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
-    let bright: [u8; N] = center.map(|v| v.saturating_add(t));
-    let dark: [u8; N] = center.map(|v| v.saturating_sub(t));
+    // Plain loops rather than `<[u8; N]>::map`, which the compiler may leave a call in this
+    // hot loop (it did once the crate grew: FAST 1.3x slower).
+    let (mut bright, mut dark) = ([0u8; N], [0u8; N]);
+    for ((b, d), &v) in bright.iter_mut().zip(&mut dark).zip(center) {
+        (*b, *d) = (v.saturating_add(t), v.saturating_sub(t));
+    }
     let (mut b_prev, mut d_prev) = ([false; N], [false; N]);
     let mut candidate = [false; N];
     for k in [0, 4, 8, 12, 0] {

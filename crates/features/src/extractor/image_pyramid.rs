@@ -64,12 +64,16 @@ impl ImagePyramid {
             image.height(),
             image.pixels().to_vec(),
         )?);
-        for &(w, h) in &sizes[1..] {
-            let previous = levels[levels.len() - 1].view();
-            let level = resize_linear_exact(&previous, w, h)
-                .unwrap_or_else(|| unreachable!("level_sizes gives no empty level"));
-            levels.push(level);
-        }
+        // One entry into rayon's pool for all levels: from outside it, each level's parallel
+        // resize would wake its threads and wait for them.
+        rayon::scope(|_| {
+            for &(w, h) in &sizes[1..] {
+                let previous = levels[levels.len() - 1].view();
+                let level = resize_linear_exact(&previous, w, h)
+                    .unwrap_or_else(|| unreachable!("level_sizes gives no empty level"));
+                levels.push(level);
+            }
+        });
         Ok(Self { levels })
     }
 
