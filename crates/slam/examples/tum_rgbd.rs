@@ -259,12 +259,12 @@ fn run() -> Result<(), Error> {
 
     let config = SlamConfig::for_camera(Sensor::Rgbd, camera.width);
     let extractor = OrbExtractor::new(OrbConfig {
-        n_features: config.n_features,
-        scale_factor: config.scale_factor,
-        n_levels: config.n_levels,
+        n_features: config.extractor.n_features,
+        scale_factor: config.extractor.scale_factor,
+        n_levels: config.extractor.n_levels,
         fast: FastThresholds {
-            initial: config.ini_fast,
-            min: config.min_fast,
+            initial: config.extractor.ini_fast,
+            min: config.extractor.min_fast,
         },
     })?;
     let mut slam = SlamSystem::new(camera, config)?;
@@ -292,6 +292,7 @@ fn run() -> Result<(), Error> {
             keypoints: &features.keypoints,
             descriptors: &features.descriptors,
             depth_m: &keypoint_depths,
+            colors: None,
         })?;
         track_ms.push(start.elapsed().as_secs_f64() * 1e3);
         tracked += usize::from(result.state == TrackingState::Ok);
