@@ -234,7 +234,7 @@ pub struct TrackingConfig {
     /// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM: 5).
     pub min_keyframes_to_keep: usize,
     /// Window of the motion-model search around the last frame's projected points, pixels
-    /// at level 0 (ORB-SLAM `SearchByProjection`: 15 monocular, 7 with depth; 15 for every
+    /// at level 0 (ORB-SLAM `TrackWithMotionModel`: 7 stereo, 15 otherwise; 15 for every
     /// sensor here, as the PnP cross-check catches its mismatches).
     pub motion_search_radius_px: f64,
     /// Window of the motion-model search when it is repeated (`retry_search_matches`),
