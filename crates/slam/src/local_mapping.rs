@@ -190,22 +190,23 @@ impl LocalMapper {
     }
 
     /// ORB-SLAM `MapPointCulling`: a recent point dies if found in less than
-    /// `mapping.min_found_ratio` of the frames that should have seen it, or if two keyframes later it has too few observations;
-    /// after three keyframes it is proven.
+    /// `mapping.min_found_ratio` of the frames that should have seen it, or if
+    /// `mapping.recent_point_check_age` keyframes later it has too few observations; after
+    /// `mapping.recent_point_proven_age` keyframes it is proven.
     fn cull_recent_points(&mut self, current: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
-        let (min_obs, min_found) = (
-            ctx.config.mapping.min_point_observations,
-            ctx.config.mapping.min_found_ratio,
-        );
+        let config = &ctx.config.mapping;
+        let (min_obs, min_found) = (config.min_point_observations, config.min_found_ratio);
         let mut culled = 0;
         let mut kept = Vec::with_capacity(self.recent_points.len());
         for &m in &self.recent_points {
             let Some(p) = map.map_point(m) else { continue };
             let age = current.0.saturating_sub(p.first_keyframe().0);
-            if p.found_ratio() < min_found || (age >= 2 && p.num_observations() <= min_obs) {
+            if p.found_ratio() < min_found
+                || (age >= config.recent_point_check_age && p.num_observations() <= min_obs)
+            {
                 map.set_map_point_bad(m);
                 culled += 1;
-            } else if age < 3 {
+            } else if age < config.recent_point_proven_age {
                 kept.push(m);
             }
         }
@@ -239,7 +240,7 @@ impl LocalMapper {
         let neighbours = map.best_covisibles(kf, n_neighbours);
         let median_depth = map.scene_median_depth(kf);
         let pyramid = map.pyramid().clone();
-        let ratio_factor = 1.5 * pyramid.scale_factor;
+        let ratio_factor = config.scale_consistency_factor * pyramid.scale_factor;
         let mut created = 0;
         for (n, kf2) in neighbours.into_iter().enumerate() {
             if n > 0 && interrupt.requested() {

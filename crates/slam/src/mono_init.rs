@@ -9,6 +9,7 @@ use ferroslam_geometry::two_view::{reconstruct_two_view, TwoViewOptions, TwoView
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use nalgebra::{Isometry3, Vector2};
 
+use crate::config::InitializationConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::Frame;
@@ -78,7 +79,7 @@ impl MonoInitializer {
             self.set_reference(frame, min_keypoints);
             return Err(InitStatus::WaitingForReference { min_keypoints });
         };
-        let matches = self.search(reference, frame, init.mono_window_px);
+        let matches = self.search(reference, frame, init);
         if matches.len() < init.mono_min_matches {
             let found = matches.len();
             self.set_reference(frame, min_keypoints);
@@ -135,17 +136,22 @@ impl MonoInitializer {
     }
 
     /// ORB-SLAM `SearchForInitialization`: reference keypoints searched in a window of
-    /// half-side `window_px` around their last match among the current keypoints of the same
-    /// octave (ratio 0.9, rotation consistency, one-to-one). ORB-SLAM searches the finest
+    /// half-side `init.mono_window_px` around their last match among the current keypoints of
+    /// the same octave (ratio `init.mono_nn_ratio`, rotation consistency, one-to-one). ORB-SLAM searches the finest
     /// level only; under KITTI's forward motion that found too few matches to start.
-    fn search(&self, reference: &Frame, frame: &Frame, window_px: f64) -> Vec<(usize, usize)> {
+    fn search(
+        &self,
+        reference: &Frame,
+        frame: &Frame,
+        init: &InitializationConfig,
+    ) -> Vec<(usize, usize)> {
         let mut ids = Vec::new();
         let mut queries = Vec::new();
         for (i, kp) in reference.features.keypoints.iter().enumerate() {
             queries.push(ProjectionQuery {
                 u: self.prev_matched[i].x,
                 v: self.prev_matched[i].y,
-                radius: window_px,
+                radius: init.mono_window_px,
                 min_level: kp.octave,
                 max_level: kp.octave,
                 descriptor: reference.features.descriptors[i],
@@ -155,7 +161,7 @@ impl MonoInitializer {
         }
         let opts = MatchOptions {
             max_distance: TH_LOW,
-            nn_ratio: Some(0.9),
+            nn_ratio: Some(init.mono_nn_ratio),
             check_orientation: true,
         };
         let f = &frame.features;

@@ -136,8 +136,8 @@ impl PlaceRecognition {
 
     /// Keyframes a frame with `descriptors` may be relocalised against, best first (ORB-SLAM
     /// `DetectRelocalizationCandidates`): keyframes sharing words, each scored with its best
-    /// covisible keyframes' scores added; the best of every group scoring above 0.75 of the
-    /// best group is kept.
+    /// covisible keyframes' scores added; the best of every group scoring at least
+    /// `group_score_ratio` of the best group is kept.
     pub fn relocalisation_candidates(
         &self,
         descriptors: &[Descriptor],
@@ -152,12 +152,12 @@ impl PlaceRecognition {
             .into_iter()
             .map(|(id, s)| (KeyFrameId(id), s))
             .collect();
-        best_of_groups(&scores, map, self.config.group_size)
+        best_of_groups(&scores, map, &self.config)
     }
 
     /// Keyframes indexed keyframe `kf` may close a loop with (ORB-SLAM
     /// `DetectLoopCandidates`): keyframes not connected to `kf` in the covisibility graph
-    /// that share at least 80 % of the largest number of words any of them shares with `kf`
+    /// that share more than `common_words_share` of the largest number of words any of them shares with `kf`
     /// and score at least `min_score` against it, grouped with their covisible keyframes as
     /// in [`Self::relocalisation_candidates`].
     pub fn loop_candidates(&self, kf: KeyFrameId, map: &Map, min_score: f64) -> Vec<KeyFrameId> {
@@ -174,7 +174,7 @@ impl PlaceRecognition {
         let Some(max_common) = common.iter().map(|&(_, n)| n).max() else {
             return Vec::new();
         };
-        let min_common = 0.8 * max_common as f64;
+        let min_common = self.config.common_words_share * max_common as f64;
         let scores: HashMap<KeyFrameId, f64> = common
             .into_iter()
             .filter(|&(_, n)| n as f64 > min_common)
@@ -184,23 +184,23 @@ impl PlaceRecognition {
                 (score >= min_score).then_some((id, score))
             })
             .collect();
-        best_of_groups(&scores, map, self.config.group_size)
+        best_of_groups(&scores, map, &self.config)
     }
 }
 
 /// ORB-SLAM's covisibility grouping of retrieved keyframes: each keyframe's score plus its
 /// `group_size` best covisible keyframes' scores; the best-scoring keyframe of every group
-/// totalling at least 0.75 of the best total is kept, best group first.
+/// totalling at least `group_score_ratio` of the best total is kept, best group first.
 fn best_of_groups(
     scores: &HashMap<KeyFrameId, f64>,
     map: &Map,
-    group_size: usize,
+    config: &PlaceRecognitionConfig,
 ) -> Vec<KeyFrameId> {
     let mut groups: Vec<(f64, KeyFrameId)> = scores
         .iter()
         .map(|(&kf, &score)| {
             let (mut total, mut best) = (score, (score, kf));
-            for n in map.best_covisibles(kf, group_size) {
+            for n in map.best_covisibles(kf, config.group_size) {
                 if let Some(&s) = scores.get(&n) {
                     total += s;
                     if s > best.0 {
@@ -217,7 +217,7 @@ fn best_of_groups(
     };
     let mut out: Vec<KeyFrameId> = Vec::new();
     for (total, kf) in groups {
-        if total >= 0.75 * top && !out.contains(&kf) {
+        if total >= config.group_score_ratio * top && !out.contains(&kf) {
             out.push(kf);
         }
     }

@@ -53,6 +53,16 @@ pub struct MappingConfig {
     /// next frame. ORB-SLAM instead refuses monocular keyframes while mapping is busy and
     /// queues up to 3 with depth, which loses tracking when frames come faster than real time.
     pub max_queued_keyframes: usize,
+    /// Keyframes after its first after which a recent point with too few observations
+    /// (`min_point_observations`) dies (ORB-SLAM `MapPointCulling`: 2).
+    pub recent_point_check_age: u32,
+    /// Keyframes after its first after which a recent point is proven and no longer culled
+    /// (ORB-SLAM `MapPointCulling`: 3).
+    pub recent_point_proven_age: u32,
+    /// Scale consistency of a new point: the ratio of its distances to the two cameras may
+    /// differ from that of the features' scales by at most this many pyramid steps
+    /// (ORB-SLAM `CreateNewMapPoints`: 1.5).
+    pub scale_consistency_factor: f64,
 }
 
 impl MappingConfig {
@@ -73,6 +83,9 @@ impl MappingConfig {
             redundant_keyframe_share: 0.9,
             max_scene_depth_ratio: 40.0,
             max_queued_keyframes: 1,
+            recent_point_check_age: 2,
+            recent_point_proven_age: 3,
+            scale_consistency_factor: 1.5,
         }
     }
 
@@ -101,6 +114,12 @@ pub struct PlaceRecognitionConfig {
     /// keeps every keyframe sharing at least 80 % of the most words any shares; a fixed count
     /// bounds the cost of a query).
     pub max_retrieved: usize,
+    /// Of the retrieved keyframes, those sharing more than this share of the most words any
+    /// shares are scored (ORB-SLAM `DetectLoopCandidates`: 0.8).
+    pub common_words_share: f64,
+    /// Candidates whose group score reaches this share of the best group's are returned
+    /// (ORB-SLAM: 0.75).
+    pub group_score_ratio: f64,
 }
 
 impl Default for PlaceRecognitionConfig {
@@ -109,6 +128,8 @@ impl Default for PlaceRecognitionConfig {
             feature_levels_up: 4,
             group_size: 10,
             max_retrieved: 50,
+            common_words_share: 0.8,
+            group_score_ratio: 0.75,
         }
     }
 }
@@ -145,6 +166,13 @@ pub struct LoopClosingConfig {
     pub strong_covisibility: usize,
     /// Levenberg-Marquardt iterations of the essential-graph optimisation (ORB-SLAM: 20).
     pub essential_graph_iterations: usize,
+    /// Ratio test of the bag-of-words matching of a loop candidate, best over second-best
+    /// descriptor distance (ORB-SLAM `ComputeSim3`: 0.75).
+    pub bow_nn_ratio: f32,
+    /// Probability that the Sim(3) RANSAC draws an all-inlier sample (ORB-SLAM: 0.99).
+    pub sim3_ransac_probability: f64,
+    /// Most Sim(3) RANSAC iterations per candidate (ORB-SLAM: 300).
+    pub sim3_ransac_iterations: usize,
 }
 
 impl Default for LoopClosingConfig {
@@ -161,6 +189,9 @@ impl Default for LoopClosingConfig {
             fuse_radius_px: 4.0,
             strong_covisibility: 100,
             essential_graph_iterations: 20,
+            bow_nn_ratio: 0.75,
+            sim3_ransac_probability: 0.99,
+            sim3_ransac_iterations: 300,
         }
     }
 }

@@ -148,6 +148,9 @@ pub struct InitializationConfig {
     /// Map points the second keyframe must keep after the initial bundle adjustment
     /// (ORB-SLAM: 100).
     pub mono_min_points: usize,
+    /// Ratio test of the pair's window search, best over second-best descriptor distance
+    /// (ORB-SLAM `SearchForInitialization`: 0.9): loose, as the window already filters.
+    pub mono_nn_ratio: f32,
 }
 
 impl Default for InitializationConfig {
@@ -159,6 +162,7 @@ impl Default for InitializationConfig {
             mono_min_matches: 100,
             mono_window_px: 100.0,
             mono_min_points: 100,
+            mono_nn_ratio: 0.9,
         }
     }
 }
@@ -229,6 +233,44 @@ pub struct TrackingConfig {
     pub relocalisation_window_s: f64,
     /// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM: 5).
     pub min_keyframes_to_keep: usize,
+    /// Window of the motion-model search around the last frame's projected points, pixels
+    /// at level 0 (ORB-SLAM `TrackWithMotionModel`: 7 stereo, 15 otherwise; 15 for every
+    /// sensor here, as the PnP cross-check catches its mismatches).
+    pub motion_search_radius_px: f64,
+    /// Window of the motion-model search when it is repeated (`retry_search_matches`),
+    /// pixels at level 0: twice `motion_search_radius_px` (ORB-SLAM doubles it).
+    pub motion_retry_radius_px: f64,
+    /// Window of the local-map search, in units of the viewing-angle radius
+    /// (`frontal_radius`, `oblique_radius`), pixels at the point's level (ORB-SLAM: 3 with
+    /// RGB-D, the widest of its usual values).
+    pub local_search_width: f64,
+    /// `local_search_width` right after a relocalisation, for `relocalised_wide_search_frames`
+    /// frames (ORB-SLAM: 5).
+    pub relocalised_search_width: f64,
+    /// `local_search_width` after an IMU prediction: the predicted pose is less sure than a
+    /// tracked one (ORB-SLAM3 searches 6 before the inertial BA, 2 after).
+    pub imu_prediction_search_width: f64,
+    /// Frames after a relocalisation searched with `relocalised_search_width` (ORB-SLAM: 2).
+    pub relocalised_wide_search_frames: usize,
+    /// Ratio test of the bag-of-words matching against reference and relocalisation
+    /// candidates, best over second-best descriptor distance (ORB-SLAM `SearchByBoW`: 0.7
+    /// reference, 0.75 relocalisation; 0.75 for both).
+    pub reference_nn_ratio: f32,
+    /// Ratio test of the local-map search (ORB-SLAM `SearchLocalPoints`: 0.8).
+    pub local_search_nn_ratio: f32,
+    /// Best covisible keyframes of each local keyframe, and of the reference keyframe, that
+    /// join the local map and the reference-tracking candidates (ORB-SLAM: 10).
+    pub neighbourhood_covisibles: usize,
+    /// Least cosine between a local point's mean viewing direction and the ray from the frame
+    /// for it to be searched (ORB-SLAM: 0.5, 60 deg).
+    pub min_view_cos: f64,
+    /// Cosine above which a point is seen from nearly its mean direction, and searched in the
+    /// narrower `frontal_radius` (ORB-SLAM `RadiusByViewingCos`: 0.998, 3.6 deg).
+    pub frontal_view_cos: f64,
+    /// Search radius, in units of the search width, of points seen frontally (ORB-SLAM: 2.5).
+    pub frontal_radius: f64,
+    /// Search radius, in units of the search width, of the other points (ORB-SLAM: 4).
+    pub oblique_radius: f64,
 }
 
 impl TrackingConfig {
@@ -267,6 +309,19 @@ impl TrackingConfig {
             redundant_view_keyframes: 3,
             relocalisation_window_s: 1.0,
             min_keyframes_to_keep: 5,
+            motion_search_radius_px: 15.0,
+            motion_retry_radius_px: 30.0,
+            local_search_width: 3.0,
+            relocalised_search_width: 5.0,
+            imu_prediction_search_width: 5.0,
+            relocalised_wide_search_frames: 2,
+            reference_nn_ratio: 0.75,
+            local_search_nn_ratio: 0.8,
+            neighbourhood_covisibles: 10,
+            min_view_cos: 0.5,
+            frontal_view_cos: 0.998,
+            frontal_radius: 2.5,
+            oblique_radius: 4.0,
         }
     }
 }

@@ -208,19 +208,24 @@ mod tests {
                 )
             };
         }
-        let cases: [(&str, fn(&mut SlamConfig)); 14] = [
+        let cases: [(&str, fn(&mut SlamConfig)); 19] = [
             case!(extractor.n_features = 0),
             case!(extractor.min_fast = 0),
             case!(extractor.min_fast = 21),
             case!(extractor.ini_fast = 255),
             case!(depth.bf = f64::NAN),
             case!(initialization.mono_window_px = 0.0),
+            case!(initialization.mono_nn_ratio = 1.5),
             case!(tracking.post_relocalisation_frames = 0),
             case!(tracking.redundant_view_share = 1.5),
+            case!(tracking.motion_retry_radius_px = 10.0),
             case!(mapping.min_ray_parallax_deg = 90.0),
             case!(mapping.max_queued_keyframes = 0),
+            case!(mapping.recent_point_proven_age = 1),
             case!(place_recognition.group_size = 0),
+            case!(place_recognition.group_score_ratio = 0.0),
             case!(loop_closing.loop_closure_threshold = 19),
+            case!(loop_closing.sim3_ransac_probability = 1.0),
             case!(inertial.refinement_spans_s = vec![15.0, 5.0]),
             case!(inertial.anchor_sigma_gyro_rad_s = -1.0),
         ];

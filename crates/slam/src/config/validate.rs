@@ -13,8 +13,11 @@ impl Section {
         SlamError::InvalidConfig(format!("{}.{field} must {rule}", self.0))
     }
 
-    /// A count of at least `min`.
-    fn at_least(&self, field: &str, value: usize, min: usize) -> Result<(), SlamError> {
+    /// A count, or a number other than NaN, of at least `min`.
+    fn at_least<T>(&self, field: &str, value: T, min: T) -> Result<(), SlamError>
+    where
+        T: PartialOrd + std::fmt::Display,
+    {
         if value >= min {
             Ok(())
         } else {
@@ -31,8 +34,9 @@ impl Section {
         }
     }
 
-    /// A number in `(0, max]`.
-    fn fraction(&self, field: &str, value: f64, max: f64) -> Result<(), SlamError> {
+    /// A number in `(0, max]` (`f64` or `f32`).
+    fn fraction(&self, field: &str, value: impl Into<f64>, max: f64) -> Result<(), SlamError> {
+        let value = value.into();
         if value > 0.0 && value <= max {
             Ok(())
         } else {
@@ -41,7 +45,7 @@ impl Section {
     }
 }
 
-/// `check!(s, >= min, self.a, self.b)` (counts), `check!(s, > 0, self.a)` (finite positive
+/// `check!(s, >= min, self.a, self.b)` (counts, or numbers at least another), `check!(s, > 0, self.a)` (finite positive
 /// numbers) or `check!(s, <= max, self.a)` (numbers in `(0, max]`): each field named once,
 /// the error naming it `section.field`.
 macro_rules! check {
@@ -91,6 +95,7 @@ impl SlamConfig {
         check!(s, >= 8, i.mono_min_matches);
         check!(s, >= 1, i.mono_min_points);
         check!(s, > 0, i.mono_window_px);
+        check!(s, <= 1.0, i.mono_nn_ratio);
 
         let (t, s) = (&self.tracking, Section("tracking"));
         let (lower, upper) = t.track_feature_range;
@@ -110,6 +115,14 @@ impl SlamConfig {
         check!(s, <= 1.0, t.reference_ratio, t.first_keyframes_reference_ratio);
         // close_tracked_max, close_untracked_min, min_keyframe_inliers: any count.
         check!(s, > 0, t.relocalisation_window_s);
+        check!(s, > 0, t.motion_search_radius_px, t.local_search_width);
+        check!(s, > 0, t.relocalised_search_width, t.imu_prediction_search_width);
+        check!(s, > 0, t.frontal_radius, t.oblique_radius);
+        check!(s, >= t.motion_search_radius_px, t.motion_retry_radius_px);
+        check!(s, >= 1, t.neighbourhood_covisibles);
+        check!(s, <= 1.0, t.reference_nn_ratio, t.local_search_nn_ratio);
+        check!(s, <= 1.0, t.min_view_cos, t.frontal_view_cos);
+        // relocalised_wide_search_frames: any count (0 never widens the search).
         // min_keyframes_to_keep: any count (0 keeps every lost map).
 
         let (m, s) = (&self.mapping, Section("mapping"));
@@ -117,6 +130,16 @@ impl SlamConfig {
         check!(s, >= 1, m.always_searched_with_depth, m.max_queued_keyframes);
         check!(s, >= 1, m.min_point_observations, m.redundant_observations);
         check!(s, <= 1.0, m.min_found_ratio, m.redundant_keyframe_share);
+        check!(s, >= 1, m.recent_point_check_age);
+        check!(s, >= m.recent_point_check_age, m.recent_point_proven_age);
+        // A point's distance ratio may at least match its scales' ratio.
+        if !(m.scale_consistency_factor.is_finite() && m.scale_consistency_factor >= 1.0) {
+            let got = m.scale_consistency_factor;
+            return Err(s.bad(
+                "scale_consistency_factor",
+                format_args!("be >= 1, got {got}"),
+            ));
+        }
         // min_points_to_search_on: any count (0 searches every neighbour).
         if !(m.min_ray_parallax_deg > 0.0 && m.min_ray_parallax_deg < 90.0) {
             let got = m.min_ray_parallax_deg;
@@ -133,6 +156,7 @@ impl SlamConfig {
         let (p, s) = (&self.place_recognition, Section("place_recognition"));
         // feature_levels_up: any level (past the vocabulary's depth, features group at the root).
         check!(s, >= 1, p.group_size, p.max_retrieved);
+        check!(s, <= 1.0, p.common_words_share, p.group_score_ratio);
 
         let (l, s) = (&self.loop_closing, Section("loop_closing"));
         // The Sim(3) RANSAC samples 3 correspondences.
@@ -143,6 +167,15 @@ impl SlamConfig {
         check!(s, >= 1, l.consistency, l.essential_graph_iterations);
         check!(s, > 0, l.sim3_huber_chi2, l.guided_radius_px);
         check!(s, > 0, l.projection_radius_px, l.fuse_radius_px);
+        check!(s, >= 1, l.sim3_ransac_iterations);
+        check!(s, <= 1.0, l.bow_nn_ratio);
+        if !(l.sim3_ransac_probability > 0.0 && l.sim3_ransac_probability < 1.0) {
+            let got = l.sim3_ransac_probability;
+            return Err(s.bad(
+                "sim3_ransac_probability",
+                format_args!("be in (0, 1), got {got}"),
+            ));
+        }
         // min_keyframes_between, strong_covisibility: any count.
 
         let (n, s) = (&self.inertial, Section("inertial"));

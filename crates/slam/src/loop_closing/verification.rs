@@ -58,16 +58,16 @@ pub(crate) fn verify_loop(
     let fv1 = place.feature_vector(current)?;
     let fv2 = place.feature_vector(candidate)?;
     let config = &ctx.config.loop_closing;
-    let mut matches = match_by_bow(map, (current, fv1), (candidate, fv2), 0.75);
+    let mut matches = match_by_bow(map, (current, fv1), (candidate, fv2), config.bow_nn_ratio);
     if matches.iter().flatten().count() < config.min_stage_matches {
         return None;
     }
     let fix_scale = ctx.config.sensor.has_depth();
     let (_, pairs) = correspondences(map, current, candidate, &matches);
     let params = Sim3RansacParams {
-        probability: 0.99,
+        probability: config.sim3_ransac_probability,
         min_inliers: config.min_stage_matches,
-        max_iterations: 300,
+        max_iterations: config.sim3_ransac_iterations,
         fix_scale,
     };
     let corr: Vec<Sim3Correspondence> = pairs

@@ -14,6 +14,7 @@ use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::{optimize_pose, optimize_pose_inertial, InertialLink, PoseObservation};
 use nalgebra::{Isometry3, Point3, Vector2};
 
+use crate::config::TrackingConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
@@ -128,7 +129,7 @@ impl Tracker {
                     // PnP against the reference keyframe compete and keep the better one.
                     let min_inliers = ctx.config.tracking.min_pose_inliers;
                     let motion_guess = (by_motion >= min_inliers).then(|| frame.clone());
-                    let candidates = self.reference_neighbourhood(map);
+                    let candidates = self.reference_neighbourhood(map, ctx);
                     let by_pnp = self.relocalise(frame, map, ctx, candidates)?;
                     match motion_guess {
                         Some(guess) if by_motion >= by_pnp => {
@@ -142,7 +143,7 @@ impl Tracker {
             _ => {
                 let candidates = match place {
                     Some(p) => p.relocalisation_candidates(&frame.features.descriptors, map),
-                    None => self.reference_neighbourhood(map),
+                    None => self.reference_neighbourhood(map, ctx),
                 };
                 let found = self.relocalise(frame, map, ctx, candidates)?
                     >= ctx.config.tracking.min_pose_inliers;
@@ -186,9 +187,10 @@ impl Tracker {
     ) -> Result<bool, SlamError> {
         frame.T_c_w = prediction.T_c_w;
         frame.clear_associations();
-        self.local_keyframes = self.reference_neighbourhood(map);
+        self.local_keyframes = self.reference_neighbourhood(map, ctx);
         self.update_local_points(map);
-        self.search_local_points(frame, map, ctx, 5.0)?;
+        let width = ctx.config.tracking.imu_prediction_search_width;
+        self.search_local_points(frame, map, ctx, width)?;
         let searched = frame.map_points.clone();
         let tracking = &ctx.config.tracking;
         if searched.iter().flatten().count() >= tracking.min_search_matches {
@@ -305,12 +307,11 @@ impl Tracker {
         };
         frame.T_c_w = velocity * last.T_c_w;
         frame.clear_associations();
-        let radius_px = 15.0;
-        let mut found = search_last_frame(frame, last, map, ctx, radius_px);
         let tracking = &ctx.config.tracking;
+        let mut found = search_last_frame(frame, last, map, ctx, tracking.motion_search_radius_px);
         if found < tracking.retry_search_matches {
             frame.clear_associations();
-            found = search_last_frame(frame, last, map, ctx, 2.0 * radius_px);
+            found = search_last_frame(frame, last, map, ctx, tracking.motion_retry_radius_px);
         }
         if found < tracking.min_search_matches {
             return Ok(0);
@@ -342,7 +343,9 @@ impl Tracker {
         let tracking = &ctx.config.tracking;
         for kf in candidates {
             frame.clear_associations();
-            if match_keyframe(frame, kf, map, 0.75) < tracking.min_reference_matches {
+            if match_keyframe(frame, kf, map, tracking.reference_nn_ratio)
+                < tracking.min_reference_matches
+            {
                 continue;
             }
             let matched: Vec<(usize, MapPointId)> = frame
@@ -392,12 +395,14 @@ impl Tracker {
         Ok(0)
     }
 
-    /// The reference keyframe and its 10 best covisible keyframes; without a reference (a
-    /// freshly loaded map and no vocabulary) every keyframe, oldest first.
-    fn reference_neighbourhood(&self, map: &Map) -> Vec<KeyFrameId> {
+    /// The reference keyframe and its best covisible keyframes
+    /// (`tracking.neighbourhood_covisibles`); without a reference (a freshly loaded map and no
+    /// vocabulary) every keyframe, oldest first.
+    fn reference_neighbourhood(&self, map: &Map, ctx: &Context) -> Vec<KeyFrameId> {
+        let n = ctx.config.tracking.neighbourhood_covisibles;
         match self.reference_kf.filter(|&r| map.keyframe(r).is_some()) {
             Some(r) => std::iter::once(r)
-                .chain(map.best_covisibles(r, 10))
+                .chain(map.best_covisibles(r, n))
                 .collect(),
             None => map.keyframe_ids(),
         }
@@ -412,20 +417,25 @@ impl Tracker {
         ctx: &Context,
     ) -> Result<bool, SlamError> {
         frame.vo_points.iter_mut().for_each(|p| *p = None);
-        self.update_local_keyframes(frame, map, ctx.config.tracking.max_local_keyframes);
+        self.update_local_keyframes(frame, map, &ctx.config.tracking);
         self.update_local_points(map);
         // ORB-SLAM: a wider search right after relocalisation, and a stricter inlier count
         // while the relocalised pose is still unconfirmed.
         let tracking = &ctx.config.tracking;
         let since_relocalisation = self.last_relocalisation_frame.map(|f| frame.index - f);
-        let recently_relocalised = since_relocalisation.is_some_and(|n| n < 2);
+        let recently_relocalised =
+            since_relocalisation.is_some_and(|n| n < tracking.relocalised_wide_search_frames);
         let unconfirmed =
             since_relocalisation.is_some_and(|n| n < tracking.post_relocalisation_frames);
         self.search_local_points(
             frame,
             map,
             ctx,
-            if recently_relocalised { 5.0 } else { 3.0 },
+            if recently_relocalised {
+                tracking.relocalised_search_width
+            } else {
+                tracking.local_search_width
+            },
         )?;
         self.optimize_pose(frame, map, ctx)?;
         let mut inliers = 0;
@@ -453,7 +463,7 @@ impl Tracker {
 
     /// Local keyframes: those observing the frame's points, their best covisibles, children and
     /// parents (ORB-SLAM `UpdateLocalKeyFrames`); the most voted one becomes the reference.
-    fn update_local_keyframes(&mut self, frame: &Frame, map: &Map, max_keyframes: usize) {
+    fn update_local_keyframes(&mut self, frame: &Frame, map: &Map, tracking: &TrackingConfig) {
         let mut votes: HashMap<KeyFrameId, usize> = HashMap::new();
         for m in frame.map_points.iter().flatten() {
             if let Some(p) = map.map_point(*m) {
@@ -471,11 +481,11 @@ impl Tracker {
         let mut seen: HashSet<KeyFrameId> = local.iter().copied().collect();
         let first_ring = local.clone();
         for kf in first_ring {
-            if local.len() >= max_keyframes {
+            if local.len() >= tracking.max_local_keyframes {
                 break;
             }
             let Some(k) = map.keyframe(kf) else { continue };
-            let neighbours = map.best_covisibles(kf, 10);
+            let neighbours = map.best_covisibles(kf, tracking.neighbourhood_covisibles);
             let family = k.children().iter().copied().chain(k.parent());
             for n in neighbours.into_iter().chain(family) {
                 if map.keyframe(n).is_some() && seen.insert(n) {
@@ -491,7 +501,8 @@ impl Tracker {
     }
 
     /// Projects the local points not yet matched into the frame and searches for their
-    /// keypoints (ORB-SLAM `SearchLocalPoints`, ratio 0.8, radius by viewing angle).
+    /// keypoints (ORB-SLAM `SearchLocalPoints`; ratio and radius by viewing angle from
+    /// `tracking`).
     fn search_local_points(
         &self,
         frame: &mut Frame,
@@ -505,6 +516,7 @@ impl Tracker {
         }
         let center = frame.camera_center();
         let pyramid = map.pyramid().clone();
+        let tracking = &ctx.config.tracking;
         let mut ids = Vec::new();
         let mut queries = Vec::new();
         let mut u_right = Vec::new();
@@ -512,13 +524,24 @@ impl Tracker {
             if in_frame.contains(&m) {
                 continue;
             }
-            let Some(vis) =
-                visible_point(map, m, &frame.T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5)
-            else {
+            let (camera, bounds) = (&ctx.camera, &ctx.bounds);
+            let Some(vis) = visible_point(
+                map,
+                m,
+                &frame.T_c_w,
+                &center,
+                camera,
+                bounds,
+                tracking.min_view_cos,
+            ) else {
                 continue;
             };
             map.increase_visible(m, 1)?;
-            let r = if vis.view_cos > 0.998 { 2.5 } else { 4.0 } * th;
+            let r = if vis.view_cos > tracking.frontal_view_cos {
+                tracking.frontal_radius
+            } else {
+                tracking.oblique_radius
+            } * th;
             queries.push(ProjectionQuery {
                 u: vis.u,
                 v: vis.v,
@@ -534,7 +557,7 @@ impl Tracker {
         let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
         let opts = MatchOptions {
             max_distance: TH_HIGH,
-            nn_ratio: Some(0.8),
+            nn_ratio: Some(tracking.local_search_nn_ratio),
             check_orientation: false,
         };
         let found = frame.search_by_projection(&queries, &u_right, &taken, &opts);
