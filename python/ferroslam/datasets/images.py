@@ -47,8 +47,8 @@ def read_gray(path: str | Path) -> np.ndarray:
 def read_gray_and_color(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """``(grey (H, W), BGR (H, W, 3))`` uint8 of a .png/.jpg file, read once and decoded
     twice: the grey image is :func:`read_gray`'s, bit for bit. (Converting the colour image
-    instead differs for JPEG files, whose grey decoding is the stored luma: up to 16 levels on
-    a few pixels in a thousand, enough to change the tracking.)"""
+    instead differs for JPEG files, whose grey decoding is the stored luma rather than a
+    conversion of the upsampled colours: on few pixels, but enough to change the tracking.)"""
     path = Path(path)
     data = _read(path)
     gray = _eight_bit(_decode(data, cv2.IMREAD_GRAYSCALE, path), path)

@@ -38,7 +38,7 @@
 //! culled keyframes and fused points. The pyramid is rebuilt from its scale factor and number
 //! of levels. Bad keyframes / points are not stored (they are not in the map); their
 //! tombstones are. A loaded map is therefore indistinguishable from the saved one, and
-//! saving it again gives the same bytes.
+//! saving it again gives the same bytes (for a file of the current version).
 //!
 //! # Failure modes
 //! Loading checks, in order: magic ([`MapError::NotAMapFile`]), version
