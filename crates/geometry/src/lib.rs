@@ -27,10 +27,13 @@
 //! corner convention of OpenCV (pixel centres at integer coordinates), x right, y down;
 //! the camera looks along +z.
 //!
-//! Keypoints inside the Rust core are UNDISTORTED pixel coordinates: the ideal pinhole
-//! `(fx, fy, cx, cy)` maps camera points onto them, and lens distortion is removed once,
-//! when keypoints are extracted. RGB-D and stereo observations use ORB-SLAM's "virtual
-//! right" coordinate `u_right = u - bf / depth` with `bf = fx * baseline`.
+//! Keypoints inside the Rust core are in "core pixels" of the camera model
+//! ([`camera::CameraModel`]): for a pinhole camera the UNDISTORTED pixel coordinates (the
+//! ideal `(fx, fy, cx, cy)` maps camera points onto them, and lens distortion is removed
+//! once, when keypoints are extracted); for a fisheye the raw pixels, since a field of view
+//! beyond 180 degrees has no undistorted plane. Directions are unit rays. RGB-D and stereo
+//! observations of a pinhole camera use ORB-SLAM's "virtual right" coordinate
+//! `u_right = u - bf / depth` with `bf = fx * baseline`.
 //!
 //! # Failure modes
 //!

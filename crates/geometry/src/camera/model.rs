@@ -1,0 +1,155 @@
+//! One type for every camera model the core tracks with.
+//!
+//! The core works in "core pixels": the ideal (undistorted) pinhole image for
+//! [`PinholeCamera`], whose keypoints are undistorted once at extraction, and the raw image
+//! for [`KannalaBrandtCamera`], whose field of view may exceed 180 degrees and so has no
+//! undistorted plane. Geometry that must hold for both works on the unit rays of
+//! [`CameraModel::unproject`].
+
+use nalgebra::{Matrix2x3, Vector2, Vector3};
+
+use super::{ImageBounds, KannalaBrandtCamera, PinholeCamera};
+
+/// A calibrated camera of one of the supported models.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraModel {
+    /// Pinhole with radial-tangential distortion; core pixels are ideal pinhole pixels.
+    Pinhole(PinholeCamera),
+    /// Kannala-Brandt fisheye; core pixels are raw pixels.
+    KannalaBrandt(KannalaBrandtCamera),
+}
+
+impl CameraModel {
+    /// Focal length along x (pixels; per radian near the axis for a fisheye).
+    pub fn fx(&self) -> f64 {
+        match self {
+            Self::Pinhole(c) => c.fx,
+            Self::KannalaBrandt(c) => c.fx,
+        }
+    }
+
+    /// Focal length along y (pixels).
+    pub fn fy(&self) -> f64 {
+        match self {
+            Self::Pinhole(c) => c.fy,
+            Self::KannalaBrandt(c) => c.fy,
+        }
+    }
+
+    /// Image width and height (pixels).
+    pub fn size(&self) -> (u32, u32) {
+        match self {
+            Self::Pinhole(c) => (c.width, c.height),
+            Self::KannalaBrandt(c) => (c.width, c.height),
+        }
+    }
+
+    /// The pinhole camera, if this is one (stereo rectification and the virtual right
+    /// coordinate need it).
+    pub fn as_pinhole(&self) -> Option<&PinholeCamera> {
+        match self {
+            Self::Pinhole(c) => Some(c),
+            Self::KannalaBrandt(_) => None,
+        }
+    }
+
+    /// A raw image pixel in core pixels (undistorted for the pinhole, unchanged otherwise).
+    pub fn core_pixel(&self, uv_raw: &Vector2<f64>) -> Vector2<f64> {
+        match self {
+            Self::Pinhole(c) => c.undistort_pixel(uv_raw),
+            Self::KannalaBrandt(_) => *uv_raw,
+        }
+    }
+
+    /// Projection of `p_c` (camera frame, metres) to core pixels; `None` where the model
+    /// does not project (behind a pinhole, past a fisheye's largest incidence angle).
+    pub fn project(&self, p_c: &Vector3<f64>) -> Option<Vector2<f64>> {
+        match self {
+            Self::Pinhole(c) => c.project(p_c),
+            Self::KannalaBrandt(c) => c.project(p_c),
+        }
+    }
+
+    /// [`Self::project`] with the 2x3 Jacobian `d_uv_d_p_c`.
+    pub fn project_with_jacobian(
+        &self,
+        p_c: &Vector3<f64>,
+    ) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+        match self {
+            Self::Pinhole(c) => c.project_with_jacobian(p_c),
+            Self::KannalaBrandt(c) => c.project_with_jacobian(p_c),
+        }
+    }
+
+    /// The unit ray (camera frame) through the core pixel `uv`; `None` for a non-finite
+    /// pixel or, for a fisheye, one outside its image circle.
+    pub fn unproject(&self, uv: &Vector2<f64>) -> Option<Vector3<f64>> {
+        match self {
+            Self::Pinhole(c) => {
+                Some(c.unproject(uv).normalize()).filter(|r| r.iter().all(|v| v.is_finite()))
+            }
+            Self::KannalaBrandt(c) => c.unproject(uv),
+        }
+    }
+
+    /// Bounds of the image in core pixels.
+    pub fn bounds(&self) -> ImageBounds {
+        match self {
+            Self::Pinhole(c) => c.undistorted_bounds(),
+            Self::KannalaBrandt(c) => ImageBounds {
+                min_x: 0.0,
+                max_x: f64::from(c.width),
+                min_y: 0.0,
+                max_y: f64::from(c.height),
+            },
+        }
+    }
+}
+
+impl From<PinholeCamera> for CameraModel {
+    fn from(camera: PinholeCamera) -> Self {
+        Self::Pinhole(camera)
+    }
+}
+
+impl From<KannalaBrandtCamera> for CameraModel {
+    fn from(camera: KannalaBrandtCamera) -> Self {
+        Self::KannalaBrandt(camera)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{test_cameras, test_fisheye_cameras};
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn rays_of_projected_points_point_at_them_for_every_model() {
+        let models: Vec<CameraModel> = test_cameras()
+            .into_iter()
+            .map(|(_, c)| c.into())
+            .chain(test_fisheye_cameras().into_iter().map(|(_, c)| c.into()))
+            .collect();
+        let p = Vector3::new(0.3, -0.2, 2.0);
+        for model in models {
+            let ray = model.unproject(&model.project(&p).unwrap()).unwrap();
+            assert_relative_eq!(ray, p.normalize(), epsilon = 1e-10);
+            let b = model.bounds();
+            assert!(b.max_x > b.min_x && b.max_y > b.min_y);
+        }
+    }
+
+    #[test]
+    fn core_pixels_are_undistorted_only_for_the_pinhole() {
+        let (_, pinhole) = test_cameras()[0];
+        let (_, fisheye) = test_fisheye_cameras()[0];
+        let raw = Vector2::new(100.0, 80.0);
+        assert_eq!(CameraModel::from(fisheye).core_pixel(&raw), raw);
+        assert_eq!(
+            CameraModel::from(pinhole).core_pixel(&raw),
+            pinhole.undistort_pixel(&raw)
+        );
+        assert!(CameraModel::from(fisheye).as_pinhole().is_none());
+    }
+}
