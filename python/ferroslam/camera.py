@@ -1,4 +1,5 @@
-"""Pinhole camera with OpenCV radial-tangential distortion (intrinsics in pixels)."""
+"""Camera intrinsics (pixels) of the supported models: pinhole with OpenCV radial-tangential
+distortion, and Kannala-Brandt fisheye (OpenCV ``cv2.fisheye``)."""
 
 from __future__ import annotations
 
@@ -8,21 +9,33 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "CAMERA_MODELS"]
 
+# Model name -> (coefficient names of ``dist``): the one list of supported camera models.
+CAMERA_MODELS = {
+    "pinhole": ("k1", "k2", "p1", "p2", "k3"),
+    "kannala_brandt": ("k1", "k2", "k3", "k4"),
+}
 # Largest image side accepted, pixels: beyond any camera (64k), and the core's u32 sizes.
 _MAX_SIDE_PX = 1 << 16
 
 
 @dataclass(frozen=True)
 class Camera:
-    """Intrinsics of a distorted pinhole camera.
+    """Intrinsics of a camera.
 
-    ``fx, fy, cx, cy`` in pixels; ``dist`` = OpenCV ``(k1, k2, p1, p2, k3)`` mapping ideal
-    normalised coordinates to raw image coordinates; ``width, height`` in pixels.
+    ``fx, fy, cx, cy`` in pixels; ``width, height`` in pixels; ``model`` one of
+    :data:`CAMERA_MODELS`:
+
+    - ``"pinhole"`` (default): ``dist`` = OpenCV ``(k1, k2, p1, p2, k3)`` mapping ideal
+      normalised coordinates to raw image coordinates;
+    - ``"kannala_brandt"``: ``dist`` = ``(k1, k2, k3, k4)`` of OpenCV's ``cv2.fisheye``
+      (``theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)``); build it with
+      :meth:`kannala_brandt`.
+
     Raises ``TypeError`` naming the field for a value that is not a real number (a string, a
     bool) or a size that is not an integer, ``ValueError`` for non-positive focal lengths or
-    image size, non-finite values or bad ``dist``.
+    image size, non-finite values, an unknown model or bad ``dist``.
     """
 
     fx: float
@@ -32,6 +45,13 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     width: int = 640
     height: int = 480
+    model: str = "pinhole"
+
+    @classmethod
+    def kannala_brandt(cls, fx: float, fy: float, cx: float, cy: float, k, width: int,
+                       height: int) -> "Camera":
+        """A Kannala-Brandt fisheye camera; ``k`` = ``(k1, k2, k3, k4)``."""
+        return cls(fx, fy, cx, cy, k, width, height, model="kannala_brandt")
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy", "cx", "cy"):
@@ -50,13 +70,17 @@ class Camera:
             if not 0 < value <= _MAX_SIDE_PX:
                 raise ValueError(f"{name} must be in 1..={_MAX_SIDE_PX} pixels, got {value}")
             object.__setattr__(self, name, int(value))
+        if self.model not in CAMERA_MODELS:
+            raise ValueError(f"unknown camera model {self.model!r} (use "
+                             f"{', '.join(CAMERA_MODELS)})")
+        names = CAMERA_MODELS[self.model]
+        what = f"{len(names)} real numbers ({' '.join(names)}) for the {self.model} model"
         try:
             dist = np.asarray(self.dist, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
-            raise TypeError(f"dist must be 5 real numbers (k1 k2 p1 p2 k3), got {self.dist!r}"
-                            ) from None
-        if dist.shape != (5,) or not np.all(np.isfinite(dist)):
-            raise ValueError(f"dist must be 5 finite values (k1 k2 p1 p2 k3), got {self.dist!r}")
+            raise TypeError(f"dist must be {what}, got {self.dist!r}") from None
+        if dist.shape != (len(names),) or not np.all(np.isfinite(dist)):
+            raise ValueError(f"dist must be {what}, finite, got {self.dist!r}")
         object.__setattr__(self, "dist", dist)
 
     def check_image(self, image: np.ndarray, name: str = "image") -> None:
