@@ -8,7 +8,8 @@ values, configuration), always naming the problem; ``SlamError`` is an internal 
 
 import os
 import sys
-from typing import Any, Iterable, Literal, Optional, Sequence, TypedDict, Union, final
+from typing import (Any, Iterable, Literal, Optional, Protocol, Sequence, TypedDict, Union,
+                    final)
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,7 +21,7 @@ else:
 
 __all__ = [
     "KeyframeDatabase", "OrbExtractor", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
-    "__version__", "default_options", "match_stereo",
+    "__version__", "default_options", "match_stereo", "project_points", "unproject_pixels",
 ]
 
 __version__: str
@@ -461,6 +462,42 @@ def match_stereo(
 
     Raises:
         TypeError / ValueError: as ``SlamSystem.track_stereo``; non-positive fx or baseline.
+    """
+
+class _CameraLike(Protocol):
+    """What the camera functions read of a ``ferroslam.Camera``."""
+
+    model: str
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: NDArray[np.float64]
+    width: int
+    height: int
+
+def project_points(camera: _CameraLike, points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(N, 2)`` float64 RAW image pixels (lens distortion applied) of ``(N, 3)`` float64
+    camera-frame points in metres, by the core's model of ``camera`` (``Camera.project``).
+
+    Rows are NaN where the model does not project: behind a pinhole (``z <= 1e-6``), beyond a
+    fisheye's largest one-to-one incidence angle, non-finite points.
+
+    Raises:
+        TypeError: ``points`` not a float64 array, or a camera field of the wrong type.
+        ValueError: ``points`` not ``(N, 3)``; an unknown model, a wrong number of ``dist``
+            coefficients or intrinsics the core refuses (named).
+    """
+
+def unproject_pixels(camera: _CameraLike, pixels: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(N, 3)`` float64 unit rays (camera frame) through ``(N, 2)`` float64 RAW image
+    pixels, inverting :func:`project_points` (``Camera.unproject``).
+
+    Rows are NaN for non-finite pixels and, for a fisheye, pixels outside the image circle
+    of its largest incidence angle.
+
+    Raises:
+        TypeError / ValueError: as :func:`project_points`, naming ``pixels``.
     """
 
 _Features = tuple[NDArray[np.float32], NDArray[np.uint8], list[NDArray[np.uint8]]]

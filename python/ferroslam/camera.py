@@ -8,6 +8,7 @@ import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing
 
 __all__ = ["Camera", "CAMERA_MODELS"]
 
@@ -93,7 +94,55 @@ class Camera:
             raise ValueError(f"{name} is {size} (width x height) but the camera is "
                              f"{self.width}x{self.height}")
 
+    def project(self, points: np.typing.ArrayLike) -> np.ndarray:
+        """Raw image pixels of camera-frame points, computed by the core's camera model.
+
+        Args:
+            points: ``(N, 3)`` camera-frame points in metres (x right, y down, z forward),
+                any real dtype (converted to float64).
+
+        Returns:
+            ``(N, 2)`` float64 pixels of the RAW image, with the lens distortion applied
+            (what ``cv2.projectPoints`` / ``cv2.fisheye.projectPoints`` give). A row is NaN
+            where the model does not project the point: at or behind the image plane of a
+            pinhole (``z <= 1e-6``), beyond a fisheye's largest one-to-one incidence angle
+            (up to 180 degrees, so points behind a wide fisheye do project), or a
+            non-finite point.
+
+        Raises ``TypeError`` (a non-numeric array) or ``ValueError`` (a shape other than
+        ``(N, 3)``) naming ``points``.
+        """
+        from ._core import project_points
+
+        return project_points(self, _float64(points, "points"))
+
+    def unproject(self, pixels: np.typing.ArrayLike) -> np.ndarray:
+        """Unit rays through raw image pixels, inverting :meth:`project`.
+
+        Args:
+            pixels: ``(N, 2)`` pixels of the RAW (distorted) image, any real dtype.
+
+        Returns:
+            ``(N, 3)`` float64 unit vectors in the camera frame. A row is NaN for a
+            non-finite pixel or, for a fisheye, one outside the image circle of its largest
+            incidence angle.
+
+        Raises ``TypeError`` or ``ValueError`` naming ``pixels`` as :meth:`project`.
+        """
+        from ._core import unproject_pixels
+
+        return unproject_pixels(self, _float64(pixels, "pixels"))
+
     @property
     def K(self) -> np.ndarray:
         """3x3 calibration matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+def _float64(values: np.typing.ArrayLike, name: str) -> np.ndarray:
+    """``values`` as a float64 array when it holds real numbers (ints, floats, a list of
+    them); anything else is passed on unchanged for the core to refuse, naming ``name``."""
+    array = values if isinstance(values, np.ndarray) else np.asarray(values)
+    if array.dtype.kind in "iuf":
+        return np.ascontiguousarray(array, dtype=np.float64)
+    return values

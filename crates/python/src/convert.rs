@@ -37,7 +37,7 @@ pub fn array<'py, T: Element, D: Dimension>(
 }
 
 /// A shape written as Python writes it: `(3,)`, `(3, 5)`.
-fn shape_tuple(shape: &[usize]) -> String {
+pub fn shape_tuple(shape: &[usize]) -> String {
     match shape {
         [n] => format!("({n},)"),
         _ => format!(

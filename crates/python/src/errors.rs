@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use ferroslam_features::FeaturesError;
+use ferroslam_geometry::GeometryError;
 use ferroslam_slam::SlamError as CoreError;
 use ferroslam_vocabulary::VocabularyError;
 use pyo3::create_exception;
@@ -55,5 +56,13 @@ pub fn features_to_py(err: FeaturesError) -> PyErr {
         | FeaturesError::InvalidImage { .. }
         | FeaturesError::InvalidOrbConfig(_)
         | FeaturesError::ImageTooSmall { .. } => PyValueError::new_err(err.to_string()),
+    }
+}
+
+/// Geometry errors are bad parameters (a camera's intrinsics, coefficients, size) ->
+/// `ValueError` naming `what` and the parameter.
+pub fn geometry_to_py(what: &str, err: GeometryError) -> PyErr {
+    match err {
+        GeometryError::InvalidParameter { .. } => PyValueError::new_err(format!("{what}: {err}")),
     }
 }

@@ -5,6 +5,7 @@
 #![allow(non_snake_case)]
 #![warn(missing_docs)]
 
+mod camera;
 mod config;
 mod convert;
 mod errors;
@@ -23,6 +24,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<system::PyTrackResult>()?;
     m.add_function(wrap_pyfunction!(config::default_options, m)?)?;
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
+    m.add_function(wrap_pyfunction!(camera::project_points, m)?)?;
+    m.add_function(wrap_pyfunction!(camera::unproject_pixels, m)?)?;
     m.add_class::<extractor::PyOrbExtractor>()?;
     m.add_class::<vocabulary::PyVocabulary>()?;
     m.add_class::<vocabulary::PyKeyframeDatabase>()?;

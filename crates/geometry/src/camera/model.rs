@@ -61,6 +61,27 @@ impl CameraModel {
         }
     }
 
+    /// A core pixel in the raw image, inverting [`Self::core_pixel`] (distorted for the
+    /// pinhole, unchanged otherwise).
+    pub fn raw_pixel(&self, uv_core: &Vector2<f64>) -> Vector2<f64> {
+        match self {
+            Self::Pinhole(c) => c.distort_pixel(uv_core),
+            Self::KannalaBrandt(_) => *uv_core,
+        }
+    }
+
+    /// Projection of `p_c` (camera frame, metres) to raw image pixels, with the lens
+    /// distortion applied; `None` where [`Self::project`] gives none.
+    pub fn project_raw(&self, p_c: &Vector3<f64>) -> Option<Vector2<f64>> {
+        self.project(p_c).map(|uv| self.raw_pixel(&uv))
+    }
+
+    /// The unit ray (camera frame) through the raw image pixel `uv_raw`; `None` where
+    /// [`Self::unproject`] gives none.
+    pub fn unproject_raw(&self, uv_raw: &Vector2<f64>) -> Option<Vector3<f64>> {
+        self.unproject(&self.core_pixel(uv_raw))
+    }
+
     /// Projection of `p_c` (camera frame, metres) to core pixels; `None` where the model
     /// does not project (behind a pinhole, past a fisheye's largest incidence angle).
     pub fn project(&self, p_c: &Vector3<f64>) -> Option<Vector2<f64>> {
@@ -151,5 +172,32 @@ mod tests {
             pinhole.undistort_pixel(&raw)
         );
         assert!(CameraModel::from(fisheye).as_pinhole().is_none());
+    }
+
+    #[test]
+    fn raw_pixels_round_trip_for_every_model() {
+        let models: Vec<CameraModel> = test_cameras()
+            .into_iter()
+            .map(|(_, c)| c.into())
+            .chain(test_fisheye_cameras().into_iter().map(|(_, c)| c.into()))
+            .collect();
+        let p = Vector3::new(-0.4, 0.25, 1.5);
+        for model in models {
+            let raw = model.project_raw(&p).unwrap();
+            assert_relative_eq!(
+                model.core_pixel(&raw),
+                model.project(&p).unwrap(),
+                epsilon = 1e-8
+            );
+            assert_relative_eq!(
+                model.unproject_raw(&raw).unwrap(),
+                p.normalize(),
+                epsilon = 1e-10
+            );
+        }
+        let (_, pinhole) = test_cameras()[0];
+        assert!(CameraModel::from(pinhole)
+            .project_raw(&Vector3::new(0.0, 0.0, -1.0))
+            .is_none());
     }
 }

@@ -1,0 +1,154 @@
+//! `project_points` / `unproject_pixels`: the core's camera models on their own, behind
+//! `ferroslam.Camera.project` and `Camera.unproject`.
+//!
+//! Both work on RAW image pixels (the lens distortion applied), for every model.
+
+use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
+use nalgebra::{Vector2, Vector3};
+use numpy::ndarray::Array2;
+use numpy::{PyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+
+use crate::convert;
+use crate::errors::geometry_to_py;
+
+/// The `CameraModel` of a `ferroslam.Camera` (its `model`, `fx fy cx cy`, `dist`, `width`,
+/// `height` attributes): the one conversion from the Python camera to the core's.
+///
+/// `TypeError` for a value of the wrong type, `ValueError` (naming the parameter) for an
+/// unknown model, a wrong number of coefficients or values the core refuses.
+pub fn camera_model(camera: &Bound<'_, PyAny>) -> PyResult<CameraModel> {
+    let attr = |name: &str| {
+        camera.getattr(name).map_err(|_| {
+            PyTypeError::new_err(format!(
+                "camera must be a ferroslam.Camera, got {} (no attribute {name})",
+                camera
+                    .get_type()
+                    .name()
+                    .map_or_else(|_| "another type".into(), |n| n.to_string())
+            ))
+        })
+    };
+    let number = |name: &str| -> PyResult<f64> {
+        attr(name)?
+            .extract()
+            .map_err(|_| PyTypeError::new_err(format!("camera.{name} must be a real number")))
+    };
+    let size = |name: &str| -> PyResult<u32> {
+        attr(name)?.extract().map_err(|_| {
+            PyTypeError::new_err(format!(
+                "camera.{name} must be a positive integer below 2^32"
+            ))
+        })
+    };
+    let model: String = attr("model")?
+        .extract()
+        .map_err(|_| PyTypeError::new_err("camera.model must be a string"))?;
+    let dist: Vec<f64> = attr("dist")?
+        .extract()
+        .map_err(|_| PyTypeError::new_err("camera.dist must be a sequence of real numbers"))?;
+    let (fx, fy, cx, cy) = (number("fx")?, number("fy")?, number("cx")?, number("cy")?);
+    let (width, height) = (size("width")?, size("height")?);
+    let coefficients = |n: usize, names: &str| -> PyResult<()> {
+        if dist.len() == n {
+            Ok(())
+        } else {
+            Err(PyValueError::new_err(format!(
+                "camera.dist must hold {n} coefficients ({names}) for the {model} model, got {}",
+                dist.len()
+            )))
+        }
+    };
+    match model.as_str() {
+        "pinhole" => {
+            coefficients(5, "k1 k2 p1 p2 k3")?;
+            let distortion = RadTan {
+                k1: dist[0],
+                k2: dist[1],
+                p1: dist[2],
+                p2: dist[3],
+                k3: dist[4],
+            };
+            PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
+                .map(CameraModel::from)
+                .map_err(|e| geometry_to_py("invalid camera", e))
+        }
+        "kannala_brandt" => {
+            coefficients(4, "k1 k2 k3 k4")?;
+            let k = [dist[0], dist[1], dist[2], dist[3]];
+            KannalaBrandtCamera::new(fx, fy, cx, cy, k, width, height)
+                .map(CameraModel::from)
+                .map_err(|e| geometry_to_py("invalid camera", e))
+        }
+        other => Err(PyValueError::new_err(format!(
+            "unknown camera model {other:?} (use pinhole, kannala_brandt)"
+        ))),
+    }
+}
+
+/// The rows of `obj`, a float64 `(N, columns)` array named `name`, copied out (the core
+/// then reads them with the GIL released).
+fn rows(obj: &Bound<'_, PyAny>, name: &str, columns: usize) -> PyResult<Vec<f64>> {
+    let expected = format!("a float64 (N, {columns}) array");
+    let arr: PyReadonlyArrayDyn<'_, f64> = convert::array(obj, name, &expected)?;
+    let shape = arr.shape();
+    if shape.len() != 2 || shape[1] != columns {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be {expected}, got shape {}",
+            convert::shape_tuple(shape)
+        )));
+    }
+    Ok(arr.as_array().iter().copied().collect())
+}
+
+/// `values` (row-major, `columns` per row) as a float64 `(N, columns)` array.
+fn array<'py>(py: Python<'py>, values: Vec<f64>, columns: usize) -> Bound<'py, PyArray2<f64>> {
+    let n = values.len() / columns;
+    let a = Array2::from_shape_vec((n, columns), values)
+        .unwrap_or_else(|_| unreachable!("columns values per row"));
+    PyArray2::from_owned_array(py, a)
+}
+
+/// Raw image pixels `(N, 2)` float64 of camera-frame points `(N, 3)` float64 (metres); NaN
+/// rows where the model does not project (behind a pinhole, past a fisheye's largest
+/// incidence angle, non-finite points).
+#[pyfunction]
+pub fn project_points<'py>(
+    py: Python<'py>,
+    camera: &Bound<'py, PyAny>,
+    points: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let model = camera_model(camera)?;
+    let p = rows(points, "points", 3)?;
+    let uv = py.detach(|| {
+        p.chunks_exact(3)
+            .flat_map(|p| {
+                let uv = model.project_raw(&Vector3::new(p[0], p[1], p[2]));
+                uv.map_or([f64::NAN; 2], |uv| [uv.x, uv.y])
+            })
+            .collect()
+    });
+    Ok(array(py, uv, 2))
+}
+
+/// Unit rays `(N, 3)` float64 (camera frame) through raw image pixels `(N, 2)` float64; NaN
+/// rows where the model has none (outside a fisheye's image circle, non-finite pixels).
+#[pyfunction]
+pub fn unproject_pixels<'py>(
+    py: Python<'py>,
+    camera: &Bound<'py, PyAny>,
+    pixels: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let model = camera_model(camera)?;
+    let uv = rows(pixels, "pixels", 2)?;
+    let rays = py.detach(|| {
+        uv.chunks_exact(2)
+            .flat_map(|uv| {
+                let ray = model.unproject_raw(&Vector2::new(uv[0], uv[1]));
+                ray.map_or([f64::NAN; 3], |r| [r.x, r.y, r.z])
+            })
+            .collect()
+    });
+    Ok(array(py, rays, 3))
+}
