@@ -271,18 +271,138 @@ def test_flat_camera_yaml(tmp_path, text):
     assert load_calibration(path).camera_to_imu == [None]
 
 
-def test_fisheye_is_refused_naming_file_and_field(tmp_path):
-    text = KALIBR_CAMCHAIN.replace("distortion_model: radtan", "distortion_model: equidistant", 1)
-    path = _write(tmp_path, text, "fisheye.yaml")
-    with pytest.raises(ValueError, match=r"fisheye.yaml: cam0.distortion_model 'equidistant' "
-                                         r"is not supported.*Kannala-Brandt"):
-        load_calibration(path)
+# TUM-VI cam0 and cam1 (Kannala-Brandt, 512x512) and T_cam0_cam1 of the TUM-VI 512 calibration.
+TUM_VI0 = (190.97847715128717, 190.9733070521226, 254.93170605935475, 256.8974428996504)
+TUM_VI_K0 = [0.0034823894022493434, 0.0007150348452162257, -0.0020532361418706202,
+             0.00020293673591811182]
+TUM_VI1 = (190.44236969414825, 190.4344384721956, 252.59949716835982, 254.91723064636983)
+TUM_VI_K1 = [0.0034003170790442797, 0.001766278153469831, -0.00266312569781606,
+             0.0003299517423931039]
+TUM_VI_T_C1_C0 = [[0.999998, -0.000874, -0.001935, -0.101180],
+                  [0.000872, 0.999999, -0.001203, -0.001960],
+                  [0.001936, 0.001202, 0.999997, -0.000473],
+                  [0.0, 0.0, 0.0, 1.0]]
+
+
+def _kalibr_fisheye_camchain() -> str:
+    """KALIBR_CAMCHAIN with TUM-VI's equidistant cameras (Kalibr ``pinhole-equi``)."""
+    text = KALIBR_CAMCHAIN
+    for old, new in (
+        ("[-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]", str(TUM_VI_K0)),
+        ("[458.654, 457.296, 367.215, 248.375]", str(list(TUM_VI0))),
+        ("[-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05]", str(TUM_VI_K1)),
+        ("[457.587, 456.134, 379.999, 255.238]", str(list(TUM_VI1))),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    return (text.replace("distortion_model: radtan", "distortion_model: equidistant")
+            .replace("resolution: [752, 480]", "resolution: [512, 512]"))
+
+
+def _assert_fisheye(camera, intrinsics, k, size):
+    _assert_camera(camera, intrinsics, k, size)
+    assert camera.model == "kannala_brandt"
+
+
+def test_kalibr_equidistant_is_kannala_brandt(tmp_path):
+    calib = load_calibration(_write(tmp_path, _kalibr_fisheye_camchain(), "camchain.yaml"))
+    _assert_fisheye(calib.cameras[0], TUM_VI0, TUM_VI_K0, (512, 512))
+    _assert_fisheye(calib.cameras[1], TUM_VI1, TUM_VI_K1, (512, 512))
+    # A camera of another model in the same chain is still refused, listing the supported.
+    text = KALIBR_CAMCHAIN.replace("distortion_model: radtan", "distortion_model: fov", 1)
+    with pytest.raises(ValueError, match=r"calib.yaml: cam0.distortion_model 'fov' is not "
+                                         r"supported \(supported: radtan, none, equidistant\)"):
+        load_calibration(_write(tmp_path, text))
     text = KALIBR_CAMCHAIN.replace("camera_model: pinhole", "camera_model: omni", 1)
     with pytest.raises(ValueError, match=r"cam0.camera_model 'omni' is not supported"):
         load_calibration(_write(tmp_path, text))
-    text = ORBSLAM3_STEREO_INERTIAL.replace('"PinHole"', '"KannalaBrandt8"')
-    with pytest.raises(ValueError, match=r"Camera.type 'KannalaBrandt8'.*Kannala-Brandt"):
+
+
+def _orbslam3_fisheye(version_1: bool) -> str:
+    """ORB-SLAM3's TUM-VI settings: KannalaBrandt8 with k1..k4 (format 1.0 or legacy)."""
+    if version_1:
+        cams = "".join(
+            f"Camera{i}.fx: {c[0]}\nCamera{i}.fy: {c[1]}\nCamera{i}.cx: {c[2]}\n"
+            f"Camera{i}.cy: {c[3]}\n" + "".join(f"Camera{i}.k{j + 1}: {v}\n"
+                                                 for j, v in enumerate(k))
+            for i, c, k in ((1, TUM_VI0, TUM_VI_K0), (2, TUM_VI1, TUM_VI_K1)))
+        T = np.linalg.inv(np.array(TUM_VI_T_C1_C0))
+        return (f'%YAML:1.0\nFile.version: "1.0"\nCamera.type: "KannalaBrandt8"\n{cams}'
+                f"Camera.width: 512\nCamera.height: 512\nStereo.T_c1_c2: !!opencv-matrix\n"
+                f"  rows: 4\n  cols: 4\n  dt: f\n  data: {T.ravel().tolist()}\n")
+    ks = "".join(f"Camera.k{j + 1}: {v}\n" for j, v in enumerate(TUM_VI_K0))
+    return (f'%YAML:1.0\nCamera.type: "KannalaBrandt8"\nCamera.fx: {TUM_VI0[0]}\n'
+            f"Camera.fy: {TUM_VI0[1]}\nCamera.cx: {TUM_VI0[2]}\nCamera.cy: {TUM_VI0[3]}\n{ks}"
+            f"Camera.width: 512\nCamera.height: 512\nCamera.fps: 20.0\n")
+
+
+def test_orbslam3_kannala_brandt8(tmp_path):
+    calib = load_calibration(_write(tmp_path, _orbslam3_fisheye(True)))
+    _assert_fisheye(calib.cameras[0], TUM_VI0, TUM_VI_K0, (512, 512))
+    _assert_fisheye(calib.cameras[1], TUM_VI1, TUM_VI_K1, (512, 512))
+    T_c0_c1 = np.linalg.inv(np.array(TUM_VI_T_C1_C0))
+    np.testing.assert_allclose(calib.T_left_right, T_c0_c1, atol=1e-12)
+    legacy = load_calibration(_write(tmp_path, _orbslam3_fisheye(False), "legacy.yaml"))
+    _assert_fisheye(legacy.cameras[0], TUM_VI0, TUM_VI_K0, (512, 512))
+    text = ORBSLAM3_STEREO_INERTIAL.replace('"PinHole"', '"Rectified"')
+    with pytest.raises(ValueError, match=r"Camera.type 'Rectified' is not supported "
+                                         r"\(supported: PinHole, KannalaBrandt8\)"):
         load_calibration(_write(tmp_path, text))
+
+
+def test_flat_camera_yaml_kannala_brandt(tmp_path):
+    ks = "".join(f"k{j + 1}: {v}\n" for j, v in enumerate(TUM_VI_K0))
+    text = (f"model: kannala_brandt\nfx: {TUM_VI0[0]}\nfy: {TUM_VI0[1]}\ncx: {TUM_VI0[2]}\n"
+            f"cy: {TUM_VI0[3]}\n{ks}width: 512\nheight: 512\n")
+    _assert_fisheye(read_camera_yaml(_write(tmp_path, text, "camera.yaml")), TUM_VI0, TUM_VI_K0,
+                    (512, 512))
+    # model: pinhole reads the 5 radial-tangential keys (k1 k2 p1 p2 k3) as before.
+    pinhole = read_camera_yaml(_write(tmp_path, text.replace("kannala_brandt", "pinhole")))
+    assert pinhole.model == "pinhole"
+    np.testing.assert_allclose(pinhole.dist, [*TUM_VI_K0[:2], 0, 0, TUM_VI_K0[2]])
+    with pytest.raises(ValueError, match=r"camera.yaml: model 'omni' is not supported "
+                                         r"\(supported: pinhole, kannala_brandt\)"):
+        read_camera_yaml(_write(tmp_path, text.replace("kannala_brandt", "omni"),
+                                "camera.yaml"))
+
+
+def test_ros_camera_info_equidistant(tmp_path):
+    text = (ROS_CAMERA_INFO.replace("plumb_bob", "equidistant")
+            .replace("cols: 5\n  data: [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]",
+                     "cols: 4\n  data: [0.01, -0.005, 0.002, -0.0005]"))
+    calib = load_calibration(_write(tmp_path, text))
+    _assert_fisheye(calib.cameras[0], TUM_FR1, [0.01, -0.005, 0.002, -0.0005], (640, 480))
+    with pytest.raises(ValueError, match=r"distortion_coefficients must hold 4 values "
+                                         r"\(k1 k2 k3 k4\), got 5"):
+        load_calibration(_write(tmp_path, ROS_CAMERA_INFO.replace("plumb_bob", "equidistant")))
+
+
+def test_euroc_sensor_yaml_equidistant(tmp_path, euroc):
+    """The ASL layout of a fisheye rig (TUM-VI): sensor.yaml with distortion_model
+    equidistant gives Kannala-Brandt cameras."""
+    import shutil
+
+    mav0 = tmp_path / "seq" / "mav0"
+    for cam, intrinsics, k in (("cam0", TUM_VI0, TUM_VI_K0), ("cam1", TUM_VI1, TUM_VI_K1)):
+        (mav0 / cam / "data").mkdir(parents=True)
+        shutil.copy(euroc.mav0 / cam / "data.csv", mav0 / cam / "data.csv")
+        text = (euroc.mav0 / cam / "sensor.yaml").read_text()
+        old_intrinsics = text[text.index("intrinsics:"):].split("\n", 1)[0]
+        old_dist = text[text.index("distortion_coefficients:"):].split("\n", 1)[0]
+        text = (text.replace(old_intrinsics, f"intrinsics: {list(intrinsics)}")
+                .replace(old_dist, f"distortion_coefficients: {k}")
+                .replace("radial-tangential", "equidistant")
+                .replace("resolution: [752, 480]", "resolution: [512, 512]"))
+        (mav0 / cam / "sensor.yaml").write_text(text)
+    seq = EurocSequence(tmp_path / "seq", rectify=False)
+    _assert_fisheye(seq.left_camera, TUM_VI0, TUM_VI_K0, (512, 512))
+    _assert_fisheye(seq.right_camera, TUM_VI1, TUM_VI_K1, (512, 512))
+    sensor = mav0 / "cam0" / "sensor.yaml"
+    sensor.write_text(sensor.read_text().replace("equidistant", "omni-radtan"))
+    with pytest.raises(ValueError, match=r"cam0/sensor.yaml: distortion_model 'omni-radtan' is "
+                                         r"not supported \(supported: radial-tangential, "
+                                         r"radtan, equidistant\)"):
+        EurocSequence(tmp_path / "seq", rectify=False)
 
 
 @pytest.mark.parametrize("old, new, message", [

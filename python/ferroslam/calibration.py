@@ -6,12 +6,18 @@ a renamed file still loads:
 * ORB-SLAM3 settings, format ``File.version: "1.0"`` (``Camera1.fx``, ``Camera2.*``,
   ``Stereo.T_c1_c2``, ``IMU.T_b_c1``, ``IMU.Noise*``) and the legacy / ORB-SLAM2 one
   (``Camera.fx``, ``Tbc``, ``IMU.*``), which also covers flat TUM-style ``camera.yaml`` files
-  (``fx fy cx cy k1 k2 p1 p2 k3 width height``);
+  (``fx fy cx cy k1 k2 p1 p2 k3 width height``, and ``model: kannala_brandt`` with
+  ``k1 k2 k3 k4``); ``Camera.type`` ``"PinHole"`` or ``"KannalaBrandt8"`` (``k1..k4``);
 * Kalibr camchains (``cam0: {camera_model, intrinsics, distortion_model,
-  distortion_coeffs, resolution, T_cam_imu, T_cn_cnm1}``);
+  distortion_coeffs, resolution, T_cam_imu, T_cn_cnm1}``), ``distortion_model`` ``radtan``,
+  ``none`` or ``equidistant`` (Kannala-Brandt);
 * OpenCV FileStorage camera files (``camera_matrix``, ``distortion_coefficients``,
   ``image_width``, ``image_height``, as OpenCV's calibration sample writes them) and ROS
-  ``camera_info`` YAML (the same keys, matrices as ``{rows, cols, data}``).
+  ``camera_info`` YAML (the same keys, matrices as ``{rows, cols, data}``; ``plumb_bob`` or
+  ``equidistant`` distortion).
+
+Kannala-Brandt (fisheye) cameras come out as ``Camera(model="kannala_brandt")`` with the four
+coefficients of OpenCV's ``cv2.fisheye``, which all these formats share.
 
 :func:`load_imu_params` reads IMU noise from Kalibr IMU files, EuRoC ``imu0/sensor.yaml`` and
 ORB-SLAM settings; ``load_calibration(path, imu_path=...)`` joins it to a camchain.
@@ -59,8 +65,13 @@ __all__ = ["Calibration", "ImuParams", "load_calibration", "load_imu_params", "r
 # Largest deviation of R R^T from I, and of the last row from (0 0 0 1), in a rigid transform:
 # leaves room for matrices stored as float32 (dt: f) or printed with ~7 digits.
 _RIGID_TOL = 1e-6
-_DIST_KEYS = ("k1", "k2", "p1", "p2", "k3")
-_FISHEYE = ("equidistant", "KannalaBrandt8", "fisheye")
+# Coefficient keys of each camera model in ORB-SLAM settings and flat files.
+_DIST_KEYS = {"pinhole": ("k1", "k2", "p1", "p2", "k3"), "kannala_brandt": ("k1", "k2", "k3", "k4")}
+# Camera models as each format names them -> ours.
+_ORBSLAM_MODELS = {"PinHole": "pinhole", "KannalaBrandt8": "kannala_brandt"}
+_FLAT_MODELS = {"pinhole": "pinhole", "kannala_brandt": "kannala_brandt"}
+_KALIBR_DISTORTIONS = {"radtan": "pinhole", "none": "pinhole", "equidistant": "kannala_brandt"}
+_ROS_DISTORTIONS = {"plumb_bob": "pinhole", "equidistant": "kannala_brandt"}
 # ImuParams fields in order, then the rate, as each format names them.
 _ORBSLAM_IMU_KEYS = ("IMU.NoiseGyro", "IMU.GyroWalk", "IMU.NoiseAcc", "IMU.AccWalk",
                      "IMU.Frequency")
@@ -76,8 +87,9 @@ class Calibration:
     """Intrinsics of each camera, their poses in the IMU frame and the IMU noise model.
 
     Attributes:
-        cameras: one :class:`~ferroslam.Camera` per camera (raw intrinsics with their
-            radial-tangential distortion), in file order: ``cameras[0]`` is the left camera.
+        cameras: one :class:`~ferroslam.Camera` per camera (raw intrinsics with their lens
+            model and distortion: ``"pinhole"`` radial-tangential or ``"kannala_brandt"``),
+            in file order: ``cameras[0]`` is the left camera.
         camera_to_imu: per camera, ``T_imu_cam``, the ``(4, 4)`` float64 pose of the camera in
             the IMU frame (``p_imu = T_imu_cam @ p_cam``), exactly what the vSLAM objects'
             ``camera_to_imu_transform=`` takes; ``None`` where the file gives no IMU.
@@ -115,7 +127,7 @@ def load_calibration(path: Union[str, Path],
         FileNotFoundError: a file does not exist (named).
         ValueError: naming the file and field: an unknown format, a missing field, a value
             that is not a number, a matrix of the wrong shape, a transform that is not rigid,
-            an unsupported camera or distortion model (fisheye is not supported yet).
+            an unsupported camera or distortion model (the supported ones listed).
     """
     fields = _Fields(_read_document(Path(path)), Path(path))
     calibration = _reader_for(fields)(fields)
@@ -276,20 +288,22 @@ class _Fields:
         return T
 
     def model(self, key: str, default: Any, supported: Sequence[str]) -> str:
-        """The camera / distortion model named by ``key``, refused unless ``supported``."""
+        """The camera / distortion model named by ``key``, refused unless ``supported``
+        (the error lists them)."""
         value = self.text(key, default)
         if value in supported:
             return value
-        hint = (" Fisheye (Kannala-Brandt) support is coming; until then use a pinhole "
-                "radial-tangential calibration." if value in _FISHEYE else "")
         raise self.error(key, f"{value!r} is not supported (supported: "
-                              f"{', '.join(supported)}).{hint}")
+                              f"{', '.join(supported)})")
 
     def camera(self, where: str, fx: float, fy: float, cx: float, cy: float,
-               dist: np.typing.ArrayLike, width: int, height: int) -> Camera:
-        """A :class:`Camera`, its validation errors naming the file and ``where``."""
+               dist: np.typing.ArrayLike, width: int, height: int,
+               model: str = "pinhole") -> Camera:
+        """A :class:`Camera` of ``model``, its validation errors naming the file and
+        ``where``."""
         try:
-            return Camera(fx, fy, cx, cy, np.array(dist, dtype=np.float64), width, height)
+            return Camera(fx, fy, cx, cy, np.array(dist, dtype=np.float64), width, height,
+                          model)
         except (TypeError, ValueError) as error:
             raise ValueError(f"{self.path}: {self.prefix}{where}: {error}") from None
 
@@ -316,11 +330,18 @@ def _reader_for(fields: _Fields) -> Callable[[_Fields], Calibration]:
         f"fx/fy/cx/cy, Kalibr camchain, OpenCV or ROS camera file); top-level keys: {keys}")
 
 
-def _prefixed_camera(fields: _Fields, prefix: str, width: int, height: int) -> Camera:
-    """An ORB-SLAM-style camera: ``<prefix>fx`` ... ``<prefix>k3``, absent distortion 0."""
+def _prefixed_camera(fields: _Fields, prefix: str, width: int, height: int,
+                     model: str) -> Camera:
+    """An ORB-SLAM-style camera of ``model``: ``<prefix>fx`` ... and the model's
+    coefficients (``<prefix>k1 k2 p1 p2 k3`` or ``<prefix>k1 k2 k3 k4``), absent ones 0."""
     fx, fy, cx, cy = (fields.number(prefix + key) for key in ("fx", "fy", "cx", "cy"))
-    dist = [fields.number(prefix + key, 0.0) for key in _DIST_KEYS]
-    return fields.camera(prefix + "fx", fx, fy, cx, cy, dist, width, height)
+    dist = [fields.number(prefix + key, 0.0) for key in _DIST_KEYS[model]]
+    return fields.camera(prefix + "fx", fx, fy, cx, cy, dist, width, height, model)
+
+
+def _orbslam_model(fields: _Fields) -> str:
+    """Our model name for ``Camera.type`` (ORB-SLAM's default ``PinHole``)."""
+    return _ORBSLAM_MODELS[fields.model("Camera.type", "PinHole", tuple(_ORBSLAM_MODELS))]
 
 
 def _read_orbslam3(fields: _Fields) -> Calibration:
@@ -328,12 +349,12 @@ def _read_orbslam3(fields: _Fields) -> Calibration:
     ``Stereo.T_c1_c2``), shared ``Camera.width/height``, ``IMU.T_b_c1`` = ``T_imu_c1`` (the
     body frame is the IMU)."""
     fields.model("File.version", _MISSING, ("1.0",))
-    fields.model("Camera.type", "PinHole", ("PinHole",))
+    model = _orbslam_model(fields)
     size = fields.integer("Camera.width"), fields.integer("Camera.height")
-    cameras = [_prefixed_camera(fields, "Camera1.", *size)]
+    cameras = [_prefixed_camera(fields, "Camera1.", *size, model)]
     T_c1_c2 = None
     if "Camera2.fx" in fields:
-        cameras.append(_prefixed_camera(fields, "Camera2.", *size))
+        cameras.append(_prefixed_camera(fields, "Camera2.", *size, model))
         T_c1_c2 = fields.pose("Stereo.T_c1_c2")
     T_b_c1 = fields.pose("IMU.T_b_c1") if "IMU.T_b_c1" in fields else None
     camera_to_imu = [T_b_c1]
@@ -345,11 +366,14 @@ def _read_orbslam3(fields: _Fields) -> Calibration:
 def _read_orbslam_legacy(fields: _Fields) -> Calibration:
     """Legacy ORB-SLAM settings (``Camera.fx``, ``Tbc`` = ``T_imu_cam``, ``IMU.*``) and flat
     ``camera.yaml`` files (``fx`` or ``Camera1.fx`` ... without ``File.version``). A missing
-    size is 640x480, as ``read_camera_yaml`` always assumed for TUM ``camera.yaml`` files."""
+    size is 640x480, as ``read_camera_yaml`` always assumed for TUM ``camera.yaml`` files.
+    The model is ``model:`` in a flat file (``pinhole`` or ``kannala_brandt``), else
+    ``Camera.type``."""
     prefix = next(prefix for prefix in _FLAT_PREFIXES if prefix + "fx" in fields)
-    fields.model("Camera.type", "PinHole", ("PinHole",))
+    model = (_FLAT_MODELS[fields.model("model", _MISSING, tuple(_FLAT_MODELS))]
+             if "model" in fields else _orbslam_model(fields))
     size = fields.integer(prefix + "width", 640), fields.integer(prefix + "height", 480)
-    camera = _prefixed_camera(fields, prefix, *size)
+    camera = _prefixed_camera(fields, prefix, *size, model)
     T_b_c = fields.pose("Tbc") if "Tbc" in fields else None
     return Calibration([camera], [T_b_c], _imu_params(fields))
 
@@ -373,32 +397,39 @@ def _read_kalibr_camchain(fields: _Fields) -> Calibration:
 
 
 def _kalibr_camera(cam: _Fields) -> Camera:
+    """``pinhole`` with ``radtan`` (k1 k2 r1 r2), ``none`` or ``equidistant`` (Kalibr's
+    ``pinhole-equi``: the Kannala-Brandt k1..k4) distortion."""
     cam.model("camera_model", _MISSING, ("pinhole",))
-    model = cam.model("distortion_model", _MISSING, ("radtan", "none"))
+    distortion = cam.model("distortion_model", _MISSING, tuple(_KALIBR_DISTORTIONS))
     fu, fv, pu, pv = cam.array("intrinsics", (4,))
-    k1, k2, r1, r2 = cam.array("distortion_coeffs", (4,)) if model == "radtan" else [0] * 4
+    coeffs = list(cam.array("distortion_coeffs", (4,))) if distortion != "none" else [0.0] * 4
     width, height = cam.array("resolution", (2,))
     if not (width.is_integer() and height.is_integer()):
         raise cam.error("resolution", f"must be whole pixels, got {[width, height]}")
-    return cam.camera("intrinsics", fu, fv, pu, pv, [k1, k2, r1, r2, 0.0], int(width),
-                      int(height))
+    model = _KALIBR_DISTORTIONS[distortion]
+    dist = coeffs + [0.0] if model == "pinhole" else coeffs
+    return cam.camera("intrinsics", fu, fv, pu, pv, dist, int(width), int(height), model)
 
 
 def _read_opencv_camera(fields: _Fields) -> Calibration:
     """OpenCV FileStorage camera files and ROS ``camera_info`` YAML: a zero-skew ``K``, 4 or
-    5 plumb-bob coefficients (OpenCV's rational and thin-prism terms are not modelled)."""
-    fields.model("distortion_model", "plumb_bob", ("plumb_bob",))
+    5 plumb-bob coefficients (OpenCV's rational and thin-prism terms are not modelled), or
+    ROS's ``equidistant`` model with the 4 ``cv2.fisheye`` coefficients."""
+    model = _ROS_DISTORTIONS[fields.model("distortion_model", "plumb_bob",
+                                          tuple(_ROS_DISTORTIONS))]
     K = fields.array("camera_matrix", (3, 3))
     if K[0, 1] != 0 or K[1, 0] != 0 or not np.array_equal(K[2], [0, 0, 1]):
         raise fields.error("camera_matrix", f"must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "
                                             f"got {K.tolist()}")
     dist = fields.array("distortion_coefficients").reshape(-1)
-    if dist.size not in (4, 5):
-        raise fields.error("distortion_coefficients", f"must hold 4 or 5 values (k1 k2 p1 p2 "
-                                                      f"[k3]), got {dist.size}")
-    camera = fields.camera("camera_matrix", K[0, 0], K[1, 1], K[0, 2], K[1, 2],
-                           np.append(dist, [0.0] * (5 - dist.size)),
-                           fields.integer("image_width"), fields.integer("image_height"))
+    sizes, names = ((4, 5), "k1 k2 p1 p2 [k3]") if model == "pinhole" else ((4,), "k1 k2 k3 k4")
+    if dist.size not in sizes:
+        raise fields.error("distortion_coefficients", f"must hold {' or '.join(map(str, sizes))} "
+                                                      f"values ({names}), got {dist.size}")
+    if model == "pinhole":
+        dist = np.append(dist, [0.0] * (5 - dist.size))
+    camera = fields.camera("camera_matrix", K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist,
+                           fields.integer("image_width"), fields.integer("image_height"), model)
     return Calibration([camera], [None])
 
 
@@ -434,6 +465,7 @@ def read_camera_yaml(path: str | Path) -> Camera:
 
     Flat files hold the keys ``fx fy cx cy k1 k2 p1 p2 k3 width height``, optionally
     prefixed as in ORB-SLAM settings (``Camera.fx``, ``Camera1.fx``); other keys are ignored.
+    A fisheye says ``model: kannala_brandt`` and gives ``k1 k2 k3 k4`` (``cv2.fisheye``).
     Missing distortion terms are 0, a missing size is 640x480. Any other format of
     :func:`ferroslam.load_calibration` is read too.
 

@@ -5,7 +5,8 @@ Layout: ``<seq>/mav0/`` with
 * ``cam0/``, ``cam1/``: ``data.csv`` (``#timestamp [ns],filename``), ``data/<filename>``
   (raw, distorted 8-bit images) and ``sensor.yaml`` (``T_BS`` = ``T_b_cam`` 4x4,
   ``intrinsics: [fu, fv, cu, cv]``, radial-tangential ``distortion_coefficients:
-  [k1, k2, p1, p2]``, ``resolution: [w, h]``);
+  [k1, k2, p1, p2]`` or, with ``distortion_model: equidistant``, the Kannala-Brandt
+  ``[k1, k2, k3, k4]``; ``resolution: [w, h]``);
 * ``imu0/``: ``data.csv`` (``t_ns, w_xyz [rad/s], a_xyz [m/s^2]``) and ``sensor.yaml``
   (noise densities, random walks, ``rate_hz``, ``T_BS``);
 * ``state_groundtruth_estimate0/data.csv`` (optional): ``t_ns, p_RS_R xyz, q_RS wxyz, ...``,
@@ -136,17 +137,32 @@ def _T_BS(yaml: dict, path: Path) -> np.ndarray:
     return T
 
 
+# sensor.yaml distortion models -> our camera models; "equidistant" is Kannala-Brandt (the
+# ASL layout of TUM-VI and other fisheye rigs).
+_DISTORTION_MODELS = {"radial-tangential": "pinhole", "radtan": "pinhole",
+                      "equidistant": "kannala_brandt"}
+
+
 def _read_camera(folder: Path) -> tuple[Camera, np.ndarray]:
-    """Raw camera (with radtan distortion, k3 = 0) and ``T_b_cam`` from ``sensor.yaml``."""
+    """Raw camera and ``T_b_cam`` from ``sensor.yaml``: radial-tangential ``[k1, k2, p1,
+    p2]`` (k3 = 0) or equidistant ``[k1, k2, k3, k4]`` (Kannala-Brandt)."""
     path = folder / "sensor.yaml"
     yaml = read_sensor_yaml(path)
-    for key, expected in (("camera_model", "pinhole"), ("distortion_model", "radial-tangential")):
-        if yaml.get(key, expected) != expected:
-            raise ValueError(f"{path}: {key} {yaml[key]!r} is not supported (only {expected})")
+    if yaml.get("camera_model", "pinhole") != "pinhole":
+        raise ValueError(f"{path}: camera_model {yaml['camera_model']!r} is not supported "
+                         "(only pinhole)")
+    distortion = yaml.get("distortion_model", "radial-tangential")
+    if distortion not in _DISTORTION_MODELS:
+        raise ValueError(f"{path}: distortion_model {distortion!r} is not supported "
+                         f"(supported: {', '.join(_DISTORTION_MODELS)})")
+    model = _DISTORTION_MODELS[str(distortion)]
     fu, fv, cu, cv = _numbers(yaml, "intrinsics", 4, path)
-    dist = np.append(_numbers(yaml, "distortion_coefficients", 4, path), 0.0)
+    dist = _numbers(yaml, "distortion_coefficients", 4, path)
+    if model == "pinhole":
+        dist = np.append(dist, 0.0)
     width, height = _numbers(yaml, "resolution", 2, path)
-    return Camera(fu, fv, cu, cv, dist, int(width), int(height)), _T_BS(yaml, path)
+    camera = Camera(fu, fv, cu, cv, dist, int(width), int(height), model)
+    return camera, _T_BS(yaml, path)
 
 
 class EurocSequence:
