@@ -223,6 +223,11 @@ class _StereoFeed:
             raise ValueError(
                 f"{getattr(seq, 'name', seq)} is not a stereo sequence (no right images)"
             )
+        if getattr(seq, "is_rectified", True) is False:
+            raise ValueError(
+                f"{getattr(seq, 'name', seq)} was opened with rectify=False: its pairs are "
+                "raw; open it rectified or track it with StereoVSlam.from_raw"
+            )
         self.seq = seq
 
     def system_options(self) -> dict:

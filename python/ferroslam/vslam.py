@@ -45,6 +45,7 @@ import numpy as np
 
 from .camera import Camera
 from .session import Features, Session
+from .stereo import StereoRectifier
 
 __all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
 
@@ -584,29 +585,83 @@ class MonoVSlam(_VSlam):
 class StereoVSlam(_VSlam):
     """Stereo visual SLAM (MATLAB ``stereovslam``) on RECTIFIED pairs: ``intrinsics`` is the
     rectified left camera (no distortion) and ``baseline`` the distance between the cameras in
-    metres."""
+    metres. For a raw pair of calibrated cameras use :meth:`from_raw`, which rectifies.
+
+    Attributes:
+        rectifier: the :class:`~ferroslam.stereo.StereoRectifier` applied to every pair
+            (:meth:`from_raw`), ``None`` when the pairs come rectified.
+        T_left_rect: ``(4, 4)`` pose of the tracked (rectified left) camera in the raw left
+            camera: ``rectifier.T_left_rect`` (a rotation), identity without a rectifier.
+            Poses are those of the rectified left camera; the raw left camera's pose is
+            ``T_w_left = T_w_rect @ inv(T_left_rect)`` (same position).
+    """
 
     _sensor = "stereo"
 
     def __init__(self, intrinsics: Camera, baseline: float, **options: Any) -> None:
         baseline = _positive_real("baseline", baseline, "metres")
-        if np.any(intrinsics.dist != 0):
-            raise ValueError("StereoVSlam needs rectified images: intrinsics must have no "
-                             "distortion (rectify with ferroslam.stereo.StereoRectifier)")
+        if np.any(intrinsics.dist != 0) or intrinsics.model != "pinhole":
+            raise ValueError("StereoVSlam needs rectified images: intrinsics must be a pinhole "
+                             "with no distortion (for raw cameras use StereoVSlam.from_raw)")
         self.baseline = float(baseline)
+        self.rectifier: Optional[StereoRectifier] = None
+        self.T_left_rect = np.eye(4)
         core = {"baseline": self.baseline, **options.pop("core_options", {})}
         super().__init__(intrinsics, core_options=core, **options)
+
+    @classmethod
+    def from_raw(cls, left_camera: Camera, right_camera: Camera, T_left_right: np.ndarray,
+                 **options: Any) -> "StereoVSlam":
+        """Stereo SLAM on RAW pairs of two calibrated cameras, rectified internally.
+
+        Args:
+            left_camera, right_camera: raw intrinsics with their distortion, both pinhole
+                (radial-tangential) or both Kannala-Brandt, of one image size.
+            T_left_right: ``(4, 4)`` pose of the right camera in the left camera frame
+                (``p_left = T_left_right @ p_right``), metres; the right camera on the left
+                one's +x side.
+            options: as :class:`StereoVSlam`. ``camera_to_imu_transform`` is the RAW left
+                camera's pose in the IMU frame (``T_b_left``); it is moved to the rectified
+                camera (``T_b_left @ T_left_rect``).
+
+        Returns a :class:`StereoVSlam` whose ``add_frame(left, right)`` takes raw images
+        and whose poses (``poses``, ``current_pose``, ``frame_trajectory``) are those of the
+        RECTIFIED left camera (``T_left_rect``; as ``EurocSequence`` rectified: ground truth
+        ``T_w_b @ T_b_left @ T_left_rect``).
+
+        Raises:
+            TypeError: a camera that is not a ``ferroslam.Camera``.
+            ValueError: cameras of different sizes or models; ``T_left_right`` not a finite
+                rigid ``(4, 4)`` transform, with a zero baseline or the right camera not on
+                the +x side (named); options as :class:`StereoVSlam`.
+        """
+        for name, camera in (("left_camera", left_camera), ("right_camera", right_camera)):
+            if not isinstance(camera, Camera):
+                raise TypeError(f"{name} must be a ferroslam.Camera, got "
+                                f"{type(camera).__name__}")
+        rectifier = StereoRectifier(left_camera, right_camera, T_left_right)
+        T_b_left = options.get("camera_to_imu_transform")
+        if T_b_left is not None:
+            options["camera_to_imu_transform"] = (np.asarray(T_b_left, dtype=np.float64)
+                                                  @ rectifier.T_left_rect)
+        vslam = cls(rectifier.camera, rectifier.baseline_m, **options)
+        vslam.rectifier = rectifier
+        vslam.T_left_rect = rectifier.T_left_rect
+        return vslam
 
     def add_frame(self, left: np.ndarray, right: np.ndarray,
                   timestamp: Optional[float] = None,
                   imu: Optional[Sequence[np.ndarray]] = None) -> None:
-        """Adds a rectified pair of uint8 images of equal size, grey or BGR (the map points
-        take the left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
+        """Adds a pair of uint8 images of equal size, grey or BGR (the map points take the
+        left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`): rectified, or raw for
+        an object made by :meth:`from_raw`."""
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
         started_s = time.perf_counter()
         self.intrinsics.check_image(left, "left image")
+        if self.rectifier is not None:
+            left, right = self.rectifier.rectify(left, right)
         self._track(started_s, timestamp, self._session.stereo(left, right), imu=imu)
 
 

@@ -94,16 +94,19 @@ def frame_images(seq: Any, i: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str = "",
-                  **kwargs) -> Sequence:
+                  rectify: bool = True, **kwargs) -> Sequence:
     """Open a sequence folder as ``TumSequence``, ``KittiSequence`` or ``EurocSequence``.
 
     ``format`` is ``"auto"`` (see :func:`detect_format`), ``"tum"``, ``"kitti"`` or
     ``"euroc"``; ``kwargs`` go to the loader (e.g. ``stereo=False``). With a monocular
     ``sensor`` (``"mono"``, ``"mono-inertial"``) only what it reads is needed: no depth list
-    (TUM), no right images (KITTI, EuRoC).
+    (TUM), no right images (KITTI, EuRoC). ``rectify=False`` opens a EuRoC stereo sequence
+    raw (``load_stereo`` gives raw pairs, the rig is ``left_camera``, ``right_camera``,
+    ``T_left_right``: feed it to ``StereoVSlam.from_raw``).
 
     Raises ``FileNotFoundError`` for a missing folder and ``ValueError`` for an unknown
-    format or layout.
+    format or layout, or ``rectify=False`` for a format whose images are not raw stereo
+    pairs (TUM, KITTI: rectified already).
     """
     path = Path(path).expanduser()
     if not path.is_dir():
@@ -115,4 +118,9 @@ def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str =
         raise ValueError(f"unknown dataset format {format!r} (use auto, {', '.join(_LOADERS)})")
     if sensor.startswith("mono"):
         kwargs.setdefault("with_depth" if format == "tum" else "stereo", False)
+    if format == "euroc":
+        kwargs["rectify"] = rectify
+    elif not rectify:
+        raise ValueError(f"rectify=False is for raw EuRoC stereo pairs; {format} images are "
+                         "not raw stereo pairs (KITTI ships them rectified)")
     return _LOADERS[format](path, **kwargs)

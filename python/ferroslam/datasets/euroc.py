@@ -174,15 +174,24 @@ class EurocSequence:
             pinhole (``dist`` zeros) and ``load_gray``/``load_stereo`` return rectified
             images. With ``stereo=False`` ``camera`` is raw cam0 with its distortion and
             ``load_gray`` returns raw cam0 images.
+        rectify: with ``stereo``, ``False`` leaves the pair raw: ``load_stereo`` and
+            ``load_gray`` return the raw images, ``camera`` is raw cam0, and the rig is
+            ``left_camera``, ``right_camera``, ``T_left_right`` (for
+            ``StereoVSlam.from_raw``, which rectifies internally).
 
     Attributes:
         timestamps: ``(N,)`` float64 seconds; ``timestamps_ns``: ``(N,)`` int64 nanoseconds.
-        camera, is_stereo, baseline_m (metres, ``None`` if mono).
+        camera, is_stereo, is_rectified, baseline_m (metres, ``None`` if mono).
         raw_cameras: ``(cam0, cam1)`` raw intrinsics; ``T_b_cam0``, ``T_b_cam1``: ``(4, 4)``
             raw camera poses in the body frame (``T_BS`` of the sensor.yaml files).
-        rectifier: the :class:`~ferroslam.stereo.StereoRectifier` (``None`` if mono).
+        left_camera, right_camera: raw cam0 and cam1 (``None`` if mono), with their
+            distortion; ``T_left_right``: ``(4, 4)`` pose of raw cam1 in raw cam0
+            (``p_left = T_left_right @ p_right``, ``inv(T_b_cam0) @ T_b_cam1``).
+        rectifier: the :class:`~ferroslam.stereo.StereoRectifier` (``None`` if mono or
+            raw).
         T_b_c: ``(4, 4)`` pose in the body frame of the camera whose images are returned:
-            ``T_b_cam0`` (mono) or ``T_b_cam0 @ rectifier.T_left_rect`` (stereo).
+            ``T_b_cam0`` (mono or raw) or ``T_b_cam0 @ rectifier.T_left_rect`` (rectified
+            stereo).
 
     Raises:
         FileNotFoundError: a missing folder, ``sensor.yaml`` or ``data.csv`` (named).
@@ -190,13 +199,15 @@ class EurocSequence:
             pair exactly, unsupported camera or distortion model.
     """
 
-    def __init__(self, path: Union[str, Path], *, stereo: bool = True) -> None:
+    def __init__(self, path: Union[str, Path], *, stereo: bool = True,
+                 rectify: bool = True) -> None:
         path = Path(path).expanduser().resolve()
         if not path.is_dir():
             raise FileNotFoundError(f"EuRoC sequence folder not found: {path}")
         self.mav0 = path if path.name == "mav0" or not (path / "mav0").is_dir() else path / "mav0"
         self.path = self.mav0.parent if self.mav0.name == "mav0" else self.mav0
         self.is_stereo = bool(stereo)
+        self.is_rectified = self.is_stereo and bool(rectify)
 
         cam0, self.T_b_cam0 = _read_camera(self.mav0 / "cam0")
         left_ns, left_files = self._read_frames("cam0")
@@ -205,17 +216,26 @@ class EurocSequence:
         self.baseline_m: Optional[float] = None
         self.raw_cameras: tuple[Camera, Optional[Camera]] = (cam0, None)
         self.T_b_cam1: Optional[np.ndarray] = None
+        self.left_camera: Optional[Camera] = None
+        self.right_camera: Optional[Camera] = None
+        self.T_left_right: Optional[np.ndarray] = None
         if self.is_stereo:
             cam1, self.T_b_cam1 = _read_camera(self.mav0 / "cam1")
             self.raw_cameras = (cam0, cam1)
+            self.left_camera, self.right_camera = cam0, cam1
             right_ns, files = self._read_frames("cam1")
             self._check_paired(left_ns, right_ns)
             right_files = list(files)
-            T_cam0_cam1 = np.linalg.inv(self.T_b_cam0) @ self.T_b_cam1
-            self.rectifier = StereoRectifier(cam0, cam1, T_cam0_cam1)
+            self.T_left_right = np.linalg.inv(self.T_b_cam0) @ self.T_b_cam1
+        if self.is_rectified:
+            self.rectifier = StereoRectifier(cam0, cam1, self.T_left_right)
             self.baseline_m = self.rectifier.baseline_m
             self.camera = self.rectifier.camera
             self.T_b_c = self.T_b_cam0 @ self.rectifier.T_left_rect
+        elif self.is_stereo:
+            self.baseline_m = float(np.linalg.norm(self.T_left_right[:3, 3]))
+            self.camera = cam0
+            self.T_b_c = self.T_b_cam0.copy()
         else:
             self.camera = cam0
             self.T_b_c = self.T_b_cam0.copy()
@@ -258,7 +278,9 @@ class EurocSequence:
         return iter(self.frames)
 
     def __repr__(self) -> str:
-        return f"EurocSequence({str(self.path)!r}, frames={len(self)}, stereo={self.is_stereo})"
+        raw = "" if self.is_rectified or not self.is_stereo else ", rectify=False"
+        return (f"EurocSequence({str(self.path)!r}, frames={len(self)}, "
+                f"stereo={self.is_stereo}{raw})")
 
     def _read(self, path: Path, camera: Camera) -> np.ndarray:
         image = read_gray(path)
@@ -275,16 +297,18 @@ class EurocSequence:
         return image if self.rectifier is None else self.rectifier.rectify_left(image)
 
     def load_stereo(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """Rectified ``(left, right)`` images of frame ``i``, both ``(H, W)`` uint8.
+        """Rectified ``(left, right)`` images of frame ``i``, both ``(H, W)`` uint8 (raw
+        with ``rectify=False``).
 
         Raises ``ValueError`` if the sequence was opened with ``stereo=False``.
         """
         frame = self.frames[i]
         cam1 = self.raw_cameras[1]
-        if self.rectifier is None or frame.right_path is None or cam1 is None:
+        if not self.is_stereo or frame.right_path is None or cam1 is None:
             raise ValueError(f"{self.path} was opened with stereo=False")
         left = self._read(frame.left_path, self.raw_cameras[0])
-        return self.rectifier.rectify(left, self._read(frame.right_path, cam1))
+        right = self._read(frame.right_path, cam1)
+        return (left, right) if self.rectifier is None else self.rectifier.rectify(left, right)
 
     @property
     def groundtruth_path(self) -> Path:
@@ -298,8 +322,8 @@ class EurocSequence:
         """Ground truth ``(timestamps (M,) s, T_w_c (M, 4, 4))`` of the returned camera frame.
 
         Every row of the state estimate, converted from the body pose:
-        ``T_w_c = T_w_b @ T_b_c``, i.e. ``T_w_b @ T_b_cam0`` (mono) or
-        ``T_w_b @ T_b_cam0 @ [R1^T | 0]`` (stereo: the rectified left frame). The world is
+        ``T_w_c = T_w_b @ T_b_c``, i.e. ``T_w_b @ T_b_cam0`` (mono, raw stereo) or
+        ``T_w_b @ T_b_cam0 @ [R1^T | 0]`` (rectified stereo: the rectified left frame). The world is
         EuRoC's ``R`` (Vicon) frame. Rows are not matched to frames (times may differ by
         a few hundred ns).
 
