@@ -601,8 +601,9 @@ class StereoVSlam(_VSlam):
     def __init__(self, intrinsics: Camera, baseline: float, **options: Any) -> None:
         baseline = _positive_real("baseline", baseline, "metres")
         if np.any(intrinsics.dist != 0) or intrinsics.model != "pinhole":
-            raise ValueError("StereoVSlam needs rectified images: intrinsics must be a pinhole "
-                             "with no distortion (for raw cameras use StereoVSlam.from_raw)")
+            raise ValueError("StereoVSlam needs rectified images: intrinsics must have no "
+                             "distortion and be a pinhole (for raw cameras use "
+                             "StereoVSlam.from_raw)")
         self.baseline = float(baseline)
         self.rectifier: Optional[StereoRectifier] = None
         self.T_left_rect = np.eye(4)
