@@ -102,12 +102,27 @@ fn rows(obj: &Bound<'_, PyAny>, name: &str, columns: usize) -> PyResult<Vec<f64>
     Ok(arr.as_array().iter().copied().collect())
 }
 
-/// `values` (row-major, `columns` per row) as a float64 `(N, columns)` array.
-fn array<'py>(py: Python<'py>, values: Vec<f64>, columns: usize) -> Bound<'py, PyArray2<f64>> {
-    let n = values.len() / columns;
-    let a = Array2::from_shape_vec((n, columns), values)
-        .unwrap_or_else(|_| unreachable!("columns values per row"));
-    PyArray2::from_owned_array(py, a)
+/// `f` applied to every row of `obj`, a float64 `(N, IN)` array named `name`, with the GIL
+/// released: a float64 `(N, OUT)` array, NaN rows where `f` gives `None`.
+fn map_rows<'py, const IN: usize, const OUT: usize>(
+    py: Python<'py>,
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    f: impl Fn([f64; IN]) -> Option<[f64; OUT]> + Send + Sync,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let input = rows(obj, name, IN)?;
+    let output: Vec<f64> = py.detach(|| {
+        input
+            .chunks_exact(IN)
+            .flat_map(|row| {
+                let row: [f64; IN] = std::array::from_fn(|i| row[i]);
+                f(row).unwrap_or([f64::NAN; OUT])
+            })
+            .collect()
+    });
+    let a = Array2::from_shape_vec((output.len() / OUT, OUT), output)
+        .unwrap_or_else(|_| unreachable!("OUT values per row"));
+    Ok(PyArray2::from_owned_array(py, a))
 }
 
 /// Raw image pixels `(N, 2)` float64 of camera-frame points `(N, 3)` float64 (metres); NaN
@@ -120,16 +135,9 @@ pub fn project_points<'py>(
     points: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let model = camera_model(camera)?;
-    let p = rows(points, "points", 3)?;
-    let uv = py.detach(|| {
-        p.chunks_exact(3)
-            .flat_map(|p| {
-                let uv = model.project_raw(&Vector3::new(p[0], p[1], p[2]));
-                uv.map_or([f64::NAN; 2], |uv| [uv.x, uv.y])
-            })
-            .collect()
-    });
-    Ok(array(py, uv, 2))
+    map_rows(py, points, "points", |p: [f64; 3]| {
+        model.project_raw(&Vector3::from(p)).map(|uv| [uv.x, uv.y])
+    })
 }
 
 /// Unit rays `(N, 3)` float64 (camera frame) through raw image pixels `(N, 2)` float64; NaN
@@ -141,14 +149,9 @@ pub fn unproject_pixels<'py>(
     pixels: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let model = camera_model(camera)?;
-    let uv = rows(pixels, "pixels", 2)?;
-    let rays = py.detach(|| {
-        uv.chunks_exact(2)
-            .flat_map(|uv| {
-                let ray = model.unproject_raw(&Vector2::new(uv[0], uv[1]));
-                ray.map_or([f64::NAN; 3], |r| [r.x, r.y, r.z])
-            })
-            .collect()
-    });
-    Ok(array(py, rays, 3))
+    map_rows(py, pixels, "pixels", |uv: [f64; 2]| {
+        model
+            .unproject_raw(&Vector2::from(uv))
+            .map(|r| [r.x, r.y, r.z])
+    })
 }

@@ -145,15 +145,19 @@ mod tests {
     use crate::camera::{test_cameras, test_fisheye_cameras};
     use approx::assert_relative_eq;
 
-    #[test]
-    fn rays_of_projected_points_point_at_them_for_every_model() {
-        let models: Vec<CameraModel> = test_cameras()
+    /// Every test camera of both models.
+    fn test_models() -> Vec<CameraModel> {
+        test_cameras()
             .into_iter()
             .map(|(_, c)| c.into())
             .chain(test_fisheye_cameras().into_iter().map(|(_, c)| c.into()))
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn rays_of_projected_points_point_at_them_for_every_model() {
         let p = Vector3::new(0.3, -0.2, 2.0);
-        for model in models {
+        for model in test_models() {
             let ray = model.unproject(&model.project(&p).unwrap()).unwrap();
             assert_relative_eq!(ray, p.normalize(), epsilon = 1e-10);
             let b = model.bounds();
@@ -176,13 +180,8 @@ mod tests {
 
     #[test]
     fn raw_pixels_round_trip_for_every_model() {
-        let models: Vec<CameraModel> = test_cameras()
-            .into_iter()
-            .map(|(_, c)| c.into())
-            .chain(test_fisheye_cameras().into_iter().map(|(_, c)| c.into()))
-            .collect();
         let p = Vector3::new(-0.4, 0.25, 1.5);
-        for model in models {
+        for model in test_models() {
             let raw = model.project_raw(&p).unwrap();
             assert_relative_eq!(
                 model.core_pixel(&raw),
