@@ -1,7 +1,8 @@
 //! The sections of the front end: ORB extraction, measured depth, map initialisation and
 //! tracking.
 
-use ferroslam_features::extractor::EDGE_PX;
+use ferroslam_features::extractor::{FastThresholds, EDGE_PX};
+use ferroslam_features::OrbConfig;
 
 use super::Sensor;
 use crate::error::SlamError;
@@ -29,35 +30,51 @@ pub(super) fn default_n_features(width_px: u32) -> usize {
 }
 
 /// ORB extraction: budget, FAST thresholds and scale pyramid (ORB-SLAM's `ORBextractor`
-/// settings).
+/// settings). The defaults are the extractor's own ([`OrbConfig::default`], in the features
+/// crate) but for the budget, which the preset sizes to the image ([`Self::for_width`]);
+/// [`Self::orb`] is the extractor's configuration.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ExtractorConfig {
     /// ORB keypoints extracted per image (ORB-SLAM `nFeatures`; MATLAB `MaxNumPoints`); the
     /// preset follows the image width, see [`Self::for_width`].
     pub n_features: usize,
     /// FAST threshold tried first in every cell of the extractor's grid, intensity levels
-    /// (ORB-SLAM `iniThFAST`: 20).
+    /// (ORB-SLAM `iniThFAST`).
     pub ini_fast: u8,
     /// FAST threshold of the cells where `ini_fast` finds no corner, intensity levels
-    /// (ORB-SLAM `minThFAST`: 7).
+    /// (ORB-SLAM `minThFAST`).
     pub min_fast: u8,
-    /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`: 1.2).
+    /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`).
     pub scale_factor: f64,
-    /// Number of ORB pyramid levels (ORB-SLAM `nLevels`: 8).
+    /// Number of ORB pyramid levels (ORB-SLAM `nLevels`).
     pub n_levels: usize,
 }
 
 impl ExtractorConfig {
-    /// ORB-SLAM's TUM settings (FAST 20 / 7, 8 levels of 1.2) with the budget of images
-    /// `width_px` wide: 1000 keypoints per 640 columns, rounded to a hundred, within
-    /// 500..=2000 (640 px: 1000, 752: 1200, 1241: 1900).
+    /// The extractor's defaults ([`OrbConfig::default`]: ORB-SLAM's TUM settings) with the
+    /// budget of images `width_px` wide: 1000 keypoints per 640 columns, rounded to a
+    /// hundred, within 500..=2000 (640 px: 1000, 752: 1200, 1241: 1900).
     pub fn for_width(width_px: u32) -> Self {
+        let orb = OrbConfig::default();
         Self {
             n_features: default_n_features(width_px),
-            ini_fast: 20,
-            min_fast: 7,
-            scale_factor: 1.2,
-            n_levels: 8,
+            ini_fast: orb.fast.initial,
+            min_fast: orb.fast.min,
+            scale_factor: orb.scale_factor,
+            n_levels: orb.n_levels,
+        }
+    }
+
+    /// The extractor's configuration (`ferroslam_features::OrbExtractor::new`).
+    pub fn orb(&self) -> OrbConfig {
+        OrbConfig {
+            n_features: self.n_features,
+            scale_factor: self.scale_factor,
+            n_levels: self.n_levels,
+            fast: FastThresholds {
+                initial: self.ini_fast,
+                min: self.min_fast,
+            },
         }
     }
 

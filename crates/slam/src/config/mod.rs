@@ -138,6 +138,11 @@ mod tests {
         let mut narrow = kitti.clone();
         narrow.extractor.n_features = 1000;
         assert_eq!(narrow, SlamConfig::for_sensor(Sensor::Stereo));
+        // The extractor's defaults are the features crate's, the budget aside.
+        let orb = ferroslam_features::OrbConfig::default();
+        assert_eq!(ExtractorConfig::for_width(640).orb(), orb);
+        let wide = ExtractorConfig::for_width(1241).orb();
+        assert_eq!((wide.n_features, wide.fast), (1900, orb.fast));
     }
 
     /// The values that depend on the sensor are those of its preset.
