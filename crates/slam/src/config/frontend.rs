@@ -1,5 +1,6 @@
-//! The sections of the front end: ORB extraction, measured depth, map initialisation and
-//! tracking.
+//! The sections of the front end: ORB extraction, measured depth, map initialisation,
+//! tracking, and the visibility rules its local-map search shares with the back end's
+//! projection searches.
 
 use ferroslam_features::extractor::{FastThresholds, EDGE_PX};
 use ferroslam_features::OrbConfig;
@@ -236,12 +237,13 @@ pub struct TrackingConfig {
     pub reference_ratio: f64,
     /// `reference_ratio` while the map has a single keyframe (ORB-SLAM: 0.4).
     pub first_keyframes_reference_ratio: f64,
-    /// Keyframes that must observe a reference keyframe's point for it to count among the
-    /// points the reference ratio compares with (ORB-SLAM `nMinObs`: 3): points seen once are
-    /// often dropped again by culling.
+    /// Observations (one with measured depth counts 2, as for
+    /// `mapping.min_point_observations`) a reference keyframe's point needs to count among
+    /// the points `reference_ratio` compares with (ORB-SLAM `nMinObs`: 3): younger points may
+    /// still be culled.
     pub reference_min_observations: usize,
-    /// `reference_min_observations` while the map has at most two keyframes, which is as
-    /// many observations as a point can have then (ORB-SLAM: 2).
+    /// `reference_min_observations` while the map has at most two keyframes (ORB-SLAM: 2): a
+    /// monocular point has at most two observations then.
     pub young_map_reference_min_observations: usize,
     /// With depth, tracking is weak, and a keyframe is made even while mapping is busy, below
     /// this share of the reference keyframe's points (ORB-SLAM `c1c`: 0.25).

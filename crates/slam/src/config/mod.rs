@@ -1,10 +1,11 @@
 //! One configuration of the whole SLAM system, [`SlamConfig`], in sections that follow the
 //! pipeline's stages (as Basalt's `vio_config.h` groups its knobs by stage): the extractor,
 //! measured depth, map initialisation, tracking, the visibility rules of projection
-//! searches, local mapping, place recognition, loop closing and the inertial stages. Every default and every tuning constant of the crate
-//! lives here, with its unit and the reason for its value (ORB-SLAM's, or why ours differs);
-//! the runs behind the choices are in `docs/benchmarks.md`. Front ends (the CLI,
-//! `run_sequence`, the vSLAM objects) only translate names.
+//! searches, local mapping, place recognition, loop closing and the inertial stages. Every
+//! default and every tuning constant of the crate lives here, with its unit and the reason
+//! for its value (ORB-SLAM's, or why ours differs); the runs behind the choices are in
+//! `docs/benchmarks.md`. Front ends (the CLI, `run_sequence`, the vSLAM objects) only
+//! translate names.
 //!
 //! Named presets: [`SlamConfig::for_sensor`] per [`Sensor`] (the values that depend on the
 //! sensor are the preset's), [`SlamConfig::for_camera`] with the extractor sized to the
