@@ -1,7 +1,7 @@
 """End to end: monocular SLAM on real KITTI, TUM and EuRoC frames.
 
 Monocular scale is arbitrary, so trajectories are compared after a Sim(3) alignment (over the
-longest map segment). Bounds were measured on this build (README commands) with seed 0, the
+longest map segment). Bounds were measured on this build (the commands in docs/benchmarks.md) with seed 0, the
 test's, and checked against seeds 1 and 2 (their figures are noted next to each bound).
 """
 

@@ -2,7 +2,7 @@
 
 fr1/rpy is the hard hand-held case: rotation about all three axes at ~50 deg/s on average with
 peaks of ~155 deg/s (motion blur), and only 17 cm of translation. Bounds below were measured
-on this build (`python benches/stages.py`, see README) and sit ~25% above the measured
+on this build (`python benches/stages.py`, see docs/benchmarks.md) and sit ~25% above the measured
 values, so a real regression fails while the run-to-run spread of equivalent builds (the
 pipeline is deterministic for a fixed build, but small changes move ATE by a few mm) does not.
 """

@@ -1,7 +1,7 @@
 """End to end: stereo SLAM on real KITTI and EuRoC frames, against their ground truth.
 
 Settings are ORB-SLAM2's for these datasets (KITTI: 2000 features, ThDepth 35; EuRoC: 1200
-features, ThDepth 35). Bounds were measured on this build with the commands in the README.
+features, ThDepth 35). Bounds were measured on this build with the commands in docs/benchmarks.md.
 """
 
 from __future__ import annotations

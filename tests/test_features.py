@@ -314,6 +314,13 @@ def test_core_extractor_rejects_bad_input():
             _core.OrbExtractor(**kwargs)
     core = _core.OrbExtractor()
     assert core.level_budgets == [217, 181, 151, 126, 105, 87, 73, 60]
+    # Settings left out are the core's defaults, which the SLAM options share (the budget
+    # follows the image width there: 1000 at 640 px).
+    defaults = _core.default_options("rgbd", 640)
+    wrapper = OrbExtractor()
+    for name in ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast"):
+        assert getattr(core, name) == getattr(wrapper, name) == defaults[name], name
+    assert (OrbExtractor(n_levels=4).n_levels, OrbExtractor(n_levels=4).n_features) == (4, 1000)
     with pytest.raises(TypeError, match="image must be a 2-D uint8 array, got float32"):
         core.extract(np.zeros((60, 60), np.float32))
     with pytest.raises(TypeError, match="right must be a 2-D uint8 array"):

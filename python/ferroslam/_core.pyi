@@ -47,14 +47,16 @@ class _SlamOptions(TypedDict, total=False):
     image width, rounded to a hundred, within 500..=2000. The extractor's option: the core
     holds it so that every front end reads one default."""
     ini_fast: int
-    """FAST threshold tried first in every extractor cell (default 20)."""
+    """FAST threshold tried first in every extractor cell (default: the extractor's,
+    ``OrbExtractor().ini_fast``)."""
     min_fast: int
     """FAST threshold of cells where ``ini_fast`` finds nothing, 0 < min_fast <= ini_fast <
-    255 (default 7)."""
+    255 (default: the extractor's)."""
     scale_factor: float
-    """Scale between ORB pyramid levels, > 1."""
+    """Scale between ORB pyramid levels, > 1 (default: the extractor's)."""
     n_levels: int
-    """ORB pyramid levels, 1..=32; keypoint octaves must be below it."""
+    """ORB pyramid levels, 1..=32; keypoint octaves must be below it (default: the
+    extractor's)."""
     track_feature_range: Sequence[int]
     """(lower, upper), 0 < lower < upper (MATLAB ``TrackFeatureRange``): tracking fails
     with fewer than ``lower`` inliers; fewer than ``upper`` makes the frame a keyframe
@@ -510,6 +512,10 @@ class OrbExtractor:
     with OpenCV's tests on levels smoothed as OpenCV's ORB smooths them, so the descriptors
     equal ``cv2.ORB``'s bit for bit. Each call releases the GIL.
 
+    Each setting left out (``None``) takes the core's default (``OrbConfig::default``,
+    ORB-SLAM's settings for 640 x 480 images); the read-only attributes of the same names
+    hold the values in use.
+
     Args:
         n_features: keypoints wanted per image (>= 1).
         scale_factor: scale between neighbouring pyramid levels (finite, > 1).
@@ -525,12 +531,27 @@ class OrbExtractor:
     def __new__(
         cls,
         *,
-        n_features: int = 1000,
-        scale_factor: float = 1.2,
-        n_levels: int = 8,
-        ini_fast: int = 20,
-        min_fast: int = 7,
+        n_features: Optional[int] = None,
+        scale_factor: Optional[float] = None,
+        n_levels: Optional[int] = None,
+        ini_fast: Optional[int] = None,
+        min_fast: Optional[int] = None,
     ) -> OrbExtractor: ...
+    @property
+    def n_features(self) -> int:
+        """Keypoints wanted per image."""
+    @property
+    def scale_factor(self) -> float:
+        """Scale between neighbouring pyramid levels."""
+    @property
+    def n_levels(self) -> int:
+        """Pyramid levels."""
+    @property
+    def ini_fast(self) -> int:
+        """FAST threshold tried first in every grid cell."""
+    @property
+    def min_fast(self) -> int:
+        """FAST threshold of the cells where ``ini_fast`` finds no corner."""
     @property
     def level_budgets(self) -> list[int]:
         """Keypoints wanted per pyramid level, finest first (a geometric series summing to

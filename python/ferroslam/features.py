@@ -27,6 +27,7 @@ consumer (the Rust core receives the distortion coefficients).
 from __future__ import annotations
 
 import numbers
+from typing import Optional
 
 import cv2
 import numpy as np
@@ -78,6 +79,10 @@ def _integer(name: str, value: object) -> int:
 class OrbExtractor:
     """ORB keypoints and descriptors with ORB-SLAM's even spread.
 
+    Each setting left out (``None``) takes the core's default (``OrbConfig::default`` in
+    ``crates/features``, ORB-SLAM's settings for 640 x 480 images); the attributes of the
+    same names hold the values in use.
+
     Args:
         n_features: total keypoints wanted per image (fewer on textureless images).
         scale_factor: scale between consecutive pyramid levels (> 1).
@@ -92,21 +97,23 @@ class OrbExtractor:
 
     def __init__(
         self,
-        n_features: int = 1000,
-        scale_factor: float = 1.2,
-        n_levels: int = 8,
-        ini_fast: int = 20,
-        min_fast: int = 7,
+        n_features: Optional[int] = None,
+        scale_factor: Optional[float] = None,
+        n_levels: Optional[int] = None,
+        ini_fast: Optional[int] = None,
+        min_fast: Optional[int] = None,
     ) -> None:
-        self._core = _core.OrbExtractor(
-            n_features=_integer("n_features", n_features), scale_factor=float(scale_factor),
-            n_levels=_integer("n_levels", n_levels), ini_fast=_integer("ini_fast", ini_fast),
-            min_fast=_integer("min_fast", min_fast))
-        self.n_features = int(n_features)
-        self.scale_factor = float(scale_factor)
-        self.n_levels = int(n_levels)
-        self.ini_fast = int(ini_fast)
-        self.min_fast = int(min_fast)
+        given = {"n_features": n_features, "n_levels": n_levels, "ini_fast": ini_fast,
+                 "min_fast": min_fast}
+        settings = {k: _integer(k, v) for k, v in given.items() if v is not None}
+        if scale_factor is not None:
+            settings["scale_factor"] = float(scale_factor)
+        self._core = _core.OrbExtractor(**settings)
+        self.n_features: int = self._core.n_features
+        self.scale_factor: float = self._core.scale_factor
+        self.n_levels: int = self._core.n_levels
+        self.ini_fast: int = self._core.ini_fast
+        self.min_fast: int = self._core.min_fast
         self.scales = self.scale_factor ** np.arange(self.n_levels)
         self.budgets = np.array(self._core.level_budgets, int)
 

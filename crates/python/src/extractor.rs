@@ -22,8 +22,15 @@ type FeatureArrays<'py> = (
 #[pyclass(name = "OrbExtractor", module = "ferroslam._core", frozen)]
 pub struct PyOrbExtractor(OrbExtractor);
 
-/// `value` of setting `name` as a `T`, or the error naming it.
-fn setting<T: TryFrom<i64>>(name: &str, value: i64) -> Result<T, FeaturesError> {
+/// `value` of setting `name` as a `T` (`default` when not given), or the error naming it.
+fn setting_or<T: TryFrom<i64>>(
+    name: &str,
+    value: Option<i64>,
+    default: T,
+) -> Result<T, FeaturesError> {
+    let Some(value) = value else {
+        return Ok(default);
+    };
     T::try_from(value)
         .map_err(|_| FeaturesError::InvalidOrbConfig(format!("{name} = {value} is out of range")))
 }
@@ -59,25 +66,27 @@ fn arrays(py: Python<'_>, features: Features) -> FeatureArrays<'_> {
 
 #[pymethods]
 impl PyOrbExtractor {
-    /// Settings as ORB-SLAM's `ORBextractor` takes them; a `ValueError` names an invalid one.
+    /// Settings as ORB-SLAM's `ORBextractor` takes them; one left out (`None`) takes the
+    /// core's default (`OrbConfig::default`). A `ValueError` names an invalid one.
     #[new]
-    #[pyo3(signature = (*, n_features = 1000, scale_factor = 1.2, n_levels = 8, ini_fast = 20,
-                        min_fast = 7))]
+    #[pyo3(signature = (*, n_features = None, scale_factor = None, n_levels = None,
+                        ini_fast = None, min_fast = None))]
     fn new(
-        n_features: i64,
-        scale_factor: f64,
-        n_levels: i64,
-        ini_fast: i64,
-        min_fast: i64,
+        n_features: Option<i64>,
+        scale_factor: Option<f64>,
+        n_levels: Option<i64>,
+        ini_fast: Option<i64>,
+        min_fast: Option<i64>,
     ) -> PyResult<Self> {
         let config = || -> Result<OrbConfig, FeaturesError> {
+            let d = OrbConfig::default();
             Ok(OrbConfig {
-                n_features: setting("n_features", n_features)?,
-                scale_factor,
-                n_levels: setting("n_levels", n_levels)?,
+                n_features: setting_or("n_features", n_features, d.n_features)?,
+                scale_factor: scale_factor.unwrap_or(d.scale_factor),
+                n_levels: setting_or("n_levels", n_levels, d.n_levels)?,
                 fast: FastThresholds {
-                    initial: setting("ini_fast", ini_fast)?,
-                    min: setting("min_fast", min_fast)?,
+                    initial: setting_or("ini_fast", ini_fast, d.fast.initial)?,
+                    min: setting_or("min_fast", min_fast, d.fast.min)?,
                 },
             })
         };
@@ -85,6 +94,36 @@ impl PyOrbExtractor {
             .and_then(OrbExtractor::new)
             .map(Self)
             .map_err(features_to_py)
+    }
+
+    /// Keypoints wanted per image.
+    #[getter]
+    fn n_features(&self) -> usize {
+        self.0.config().n_features
+    }
+
+    /// Scale between neighbouring pyramid levels.
+    #[getter]
+    fn scale_factor(&self) -> f64 {
+        self.0.config().scale_factor
+    }
+
+    /// Pyramid levels.
+    #[getter]
+    fn n_levels(&self) -> usize {
+        self.0.config().n_levels
+    }
+
+    /// FAST threshold tried first in every grid cell.
+    #[getter]
+    fn ini_fast(&self) -> u8 {
+        self.0.config().fast.initial
+    }
+
+    /// FAST threshold of the cells where `ini_fast` finds no corner.
+    #[getter]
+    fn min_fast(&self) -> u8 {
+        self.0.config().fast.min
     }
 
     /// Keypoints wanted per pyramid level, finest first (they sum to n_features).

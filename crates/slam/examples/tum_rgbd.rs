@@ -33,8 +33,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Instant;
 
-use ferroslam_features::extractor::FastThresholds;
-use ferroslam_features::{OrbConfig, OrbExtractor, OwnedGrayImage};
+use ferroslam_features::{OrbExtractor, OwnedGrayImage};
 use ferroslam_geometry::camera::{PinholeCamera, RadTan};
 use ferroslam_geometry::umeyama::umeyama;
 use ferroslam_slam::{RgbdInput, Sensor, SlamConfig, SlamSystem, TrackingState};
@@ -258,15 +257,7 @@ fn run() -> Result<(), Error> {
     let pairs = associate(&times(&rgb), &times(&depth));
 
     let config = SlamConfig::for_camera(Sensor::Rgbd, camera.width);
-    let extractor = OrbExtractor::new(OrbConfig {
-        n_features: config.extractor.n_features,
-        scale_factor: config.extractor.scale_factor,
-        n_levels: config.extractor.n_levels,
-        fast: FastThresholds {
-            initial: config.extractor.ini_fast,
-            min: config.extractor.min_fast,
-        },
-    })?;
+    let extractor = OrbExtractor::new(config.extractor.orb())?;
     let mut slam = SlamSystem::new(camera, config)?;
     if let Some(path) = &args.vocabulary {
         let vocabulary = Vocabulary::load(path).map_err(|e| format!("{}: {e}", path.display()))?;

@@ -5,6 +5,8 @@ use ferroslam_geometry::camera::PinholeCamera;
 use ferroslam_map::{Map, MapPointId};
 use nalgebra::{Isometry3, Point3, Vector3};
 
+use crate::config::VisibilityConfig;
+
 /// Where and at which pyramid level a map point should appear in an image.
 #[derive(Clone, Copy, Debug)]
 pub struct VisiblePoint {
@@ -22,7 +24,8 @@ pub struct VisiblePoint {
 
 /// Projects `mp` into a camera at `T_c_w` and checks ORB-SLAM's visibility conditions:
 /// positive depth, inside the image bounds, distance within the scale-invariance range
-/// (0.8 min, 1.2 max) and viewing angle with `cos >= min_view_cos` to the mean direction.
+/// widened by `rules` and viewing angle with `cos >= rules.min_view_cos` to the mean
+/// direction.
 pub fn visible_point(
     map: &Map,
     mp: MapPointId,
@@ -30,7 +33,7 @@ pub fn visible_point(
     center_w: &Vector3<f64>,
     camera: &PinholeCamera,
     bounds: &ImageBounds,
-    min_view_cos: f64,
+    rules: &VisibilityConfig,
 ) -> Option<VisiblePoint> {
     let point = map.map_point(mp)?;
     let p_w = point.position();
@@ -41,11 +44,11 @@ pub fn visible_point(
     }
     let ray = p_w - center_w;
     let dist = ray.norm();
-    if dist < 0.8 * point.min_distance() || dist > 1.2 * point.max_distance() {
+    if !rules.in_scale_range(dist, (point.min_distance(), point.max_distance())) {
         return None;
     }
     let view_cos = ray.dot(&point.normal()) / dist;
-    if view_cos < min_view_cos {
+    if view_cos < rules.min_view_cos {
         return None;
     }
     let level = map.pyramid().predict_level(dist, point.max_distance()) as u8;

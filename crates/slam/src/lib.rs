@@ -32,7 +32,7 @@ mod trajectory;
 pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{
     DepthConfig, ExtractorConfig, InertialTuning, InitializationConfig, LoopClosingConfig,
-    MappingConfig, PlaceRecognitionConfig, Sensor, SlamConfig, TrackingConfig,
+    MappingConfig, PlaceRecognitionConfig, Sensor, SlamConfig, TrackingConfig, VisibilityConfig,
 };
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};

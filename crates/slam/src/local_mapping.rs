@@ -350,8 +350,8 @@ impl LocalMapper {
     }
 
     /// ORB-SLAM `KeyFrameCulling`: a covisible keyframe is redundant when more than
-    /// `mapping.redundant_keyframe_share` of its close points are seen, at the same or a finer
-    /// scale, by at least `mapping.redundant_observations` other keyframes.
+    /// `mapping.redundant_keyframe_share` of its close points are seen, at the same, a finer or
+    /// at most `mapping.redundant_level_margin` coarser levels, by at least `mapping.redundant_observations` other keyframes.
     fn cull_keyframes(&self, kf: KeyFrameId, map: &mut Map, ctx: &Context) -> usize {
         let redundant = ctx.config.mapping.redundant_observations;
         let share = ctx.config.mapping.redundant_keyframe_share;
@@ -378,13 +378,14 @@ impl LocalMapper {
                     continue;
                 }
                 let level = f.keypoints[i].octave;
+                let coarsest = level.saturating_add(ctx.config.mapping.redundant_level_margin);
                 let n_finer = p
                     .observations()
                     .iter()
                     .filter(|(k2, _)| **k2 != candidate)
                     .filter(|(k2, i2)| {
                         map.keyframe(**k2)
-                            .is_some_and(|k2| k2.features().keypoints[**i2].octave <= level + 1)
+                            .is_some_and(|k2| k2.features().keypoints[**i2].octave <= coarsest)
                     })
                     .take(redundant)
                     .count();

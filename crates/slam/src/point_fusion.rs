@@ -14,8 +14,9 @@ use crate::error::SlamError;
 use crate::frustum::visible_point;
 
 /// ORB-SLAM `SearchInNeighbors`: fuses the points of `kf` into its first and second
-/// covisibility neighbours (`n_neighbours` of each) and theirs into `kf`, then refreshes
-/// `kf`'s points and links.
+/// covisibility neighbours (`n_neighbours`, then `mapping.fusion_second_neighbours` of each)
+/// and theirs into `kf`, within `mapping.fuse_radius_px`, then refreshes `kf`'s points and
+/// links.
 pub(crate) fn fuse_with_neighbours(
     kf: KeyFrameId,
     map: &mut Map,
@@ -28,7 +29,7 @@ pub(crate) fn fuse_with_neighbours(
         if seen.insert(n) {
             targets.push(n);
         }
-        for n2 in map.best_covisibles(n, 5) {
+        for n2 in map.best_covisibles(n, ctx.config.mapping.fusion_second_neighbours) {
             if seen.insert(n2) {
                 targets.push(n2);
             }
@@ -38,9 +39,10 @@ pub(crate) fn fuse_with_neighbours(
         .keyframe(kf)
         .map(|k| k.map_points().iter().flatten().copied().collect())
         .unwrap_or_default();
+    let radius_px = ctx.config.mapping.fuse_radius_px;
     let mut fused = 0;
     for &t in &targets {
-        fused += fuse_points_into(map, t, &own, ctx, 3.0)?;
+        fused += fuse_points_into(map, t, &own, ctx, radius_px)?;
     }
     let mut theirs = Vec::new();
     let mut seen_points = HashSet::new();
@@ -55,7 +57,7 @@ pub(crate) fn fuse_with_neighbours(
             }
         }
     }
-    fused += fuse_points_into(map, kf, &theirs, ctx, 3.0)?;
+    fused += fuse_points_into(map, kf, &theirs, ctx, radius_px)?;
     let refreshed: Vec<MapPointId> = map
         .keyframe(kf)
         .map(|k| k.map_points().iter().flatten().copied().collect())
@@ -71,8 +73,9 @@ pub(crate) fn fuse_with_neighbours(
 }
 
 /// Projects `points` into keyframe `kf` and, for the best keypoint passing the reprojection
-/// test within `th * scale` pixels, either merges duplicates (the point with more
-/// observations survives) or adds the observation (ORB-SLAM `ORBmatcher::Fuse`).
+/// test within `th * scale` pixels (`th`: pixels at level 0), either merges duplicates (the
+/// point with more observations survives) or adds the observation (ORB-SLAM
+/// `ORBmatcher::Fuse`).
 pub(crate) fn fuse_points_into(
     map: &mut Map,
     kf: KeyFrameId,
@@ -91,7 +94,8 @@ pub(crate) fn fuse_points_into(
         if p.observations().contains_key(&kf) {
             continue;
         }
-        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, 0.5)
+        let rules = &ctx.config.visibility;
+        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, rules)
         else {
             continue;
         };

@@ -13,7 +13,9 @@ use crate::{Descriptor, FeaturesError, GrayImage, Keypoint};
 /// Most pyramid levels an extractor builds.
 pub const MAX_LEVELS: usize = 32;
 
-/// ORB-SLAM's extractor settings (its `ORBextractor` arguments).
+/// ORB-SLAM's extractor settings (its `ORBextractor` arguments). [`OrbConfig::default`] is
+/// the one place their defaults are written: the SLAM configuration's extractor section
+/// and the Python `OrbExtractor` take theirs from it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OrbConfig {
     /// Keypoints wanted per image (>= 1; fewer on textureless images). ORB-SLAM: 1000 at
@@ -28,7 +30,7 @@ pub struct OrbConfig {
 }
 
 impl Default for OrbConfig {
-    /// ORB-SLAM's settings for 640 x 480 images.
+    /// ORB-SLAM's settings for 640 x 480 images (its TUM settings).
     fn default() -> Self {
         Self {
             n_features: 1000,

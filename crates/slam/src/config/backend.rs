@@ -35,8 +35,9 @@ pub struct MappingConfig {
     /// A recent point found in less than this share of the frames that should have seen it
     /// dies (ORB-SLAM `MapPointCulling`: 0.25).
     pub min_found_ratio: f64,
-    /// Observations by other keyframes, at the same or a finer scale, that make a keyframe's
-    /// point redundant (ORB-SLAM `KeyFrameCulling`: 3).
+    /// Observations by other keyframes, at the same, a finer or a barely coarser scale
+    /// (`redundant_level_margin`), that make a keyframe's point redundant (ORB-SLAM
+    /// `KeyFrameCulling`: 3).
     pub redundant_observations: usize,
     /// A keyframe with more than this share of redundant close points is culled (ORB-SLAM
     /// `KeyFrameCulling`: 0.9).
@@ -59,6 +60,15 @@ pub struct MappingConfig {
     /// Keyframes after its first after which a recent point is proven and no longer culled
     /// (ORB-SLAM `MapPointCulling`: 3).
     pub recent_point_proven_age: u32,
+    /// Best covisible keyframes of each first-ring neighbour that also take part in point
+    /// fusion, the second ring (ORB-SLAM `SearchInNeighbors`: 5).
+    pub fusion_second_neighbours: usize,
+    /// Window of the fusion of a new keyframe's points with its neighbours', pixels at level
+    /// 0 (ORB-SLAM `ORBmatcher::Fuse`: 3; the loop's fusion has `loop_closing.fuse_radius_px`).
+    pub fuse_radius_px: f64,
+    /// Pyramid levels coarser than the culled keyframe's own at which another keyframe's
+    /// observation still counts towards a point's redundancy (ORB-SLAM `KeyFrameCulling`: 1).
+    pub redundant_level_margin: u8,
     /// Scale consistency of a new point: the ratio of its distances to the two cameras may
     /// differ from that of the features' scales by at most this many pyramid steps
     /// (ORB-SLAM `CreateNewMapPoints`: 1.5).
@@ -85,6 +95,9 @@ impl MappingConfig {
             max_queued_keyframes: 1,
             recent_point_check_age: 2,
             recent_point_proven_age: 3,
+            fusion_second_neighbours: 5,
+            fuse_radius_px: 3.0,
+            redundant_level_margin: 1,
             scale_consistency_factor: 1.5,
         }
     }

@@ -1,7 +1,9 @@
-//! The sections of the front end: ORB extraction, measured depth, map initialisation and
-//! tracking.
+//! The sections of the front end: ORB extraction, measured depth, map initialisation,
+//! tracking, and the visibility rules its local-map search shares with the back end's
+//! projection searches.
 
-use ferroslam_features::extractor::EDGE_PX;
+use ferroslam_features::extractor::{FastThresholds, EDGE_PX};
+use ferroslam_features::OrbConfig;
 
 use super::Sensor;
 use crate::error::SlamError;
@@ -29,35 +31,51 @@ pub(super) fn default_n_features(width_px: u32) -> usize {
 }
 
 /// ORB extraction: budget, FAST thresholds and scale pyramid (ORB-SLAM's `ORBextractor`
-/// settings).
+/// settings). The defaults are the extractor's own ([`OrbConfig::default`], in the features
+/// crate) but for the budget, which the preset sizes to the image ([`Self::for_width`]);
+/// [`Self::orb`] is the extractor's configuration.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ExtractorConfig {
     /// ORB keypoints extracted per image (ORB-SLAM `nFeatures`; MATLAB `MaxNumPoints`); the
     /// preset follows the image width, see [`Self::for_width`].
     pub n_features: usize,
     /// FAST threshold tried first in every cell of the extractor's grid, intensity levels
-    /// (ORB-SLAM `iniThFAST`: 20).
+    /// (ORB-SLAM `iniThFAST`).
     pub ini_fast: u8,
     /// FAST threshold of the cells where `ini_fast` finds no corner, intensity levels
-    /// (ORB-SLAM `minThFAST`: 7).
+    /// (ORB-SLAM `minThFAST`).
     pub min_fast: u8,
-    /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`: 1.2).
+    /// Scale between ORB pyramid levels (ORB-SLAM `scaleFactor`).
     pub scale_factor: f64,
-    /// Number of ORB pyramid levels (ORB-SLAM `nLevels`: 8).
+    /// Number of ORB pyramid levels (ORB-SLAM `nLevels`).
     pub n_levels: usize,
 }
 
 impl ExtractorConfig {
-    /// ORB-SLAM's TUM settings (FAST 20 / 7, 8 levels of 1.2) with the budget of images
-    /// `width_px` wide: 1000 keypoints per 640 columns, rounded to a hundred, within
-    /// 500..=2000 (640 px: 1000, 752: 1200, 1241: 1900).
+    /// The extractor's defaults ([`OrbConfig::default`]: ORB-SLAM's TUM settings) with the
+    /// budget of images `width_px` wide: 1000 keypoints per 640 columns, rounded to a
+    /// hundred, within 500..=2000 (640 px: 1000, 752: 1200, 1241: 1900).
     pub fn for_width(width_px: u32) -> Self {
+        let orb = OrbConfig::default();
         Self {
             n_features: default_n_features(width_px),
-            ini_fast: 20,
-            min_fast: 7,
-            scale_factor: 1.2,
-            n_levels: 8,
+            ini_fast: orb.fast.initial,
+            min_fast: orb.fast.min,
+            scale_factor: orb.scale_factor,
+            n_levels: orb.n_levels,
+        }
+    }
+
+    /// The extractor's configuration (`ferroslam_features::OrbExtractor::new`).
+    pub fn orb(&self) -> OrbConfig {
+        OrbConfig {
+            n_features: self.n_features,
+            scale_factor: self.scale_factor,
+            n_levels: self.n_levels,
+            fast: FastThresholds {
+                initial: self.ini_fast,
+                min: self.min_fast,
+            },
         }
     }
 
@@ -167,6 +185,43 @@ impl Default for InitializationConfig {
     }
 }
 
+/// Which map points a projection search looks for in an image (ORB-SLAM
+/// `Frame::isInFrustum` and the same tests in `ORBmatcher::Fuse` and
+/// `SearchByProjection`): tracking's local-map search, point fusion and the loop's final
+/// projection share these rules.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VisibilityConfig {
+    /// Least cosine between a point's mean viewing direction and the ray from the camera
+    /// for it to be searched (ORB-SLAM: 0.5, 60 deg): its descriptor, taken from views near
+    /// the mean direction, rarely matches from further aside.
+    pub min_view_cos: f64,
+    /// A point is searched no closer than this share of the nearest distance its
+    /// observations' scales cover (ORB-SLAM `GetMinDistanceInvariance`: 0.8), a margin for
+    /// the scale's quantisation.
+    pub min_distance_factor: f64,
+    /// A point is searched no farther than this multiple of the farthest distance its
+    /// observations' scales cover (ORB-SLAM `GetMaxDistanceInvariance`: 1.2).
+    pub max_distance_factor: f64,
+}
+
+impl VisibilityConfig {
+    /// Whether a point `dist` from the camera lies within `(min, max)`, the distances its
+    /// observations' scales cover, widened by the two factors (the same unit throughout).
+    pub fn in_scale_range(&self, dist: f64, (min, max): (f64, f64)) -> bool {
+        !(dist < self.min_distance_factor * min || dist > self.max_distance_factor * max)
+    }
+}
+
+impl Default for VisibilityConfig {
+    fn default() -> Self {
+        Self {
+            min_view_cos: 0.5,
+            min_distance_factor: 0.8,
+            max_distance_factor: 1.2,
+        }
+    }
+}
+
 /// Tracking: matching thresholds, the keyframe decision and what happens when tracking is
 /// lost (ORB-SLAM `Tracking`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -182,6 +237,14 @@ pub struct TrackingConfig {
     pub reference_ratio: f64,
     /// `reference_ratio` while the map has a single keyframe (ORB-SLAM: 0.4).
     pub first_keyframes_reference_ratio: f64,
+    /// Observations (one with measured depth counts 2, as for
+    /// `mapping.min_point_observations`) a reference keyframe's point needs to count among
+    /// the points `reference_ratio` compares with (ORB-SLAM `nMinObs`: 3): younger points may
+    /// still be culled.
+    pub reference_min_observations: usize,
+    /// `reference_min_observations` while the map has at most two keyframes (ORB-SLAM: 2): a
+    /// monocular point has at most two observations then.
+    pub young_map_reference_min_observations: usize,
     /// With depth, tracking is weak, and a keyframe is made even while mapping is busy, below
     /// this share of the reference keyframe's points (ORB-SLAM `c1c`: 0.25).
     pub weak_tracking_share: f64,
@@ -194,6 +257,11 @@ pub struct TrackingConfig {
     /// A keyframe needs more inliers than this, whatever rule asks for it (ORB-SLAM `c2`: 15);
     /// the same holds for the keyframes the inertial alignment asks for.
     pub min_keyframe_inliers: usize,
+    /// A monocular keyframe asked for while mapping is busy may wait for the next frame
+    /// only if tracking keeps at least this many times the lower `track_feature_range` limit
+    /// (below which it is lost): a deferral with weak tracking lost KITTI 06 (ORB-SLAM
+    /// refuses the keyframe instead).
+    pub deferral_inliers_factor: usize,
     /// Maximum number of frames between two keyframes (MATLAB `SkipMaxFrames`; ORB-SLAM
     /// `mMaxFrames`, one second of frames: 30).
     pub skip_max_frames: usize,
@@ -261,9 +329,6 @@ pub struct TrackingConfig {
     /// Best covisible keyframes of each local keyframe, and of the reference keyframe, that
     /// join the local map and the reference-tracking candidates (ORB-SLAM: 10).
     pub neighbourhood_covisibles: usize,
-    /// Least cosine between a local point's mean viewing direction and the ray from the frame
-    /// for it to be searched (ORB-SLAM: 0.5, 60 deg).
-    pub min_view_cos: f64,
     /// Cosine above which a point is seen from nearly its mean direction, and searched in the
     /// narrower `frontal_radius` (ORB-SLAM `RadiusByViewingCos`: 0.998, 3.6 deg).
     pub frontal_view_cos: f64,
@@ -292,10 +357,13 @@ impl TrackingConfig {
             },
             reference_ratio: if sensor.has_depth() { 0.75 } else { 0.9 },
             first_keyframes_reference_ratio: 0.4,
+            reference_min_observations: 3,
+            young_map_reference_min_observations: 2,
             weak_tracking_share: 0.25,
             close_tracked_max: 100,
             close_untracked_min: 70,
             min_keyframe_inliers: 15,
+            deferral_inliers_factor: 2,
             skip_max_frames: 30,
             post_relocalisation_frames: 30,
             relocalised_min_inliers: 50,
@@ -318,7 +386,6 @@ impl TrackingConfig {
             reference_nn_ratio: 0.75,
             local_search_nn_ratio: 0.8,
             neighbourhood_covisibles: 10,
-            min_view_cos: 0.5,
             frontal_view_cos: 0.998,
             frontal_radius: 2.5,
             oblique_radius: 4.0,

@@ -1,10 +1,11 @@
 //! One configuration of the whole SLAM system, [`SlamConfig`], in sections that follow the
 //! pipeline's stages (as Basalt's `vio_config.h` groups its knobs by stage): the extractor,
-//! measured depth, map initialisation, tracking, local mapping, place recognition, loop
-//! closing and the inertial stages. Every default and every tuning constant of the crate
-//! lives here, with its unit and the reason for its value (ORB-SLAM's, or why ours differs);
-//! the runs behind the choices are in `docs/benchmarks.md`. Front ends (the CLI,
-//! `run_sequence`, the vSLAM objects) only translate names.
+//! measured depth, map initialisation, tracking, the visibility rules of projection
+//! searches, local mapping, place recognition, loop closing and the inertial stages. Every
+//! default and every tuning constant of the crate lives here, with its unit and the reason
+//! for its value (ORB-SLAM's, or why ours differs); the runs behind the choices are in
+//! `docs/benchmarks.md`. Front ends (the CLI, `run_sequence`, the vSLAM objects) only
+//! translate names.
 //!
 //! Named presets: [`SlamConfig::for_sensor`] per [`Sensor`] (the values that depend on the
 //! sensor are the preset's), [`SlamConfig::for_camera`] with the extractor sized to the
@@ -15,7 +16,9 @@ mod frontend;
 mod validate;
 
 pub use backend::{InertialTuning, LoopClosingConfig, MappingConfig, PlaceRecognitionConfig};
-pub use frontend::{DepthConfig, ExtractorConfig, InitializationConfig, TrackingConfig};
+pub use frontend::{
+    DepthConfig, ExtractorConfig, InitializationConfig, TrackingConfig, VisibilityConfig,
+};
 
 /// The camera setup a system tracks; decides which `track_*` call it accepts and the
 /// sensor-specific rules of ORB-SLAM (keyframe ratio, triangulation, culling).
@@ -64,6 +67,9 @@ pub struct SlamConfig {
     pub initialization: InitializationConfig,
     /// Tracking frames against the map, keyframe decisions, relocalisation.
     pub tracking: TrackingConfig,
+    /// Which map points the projection searches of tracking, point fusion and loop closing
+    /// look for.
+    pub visibility: VisibilityConfig,
     /// Local mapping: new points, culling, local bundle adjustment.
     pub mapping: MappingConfig,
     /// The bag-of-words keyframe index (relocalisation and loop candidates).
@@ -96,6 +102,7 @@ impl SlamConfig {
             depth: DepthConfig::for_sensor(sensor),
             initialization: InitializationConfig::default(),
             tracking: TrackingConfig::for_sensor(sensor),
+            visibility: VisibilityConfig::default(),
             mapping: MappingConfig::for_sensor(sensor),
             place_recognition: PlaceRecognitionConfig::default(),
             loop_closing: LoopClosingConfig::default(),
@@ -132,6 +139,11 @@ mod tests {
         let mut narrow = kitti.clone();
         narrow.extractor.n_features = 1000;
         assert_eq!(narrow, SlamConfig::for_sensor(Sensor::Stereo));
+        // The extractor's defaults are the features crate's, the budget aside.
+        let orb = ferroslam_features::OrbConfig::default();
+        assert_eq!(ExtractorConfig::for_width(640).orb(), orb);
+        let wide = ExtractorConfig::for_width(1241).orb();
+        assert_eq!((wide.n_features, wide.fast), (1900, orb.fast));
     }
 
     /// The values that depend on the sensor are those of its preset.
@@ -208,7 +220,7 @@ mod tests {
                 )
             };
         }
-        let cases: [(&str, fn(&mut SlamConfig)); 19] = [
+        let cases: [(&str, fn(&mut SlamConfig)); 24] = [
             case!(extractor.n_features = 0),
             case!(extractor.min_fast = 0),
             case!(extractor.min_fast = 21),
@@ -219,9 +231,14 @@ mod tests {
             case!(tracking.post_relocalisation_frames = 0),
             case!(tracking.redundant_view_share = 1.5),
             case!(tracking.motion_retry_radius_px = 10.0),
+            case!(tracking.reference_min_observations = 0),
+            case!(visibility.min_view_cos = 1.5),
+            case!(visibility.min_distance_factor = 0.0),
+            case!(visibility.max_distance_factor = 0.9),
             case!(mapping.min_ray_parallax_deg = 90.0),
             case!(mapping.max_queued_keyframes = 0),
             case!(mapping.recent_point_proven_age = 1),
+            case!(mapping.fuse_radius_px = f64::NAN),
             case!(place_recognition.group_size = 0),
             case!(place_recognition.group_score_ratio = 0.0),
             case!(loop_closing.loop_closure_threshold = 19),

@@ -121,9 +121,18 @@ impl SlamConfig {
         check!(s, >= t.motion_search_radius_px, t.motion_retry_radius_px);
         check!(s, >= 1, t.neighbourhood_covisibles);
         check!(s, <= 1.0, t.reference_nn_ratio, t.local_search_nn_ratio);
-        check!(s, <= 1.0, t.min_view_cos, t.frontal_view_cos);
+        check!(s, <= 1.0, t.frontal_view_cos);
+        check!(s, >= 1, t.reference_min_observations);
+        check!(s, >= 1, t.young_map_reference_min_observations);
+        // deferral_inliers_factor: any count (0 defers whenever tracking is not lost).
         // relocalised_wide_search_frames: any count (0 never widens the search).
         // min_keyframes_to_keep: any count (0 keeps every lost map).
+
+        let (v, s) = (&self.visibility, Section("visibility"));
+        check!(s, <= 1.0, v.min_view_cos);
+        check!(s, <= 1.0, v.min_distance_factor);
+        // Infinite: no far limit.
+        check!(s, >= 1.0, v.max_distance_factor);
 
         let (m, s) = (&self.mapping, Section("mapping"));
         check!(s, >= 1, m.triangulation_neighbours, m.hurried_triangulation_neighbours);
@@ -132,6 +141,9 @@ impl SlamConfig {
         check!(s, <= 1.0, m.min_found_ratio, m.redundant_keyframe_share);
         check!(s, >= 1, m.recent_point_check_age);
         check!(s, >= m.recent_point_check_age, m.recent_point_proven_age);
+        check!(s, > 0, m.fuse_radius_px);
+        // fusion_second_neighbours: any count (0 fuses with the first ring only).
+        // redundant_level_margin: any level count (0: the same or finer scales only).
         // A point's distance ratio may at least match its scales' ratio.
         if !(m.scale_consistency_factor.is_finite() && m.scale_consistency_factor >= 1.0) {
             let got = m.scale_consistency_factor;

@@ -107,7 +107,8 @@ pub(super) fn match_by_sim3(
                 continue;
             }
             let dist = p_to.norm();
-            if dist < 0.8 * p.min_distance() || dist > 1.2 * p.max_distance() {
+            let range = (p.min_distance(), p.max_distance());
+            if !ctx.config.visibility.in_scale_range(dist, range) {
                 continue;
             }
             let level = p.predict_level(dist, map.pyramid()) as u8;

@@ -124,7 +124,9 @@ pub(crate) fn verify_loop(
     let mut queries = Vec::new();
     let mut sources = Vec::new();
     for &m in loop_points.iter().filter(|m| !already.contains(m)) {
-        let Some(vis) = visible_point(map, m, &T_cw, &center, &ctx.camera, &ctx.bounds, 0.5) else {
+        let rules = &ctx.config.visibility;
+        let Some(vis) = visible_point(map, m, &T_cw, &center, &ctx.camera, &ctx.bounds, rules)
+        else {
             continue;
         };
         queries.push(ProjectionQuery {

@@ -532,7 +532,7 @@ impl Tracker {
                 &center,
                 camera,
                 bounds,
-                tracking.min_view_cos,
+                &ctx.config.visibility,
             ) else {
                 continue;
             };
@@ -576,7 +576,8 @@ impl Tracker {
     /// Monocular only, and at most one frame in a row: ORB-SLAM refuses monocular keyframes
     /// whenever mapping is busy, which loses a forward-driving sequence fed at full speed
     /// (KITTI 06), and a deferral with weak tracking lost it too. So tracking must keep at
-    /// least twice `TrackFeatureRange`'s lower limit (below which it is lost). With depth a
+    /// least `tracking.deferral_inliers_factor` times `TrackFeatureRange`'s lower limit
+    /// (below which it is lost). With depth a
     /// keyframe brings its own points at once; waiting costs little there.
     pub fn defer_keyframe(&mut self, frame_index: usize, ctx: &Context) -> bool {
         let deferred_last_frame = self
@@ -584,7 +585,9 @@ impl Tracker {
             .is_some_and(|f| f + 1 == frame_index);
         let defer = !ctx.config.sensor.has_depth()
             && !deferred_last_frame
-            && self.matches_inliers >= 2 * ctx.config.tracking.track_feature_range.0;
+            && self.matches_inliers
+                >= ctx.config.tracking.deferral_inliers_factor
+                    * ctx.config.tracking.track_feature_range.0;
         if defer {
             self.keyframe_deferred_at = Some(frame_index);
         }
@@ -631,7 +634,11 @@ impl Tracker {
         {
             return false;
         }
-        let min_obs = if n_kfs <= 2 { 2 } else { 3 };
+        let min_obs = if n_kfs <= 2 {
+            tracking.young_map_reference_min_observations
+        } else {
+            tracking.reference_min_observations
+        };
         let ref_matches = map.tracked_points(r, min_obs) as f64;
         let (mut tracked_close, mut untracked_close) = (0, 0);
         for i in 0..frame.len() {
