@@ -275,7 +275,12 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let (mut points_w, mut pixels, mut beyond_90) = (Vec::new(), Vec::new(), 0);
         while points_w.len() < 150 {
-            let theta: f64 = rng.gen_range(0.0..1.65);
+            // Half near the axis, half 80-97 degrees off it.
+            let theta: f64 = if points_w.len() % 2 == 0 {
+                rng.gen_range(0.0..1.2)
+            } else {
+                rng.gen_range(1.4..1.7)
+            };
             let phi: f64 = rng.gen_range(-3.14..3.14);
             let dir = Vector3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
             let p_c = dir * rng.gen_range(1.0..6.0);
