@@ -47,23 +47,13 @@ pub fn search_for_triangulation(
     opts: &MatchOptions,
 ) -> Vec<(usize, usize)> {
     let n2 = kps2.len().min(desc2.len());
-    let is_free = |flags: &[bool], i: usize| flags.get(i).copied().unwrap_or(false);
     // View-2 candidates that pass the per-feature tests, indexed so that each epipolar line
     // visits only those near it.
     let mut candidates2 = PencilIndex::default();
-    for i2 in (0..n2).filter(|&i2| is_free(free2, i2)) {
+    for (i2, s2) in free_candidates(&kps2[..n2], free2, sigma2, epipole2) {
         let kp2 = &kps2[i2];
-        let Some(&s2) = sigma2.get(usize::from(kp2.octave)) else {
-            continue;
-        };
         let (x, y) = (f64::from(kp2.x), f64::from(kp2.y));
-        let far_from_epipole = epipole2.is_none_or(|(ex, ey)| {
-            let (dx, dy) = (ex - x, ey - y);
-            dx * dx + dy * dy >= 100.0 * s2.sqrt()
-        });
-        if far_from_epipole {
-            candidates2.push(i2, x, y, CHI2_1DOF_95 * s2);
-        }
+        candidates2.push(i2, x, y, CHI2_1DOF_95 * s2);
     }
     candidates2.build(f21);
 
@@ -104,24 +94,11 @@ pub fn search_for_triangulation_rays(
     opts: &MatchOptions,
 ) -> Vec<(usize, usize)> {
     let n2 = kps2.len().min(desc2.len()).min(rays2.len());
-    let is_free = |flags: &[bool], i: usize| flags.get(i).copied().unwrap_or(false);
     // (i2, ray, squared sine bound) of the view-2 features passing the per-feature tests.
-    let mut candidates2 = Vec::new();
-    for i2 in (0..n2).filter(|&i2| is_free(free2, i2)) {
-        let kp2 = &kps2[i2];
-        let Some(&s2) = sigma2.get(usize::from(kp2.octave)) else {
-            continue;
-        };
-        let ray = rays2[i2];
-        let (x, y) = (f64::from(kp2.x), f64::from(kp2.y));
-        let far_from_epipole = epipole2.is_none_or(|(ex, ey)| {
-            let (dx, dy) = (ex - x, ey - y);
-            dx * dx + dy * dy >= 100.0 * s2.sqrt()
-        });
-        if far_from_epipole && ray.iter().all(|v| v.is_finite()) {
-            candidates2.push((i2, ray, CHI2_1DOF_95 * s2 * rad_per_px * rad_per_px));
-        }
-    }
+    let candidates2: Vec<_> = free_candidates(&kps2[..n2], free2, sigma2, epipole2)
+        .filter(|&(i2, _)| rays2[i2].iter().all(|v| v.is_finite()))
+        .map(|(i2, s2)| (i2, rays2[i2], CHI2_1DOF_95 * s2 * rad_per_px * rad_per_px))
+        .collect();
     let n1 = kps1.len().min(rays1.len());
     best_near(
         (&kps1[..n1], desc1, free1),
@@ -144,6 +121,28 @@ pub fn search_for_triangulation_rays(
             );
         },
     )
+}
+
+/// The free view-2 features, with their level variance, that have one in `sigma2` and lie
+/// far enough from the epipole (see [`search_for_triangulation`]).
+fn free_candidates<'a>(
+    kps2: &'a [Keypoint],
+    free2: &'a [bool],
+    sigma2: &'a [f64],
+    epipole2: Option<(f64, f64)>,
+) -> impl Iterator<Item = (usize, f64)> + 'a {
+    kps2.iter().enumerate().filter_map(move |(i2, kp2)| {
+        if !free2.get(i2).copied().unwrap_or(false) {
+            return None;
+        }
+        let &s2 = sigma2.get(usize::from(kp2.octave))?;
+        let (x, y) = (f64::from(kp2.x), f64::from(kp2.y));
+        let far_from_epipole = epipole2.is_none_or(|(ex, ey)| {
+            let (dx, dy) = (ex - x, ey - y);
+            dx * dx + dy * dy >= 100.0 * s2.sqrt()
+        });
+        far_from_epipole.then_some((i2, s2))
+    })
 }
 
 /// Per free view-1 feature, the best of the view-2 candidates `near(i1, scratch, out)` puts
