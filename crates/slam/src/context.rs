@@ -124,3 +124,52 @@ pub struct InputShape {
     /// Image height, pixels: raw keypoints lie in `[0, height)`.
     pub height: u32,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Sensor;
+    use crate::frame::point_at_depth;
+    use ferroslam_geometry::camera::{test_cameras, test_fisheye_cameras};
+
+    fn rgbd(camera: impl Into<CameraModel>) -> Context {
+        let mut config = SlamConfig::for_sensor(Sensor::Rgbd);
+        config.depth.bf = 40.0;
+        Context::new(camera, config)
+    }
+
+    #[test]
+    fn pinhole_right_coordinate_is_orb_slams_and_the_fisheye_one_a_second_camera() {
+        let (_, pinhole) = test_cameras()[0];
+        let ctx = rgbd(pinhole);
+        let p_c = Vector3::new(0.3, -0.2, 2.5);
+        let u = ctx.camera.project(&p_c).unwrap().x;
+        assert_eq!(ctx.u_right(&p_c, u), u - 40.0 / 2.5);
+        assert!(ctx.is_pinhole() && ctx.rig().model == Rig::PINHOLE);
+
+        let (_, lens) = test_fisheye_cameras()[0];
+        let ctx = rgbd(lens);
+        let b = 40.0 / lens.fx;
+        // 100 degrees off the axis: behind the plane a pinhole would need.
+        let p_c = Vector3::new(2.0, 0.5, -0.35);
+        let u = ctx.camera.project(&p_c).unwrap().x;
+        let right = lens.project(&(p_c - Vector3::new(b, 0.0, 0.0))).unwrap().x;
+        assert_eq!(ctx.u_right(&p_c, u), right);
+        assert!(ctx.u_right(&Vector3::new(0.0, 0.0, -1.0), u).is_nan());
+        assert!(!ctx.is_pinhole() && ctx.rig().model == KANNALA_BRANDT);
+        assert_eq!(ctx.rig().distortion[..4], lens.k);
+    }
+
+    #[test]
+    fn depth_is_z_depth_along_a_fisheye_ray() {
+        let (_, lens) = test_fisheye_cameras()[1];
+        let ctx = rgbd(lens);
+        let p_c = Vector3::new(-1.5, 0.8, 1.2);
+        let uv = ctx.camera.project(&p_c).unwrap();
+        let ray = ctx.ray(uv.x as f32, uv.y as f32);
+        let back = point_at_depth(&ray, p_c.z).unwrap();
+        // The f32 pixel: about 1e-4 px of 285 px per radian at 2.1 m.
+        assert!((back - p_c).norm() < 1e-5, "{back} vs {p_c}");
+        assert!(point_at_depth(&Vector3::new(1.0, 0.0, 0.0), 2.0).is_none());
+    }
+}
