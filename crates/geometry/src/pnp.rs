@@ -277,18 +277,18 @@ mod tests {
         while points_w.len() < 150 {
             // Half near the axis, half 80-97 degrees off it.
             let theta: f64 = if points_w.len() % 2 == 0 {
-                rng.gen_range(0.0..1.2)
+                rng.random_range(0.0..1.2)
             } else {
-                rng.gen_range(1.4..1.7)
+                rng.random_range(1.4..1.7)
             };
-            let phi: f64 = rng.gen_range(-3.14..3.14);
+            let phi: f64 = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
             let dir = Vector3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
-            let p_c = dir * rng.gen_range(1.0..6.0);
+            let p_c = dir * rng.random_range(1.0..6.0);
             let mut uv = camera.project(&p_c).unwrap();
             if points_w.len() % 5 == 0 {
-                uv += Vector2::new(rng.gen_range(-60.0..60.0), rng.gen_range(-60.0..60.0));
+                uv += Vector2::new(rng.random_range(-60.0..60.0), rng.random_range(-60.0..60.0));
             } else {
-                uv += Vector2::new(rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5));
+                uv += Vector2::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5));
                 beyond_90 += usize::from(p_c.z < 0.0);
             }
             points_w.push((T_c_w.inverse() * nalgebra::Point3::from(p_c)).coords);

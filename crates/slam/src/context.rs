@@ -155,7 +155,8 @@ mod tests {
         let u = ctx.camera.project(&p_c).unwrap().x;
         let right = lens.project(&(p_c - Vector3::new(b, 0.0, 0.0))).unwrap().x;
         assert_eq!(ctx.u_right(&p_c, u), right);
-        assert!(ctx.u_right(&Vector3::new(0.0, 0.0, -1.0), u).is_nan());
+        // Straight behind the right camera: no projection, no right coordinate.
+        assert!(ctx.u_right(&Vector3::new(b, 0.0, -1.0), u).is_nan());
         assert!(!ctx.is_pinhole() && ctx.rig().model == KANNALA_BRANDT);
         assert_eq!(ctx.rig().distortion[..4], lens.k);
     }
