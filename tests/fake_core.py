@@ -36,11 +36,11 @@ class FakeSlamSystem:
                           "scale_factor": 1.2, "n_levels": 8}
 
     def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
-                 **config):
+                 model="pinhole", **config):
         unknown = set(config) - self.KNOWN
         if unknown:
             raise ValueError(f"unknown option(s) {sorted(unknown)}")
-        assert np.asarray(dist).shape == (5,) and sensor == "rgbd"
+        assert model == "pinhole" and np.asarray(dist).shape == (5,) and sensor == "rgbd"
         self.config = config
         self.gt_t, self.gt_T = groundtruth
         # The map frame differs from the motion-capture frame by a rigid transform.

@@ -237,3 +237,14 @@ def test_cli_run_writes_the_chosen_trajectory_format_and_a_colmap_model(tmp_path
     colmap_rgb = [model.point3D(j + 1).color for j in range(model.num_points3D())]
     np.testing.assert_array_equal(colmap_rgb, ply_rgb)
     assert np.abs(np.diff(ply_rgb, axis=1)).mean() > 5  # colour, not grey
+
+
+def test_a_fisheye_camera_is_colmaps_opencv_fisheye():
+    from ferroslam.export import _colmap_camera_line
+
+    camera = Camera.kannala_brandt(285.0, 285.5, 421.0, 403.2,
+                                   (-0.0066, 0.0415, -0.0387, 0.0065), 848, 800)
+    fields = _colmap_camera_line(camera).split()
+    assert fields[1:4] == ["OPENCV_FISHEYE", "848", "800"]
+    assert [float(v) for v in fields[4:]] == pytest.approx(
+        [285.0, 285.5, 421.5, 403.7, -0.0066, 0.0415, -0.0387, 0.0065])

@@ -29,6 +29,7 @@ __version__: str
 
 _State = Literal["not_initialized", "ok", "lost", "recently_lost"]
 _Sensor = Literal["mono", "stereo", "rgbd"]
+_CameraModel = Literal["pinhole", "kannala_brandt"]
 _Floats = Union[Sequence[float], NDArray[np.floating[Any]]]
 
 class _SlamOptions(TypedDict, total=False):
@@ -144,17 +145,22 @@ class SlamSystem:
         height: int,
         *,
         sensor: _Sensor = "rgbd",
+        model: _CameraModel = "pinhole",
         threaded: bool = False,
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
-        """Creates a system for a pinhole + radial-tangential camera.
+        """Creates a system for a pinhole + radial-tangential or a Kannala-Brandt camera.
 
         Args:
             fx, fy, cx, cy: intrinsics in pixels (fx, fy > 0).
-            dist: 0, 4 or 5 coefficients ``k1 k2 p1 p2 [k3]``.
+            dist: pinhole: 0, 4 or 5 coefficients ``k1 k2 p1 p2 [k3]``; kannala_brandt: 4
+                coefficients ``k1 k2 k3 k4``.
             width, height: image size in pixels (> 0).
             sensor: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (rectified pair: ``dist`` must be
                 zeros and ``baseline`` is required); others raise ``NotImplementedError``.
+            model: ``"pinhole"`` or ``"kannala_brandt"`` (a fisheye, tracked on unit rays so
+                that fields of view beyond 180 degrees work; not with ``sensor="stereo"``,
+                which needs rectified pinhole images: see ``StereoVSlam.from_raw``).
             threaded: process frames in a background thread fed through a bounded queue
                 (8 frames; ``track_*`` block when it is full): ``track_*`` check the input,
                 queue the frame and return None; ``take_results`` gives the results in order.
@@ -162,7 +168,8 @@ class SlamSystem:
             options: see ``_SlamOptions``.
 
         Raises:
-            ValueError: invalid camera or option value, unknown option name.
+            ValueError: invalid camera, camera model or option value, unknown option name, a
+                stereo sensor with a fisheye camera.
             TypeError: option of the wrong type.
             NotImplementedError: an unknown sensor.
         """

@@ -217,10 +217,16 @@ def _colmap_camera_line(camera: Camera) -> str:
     ``PINHOLE`` (fx fy cx cy) without distortion, ``OPENCV`` (+ k1 k2 p1 p2) when ``k3 = 0``,
     else ``FULL_OPENCV`` (+ k1 k2 p1 p2 k3 k4 k5 k6 with k4 = k5 = k6 = 0: its rational radial
     term then equals OpenCV's five-coefficient model). The principal point moves by
-    ``_COLMAP_PIXEL_OFFSET``.
+    ``_COLMAP_PIXEL_OFFSET``. A Kannala-Brandt camera is ``OPENCV_FISHEYE`` (+ k1 k2 k3 k4,
+    the same model).
     """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a ferroslam.Camera, got {type(camera).__name__}")
+    if camera.model == "kannala_brandt":
+        params = [camera.fx, camera.fy, camera.cx + _COLMAP_PIXEL_OFFSET,
+                  camera.cy + _COLMAP_PIXEL_OFFSET, *camera.dist]
+        return (f"{_COLMAP_CAMERA_ID} OPENCV_FISHEYE {camera.width} {camera.height} "
+                f"{_numbers(params)}")
     k1, k2, p1, p2, k3 = camera.dist
     params = [camera.fx, camera.fy, camera.cx + _COLMAP_PIXEL_OFFSET,
               camera.cy + _COLMAP_PIXEL_OFFSET]

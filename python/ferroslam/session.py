@@ -96,7 +96,7 @@ class Session:
         self.sensor = sensor
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
-            **(options or {}))
+            model=c.model, **(options or {}))
         self.extractor = make_extractor(self.system.options)
         if imu is not None:
             self.system.set_imu(imu, np.asarray(T_b_c, dtype=np.float64), **(imu_options or {}))

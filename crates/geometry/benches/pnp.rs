@@ -53,7 +53,7 @@ fn pnp(c: &mut Criterion) {
         &points_w,
         &pixels,
         &[],
-        &camera,
+        &camera.into(),
         &PnpRansacOptions::default(),
     )
     .expect("a pose");
@@ -72,7 +72,7 @@ fn pnp(c: &mut Criterion) {
                 &points_w,
                 &pixels,
                 &[],
-                &camera,
+                &camera.into(),
                 &PnpRansacOptions::default(),
             )
         })

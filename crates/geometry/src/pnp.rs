@@ -7,7 +7,7 @@ use rand::seq::index::sample;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::camera::PinholeCamera;
+use crate::camera::CameraModel;
 use crate::epnp::epnp;
 use crate::se3::{self, ROT, TRANS};
 use crate::so3::hat;
@@ -15,6 +15,10 @@ use crate::so3::hat;
 /// Points per RANSAC sample: EPnP is not reliable on 4 (see [`crate::epnp::epnp`]), and
 /// one extra point costs few iterations (30% outliers at 0.99 confidence: 26 instead of 17).
 const SAMPLE_SIZE: usize = 5;
+
+/// Largest angle (degrees) off a fisheye's axis of the rays EPnP samples: their `(x/z, y/z)`
+/// is an ordinary pinhole point, whose plane grows without bound towards 90 degrees.
+pub const FRONT_RAY_MAX_DEG: f64 = 70.0;
 
 /// RANSAC parameters for [`pnp_ransac`].
 #[derive(Debug, Clone, PartialEq)]
@@ -56,8 +60,12 @@ pub struct PnpSolution {
     pub inliers: Vec<bool>,
 }
 
-/// Robust pose `T_c_w` from world points `points_w` (metres) and their UNDISTORTED pixels
-/// `pixels` in `camera` (ideal pinhole).
+/// Robust pose `T_c_w` from world points `points_w` (metres) and their core pixels `pixels`
+/// in `camera` (undistorted for the pinhole, raw for a fisheye).
+///
+/// EPnP needs rays in front of one image plane: with a fisheye the hypotheses are drawn
+/// only from matches whose ray lies within [`FRONT_RAY_MAX_DEG`] of the optical axis, and the
+/// inlier test and refinement then use every match through the model.
 ///
 /// `sigma2[i]` is the pixel variance of match `i` (ORB-SLAM: the squared scale factor of
 /// the keypoint's pyramid level); it scales the inlier threshold and weighs the
@@ -72,7 +80,7 @@ pub fn pnp_ransac(
     points_w: &[Vector3<f64>],
     pixels: &[Vector2<f64>],
     sigma2: &[f64],
-    camera: &PinholeCamera,
+    camera: &CameraModel,
     options: &PnpRansacOptions,
 ) -> Option<PnpSolution> {
     let n = points_w.len();
@@ -93,7 +101,25 @@ pub fn pnp_ransac(
             .collect(),
         threshold2: options.reprojection_threshold_px.powi(2),
     };
-    let rays: Vec<Vector3<f64>> = pixels.iter().map(|uv| camera.unproject(uv)).collect();
+    // (x, y, 1) rays; the matches EPnP may sample.
+    let (rays, eligible): (Vec<Vector3<f64>>, Vec<usize>) = match camera {
+        CameraModel::Pinhole(c) => (pixels.iter().map(|uv| c.unproject(uv)).collect(), (0..n).collect()),
+        CameraModel::KannalaBrandt(_) => {
+            let min_z = FRONT_RAY_MAX_DEG.to_radians().cos();
+            let rays: Vec<_> = pixels
+                .iter()
+                .map(|uv| match camera.unproject(uv) {
+                    Some(r) if r.z > min_z => r / r.z,
+                    _ => Vector3::repeat(f64::NAN),
+                })
+                .collect();
+            let eligible = (0..n).filter(|&i| rays[i].x.is_finite()).collect();
+            (rays, eligible)
+        }
+    };
+    if eligible.len() < SAMPLE_SIZE {
+        return None;
+    }
 
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut best: Option<(usize, Isometry3<f64>)> = None;
@@ -101,9 +127,9 @@ pub fn pnp_ransac(
     let mut iteration = 0;
     while iteration < needed.min(options.max_iterations) {
         iteration += 1;
-        let idx = sample(&mut rng, n, SAMPLE_SIZE);
-        let sample_w: Vec<_> = idx.iter().map(|i| points_w[i]).collect();
-        let sample_rays: Vec<_> = idx.iter().map(|i| rays[i]).collect();
+        let idx = sample(&mut rng, eligible.len(), SAMPLE_SIZE);
+        let sample_w: Vec<_> = idx.iter().map(|i| points_w[eligible[i]]).collect();
+        let sample_rays: Vec<_> = idx.iter().map(|i| rays[eligible[i]]).collect();
         let Some(hypothesis) = epnp(&sample_w, &sample_rays) else {
             continue;
         };
@@ -154,7 +180,7 @@ fn iterations_needed(inlier_ratio: f64, confidence: f64) -> usize {
 struct Problem<'a> {
     points_w: &'a [Vector3<f64>],
     pixels: &'a [Vector2<f64>],
-    camera: &'a PinholeCamera,
+    camera: &'a CameraModel,
     sigma2: Vec<f64>,
     threshold2: f64,
 }
@@ -239,13 +265,57 @@ mod tests {
     }
 
     #[test]
+    #[allow(non_snake_case)]
+    fn fisheye_pose_from_points_all_around_with_outliers() {
+        use crate::camera::test_fisheye_cameras;
+        use rand::Rng;
+        let (_, lens) = test_fisheye_cameras()[0];
+        let camera = CameraModel::from(lens);
+        let T_c_w = se3::exp(&Vector6::new(0.2, -0.1, 0.3, 0.1, -0.2, 0.05));
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (mut points_w, mut pixels, mut beyond_90) = (Vec::new(), Vec::new(), 0);
+        while points_w.len() < 150 {
+            // Half near the axis, half 80-97 degrees off it.
+            let theta: f64 = if points_w.len() % 2 == 0 {
+                rng.random_range(0.0..1.2)
+            } else {
+                rng.random_range(1.4..1.7)
+            };
+            let phi: f64 = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
+            let dir = Vector3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+            let p_c = dir * rng.random_range(1.0..6.0);
+            let mut uv = camera.project(&p_c).unwrap();
+            if points_w.len() % 5 == 0 {
+                uv += Vector2::new(rng.random_range(-60.0..60.0), rng.random_range(-60.0..60.0));
+            } else {
+                uv += Vector2::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5));
+                beyond_90 += usize::from(p_c.z < 0.0);
+            }
+            points_w.push((T_c_w.inverse() * nalgebra::Point3::from(p_c)).coords);
+            pixels.push(uv);
+        }
+        let sol = pnp_ransac(&points_w, &pixels, &[], &camera, &PnpRansacOptions::default())
+            .expect("a pose");
+        let err = se3::log(&(sol.T_c_w * T_c_w.inverse()));
+        assert!(err.norm() < 5e-3, "pose error {err}");
+        // Matches beyond 90 degrees never enter EPnP, but the refined pose keeps them.
+        let kept = (0..150)
+            .filter(|&i| {
+                sol.inliers[i] && (T_c_w * nalgebra::Point3::from(points_w[i])).z < 0.0
+            })
+            .count();
+        assert!(beyond_90 > 5 && kept == beyond_90, "{kept} of {beyond_90}");
+        assert!((0..150).step_by(5).all(|i| !sol.inliers[i]));
+    }
+
+    #[test]
     fn rejects_mismatched_or_too_few() {
         let (_, camera) = test_cameras()[0];
         let p = vec![Vector3::new(0.0, 0.0, 1.0); 20];
         let uv = vec![Vector2::new(300.0, 200.0); 20];
         let opts = PnpRansacOptions::default();
-        assert!(pnp_ransac(&p, &uv[..19], &[], &camera, &opts).is_none());
-        assert!(pnp_ransac(&p, &uv, &[1.0; 3], &camera, &opts).is_none());
-        assert!(pnp_ransac(&p[..5], &uv[..5], &[], &camera, &opts).is_none());
+        assert!(pnp_ransac(&p, &uv[..19], &[], &camera.into(), &opts).is_none());
+        assert!(pnp_ransac(&p, &uv, &[1.0; 3], &camera.into(), &opts).is_none());
+        assert!(pnp_ransac(&p[..5], &uv[..5], &[], &camera.into(), &opts).is_none());
     }
 }

@@ -1,6 +1,6 @@
 //! Two-view triangulation of a point from normalized rays.
 
-use nalgebra::{Isometry3, Matrix3x4, Matrix4, Vector3};
+use nalgebra::{Isometry3, Matrix3x4, Matrix4, SMatrix, Vector3};
 
 /// Minimum camera baseline (metres) below which two views cannot triangulate.
 const MIN_BASELINE: f64 = 1e-9;
@@ -66,6 +66,68 @@ pub fn triangulate_dlt(
     }
     let p_w = Vector3::new(h[0], h[1], h[2]) / h[3];
     p_w.iter().all(|v| v.is_finite()).then_some(p_w)
+}
+
+/// Triangulation from bearing vectors of any direction (a fisheye's rays may point sideways
+/// or backwards, where [`triangulate_dlt`]'s two rows per view, which divide by `z`,
+/// degenerate).
+///
+/// `r1`, `r2` are rays (any non-zero length) in camera 1 and camera 2. Minimises the algebraic
+/// error of all three rows of `r_i × (T_ci_w p_w) = 0`, each view's rows scaled by `1 / |r_i|`.
+/// Returns `None` as [`triangulate_dlt`] does, and also when the point lies behind either
+/// ray (`r_i · p_ci <= 0`): a ray stands for one half-line, not a whole line.
+///
+/// ```
+/// use approx::assert_relative_eq;
+/// use ferroslam_geometry::triangulation::triangulate_rays;
+/// use nalgebra::{Isometry3, Point3};
+/// let T_c1_w = Isometry3::identity();
+/// let T_c2_w = Isometry3::translation(0.0, 0.0, 0.5);
+/// let p_w = Point3::new(3.0, 0.5, -1.0); // 108 degrees off both optical axes
+/// let (p1, p2) = ((T_c1_w * p_w).coords, (T_c2_w * p_w).coords);
+/// let x = triangulate_rays(&T_c1_w, &T_c2_w, &p1.normalize(), &p2.normalize()).unwrap();
+/// assert_relative_eq!(x, p_w.coords, epsilon = 1e-9);
+/// ```
+#[allow(non_snake_case)]
+pub fn triangulate_rays(
+    T_c1_w: &Isometry3<f64>,
+    T_c2_w: &Isometry3<f64>,
+    r1: &Vector3<f64>,
+    r2: &Vector3<f64>,
+) -> Option<Vector3<f64>> {
+    let baseline =
+        (T_c1_w.inverse().translation.vector - T_c2_w.inverse().translation.vector).norm();
+    let (n1, n2) = (r1.norm(), r2.norm());
+    if !(baseline > MIN_BASELINE && n1 > 0.0 && n2 > 0.0) {
+        return None;
+    }
+    let mut a = SMatrix::<f64, 6, 4>::zeros();
+    for (k, (t, r, n)) in [(T_c1_w, r1, n1), (T_c2_w, r2, n2)].into_iter().enumerate() {
+        let p: Matrix3x4<f64> = t.to_homogeneous().fixed_view::<3, 4>(0, 0).into_owned();
+        let r = r / n;
+        // r × (P X): rows of [r]x P.
+        a.set_row(3 * k, &(p.row(2) * r.y - p.row(1) * r.z));
+        a.set_row(3 * k + 1, &(p.row(0) * r.z - p.row(2) * r.x));
+        a.set_row(3 * k + 2, &(p.row(1) * r.x - p.row(0) * r.y));
+    }
+    if !a.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let svd = a.svd(false, true);
+    let v_t = svd.v_t?;
+    let smallest = (0..4).min_by(|&i, &j| svd.singular_values[i].total_cmp(&svd.singular_values[j]))?;
+    let h = v_t.row(smallest);
+    if h[3].abs() < 1e-12 {
+        return None;
+    }
+    let p_w = Vector3::new(h[0], h[1], h[2]) / h[3];
+    if !p_w.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let in_front = [(T_c1_w, r1), (T_c2_w, r2)]
+        .iter()
+        .all(|(t, r)| r.dot(&t.transform_point(&p_w.into()).coords) > 0.0);
+    in_front.then_some(p_w)
 }
 
 /// Cosine of the parallax angle at `p_w` between the rays to the two camera centres
@@ -135,6 +197,29 @@ mod tests {
             &z
         )
         .is_none());
+    }
+
+    #[test]
+    #[allow(non_snake_case)]
+    fn rays_triangulate_in_every_direction_and_only_in_front() {
+        let (T_c1_w, T_c2_w) = two_views();
+        let (T_w_c1, T_w_c2) = (T_c1_w.inverse(), T_c2_w.inverse());
+        // Points at 0, 80, 100 and 150 degrees from camera 1's axis.
+        for (deg, range) in [(0.0f64, 3.0), (80.0, 4.0), (100.0, 5.0), (150.0, 6.0)] {
+            let t = deg.to_radians();
+            let p_c1 = Vector3::new(t.sin() * 0.8, t.sin() * 0.6, t.cos()) * range;
+            let p_w = (T_w_c1 * nalgebra::Point3::from(p_c1)).coords;
+            let p_c2 = (T_c2_w * nalgebra::Point3::from(p_w)).coords;
+            let x = triangulate_rays(&T_c1_w, &T_c2_w, &p_c1.normalize(), &(p_c2 * 2.0)).unwrap();
+            assert_relative_eq!(x, p_w, epsilon = 1e-8 * p_w.norm());
+            // The opposite rays meet at the same line intersection, behind both cameras.
+            assert!(triangulate_rays(&T_c1_w, &T_c2_w, &-p_c1, &-p_c2).is_none());
+        }
+        let ray = Vector3::new(0.1, 0.0, 1.0);
+        let pure = Isometry3::rotation(Vector3::new(0.0, 0.2, 0.0)) * T_c1_w;
+        assert!(triangulate_rays(&T_c1_w, &pure, &ray, &ray).is_none());
+        let same = T_w_c2.rotation.inverse() * (T_w_c1.rotation * ray);
+        assert!(triangulate_rays(&T_c1_w, &T_c2_w, &ray, &same).is_none());
     }
 
     #[test]

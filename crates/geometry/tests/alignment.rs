@@ -101,7 +101,7 @@ fn pnp_ransac_recovers_pose_with_outliers_and_noise() {
                 &s.points_w,
                 &s.pixels,
                 &[],
-                &camera,
+                &camera.into(),
                 &PnpRansacOptions {
                     seed,
                     ..Default::default()
@@ -140,8 +140,8 @@ fn pnp_ransac_is_deterministic_for_a_seed() {
         ..Default::default()
     };
     assert_eq!(
-        pnp_ransac(&s.points_w, &s.pixels, &[], &camera, &opts),
-        pnp_ransac(&s.points_w, &s.pixels, &[], &camera, &opts)
+        pnp_ransac(&s.points_w, &s.pixels, &[], &camera.into(), &opts),
+        pnp_ransac(&s.points_w, &s.pixels, &[], &camera.into(), &opts)
     );
 }
 
@@ -150,9 +150,9 @@ fn pnp_ransac_uses_sigma2_to_scale_the_threshold() {
     let (_, camera) = test_cameras()[0];
     let s = scene(11, &camera, 100, 0.0, 3.0); // 3 px noise: beyond the unit-sigma threshold
     let opts = PnpRansacOptions::default();
-    let tight = pnp_ransac(&s.points_w, &s.pixels, &[], &camera, &opts)
+    let tight = pnp_ransac(&s.points_w, &s.pixels, &[], &camera.into(), &opts)
         .map_or(0, |p| p.inliers.iter().filter(|&&b| b).count());
-    let loose = pnp_ransac(&s.points_w, &s.pixels, &[9.0; 100], &camera, &opts).unwrap();
+    let loose = pnp_ransac(&s.points_w, &s.pixels, &[9.0; 100], &camera.into(), &opts).unwrap();
     assert!(
         loose.inliers.iter().filter(|&&b| b).count() > tight.max(90),
         "sigma2 = 9 should accept ~all"
@@ -167,7 +167,7 @@ fn pnp_ransac_returns_none_below_min_inliers() {
         &s.points_w,
         &s.pixels,
         &[],
-        &camera,
+        &camera.into(),
         &PnpRansacOptions::default()
     )
     .is_none());
@@ -177,7 +177,7 @@ fn pnp_ransac_returns_none_below_min_inliers() {
         min_inliers: inliers + 10,
         ..Default::default()
     };
-    assert!(pnp_ransac(&s.points_w, &s.pixels, &[], &camera, &opts).is_none());
+    assert!(pnp_ransac(&s.points_w, &s.pixels, &[], &camera.into(), &opts).is_none());
 }
 
 #[test]

@@ -9,9 +9,13 @@
 pub struct Rig {
     /// Sensor name as the systems spell it (`"mono"`, `"stereo"`, `"rgbd"`).
     pub sensor: String,
+    /// Camera model as the bindings spell it ([`Rig::PINHOLE`], `"kannala_brandt"`); map
+    /// files from before the model was recorded hold pinhole cameras.
+    pub model: String,
     /// `fx, fy, cx, cy`, pixels.
     pub intrinsics: [f64; 4],
-    /// Radial-tangential distortion `k1, k2, p1, p2, k3`.
+    /// Distortion: radial-tangential `k1, k2, p1, p2, k3` for the pinhole, Kannala-Brandt
+    /// `k1, k2, k3, k4, 0` for the fisheye.
     pub distortion: [f64; 5],
     /// Image width, pixels.
     pub width: u32,
@@ -20,6 +24,9 @@ pub struct Rig {
 }
 
 impl Rig {
+    /// The model name of the pinhole camera (and of every map file older than version 5).
+    pub const PINHOLE: &'static str = "pinhole";
+
     /// Why `self` (a map's) does not fit `system` (a system's), naming both sides; `None`
     /// when it does (intrinsics equal to 1e-6 relative).
     pub fn mismatch(&self, system: &Rig) -> Option<String> {
@@ -27,6 +34,12 @@ impl Rig {
             return Some(format!(
                 "the map was built by a {:?} system, this system is {:?}",
                 self.sensor, system.sensor
+            ));
+        }
+        if self.model != system.model {
+            return Some(format!(
+                "the map was built with a {:?} camera model, this system's camera is {:?}",
+                self.model, system.model
             ));
         }
         if (self.width, self.height) != (system.width, system.height) {
@@ -60,6 +73,7 @@ mod tests {
     fn rig(sensor: &str) -> Rig {
         Rig {
             sensor: sensor.into(),
+            model: Rig::PINHOLE.into(),
             intrinsics: [517.3, 516.5, 318.6, 255.3],
             distortion: [0.26, -0.95, 0.0, 0.0, 1.16],
             width: 640,
@@ -83,5 +97,11 @@ mod tests {
             ..rig("rgbd")
         };
         assert!(other.mismatch(&rig("rgbd")).unwrap().contains("500.0"));
+        let fisheye = Rig {
+            model: "kannala_brandt".into(),
+            ..rig("rgbd")
+        };
+        let m = fisheye.mismatch(&rig("rgbd")).unwrap();
+        assert!(m.contains("\"kannala_brandt\"") && m.contains("\"pinhole\""), "{m}");
     }
 }

@@ -385,6 +385,7 @@ mod tests {
         cx: 367.0,
         cy: 248.0,
         bf: 0.0,
+        fisheye: None,
     };
 
     fn extrinsics() -> Isometry3<f64> {

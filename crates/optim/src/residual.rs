@@ -1,7 +1,8 @@
 //! Reprojection residual of a world point in a camera, mono or stereo, and its Jacobians.
 //!
-//! `p_c = T_c_w * p_w`; predicted `[u, v, u_r] = [fx x/z + cx, fy y/z + cy, u - bf/z]`;
-//! residual `e = observed - predicted`. Monocular observations use rows 0..2 and leave row 2
+//! `p_c = T_c_w * p_w`; predicted `[u, v, u_r] = [fx x/z + cx, fy y/z + cy, u - bf/z]` for
+//! the pinhole, and for a fisheye `(u, v)` its projection of `p_c` and `u_r` the column of
+//! `p_c` in the virtual right camera (see [`Intrinsics`]); residual `e = observed - predicted`. Monocular observations use rows 0..2 and leave row 2
 //! (and the corresponding Jacobian row) zero, so one code path serves both kinds; the
 //! information is `inv_sigma2 * I` on the used rows.
 
@@ -22,8 +23,12 @@ pub struct Linearization {
 }
 
 /// Camera-frame point and the prediction it makes, or `None` if it is not strictly in front
-/// of the camera or anything is non-finite.
+/// of the pinhole (outside the fisheye's domain, for it or the virtual right camera) or
+/// anything is non-finite.
 pub(crate) fn predict(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    if k.fisheye.is_some() {
+        return predict_fisheye(k, p_c);
+    }
     let (x, y, z) = (p_c.x, p_c.y, p_c.z);
     // Cameras see along +z; z <= 0 is ORB-SLAM's "depth not positive" outlier.
     if !p_c.iter().all(|v| v.is_finite()) || z <= 0.0 {
@@ -44,6 +49,31 @@ pub(crate) fn predict(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector3<f64
         k.fx * iz, 0.0,       -k.fx * x * iz2 + k.bf * iz2,
     );
     Some((pred, d_pred_d_p_c))
+}
+
+/// [`predict`] through the fisheye; without a baseline the right row repeats `u`. Where
+/// only the virtual right camera does not project, the right row is NaN (with a zero
+/// Jacobian row), so that only a stereo residual of the point is refused.
+fn predict_fisheye(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    if !p_c.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let (uv, d_uv_d_p_c) = k.project_fisheye(p_c)?;
+    if !uv.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let (u_r, d_ur_d_p_c) = if k.bf > 0.0 {
+        match k.project_fisheye(&k.right_point(p_c)) {
+            Some((uv_r, d_r)) => (uv_r.x, d_r.row(0).into_owned()),
+            None => (f64::NAN, nalgebra::RowVector3::zeros()),
+        }
+    } else {
+        (uv.x, d_uv_d_p_c.row(0).into_owned())
+    };
+    let mut d_pred_d_p_c = Matrix3::zeros();
+    d_pred_d_p_c.fixed_view_mut::<2, 3>(0, 0).copy_from(&d_uv_d_p_c);
+    d_pred_d_p_c.set_row(2, &d_ur_d_p_c);
+    Some((Vector3::new(uv.x, uv.y, u_r), d_pred_d_p_c))
 }
 
 fn error_of(pred: &Vector3<f64>, uv: &Vector2<f64>, u_right: Option<f64>) -> Vector3<f64> {
@@ -171,6 +201,7 @@ mod tests {
         cx: 318.6,
         cy: 255.3,
         bf: 41.4,
+        fisheye: None,
     };
 
     #[allow(non_snake_case)]
@@ -249,6 +280,60 @@ mod tests {
             chi2(&K, &T_c_w, &p_w, &(uv + Vector2::new(1.0, 2.0)), None, 4.0),
             Some(20.0)
         );
+    }
+
+    #[test]
+    #[allow(non_snake_case)]
+    fn fisheye_jacobians_match_central_differences_beyond_ninety_degrees() {
+        let (_, lens) = ferroslam_geometry::camera::test_fisheye_cameras()[0];
+        let k = Intrinsics::new(&lens.into(), lens.fx * 0.1);
+        let T_c_w = Isometry3::from_parts(
+            Vector3::new(0.1, -0.2, 0.05).into(),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.05, 0.1, -0.02)),
+        );
+        // 100 degrees off the axis in the camera (z < 0), and an ordinary point.
+        let dir = Vector3::new(100f64.to_radians().sin(), 0.3, 100f64.to_radians().cos());
+        for p_c in [dir.normalize() * 3.0, Vector3::new(0.4, 0.3, 2.0)] {
+            let p_w = (T_c_w.inverse() * Point3::from(p_c)).coords;
+            let uv = lens.project(&p_c).unwrap() + Vector2::new(0.7, -0.4);
+            let u_r = lens.project(&(p_c - Vector3::new(0.1, 0.0, 0.0))).unwrap().x;
+            assert_eq!(k.u_right(&p_c, uv.x), Some(u_r));
+            for u_right in [None, Some(u_r + 1.5)] {
+                let lin = linearize(&k, &T_c_w, &p_w, &uv, u_right).unwrap();
+                let d_xi = DMatrix::from_column_slice(3, 6, lin.d_e_d_xi.as_slice());
+                check_jacobian(
+                    "fisheye d_e_d_xi",
+                    &d_xi,
+                    |x| {
+                        let xi = Vector6::from_column_slice(x.as_slice());
+                        let T = se3::exp(&xi) * T_c_w;
+                        dvec(&residual(&k, &T, &p_w, &uv, u_right).unwrap())
+                    },
+                    &DVector::zeros(6),
+                    1e-6,
+                    1e-5,
+                );
+                let d_p = DMatrix::from_column_slice(3, 3, lin.d_e_d_p_w.as_slice());
+                check_jacobian(
+                    "fisheye d_e_d_p_w",
+                    &d_p,
+                    |x| {
+                        let p = Vector3::from_column_slice(x.as_slice());
+                        dvec(&residual(&k, &T_c_w, &p, &uv, u_right).unwrap())
+                    },
+                    &dvec(&p_w),
+                    1e-6,
+                    1e-5,
+                );
+                let e = residual(&k, &T_c_w, &p_w, &uv, u_right).unwrap();
+                assert!((e.xy() - Vector2::new(0.7, -0.4)).norm() < 1e-9);
+                assert!(u_right.is_none_or(|_| (e.z - 1.5).abs() < 1e-9));
+            }
+        }
+        // Straight behind the camera, past the lens's largest incidence angle.
+        let behind = Vector3::new(0.0, 0.0, -2.0);
+        let uv = Vector2::new(250.0, 250.0);
+        assert!(residual(&k, &Isometry3::identity(), &behind, &uv, None).is_none());
     }
 
     #[test]

@@ -91,7 +91,7 @@ pub struct Sim3AlignResult {
 /// use ferroslam_optim::sim3_align::{optimize_sim3, Sim3Match, SIM3_TH2_MONO};
 /// use ferroslam_optim::Intrinsics;
 /// use nalgebra::{Vector2, Vector3};
-/// let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, bf: 0.0 };
+/// let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, bf: 0.0, fisheye: None };
 /// let proj = |p: Vector3<f64>| Vector2::new(500.0 * p.x / p.z + 320.0, 500.0 * p.y / p.z + 240.0);
 /// let truth = Sim3::exp(&Vector7::from([0.1, 0.0, -0.05, 0.0, 0.05, 0.0, 0.3]));
 /// let matches: Vec<_> = (0..30)
@@ -369,6 +369,7 @@ mod tests {
         cx: 318.6,
         cy: 255.3,
         bf: 0.0,
+        fisheye: None,
     };
 
     fn pixel(p: &Vector3<f64>) -> Vector2<f64> {

@@ -15,6 +15,7 @@ fn converges_from_several_degrees_off() {
         cx: 318.6,
         cy: 255.3,
         bf: 40.0,
+        fisheye: None,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let T_c_w = se3::exp(&Vector6::new(0.1, -0.05, 0.2, 0.3, -0.2, 0.1));

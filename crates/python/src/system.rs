@@ -1,6 +1,7 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
-use ferroslam_geometry::camera::{PinholeCamera, RadTan};
+use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
+use ferroslam_geometry::GeometryError;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
@@ -158,10 +159,62 @@ impl PySlamSystem {
     }
 }
 
+/// The camera of a `model` name ("pinhole": `dist` holds 0, 4 or 5 radial-tangential
+/// coefficients; "kannala_brandt": `dist` holds k1..k4).
+fn camera_model(
+    model: &str,
+    [fx, fy, cx, cy]: [f64; 4],
+    dist: &[f64],
+    width: u32,
+    height: u32,
+) -> PyResult<CameraModel> {
+    let invalid = |e: GeometryError| PyValueError::new_err(format!("invalid camera: {e}"));
+    match model {
+        "pinhole" => {
+            let d: [f64; 5] = match *dist {
+                [] => [0.0; 5],
+                [k1, k2, p1, p2] => [k1, k2, p1, p2, 0.0],
+                [k1, k2, p1, p2, k3] => [k1, k2, p1, p2, k3],
+                _ => {
+                    return Err(PyValueError::new_err(format!(
+                        "dist must hold 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {}",
+                        dist.len()
+                    )))
+                }
+            };
+            let distortion = RadTan {
+                k1: d[0],
+                k2: d[1],
+                p1: d[2],
+                p2: d[3],
+                k3: d[4],
+            };
+            PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
+                .map(CameraModel::from)
+                .map_err(invalid)
+        }
+        "kannala_brandt" => {
+            let [k1, k2, k3, k4] = *dist else {
+                return Err(PyValueError::new_err(format!(
+                    "a kannala_brandt camera's dist must hold 4 coefficients (k1 k2 k3 k4), \
+                     got {}",
+                    dist.len()
+                )));
+            };
+            KannalaBrandtCamera::new(fx, fy, cx, cy, [k1, k2, k3, k4], width, height)
+                .map(CameraModel::from)
+                .map_err(invalid)
+        }
+        other => Err(PyValueError::new_err(format!(
+            "unknown camera model {other:?}: use \"pinhole\" or \"kannala_brandt\""
+        ))),
+    }
+}
+
 #[pymethods]
 impl PySlamSystem {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", threaded = false, **options))]
+    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", model = "pinhole", threaded = false, **options))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         fx: f64,
@@ -172,27 +225,11 @@ impl PySlamSystem {
         width: i64,
         height: i64,
         sensor: &str,
+        model: &str,
         threaded: bool,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let sensor = config::sensor(sensor)?;
-        let d: [f64; 5] = match dist.len() {
-            0 => [0.0; 5],
-            4 => [dist[0], dist[1], dist[2], dist[3], 0.0],
-            5 => [dist[0], dist[1], dist[2], dist[3], dist[4]],
-            n => {
-                return Err(PyValueError::new_err(format!(
-                    "dist must hold 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {n}"
-                )))
-            }
-        };
-        let distortion = RadTan {
-            k1: d[0],
-            k2: d[1],
-            p1: d[2],
-            p2: d[3],
-            k3: d[4],
-        };
         let size = |name: &str, v: i64| {
             u32::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| {
                 PyValueError::new_err(format!(
@@ -201,8 +238,7 @@ impl PySlamSystem {
             })
         };
         let (width, height) = (size("width", width)?, size("height", height)?);
-        let camera = PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
-            .map_err(|e| PyValueError::new_err(format!("invalid camera: {e}")))?;
+        let camera = camera_model(model, [fx, fy, cx, cy], &dist, width, height)?;
         let config = config::parse(sensor, fx, width, options)?;
         let system = SlamSystem::new(camera, config.clone()).map_err(to_py)?;
         let engine = if threaded {

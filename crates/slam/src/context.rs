@@ -1,21 +1,26 @@
 //! Read-only sensor and configuration context shared by the tracking and mapping stages.
 
 use ferroslam_features::ImageBounds;
-use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_geometry::camera::CameraModel;
 use ferroslam_optim::Intrinsics;
+use nalgebra::Vector3;
 
 use ferroslam_map::Rig;
 
 use crate::config::SlamConfig;
 
+/// The Kannala-Brandt model's name in map files and the bindings.
+pub const KANNALA_BRANDT: &str = "kannala_brandt";
+
 /// Calibration and settings every stage needs; fixed for the life of a system.
 #[derive(Clone, Debug)]
 pub struct Context {
-    /// Calibrated camera (keypoints are undistorted with it).
-    pub camera: PinholeCamera,
-    /// Undistorted image bounds, pixels.
+    /// Calibrated camera: keypoints are moved to its core pixels (undistorted for the
+    /// pinhole, raw for a fisheye) and map points projected through it.
+    pub camera: CameraModel,
+    /// Image bounds in core pixels.
     pub bounds: ImageBounds,
-    /// Ideal pinhole + bf used by the optimisers.
+    /// Projection model + bf used by the optimisers.
     pub intrinsics: Intrinsics,
     /// User configuration.
     pub config: SlamConfig,
@@ -27,23 +32,18 @@ pub struct Context {
 
 impl Context {
     /// Derives the context from a validated configuration.
-    pub fn new(camera: PinholeCamera, config: SlamConfig) -> Self {
-        let b = camera.undistorted_bounds();
+    pub fn new(camera: impl Into<CameraModel>, config: SlamConfig) -> Self {
+        let camera = camera.into();
+        let b = camera.bounds();
         let bounds = ImageBounds {
             min_x: b.min_x,
             max_x: b.max_x,
             min_y: b.min_y,
             max_y: b.max_y,
         };
-        let intrinsics = Intrinsics {
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
-            bf: config.depth.bf,
-        };
-        let close_depth_m = config.depth.close_depth_m(camera.fx);
-        let baseline_m = config.depth.bf / camera.fx;
+        let intrinsics = Intrinsics::new(&camera, config.depth.bf);
+        let close_depth_m = config.depth.close_depth_m(camera.fx());
+        let baseline_m = config.depth.bf / camera.fx();
         Self {
             camera,
             bounds,
@@ -56,22 +56,60 @@ impl Context {
 
     /// The sensor and camera, as map files record them.
     pub fn rig(&self) -> Rig {
-        let (camera, d) = (&self.camera, &self.camera.distortion);
+        let (model, intrinsics, distortion) = match &self.camera {
+            CameraModel::Pinhole(c) => {
+                let d = &c.distortion;
+                let distortion = [d.k1, d.k2, d.p1, d.p2, d.k3];
+                (Rig::PINHOLE, [c.fx, c.fy, c.cx, c.cy], distortion)
+            }
+            CameraModel::KannalaBrandt(c) => {
+                let [k1, k2, k3, k4] = c.k;
+                let distortion = [k1, k2, k3, k4, 0.0];
+                (KANNALA_BRANDT, [c.fx, c.fy, c.cx, c.cy], distortion)
+            }
+        };
+        let (width, height) = self.camera.size();
         Rig {
             sensor: self.config.sensor.name().to_owned(),
-            intrinsics: [camera.fx, camera.fy, camera.cx, camera.cy],
-            distortion: [d.k1, d.k2, d.p1, d.p2, d.k3],
-            width: camera.width,
-            height: camera.height,
+            model: model.to_owned(),
+            intrinsics,
+            distortion,
+            width,
+            height,
         }
+    }
+
+    /// Whether the camera is the (ideal) pinhole, whose arithmetic the core keeps exactly as
+    /// ORB-SLAM's; otherwise geometry runs on unit rays.
+    pub fn is_pinhole(&self) -> bool {
+        self.camera.as_pinhole().is_some()
+    }
+
+    /// Whether raw keypoints are distorted pinhole pixels (stereo input must not be).
+    pub fn is_distorted(&self) -> bool {
+        self.camera.as_pinhole().is_some_and(|c| c.is_distorted())
+    }
+
+    /// The virtual right coordinate (pixels) of camera point `p_c` projected at column `u`
+    /// (see [`Intrinsics::u_right`]); NaN where the fisheye cannot project it, so that no
+    /// measured right coordinate agrees with it.
+    pub fn u_right(&self, p_c: &Vector3<f64>, u: f64) -> f64 {
+        self.intrinsics.u_right(p_c, u).unwrap_or(f64::NAN)
+    }
+
+    /// The unit ray of core pixel `(x, y)` (NaN for a pixel outside a fisheye's image circle).
+    pub fn ray(&self, x: f32, y: f32) -> Vector3<f64> {
+        self.camera
+            .unproject(&nalgebra::Vector2::new(f64::from(x), f64::from(y)))
+            .unwrap_or_else(|| Vector3::repeat(f64::NAN))
     }
 
     /// What input frames must fit: pyramid depth and image size.
     pub fn input_shape(&self) -> InputShape {
         InputShape {
             n_levels: self.config.extractor.n_levels,
-            width: self.camera.width,
-            height: self.camera.height,
+            width: self.camera.size().0,
+            height: self.camera.size().1,
         }
     }
 }
@@ -85,4 +123,54 @@ pub struct InputShape {
     pub width: u32,
     /// Image height, pixels: raw keypoints lie in `[0, height)`.
     pub height: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Sensor;
+    use crate::frame::point_at_depth;
+    use ferroslam_geometry::camera::{test_cameras, test_fisheye_cameras};
+
+    fn rgbd(camera: impl Into<CameraModel>) -> Context {
+        let mut config = SlamConfig::for_sensor(Sensor::Rgbd);
+        config.depth.bf = 40.0;
+        Context::new(camera, config)
+    }
+
+    #[test]
+    fn pinhole_right_coordinate_is_orb_slams_and_the_fisheye_one_a_second_camera() {
+        let (_, pinhole) = test_cameras()[0];
+        let ctx = rgbd(pinhole);
+        let p_c = Vector3::new(0.3, -0.2, 2.5);
+        let u = ctx.camera.project(&p_c).unwrap().x;
+        assert_eq!(ctx.u_right(&p_c, u), u - 40.0 / 2.5);
+        assert!(ctx.is_pinhole() && ctx.rig().model == Rig::PINHOLE);
+
+        let (_, lens) = test_fisheye_cameras()[0];
+        let ctx = rgbd(lens);
+        let b = 40.0 / lens.fx;
+        // 100 degrees off the axis: behind the plane a pinhole would need.
+        let p_c = Vector3::new(2.0, 0.5, -0.35);
+        let u = ctx.camera.project(&p_c).unwrap().x;
+        let right = lens.project(&(p_c - Vector3::new(b, 0.0, 0.0))).unwrap().x;
+        assert_eq!(ctx.u_right(&p_c, u), right);
+        // Straight behind the right camera: no projection, no right coordinate.
+        assert!(ctx.u_right(&Vector3::new(b, 0.0, -1.0), u).is_nan());
+        assert!(!ctx.is_pinhole() && ctx.rig().model == KANNALA_BRANDT);
+        assert_eq!(ctx.rig().distortion[..4], lens.k);
+    }
+
+    #[test]
+    fn depth_is_z_depth_along_a_fisheye_ray() {
+        let (_, lens) = test_fisheye_cameras()[1];
+        let ctx = rgbd(lens);
+        let p_c = Vector3::new(-1.5, 0.8, 1.2);
+        let uv = ctx.camera.project(&p_c).unwrap();
+        let ray = ctx.ray(uv.x as f32, uv.y as f32);
+        let back = point_at_depth(&ray, p_c.z).unwrap();
+        // The f32 pixel: about 1e-4 px of 285 px per radian at 2.1 m.
+        assert!((back - p_c).norm() < 1e-5, "{back} vs {p_c}");
+        assert!(point_at_depth(&Vector3::new(1.0, 0.0, 0.0), 2.0).is_none());
+    }
 }

@@ -4,7 +4,7 @@ use ferroslam_features::{
     match_stereo, search_by_projection_with, Descriptor, ImageBounds, Keypoint, MatchOptions,
     ProjectionQuery, ScalePyramid, StereoView,
 };
-use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_geometry::camera::CameraModel;
 use ferroslam_map::{FrameFeatures, MapPointId, Rgb};
 use nalgebra::{Isometry3, Vector2, Vector3};
 
@@ -212,16 +212,25 @@ impl Frame {
         let mut depth = Vec::with_capacity(input.keypoints.len());
         let mut u_right = Vec::with_capacity(input.keypoints.len());
         for (kp, &d) in input.keypoints.iter().zip(input.depth_m) {
-            let uv = camera.undistort_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
+            let uv = camera.core_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
             keypoints.push(Keypoint {
                 x: uv.x as f32,
                 y: uv.y as f32,
                 ..*kp
             });
             let d = d as f64;
-            if d.is_finite() && d > dmin && d < dmax {
+            // A fisheye's measured right coordinate: the virtual right camera's column of
+            // the keypoint's ray at its (z-)depth.
+            let ur = match camera {
+                CameraModel::Pinhole(_) => Some(uv.x - config.depth.bf / d),
+                CameraModel::KannalaBrandt(_) => camera
+                    .unproject(&uv)
+                    .and_then(|ray| point_at_depth(&ray, d))
+                    .and_then(|p_c| ctx.intrinsics.u_right(&p_c, uv.x)),
+            };
+            if let Some(ur) = ur.filter(|_| d.is_finite() && d > dmin && d < dmax) {
                 depth.push(d as f32);
-                u_right.push((uv.x - config.depth.bf / d) as f32);
+                u_right.push(ur as f32);
             } else {
                 depth.push(-1.0);
                 u_right.push(-1.0);
@@ -245,7 +254,7 @@ impl Frame {
         input: &MonoInput<'_>,
         ctx: &Context,
     ) -> Result<Self, SlamError> {
-        let keypoints = undistort(input.keypoints, &ctx.camera);
+        let keypoints = to_core_pixels(input.keypoints, &ctx.camera);
         let n = keypoints.len();
         Self::new(
             index,
@@ -272,7 +281,7 @@ impl Frame {
             &input.right,
             pyramid,
             ctx.config.depth.bf,
-            ctx.camera.fx,
+            ctx.camera.fx(),
         );
         let (dmin, dmax) = ctx.config.depth.depth_range;
         let (u_right, depth) = matches
@@ -385,12 +394,12 @@ impl Frame {
     }
 }
 
-/// Keypoints moved from raw (distorted) to ideal pinhole pixel coordinates.
-fn undistort(keypoints: &[Keypoint], camera: &PinholeCamera) -> Vec<Keypoint> {
+/// Keypoints moved from raw pixels to the camera's core pixels (see [`CameraModel`]).
+fn to_core_pixels(keypoints: &[Keypoint], camera: &CameraModel) -> Vec<Keypoint> {
     keypoints
         .iter()
         .map(|kp| {
-            let uv = camera.undistort_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
+            let uv = camera.core_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
             Keypoint {
                 x: uv.x as f32,
                 y: uv.y as f32,
@@ -400,11 +409,13 @@ fn undistort(keypoints: &[Keypoint], camera: &PinholeCamera) -> Vec<Keypoint> {
         .collect()
 }
 
-/// Back-projects keypoint `i` of `features` with its depth, returning the world point.
+/// Back-projects keypoint `i` of `features` with its depth (along the optical axis),
+/// returning the world point; `None` without depth or, for a fisheye, for a ray that does not
+/// point forwards.
 pub fn unproject_depth(
     features: &FrameFeatures,
     i: usize,
-    camera: &PinholeCamera,
+    camera: &CameraModel,
     T_w_c: &Isometry3<f64>,
 ) -> Option<Vector3<f64>> {
     let z = features.depth[i] as f64;
@@ -412,6 +423,16 @@ pub fn unproject_depth(
         return None;
     }
     let kp = &features.keypoints[i];
-    let ray = camera.unproject(&Vector2::new(kp.x as f64, kp.y as f64));
-    Some(T_w_c * nalgebra::Point3::from(ray * z)).map(|p| p.coords)
+    let uv = Vector2::new(kp.x as f64, kp.y as f64);
+    let p_c = match camera {
+        CameraModel::Pinhole(c) => c.unproject(&uv) * z,
+        CameraModel::KannalaBrandt(_) => point_at_depth(&camera.unproject(&uv)?, z)?,
+    };
+    Some(T_w_c * nalgebra::Point3::from(p_c)).map(|p| p.coords)
+}
+
+/// The point along unit `ray` at z-depth `z` (depth cameras measure along the optical
+/// axis); `None` for a ray that does not point forwards.
+pub fn point_at_depth(ray: &Vector3<f64>, z: f64) -> Option<Vector3<f64>> {
+    (ray.z > 0.0).then(|| ray * (z / ray.z))
 }

@@ -1,7 +1,7 @@
 //! Visibility of a map point from a camera pose (ORB-SLAM `Frame::isInFrustum`).
 
 use ferroslam_features::ImageBounds;
-use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_geometry::camera::CameraModel;
 use ferroslam_map::{Map, MapPointId};
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -10,12 +10,13 @@ use crate::config::VisibilityConfig;
 /// Where and at which pyramid level a map point should appear in an image.
 #[derive(Clone, Copy, Debug)]
 pub struct VisiblePoint {
-    /// Predicted pixel coordinates (undistorted).
+    /// Predicted pixel column (core pixels).
     pub u: f64,
-    /// Predicted pixel row (undistorted).
+    /// Predicted pixel row (core pixels).
     pub v: f64,
-    /// Depth of the point in the camera, metres.
-    pub z: f64,
+    /// The point in the camera frame, metres (`z < 0` for a fisheye's points beyond 90
+    /// degrees from the axis).
+    pub p_c: Vector3<f64>,
     /// Predicted pyramid level from the viewing distance.
     pub level: u8,
     /// Cosine between the viewing ray and the point's mean viewing direction.
@@ -23,15 +24,15 @@ pub struct VisiblePoint {
 }
 
 /// Projects `mp` into a camera at `T_c_w` and checks ORB-SLAM's visibility conditions:
-/// positive depth, inside the image bounds, distance within the scale-invariance range
-/// widened by `rules` and viewing angle with `cos >= rules.min_view_cos` to the mean
-/// direction.
+/// projected by the model (positive depth for the pinhole), inside the image bounds, distance
+/// within the scale-invariance range widened by `rules` and viewing angle with
+/// `cos >= rules.min_view_cos` to the mean direction.
 pub fn visible_point(
     map: &Map,
     mp: MapPointId,
     T_c_w: &Isometry3<f64>,
     center_w: &Vector3<f64>,
-    camera: &PinholeCamera,
+    camera: &CameraModel,
     bounds: &ImageBounds,
     rules: &VisibilityConfig,
 ) -> Option<VisiblePoint> {
@@ -55,7 +56,7 @@ pub fn visible_point(
     Some(VisiblePoint {
         u: uv.x,
         v: uv.y,
-        z: p_c.z,
+        p_c: p_c.coords,
         level,
         view_cos,
     })

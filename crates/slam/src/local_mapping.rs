@@ -7,9 +7,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use ferroslam_features::matcher::TH_LOW;
-use ferroslam_features::{search_for_triangulation, MatchOptions};
-use ferroslam_geometry::triangulation::triangulate_dlt;
-use ferroslam_map::{KeyFrameId, Map, MapPointId};
+use ferroslam_features::{search_for_triangulation, search_for_triangulation_rays, MatchOptions};
+use ferroslam_geometry::triangulation::{triangulate_dlt, triangulate_rays};
+use ferroslam_map::{FrameFeatures, KeyFrameId, Map, MapPointId};
 use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
 #[cfg(feature = "bench")]
 use ferroslam_optim::BaProblem;
@@ -260,7 +260,6 @@ impl LocalMapper {
             if too_short {
                 continue;
             }
-            let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, ctx);
             let epipole2 = ctx
                 .camera
                 .project(&(T_c2_w * Point3::from(o1)).coords)
@@ -273,18 +272,34 @@ impl LocalMapper {
                 nn_ratio: None,
                 check_orientation: true,
             };
-            let pairs = search_for_triangulation(
-                &f1.keypoints,
-                &f1.descriptors,
-                &free1,
-                &f2.keypoints,
-                &f2.descriptors,
-                &free2,
-                &f21,
-                &pyramid.sigma2,
-                epipole2,
-                &opts,
-            );
+            let pairs = if ctx.is_pinhole() {
+                let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, ctx);
+                search_for_triangulation(
+                    &f1.keypoints,
+                    &f1.descriptors,
+                    &free1,
+                    &f2.keypoints,
+                    &f2.descriptors,
+                    &free2,
+                    &f21,
+                    &pyramid.sigma2,
+                    epipole2,
+                    &opts,
+                )
+            } else {
+                let rays = |f: &FrameFeatures| -> Vec<Vector3<f64>> {
+                    f.keypoints.iter().map(|k| ctx.ray(k.x, k.y)).collect()
+                };
+                search_for_triangulation_rays(
+                    (&f1.keypoints, &f1.descriptors, &free1, &rays(f1)),
+                    (&f2.keypoints, &f2.descriptors, &free2, &rays(f2)),
+                    &essential_matrix(&T_c1_w, &T_c2_w),
+                    &pyramid.sigma2,
+                    1.0 / ctx.camera.fx(),
+                    epipole2,
+                    &opts,
+                )
+            };
             let views = [View::new(map, kf), View::new(map, kf2)];
             let mut new_points = Vec::new();
             for (i1, i2) in pairs {
@@ -404,17 +419,23 @@ impl LocalMapper {
     }
 }
 
-/// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two cameras.
+/// Essential matrix `E21 = [t21]x R21` with `r2^T E21 r1 = 0` for rays of two cameras.
+fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>) -> Matrix3<f64> {
+    let T_21 = T_c2_w * T_c1_w.inverse();
+    let t = T_21.translation.vector;
+    let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
+    t_hat * T_21.rotation.to_rotation_matrix().into_inner()
+}
+
+/// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two pinhole
+/// cameras.
 fn fundamental_matrix(
     T_c1_w: &Isometry3<f64>,
     T_c2_w: &Isometry3<f64>,
     ctx: &Context,
 ) -> Matrix3<f64> {
-    let T_21 = T_c2_w * T_c1_w.inverse();
-    let t = T_21.translation.vector;
-    let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
-    let e21 = t_hat * T_21.rotation.to_rotation_matrix().into_inner();
-    let c = &ctx.camera;
+    let e21 = essential_matrix(T_c1_w, T_c2_w);
+    let c = ctx.camera.as_pinhole().expect("a pinhole camera");
     let k_inv = Matrix3::new(
         1.0 / c.fx,
         0.0,
@@ -465,7 +486,7 @@ impl<'a> View<'a> {
         let s2 = sigma2[self.octave(i)];
         let ur = self.features.u_right[i] as f64;
         if ur >= 0.0 {
-            let er = uv.x - ctx.intrinsics.bf / p_c.z - ur;
+            let er = ctx.u_right(&p_c.coords, uv.x) - ur;
             e.norm_squared() + er * er <= CHI2_STEREO * s2
         } else {
             e.norm_squared() <= CHI2_MONO * s2
@@ -493,13 +514,25 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
     if let Some(k) = closest {
         return unproject_depth(views[k].features, idx[k], &ctx.camera, &views[k].T_w_c);
     }
-    let xn = [0, 1].map(|k| ctx.camera.unproject(&views[k].pixel(idx[k])));
-    let rays = [0, 1].map(|k| views[k].T_w_c.rotation * xn[k]);
+    // (x, y, 1) rays for the pinhole (ORB-SLAM's arithmetic), unit rays otherwise.
+    let pinhole = ctx.camera.as_pinhole();
+    let xn = [0, 1].map(|k| {
+        let uv = views[k].pixel(idx[k]);
+        pinhole.map_or_else(|| ctx.camera.unproject(&uv), |c| Some(c.unproject(&uv)))
+    });
+    let [Some(x1), Some(x2)] = xn else {
+        return None;
+    };
+    let rays = [(0, x1), (1, x2)].map(|(k, x)| views[k].T_w_c.rotation * x);
     let cos_rays = rays[0].dot(&rays[1]) / (rays[0].norm() * rays[1].norm());
     if cos_rays > ctx.config.mapping.min_ray_parallax_deg.to_radians().cos() {
         return None;
     }
-    triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &xn[0], &xn[1])
+    if pinhole.is_some() {
+        triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &x1, &x2)
+    } else {
+        triangulate_rays(&views[0].T_c_w, &views[1].T_c_w, &x1, &x2)
+    }
 }
 
 #[cfg(test)]

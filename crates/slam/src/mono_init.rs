@@ -5,6 +5,7 @@
 
 use ferroslam_features::matcher::TH_LOW;
 use ferroslam_features::{search_by_projection, MatchOptions, ProjectionQuery};
+use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
 use ferroslam_geometry::two_view::{reconstruct_two_view, TwoViewOptions, TwoViewReconstruction};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use nalgebra::{Isometry3, Vector2};
@@ -92,24 +93,24 @@ impl MonoInitializer {
             let kp = &frame.features.keypoints[j];
             self.prev_matched[i] = Vector2::new(kp.x as f64, kp.y as f64);
         }
-        let pixels = |f: &Frame| -> Vec<Vector2<f64>> {
-            f.features
-                .keypoints
-                .iter()
-                .map(|k| Vector2::new(k.x as f64, k.y as f64))
-                .collect()
-        };
         let options = TwoViewOptions {
             seed: ctx.config.seed ^ frame.index as u64,
             ..TwoViewOptions::default()
         };
-        match reconstruct_two_view(
-            &pixels(reference),
-            &pixels(frame),
-            &matches,
-            &ctx.camera,
-            &options,
-        ) {
+        let (pinhole, pixels, matches) = match &ctx.camera {
+            CameraModel::Pinhole(c) => {
+                let pixels = |f: &Frame| -> Vec<Vector2<f64>> {
+                    f.features
+                        .keypoints
+                        .iter()
+                        .map(|k| Vector2::new(k.x as f64, k.y as f64))
+                        .collect()
+                };
+                (*c, [pixels(reference), pixels(frame)], matches)
+            }
+            CameraModel::KannalaBrandt(c) => virtual_pinhole_pairs(c, reference, frame, matches, ctx),
+        };
+        match reconstruct_two_view(&pixels[0], &pixels[1], &matches, &pinhole, &options) {
             Ok(reconstruction) => Ok(TwoViewPair {
                 reference: self.reference.take().expect("checked above"),
                 matches,
@@ -181,6 +182,53 @@ pub struct InitialMap {
     pub kf2: KeyFrameId,
     /// The points created, oldest first.
     pub points: Vec<MapPointId>,
+}
+
+/// Largest angle (degrees) off a fisheye's axis of the rays the two-view reconstruction
+/// uses: their `(x/z, y/z)` is a pinhole point, whose plane grows without bound towards 90.
+const TWO_VIEW_MAX_RAY_DEG: f64 = 70.0;
+
+/// A fisheye pair as a distortion-free pinhole with the same `fx, fy, cx, cy` would see it:
+/// the camera, both frames' pixels (NaN for rays beyond [`TWO_VIEW_MAX_RAY_DEG`]) and the
+/// matches whose rays are both within that angle.
+fn virtual_pinhole_pairs(
+    lens: &KannalaBrandtCamera,
+    reference: &Frame,
+    frame: &Frame,
+    matches: Vec<(usize, usize)>,
+    ctx: &Context,
+) -> (PinholeCamera, [Vec<Vector2<f64>>; 2], Vec<(usize, usize)>) {
+    let min_z = TWO_VIEW_MAX_RAY_DEG.to_radians().cos();
+    let pixels = |f: &Frame| -> Vec<Vector2<f64>> {
+        f.features
+            .keypoints
+            .iter()
+            .map(|k| {
+                let r = ctx.ray(k.x, k.y);
+                if r.z > min_z {
+                    Vector2::new(lens.fx * r.x / r.z + lens.cx, lens.fy * r.y / r.z + lens.cy)
+                } else {
+                    Vector2::repeat(f64::NAN)
+                }
+            })
+            .collect()
+    };
+    let pixels = [pixels(reference), pixels(frame)];
+    let matches = matches
+        .into_iter()
+        .filter(|&(i, j)| pixels[0][i].x.is_finite() && pixels[1][j].x.is_finite())
+        .collect();
+    let pinhole = PinholeCamera::new(
+        lens.fx,
+        lens.fy,
+        lens.cx,
+        lens.cy,
+        RadTan::default(),
+        lens.width,
+        lens.height,
+    )
+    .expect("a valid fisheye's intrinsics make a valid pinhole");
+    (pinhole, pixels, matches)
 }
 
 /// Builds the initial map from a pair (ORB-SLAM `CreateInitialMapMonocular`): two keyframes,

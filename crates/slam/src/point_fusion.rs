@@ -7,7 +7,6 @@ use ferroslam_features::hamming;
 use ferroslam_features::matcher::TH_LOW;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
-use nalgebra::Point3;
 
 use crate::context::Context;
 use crate::error::SlamError;
@@ -100,8 +99,7 @@ pub(crate) fn fuse_points_into(
             continue;
         };
         let descriptor = *p.descriptor();
-        let z = (T_c_w * Point3::from(p.position())).z;
-        let ur_pred = vis.u - ctx.intrinsics.bf / z;
+        let ur_pred = ctx.u_right(&vis.p_c, vis.u);
         let k = map.keyframe(kf).unwrap();
         let f = k.features();
         let radius = th * pyramid.scale[vis.level as usize];

@@ -3,13 +3,13 @@
 use std::time::Instant;
 
 use ferroslam_features::ScalePyramid;
-use ferroslam_geometry::camera::PinholeCamera;
+use ferroslam_geometry::camera::CameraModel;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 #[cfg(feature = "bench")]
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
 
-use crate::config::SlamConfig;
+use crate::config::{Sensor, SlamConfig};
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
@@ -95,17 +95,24 @@ pub struct SlamSystem {
 
 impl SlamSystem {
     /// Creates a system for `camera` (the calibration of the raw keypoints) and `config`.
-    pub fn new(camera: PinholeCamera, config: SlamConfig) -> Result<Self, SlamError> {
+    ///
+    /// # Errors
+    /// `InvalidConfig` for a configuration that fails validation, a pyramid the image cannot
+    /// hold, and a stereo sensor with a camera other than the pinhole (stereo matching runs
+    /// along the rows of rectified images).
+    pub fn new(camera: impl Into<CameraModel>, config: SlamConfig) -> Result<Self, SlamError> {
+        let camera = camera.into();
         config.validate()?;
-        config
-            .extractor
-            .check_pyramid(camera.width, camera.height)?;
+        let (width, height) = camera.size();
+        config.extractor.check_pyramid(width, height)?;
+        if config.sensor == Sensor::Stereo && camera.as_pinhole().is_none() {
+            return Err(SlamError::InvalidConfig(
+                "stereo needs rectified pinhole images (matching runs along image rows), but                  the camera is a fisheye: rectify the pair first, e.g. with                  StereoVSlam.from_raw(left_camera, right_camera, T_left_right)"
+                    .into(),
+            ));
+        }
         let ctx = Context::new(camera, config);
-        let guard = InputGuard::new(
-            ctx.config.sensor,
-            ctx.input_shape(),
-            ctx.camera.is_distorted(),
-        );
+        let guard = InputGuard::new(ctx.config.sensor, ctx.input_shape(), ctx.is_distorted());
         let extractor = &ctx.config.extractor;
         let pyramid = ScalePyramid::new(extractor.scale_factor, extractor.n_levels)
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
@@ -173,7 +180,7 @@ impl SlamSystem {
     /// A fresh guard with this system's input rules (for a background submitter).
     pub fn input_guard(&self) -> InputGuard {
         let c = &self.ctx;
-        InputGuard::new(c.config.sensor, c.input_shape(), c.camera.is_distorted())
+        InputGuard::new(c.config.sensor, c.input_shape(), c.is_distorted())
     }
 
     /// Initialises or tracks a frame, then inserts a keyframe when needed.

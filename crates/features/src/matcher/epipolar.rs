@@ -46,51 +46,138 @@ pub fn search_for_triangulation(
     epipole2: Option<(f64, f64)>,
     opts: &MatchOptions,
 ) -> Vec<(usize, usize)> {
-    let n1 = kps1.len().min(desc1.len());
     let n2 = kps2.len().min(desc2.len());
-    let is_free = |flags: &[bool], i: usize| flags.get(i).copied().unwrap_or(false);
     // View-2 candidates that pass the per-feature tests, indexed so that each epipolar line
     // visits only those near it.
     let mut candidates2 = PencilIndex::default();
-    for i2 in (0..n2).filter(|&i2| is_free(free2, i2)) {
+    for (i2, s2) in free_candidates(&kps2[..n2], free2, sigma2, epipole2) {
         let kp2 = &kps2[i2];
-        let Some(&s2) = sigma2.get(usize::from(kp2.octave)) else {
-            continue;
-        };
+        let (x, y) = (f64::from(kp2.x), f64::from(kp2.y));
+        candidates2.push(i2, x, y, CHI2_1DOF_95 * s2);
+    }
+    candidates2.build(f21);
+
+    best_near(
+        (kps1, desc1, free1),
+        (kps2, desc2),
+        opts,
+        |i1, near, out| {
+            let kp1 = &kps1[i1];
+            let line = f21 * Vector3::new(f64::from(kp1.x), f64::from(kp1.y), 1.0);
+            let norm2 = line.x * line.x + line.y * line.y;
+            if !(norm2 > 0.0 && norm2.is_finite()) {
+                return;
+            }
+            candidates2.near_line(&line, norm2, near);
+            out.extend(near.iter().map(|&k| candidates2.index[k]));
+        },
+    )
+}
+
+/// [`search_for_triangulation`] on unit rays, for cameras without an image plane (a fisheye
+/// whose field of view may exceed 180 degrees).
+///
+/// `rays1[i]` / `rays2[i]` are the unit rays of the keypoints (camera frames; a non-finite
+/// ray is never matched) and `e21 = [t21]x R21` the essential matrix with
+/// `p_c2 = R21 p_c1 + t21`. The epipolar test is angular: `kp2`'s ray must lie within the
+/// angle `asin(sqrt(3.84 * sigma2[kp2.octave]) * rad_per_px)` of the epipolar plane
+/// `E21 r1` (ORB-SLAM's pixel test, with `rad_per_px` about `1 / fx`). The epipole test
+/// (`epipole2`, pixels of the keypoints) and the matching rules are those of
+/// [`search_for_triangulation`].
+pub fn search_for_triangulation_rays(
+    (kps1, desc1, free1, rays1): (&[Keypoint], &[Descriptor], &[bool], &[Vector3<f64>]),
+    (kps2, desc2, free2, rays2): (&[Keypoint], &[Descriptor], &[bool], &[Vector3<f64>]),
+    e21: &Matrix3<f64>,
+    sigma2: &[f64],
+    rad_per_px: f64,
+    epipole2: Option<(f64, f64)>,
+    opts: &MatchOptions,
+) -> Vec<(usize, usize)> {
+    let n2 = kps2.len().min(desc2.len()).min(rays2.len());
+    // (i2, ray, squared sine bound) of the view-2 features passing the per-feature tests.
+    let candidates2: Vec<_> = free_candidates(&kps2[..n2], free2, sigma2, epipole2)
+        .filter(|&(i2, _)| rays2[i2].iter().all(|v| v.is_finite()))
+        .map(|(i2, s2)| (i2, rays2[i2], CHI2_1DOF_95 * s2 * rad_per_px * rad_per_px))
+        .collect();
+    let n1 = kps1.len().min(rays1.len());
+    best_near(
+        (&kps1[..n1], desc1, free1),
+        (kps2, desc2),
+        opts,
+        |i1, _, out| {
+            let normal = e21 * rays1[i1];
+            let norm2 = normal.norm_squared();
+            if !(norm2 > 0.0 && norm2.is_finite()) {
+                return;
+            }
+            out.extend(
+                candidates2
+                    .iter()
+                    .filter(|(_, ray, bound)| {
+                        let d = ray.dot(&normal);
+                        d * d < bound * norm2
+                    })
+                    .map(|(i2, _, _)| *i2),
+            );
+        },
+    )
+}
+
+/// The free view-2 features, with their level variance, that have one in `sigma2` and lie
+/// far enough from the epipole (see [`search_for_triangulation`]).
+fn free_candidates<'a>(
+    kps2: &'a [Keypoint],
+    free2: &'a [bool],
+    sigma2: &'a [f64],
+    epipole2: Option<(f64, f64)>,
+) -> impl Iterator<Item = (usize, f64)> + 'a {
+    kps2.iter().enumerate().filter_map(move |(i2, kp2)| {
+        if !free2.get(i2).copied().unwrap_or(false) {
+            return None;
+        }
+        let &s2 = sigma2.get(usize::from(kp2.octave))?;
         let (x, y) = (f64::from(kp2.x), f64::from(kp2.y));
         let far_from_epipole = epipole2.is_none_or(|(ex, ey)| {
             let (dx, dy) = (ex - x, ey - y);
             dx * dx + dy * dy >= 100.0 * s2.sqrt()
         });
-        if far_from_epipole {
-            candidates2.push(i2, x, y, CHI2_1DOF_95 * s2);
-        }
-    }
-    candidates2.build(f21);
+        far_from_epipole.then_some((i2, s2))
+    })
+}
 
+/// Per free view-1 feature, the best of the view-2 candidates `near(i1, scratch, out)` puts
+/// in `out` (see [`search_for_triangulation`] for the rules), one-to-one and sorted by `i1`.
+fn best_near<F>(
+    (kps1, desc1, free1): (&[Keypoint], &[Descriptor], &[bool]),
+    (kps2, desc2): (&[Keypoint], &[Descriptor]),
+    opts: &MatchOptions,
+    near: F,
+) -> Vec<(usize, usize)>
+where
+    F: Fn(usize, &mut Vec<usize>, &mut Vec<usize>) + Sync,
+{
+    let n1 = kps1.len().min(desc1.len());
+    let n2 = kps2.len().min(desc2.len());
     let mut matches: Vec<_> = (0..n1)
         .into_par_iter()
-        .map_init(Vec::new, |near, i1| {
-            if !is_free(free1, i1) {
-                return None;
-            }
-            let kp1 = &kps1[i1];
-            let line = f21 * Vector3::new(f64::from(kp1.x), f64::from(kp1.y), 1.0);
-            let norm2 = line.x * line.x + line.y * line.y;
-            if !(norm2 > 0.0 && norm2.is_finite()) {
-                return None;
-            }
-            candidates2.near_line(&line, norm2, near);
-            let mut best = BestTwo::default();
-            for &k in near.iter() {
-                let i2 = candidates2.index[k];
-                let d = hamming(&desc1[i1], &desc2[i2]);
-                if d <= opts.max_distance {
-                    best.push_unordered(d, i2, kps2[i2].octave);
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(scratch, candidates), i1| {
+                if !free1.get(i1).copied().unwrap_or(false) {
+                    return None;
                 }
-            }
-            best.accept(opts.max_distance, opts.nn_ratio)
-        })
+                candidates.clear();
+                near(i1, scratch, candidates);
+                let mut best = BestTwo::default();
+                for &i2 in candidates.iter() {
+                    let d = hamming(&desc1[i1], &desc2[i2]);
+                    if d <= opts.max_distance {
+                        best.push_unordered(d, i2, kps2[i2].octave);
+                    }
+                }
+                best.accept(opts.max_distance, opts.nn_ratio)
+            },
+        )
         .collect();
     finalize(&mut matches, n2, opts.check_orientation, |i1, i2| {
         Some(kps1[i1].angle_deg - kps2[i2].angle_deg)
@@ -160,15 +247,27 @@ mod tests {
         r * r / (l.x * l.x + l.y * l.y)
     }
 
-    #[test]
-    fn finds_true_pairs_and_respects_the_epipolar_bound() {
-        let seed = 31;
+    /// Keypoints, descriptors and unit rays of both views, the true pairs and the decoys
+    /// (closer descriptors 25 px off the epipolar line) of a random scene.
+    struct Scene {
+        kps1: Vec<Keypoint>,
+        desc1: Vec<Descriptor>,
+        rays1: Vec<Vector3<f64>>,
+        kps2: Vec<Keypoint>,
+        desc2: Vec<Descriptor>,
+        rays2: Vec<Vector3<f64>>,
+        truth: Vec<(usize, usize)>,
+        decoys: Vec<usize>,
+    }
+
+    fn scene(view: &TwoView, seed: u64) -> Scene {
         let mut rng = rng(seed);
-        let view = TwoView::new();
-        let pyramid = ScalePyramid::default();
         let (mut kps1, mut desc1, mut kps2, mut desc2) = (vec![], vec![], vec![], vec![]);
+        let (mut rays1, mut rays2) = (vec![], vec![]);
         let mut truth = Vec::new(); // (i1, i2)
         let mut decoys = Vec::new(); // i2 of decoys
+        let k_inv = view.k.try_inverse().unwrap();
+        let ray = |uv: Vector2<f64>| (k_inv * Vector3::new(uv.x, uv.y, 1.0)).normalize();
         while kps1.len() < 300 {
             let p1 = Vector3::new(
                 rng.random_range(-2.0..2.0),
@@ -186,10 +285,12 @@ mod tests {
             let d = random_descriptor(&mut rng);
             let i1 = kps1.len();
             kps1.push(keypoint(uv1, rng.random_range(0..8)));
+            rays1.push(ray(uv1));
             desc1.push(d);
             let n_bits = rng.random_range(0..15);
             truth.push((i1, kps2.len()));
             kps2.push(keypoint(uv2 + noise, rng.random_range(0..8)));
+            rays2.push(ray(uv2 + noise));
             desc2.push(flip_bits(&mut rng, &d, n_bits));
             if i1 % 5 == 0 {
                 // A closer descriptor 25 px off the epipolar line: must never be matched.
@@ -197,9 +298,70 @@ mod tests {
                 let normal = Vector2::new(l.x, l.y).normalize();
                 decoys.push(kps2.len());
                 kps2.push(keypoint(uv2 + 25.0 * normal, 0));
+                rays2.push(ray(uv2 + 25.0 * normal));
                 desc2.push(flip_bits(&mut rng, &d, 1));
             }
         }
+        Scene {
+            kps1,
+            desc1,
+            rays1,
+            kps2,
+            desc2,
+            rays2,
+            truth,
+            decoys,
+        }
+    }
+
+    #[test]
+    fn rays_find_the_true_pairs_within_the_angular_bound() {
+        let view = TwoView::new();
+        let s = scene(&view, 31);
+        let pyramid = ScalePyramid::default();
+        let free1: Vec<bool> = (0..s.kps1.len()).map(|i| i % 7 != 3).collect();
+        let free2: Vec<bool> = (0..s.kps2.len()).map(|i| i % 11 != 4).collect();
+        let e21 = view.t21.cross_matrix() * view.r21.matrix();
+        let got = search_for_triangulation_rays(
+            (&s.kps1, &s.desc1, &free1, &s.rays1),
+            (&s.kps2, &s.desc2, &free2, &s.rays2),
+            &e21,
+            &pyramid.sigma2,
+            1.0 / 500.0,
+            Some(view.epipole2()),
+            &MatchOptions::triangulation(),
+        );
+        let expected: Vec<_> = s
+            .truth
+            .iter()
+            .copied()
+            .filter(|&(i1, i2)| free1[i1] && free2[i2])
+            .collect();
+        assert!(expected.len() > 200);
+        assert_eq!(got, expected);
+        // Each accepted ray lies within the angular bound of its epipolar plane.
+        for &(i1, i2) in &got {
+            let n = e21 * s.rays1[i1];
+            let sin = s.rays2[i2].dot(&n) / n.norm();
+            let bound = CHI2_1DOF_95 * pyramid.sigma2[usize::from(s.kps2[i2].octave)];
+            assert!(sin * sin < bound / (500.0 * 500.0));
+        }
+    }
+
+    #[test]
+    fn finds_true_pairs_and_respects_the_epipolar_bound() {
+        let seed = 31;
+        let view = TwoView::new();
+        let pyramid = ScalePyramid::default();
+        let Scene {
+            kps1,
+            desc1,
+            kps2,
+            desc2,
+            truth,
+            decoys,
+            ..
+        } = scene(&view, seed);
         let free1: Vec<bool> = (0..kps1.len()).map(|i| i % 7 != 3).collect();
         let free2: Vec<bool> = (0..kps2.len()).map(|i| i % 11 != 4).collect();
         let f21 = view.f21();

@@ -18,7 +18,7 @@ mod projection;
 mod rotation;
 
 pub use brute_force::match_brute_force;
-pub use epipolar::search_for_triangulation;
+pub use epipolar::{search_for_triangulation, search_for_triangulation_rays};
 pub use options::{MatchOptions, TH_HIGH, TH_LOW};
 pub use projection::{search_by_projection, search_by_projection_with, ProjectionQuery};
 pub use rotation::{RotationHistogram, HISTO_LENGTH};

@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! ferroslam-ba 1
-//! intrinsics <fx> <fy> <cx> <cy> <bf>                      pixels; bf in pixels * metres
+//! intrinsics <fx> <fy> <cx> <cy> <bf> [kannala_brandt <k1> <k2> <k3> <k4> <w> <h>]
+//!                                                          pixels; bf in pixels * metres
 //! poses <n>
 //! <fixed 0|1> <qw> <qx> <qy> <qz> <tx> <ty> <tz>           x n: T_c_w, unit quaternion, metres
 //! points <m>
@@ -12,17 +13,21 @@
 //! <pose> <point> <u> <v> <u_right | -> <inv_sigma2>        x k: pixels, 1/pixels^2
 //! ```
 //!
+//! The `kannala_brandt` tail marks a fisheye camera (coefficients and image size).
 //! `-` marks a monocular observation (no right coordinate). Numbers are written in Rust's
 //! shortest round-trip form, so reading a written problem gives it back bit for bit.
 
 use super::problem::{BaProblem, Observation};
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
+use ferroslam_geometry::camera::KannalaBrandtCamera;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector2, Vector3};
 use std::fmt::Write;
 
 /// First line of the format, with its version.
 const HEADER: &str = "ferroslam-ba 1";
+/// Marks the fisheye tail of the intrinsics line.
+const FISHEYE: &str = "kannala_brandt";
 /// How far from 1 a quaternion's norm may be (the text keeps 17 significant digits).
 const UNIT_TOLERANCE: f64 = 1e-9;
 
@@ -33,7 +38,13 @@ impl BaProblem {
         let k = &self.intrinsics;
         // Writing to a String cannot fail.
         let _ = writeln!(s, "{HEADER}");
-        let _ = writeln!(s, "intrinsics {} {} {} {} {}", k.fx, k.fy, k.cx, k.cy, k.bf);
+        let _ = write!(s, "intrinsics {} {} {} {} {}", k.fx, k.fy, k.cx, k.cy, k.bf);
+        if let Some(c) = &k.fisheye {
+            let [k1, k2, k3, k4] = c.k;
+            let (w, h) = (c.width, c.height);
+            let _ = write!(s, " {FISHEYE} {k1} {k2} {k3} {k4} {w} {h}");
+        }
+        let _ = writeln!(s);
         let _ = writeln!(s, "poses {}", self.poses.len());
         for (pose, &fixed) in self.poses.iter().zip(&self.pose_fixed) {
             let q = pose.rotation.quaternion();
@@ -80,7 +91,7 @@ impl BaProblem {
             return Err(header.error(&format!("expected the header '{HEADER}'")));
         }
         let line = lines.next("the intrinsics")?;
-        let [fx, fy, cx, cy, bf] = line.values("intrinsics")?;
+        let intrinsics = parse_intrinsics(&line)?;
         let n_poses = lines.count("poses")?;
         let mut poses = Vec::with_capacity(n_poses);
         let mut pose_fixed = Vec::with_capacity(n_poses);
@@ -133,7 +144,7 @@ impl BaProblem {
             return Err(extra.error("text after the last observation"));
         }
         let problem = Self {
-            intrinsics: Intrinsics { fx, fy, cx, cy, bf },
+            intrinsics,
             poses,
             pose_fixed,
             points,
@@ -150,6 +161,46 @@ struct Lines<'a> {
     name: &'a str,
     /// Line number of the end of the text, for "ends before" errors.
     end: usize,
+}
+
+/// The intrinsics line, pinhole or with the fisheye tail.
+fn parse_intrinsics(line: &Line<'_>) -> Result<Intrinsics, OptimError> {
+    let (pinhole, fisheye) = match line.text.split_once(FISHEYE) {
+        Some((pinhole, fisheye)) => (pinhole, Some(fisheye)),
+        None => (line.text, None),
+    };
+    let head = Line {
+        text: pinhole.trim(),
+        ..*line
+    };
+    let [fx, fy, cx, cy, bf] = head.values("intrinsics")?;
+    let fisheye = match fisheye {
+        None => None,
+        Some(tail) => {
+            let tail = Line {
+                text: tail.trim(),
+                ..*line
+            };
+            let [k1, k2, k3, k4, w, h] = tail.values("")?;
+            let size = |v: f64| {
+                (v >= 1.0 && v.fract() == 0.0 && v <= f64::from(u32::MAX))
+                    .then_some(v as u32)
+                    .ok_or_else(|| line.error(&format!("'{v}' is not an image size")))
+            };
+            let camera =
+                KannalaBrandtCamera::new(fx, fy, cx, cy, [k1, k2, k3, k4], size(w)?, size(h)?)
+                    .map_err(|e| line.error(&e.to_string()))?;
+            Some(camera)
+        }
+    };
+    Ok(Intrinsics {
+        fx,
+        fy,
+        cx,
+        cy,
+        bf,
+        fisheye,
+    })
 }
 
 /// One line and where it is.
@@ -254,6 +305,7 @@ mod tests {
                 cx: 318.6,
                 cy: 255.3,
                 bf: 40.0,
+                fisheye: None,
             },
             poses: vec![
                 Isometry3::identity(),
@@ -294,6 +346,16 @@ mod tests {
         assert!(text.starts_with("ferroslam-ba 1\nintrinsics 517.3 516.5 318.6 255.3 40\n"));
         assert!(text.contains("\n1 1 0 0 0 0 0 0\n"), "{text}");
         assert!(text.ends_with(&format!("1 1 {} 30 - {}\n", 100.0 / 7.0, 1.0 / 1.44)));
+        assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
+    }
+
+    #[test]
+    fn a_fisheye_problem_reads_back_with_its_lens() {
+        let mut p = problem();
+        let (_, lens) = ferroslam_geometry::camera::test_fisheye_cameras()[0];
+        p.intrinsics = Intrinsics::new(&lens.into(), 40.0);
+        let text = p.to_text();
+        assert!(text.lines().nth(1).unwrap().contains(" kannala_brandt "), "{text}");
         assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
     }
 

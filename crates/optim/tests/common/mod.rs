@@ -17,6 +17,7 @@ pub const K: Intrinsics = Intrinsics {
     cx: 318.6,
     cy: 255.3,
     bf: 517.3 * 0.08,
+    fisheye: None,
 };
 pub const WIDTH: f64 = 640.0;
 pub const HEIGHT: f64 = 480.0;

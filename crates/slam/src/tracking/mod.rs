@@ -552,7 +552,7 @@ impl Tracker {
                 angle_deg: None,
             });
             ids.push(m);
-            u_right.push(vis.u - ctx.intrinsics.bf / vis.z);
+            u_right.push(ctx.u_right(&vis.p_c, vis.u));
         }
         let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
         let opts = MatchOptions {
@@ -787,7 +787,7 @@ fn search_last_frame(
             descriptor,
             angle_deg: Some(kp.angle_deg),
         });
-        u_right.push(uv.x - ctx.intrinsics.bf / p_c.z);
+        u_right.push(ctx.u_right(&p_c.coords, uv.x));
         sources.push((point, p_w));
     }
     let taken = vec![false; frame.len()];

@@ -14,7 +14,7 @@ use ferroslam_features::{ImageBounds, Keypoint, KeypointGrid};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 use super::super::CulledKeyFrame;
-use super::{COLORS_SINCE, FORMAT_VERSION};
+use super::{CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION};
 use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
 /// Appends encoded values to a byte buffer.
@@ -485,11 +485,14 @@ impl Codec for CulledKeyFrame {
     }
 }
 
-/// Sensor name (bytes, UTF-8), intrinsics, distortion, image size.
+/// Sensor name (bytes, UTF-8), camera model name (version 5 on), intrinsics, distortion,
+/// image size.
 impl Codec for Rig {
+    /// Version 3's: the smallest of every version read.
     const MIN_SIZE: usize = 8 + 9 * 8 + 2 * 4;
     fn encode(&self, e: &mut Encoder) {
         e.put(&self.sensor.as_bytes().to_vec());
+        e.put(&self.model.as_bytes().to_vec());
         self.intrinsics
             .iter()
             .chain(&self.distortion)
@@ -500,12 +503,19 @@ impl Codec for Rig {
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let sensor = String::from_utf8(d.get::<Vec<u8>>()?)
             .map_err(|_| corrupt(format!("{}: sensor name is not UTF-8", d.context)))?;
+        let model = if d.has(CAMERA_MODEL_SINCE) {
+            String::from_utf8(d.get::<Vec<u8>>()?)
+                .map_err(|_| corrupt(format!("{}: camera model is not UTF-8", d.context)))?
+        } else {
+            Rig::PINHOLE.to_owned()
+        };
         let mut values = [0.0; 9];
         for v in &mut values {
             *v = d.get()?;
         }
         Ok(Rig {
             sensor,
+            model,
             intrinsics: [values[0], values[1], values[2], values[3]],
             distortion: [values[4], values[5], values[6], values[7], values[8]],
             width: d.get()?,

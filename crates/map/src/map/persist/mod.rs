@@ -1,6 +1,6 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 4, all numbers little-endian)
+//! # Format (version 5, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
@@ -8,8 +8,9 @@
 //! 12      8     payload length N, u64
 //! 20      N     payload: six sections, in this order, each
 //!                 tag [u8; 4] | body length u64 | body
-//!                 "RIG_" Option<sensor name Vec<u8>, fx fy cx cy f64, k1 k2 p1 p2 k3
-//!                        f64, width u32, height u32> (version 3 on; see `Rig`)
+//!                 "RIG_" Option<sensor name Vec<u8>, camera model name Vec<u8> (version
+//!                        5 on), fx fy cx cy f64, 5 distortion coefficients f64, width u32,
+//!                        height u32> (version 3 on; see `Rig`)
 //!                 "PYRM" scale factor f64, number of levels u64
 //!                 "IDS_" next keyframe id u32, next map point id u32, origin Option<u32>
 //!                 "KEYF" keyframes by increasing id (Vec<KeyFrame>)
@@ -24,11 +25,13 @@
 //! unique `Vec`s.
 //!
 //! # Versions
+//! - 5: the camera record names the camera model (`"pinhole"`, `"kannala_brandt"`). Files of
+//!   versions 3 and 4 load as pinhole cameras.
 //! - 4: keyframe features end with their keypoint colours (`Option<Vec<colour>>`), map
 //!   points with their colour (`Option<colour>`).
 //! - 3: the sensor and camera record ("RIG_"). Version 3 files still load: as version 4
 //!   without colours (every point's [`crate::MapPoint::color`] is `None`); saving writes
-//!   version 4.
+//!   the current version.
 //! - 2 and older are refused: their sensor is unknown.
 //!
 //! Everything the map holds is stored verbatim: keyframe features (without the keypoint grid,
@@ -83,11 +86,13 @@ pub const MAGIC_TEXT: &str = "FSLAMMAP";
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
 /// The map-file format version this build writes (and the newest it reads); see the module
 /// docs for what each version added.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 /// The oldest map-file format version this build reads.
 pub const OLDEST_READABLE_VERSION: u32 = 3;
 /// The version that added keypoint and map-point colours.
 const COLORS_SINCE: u32 = 4;
+/// The version that added the camera model to the sensor and camera record.
+const CAMERA_MODEL_SINCE: u32 = 5;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;
