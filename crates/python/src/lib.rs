@@ -1,7 +1,7 @@
 //! `ferroslam._core`: thin PyO3 bindings over the Rust SLAM system.
 //!
 //! Arrays are checked here (dtype, shape, finiteness) before the core sees them, so no panic
-//! reaches Python; errors are translated in one place, [`errors`].
+//! reaches Python; errors are translated in one place, `errors.rs`.
 #![allow(non_snake_case)]
 #![warn(missing_docs)]
 

@@ -200,7 +200,7 @@ impl BackgroundSlam {
         }
     }
 
-    /// Queues a frame; blocks while [`QUEUE_CAPACITY`] frames are waiting.
+    /// Queues a frame; blocks while `QUEUE_CAPACITY` frames are waiting.
     pub fn submit(&self, frame: OwnedFrame) -> Result<(), SlamError> {
         self.pending.fetch_add(1, Ordering::SeqCst);
         let sent = self

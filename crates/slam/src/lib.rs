@@ -3,7 +3,8 @@
 //!
 //! Conventions are those of `ferroslam_geometry`: `T_a_b` maps points from frame b into
 //! frame a, camera poses are `T_w_c`, metres / pixels / seconds. Keypoints enter raw
-//! (distorted) and are undistorted once, in [`frame::Frame`].
+//! (distorted) and become core pixels of the camera model once, when the frame is built
+//! (undistorted for a pinhole, raw for a fisheye, whose geometry runs on unit rays).
 #![allow(non_snake_case)]
 #![warn(missing_docs)]
 

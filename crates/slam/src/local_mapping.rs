@@ -40,7 +40,7 @@ pub struct MappingReport {
     /// Wall time of local BA (visual or visual-inertial), milliseconds.
     pub local_ba_ms: f64,
     /// Tracking waited for this keyframe's mapping, which stopped after triangulation (see
-    /// [`Interrupt`]).
+    /// `Interrupt`).
     pub interrupted: bool,
 }
 

@@ -389,7 +389,7 @@ impl SlamSystem {
 
     /// Runs local mapping and loop closing in a thread of their own (`true`) or inline in
     /// each call (`false`, the default: deterministic). Concurrent mapping works on copies of
-    /// the map and its edits are replayed here before each frame (see [`crate::mapping`]);
+    /// the map and its edits are replayed here before each frame (see the `mapping` module);
     /// switching it off first finishes the work queued.
     ///
     /// # Errors
@@ -584,7 +584,7 @@ impl SlamSystem {
 
     /// Sets the IMU (noise model, camera pose in the body frame, alignment knobs): from now
     /// on keyframes keep their preintegrated IMU and the camera-IMU alignment runs once the
-    /// map holds `num_poses_threshold` keyframes (see [`crate::inertial`]). Replaces an
+    /// map holds `num_poses_threshold` keyframes (see the `inertial` module). Replaces an
     /// earlier IMU setup, its buffered samples and its alignment.
     ///
     /// # Errors

@@ -3,7 +3,7 @@
 //! `dcb|abcd|cba`).
 //!
 //! OpenCV's ORB blurs each level inside its padded pyramid, where `cv::GaussianBlur` becomes
-//! `cv::sepFilter2D` with `getGaussianKernel(7, 2)` in `f32` ([`KERNEL`]). Rows first:
+//! `cv::sepFilter2D` with `getGaussianKernel(7, 2)` in `f32` (`KERNEL`). Rows first:
 //! `r(x) = sum_k K[k] I(x - 3 + k)`, accumulated from `k = 0` up; then columns:
 //! `c(y) = K[3] r(y)`, then `+ K[3 + j] (r(y + j) + r(y - j))` for `j = 1, 2, 3`; `c` rounded
 //! half to even and saturated to `0..=255`.
@@ -11,8 +11,8 @@
 //! Bit for bit, the rounding of each step matters. On a CPU with AVX2 and FMA, OpenCV's x86-64
 //! builds run vector kernels that fuse each multiply-add, and scalar loops, unfused, for the
 //! columns left over: the row pass fuses the first `32 floor(w / 32)` columns of a `w` px row
-//! ([`fused_row_columns`]), the column pass 32 at a time, then 16 once, then 4 at a time
-//! ([`fused_column_columns`]). OpenCV on a CPU without them rounds a few pixels per image one
+//! (`fused_row_columns`), the column pass 32 at a time, then 16 once, then 4 at a time
+//! (`fused_column_columns`). OpenCV on a CPU without them rounds a few pixels per image one
 //! grey level differently.
 
 use multiversion::multiversion;
