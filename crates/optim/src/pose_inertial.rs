@@ -71,7 +71,8 @@ type Vector15 = SVector<f64, 15>;
 pub const CHI2_MONO_SCHEDULE: [f64; ROUNDS] = [12.0, 7.5, CHI2_MONO, CHI2_MONO];
 /// Stereo outlier threshold per round (ORB-SLAM3 `chi2Stereo`).
 pub const CHI2_STEREO_SCHEDULE: [f64; ROUNDS] = [15.6, 9.8, CHI2_STEREO, CHI2_STEREO];
-/// Monocular points closer than this (metres, camera z) get a looser threshold.
+/// Monocular points closer than this (metres, camera z; range for a fisheye) get a looser
+/// threshold.
 pub const CLOSE_DEPTH: f64 = 10.0;
 /// Threshold multiplier for close monocular points.
 pub const CLOSE_FACTOR: f64 = 1.5;
@@ -226,7 +227,13 @@ fn is_inlier(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservation, round:
     let threshold = if o.u_right.is_some() {
         CHI2_STEREO_SCHEDULE[round]
     } else {
-        let depth = (T_c_w * Point3::from(o.p_w)).z;
+        let p_c = T_c_w * Point3::from(o.p_w);
+        // A fisheye sees points beside and behind its axis: their range, not z, is the depth.
+        let depth = if k.fisheye.is_some() {
+            p_c.coords.norm()
+        } else {
+            p_c.z
+        };
         let close = if depth < CLOSE_DEPTH {
             CLOSE_FACTOR
         } else {
