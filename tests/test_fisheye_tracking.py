@@ -105,20 +105,35 @@ def test_fisheye_tum_rgbd_tracks_every_frame():
     assert rmse <= 0.030
 
 
-def test_fisheye_tum_mono_tracks_through_the_fisheye_path():
-    """Monocular on the same fisheye frames: two-view start on the virtual pinhole, new
-    points from the ray epipolar search and ray triangulation. Measured (inline, so
-    deterministic): 212/300 tracked in 3 map segments (22, 33, 146 frames), ATE 4.96 cm
-    after Sim(3). The same frames re-imaged into a distortion-free pinhole with fx 480 give
-    246/300 in one segment, 2.49 cm, so the fisheye path loses the map where the pinhole
-    does not: the bounds guard what works today, not the pinhole's figures."""
-    seq = FisheyeTum(require_data("tum", "rgbd_dataset_freiburg1_rpy"))
+class InpaintedFisheyeTum(FisheyeTum):
+    """``FisheyeTum`` with the frame outside the Kinect's view filled from its edge
+    (``cv2.inpaint``): the hard, curved black border of the re-imaged frames is a ring of
+    corners that stay put in the image, which a monocular map takes for points at infinity
+    (with it: 212/300 in 3 map segments, 4.96 cm). A real lens has no such edge inside its
+    image circle."""
+
+    def load_gray_and_color(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        _, color = super().load_gray_and_color(i)
+        outside = (self.map_x < -999.0).astype(np.uint8)
+        color = cv2.inpaint(color, outside, 3, cv2.INPAINT_TELEA)
+        return cv2.cvtColor(color, cv2.COLOR_BGR2GRAY), color
+
+
+def test_fisheye_tum_mono_tracks_like_the_pinhole():
+    """Monocular on the fisheye frames: two-view start on the virtual pinhole, new points
+    from the ray epipolar search and ray triangulation. Measured (inline, deterministic):
+    256/300 tracked in one map, ATE 2.52 cm after Sim(3); the same frames re-imaged into a
+    distortion-free pinhole with fx 480 give 246/300, 2.49 cm (the original pinhole frames
+    263/300, 2.76 cm). Bounds: the pinhole-480 run's tracked count and the issue's 3 cm."""
+    seq = InpaintedFisheyeTum(require_data("tum", "rgbd_dataset_freiburg1_rpy"))
     result = run_sequence(seq, sensor="mono", progress=False)
     rmse = result.ate_frames.rmse
+    segments = len(np.unique(result.segments))
     print(f"fisheye TUM fr1/rpy mono: {result.tracked_frames}/{result.frames} tracked, "
-          f"ATE {rmse * 100:.2f} cm, {len(np.unique(result.segments))} segments")
-    assert result.tracked_frames >= 200
-    assert rmse <= 0.060
+          f"ATE {rmse * 100:.2f} cm, {segments} map segment(s)")
+    assert result.tracked_frames >= 246
+    assert segments == 1
+    assert rmse <= 0.030
 
 
 def test_a_fisheye_stereo_system_is_refused_with_a_pointer_to_from_raw():
