@@ -33,8 +33,7 @@ pub use image::{GrayImage, OwnedGrayImage};
 pub use keypoint::Keypoint;
 pub use matcher::{
     match_brute_force, search_by_projection, search_by_projection_with, search_for_triangulation,
-    search_for_triangulation_rays,
-    MatchOptions, ProjectionQuery, RotationHistogram,
+    search_for_triangulation_rays, MatchOptions, ProjectionQuery, RotationHistogram,
 };
 pub use pyramid::ScalePyramid;
 pub use stereo::{match_stereo, StereoMatch, StereoView};

@@ -103,7 +103,10 @@ pub fn pnp_ransac(
     };
     // (x, y, 1) rays; the matches EPnP may sample.
     let (rays, eligible): (Vec<Vector3<f64>>, Vec<usize>) = match camera {
-        CameraModel::Pinhole(c) => (pixels.iter().map(|uv| c.unproject(uv)).collect(), (0..n).collect()),
+        CameraModel::Pinhole(c) => (
+            pixels.iter().map(|uv| c.unproject(uv)).collect(),
+            (0..n).collect(),
+        ),
         CameraModel::KannalaBrandt(_) => {
             let min_z = FRONT_RAY_MAX_DEG.to_radians().cos();
             let rays: Vec<_> = pixels
@@ -282,7 +285,11 @@ mod tests {
                 rng.random_range(1.4..1.7)
             };
             let phi: f64 = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
-            let dir = Vector3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+            let dir = Vector3::new(
+                theta.sin() * phi.cos(),
+                theta.sin() * phi.sin(),
+                theta.cos(),
+            );
             let p_c = dir * rng.random_range(1.0..6.0);
             let mut uv = camera.project(&p_c).unwrap();
             if points_w.len() % 5 == 0 {
@@ -294,15 +301,19 @@ mod tests {
             points_w.push((T_c_w.inverse() * nalgebra::Point3::from(p_c)).coords);
             pixels.push(uv);
         }
-        let sol = pnp_ransac(&points_w, &pixels, &[], &camera, &PnpRansacOptions::default())
-            .expect("a pose");
+        let sol = pnp_ransac(
+            &points_w,
+            &pixels,
+            &[],
+            &camera,
+            &PnpRansacOptions::default(),
+        )
+        .expect("a pose");
         let err = se3::log(&(sol.T_c_w * T_c_w.inverse()));
         assert!(err.norm() < 5e-3, "pose error {err}");
         // Matches beyond 90 degrees never enter EPnP, but the refined pose keeps them.
         let kept = (0..150)
-            .filter(|&i| {
-                sol.inliers[i] && (T_c_w * nalgebra::Point3::from(points_w[i])).z < 0.0
-            })
+            .filter(|&i| sol.inliers[i] && (T_c_w * nalgebra::Point3::from(points_w[i])).z < 0.0)
             .count();
         assert!(beyond_90 > 5 && kept == beyond_90, "{kept} of {beyond_90}");
         assert!((0..150).step_by(5).all(|i| !sol.inliers[i]));

@@ -115,7 +115,8 @@ pub fn triangulate_rays(
     }
     let svd = a.svd(false, true);
     let v_t = svd.v_t?;
-    let smallest = (0..4).min_by(|&i, &j| svd.singular_values[i].total_cmp(&svd.singular_values[j]))?;
+    let smallest =
+        (0..4).min_by(|&i, &j| svd.singular_values[i].total_cmp(&svd.singular_values[j]))?;
     let h = v_t.row(smallest);
     if h[3].abs() < 1e-12 {
         return None;

@@ -18,8 +18,8 @@ pub mod persist;
 mod point_geometry;
 mod spanning_tree;
 
-pub use covisibility::COVISIBILITY_THRESHOLD;
 use arena::Arena;
+pub use covisibility::COVISIBILITY_THRESHOLD;
 use journal::Recorder;
 pub use journal::{MapEdit, MapJournal};
 

@@ -102,6 +102,9 @@ mod tests {
             ..rig("rgbd")
         };
         let m = fisheye.mismatch(&rig("rgbd")).unwrap();
-        assert!(m.contains("\"kannala_brandt\"") && m.contains("\"pinhole\""), "{m}");
+        assert!(
+            m.contains("\"kannala_brandt\"") && m.contains("\"pinhole\""),
+            "{m}"
+        );
     }
 }

@@ -71,7 +71,9 @@ fn predict_fisheye(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, 
         (uv.x, d_uv_d_p_c.row(0).into_owned())
     };
     let mut d_pred_d_p_c = Matrix3::zeros();
-    d_pred_d_p_c.fixed_view_mut::<2, 3>(0, 0).copy_from(&d_uv_d_p_c);
+    d_pred_d_p_c
+        .fixed_view_mut::<2, 3>(0, 0)
+        .copy_from(&d_uv_d_p_c);
     d_pred_d_p_c.set_row(2, &d_ur_d_p_c);
     Some((Vector3::new(uv.x, uv.y, u_r), d_pred_d_p_c))
 }
@@ -296,7 +298,10 @@ mod tests {
         for p_c in [dir.normalize() * 3.0, Vector3::new(0.4, 0.3, 2.0)] {
             let p_w = (T_c_w.inverse() * Point3::from(p_c)).coords;
             let uv = lens.project(&p_c).unwrap() + Vector2::new(0.7, -0.4);
-            let u_r = lens.project(&(p_c - Vector3::new(0.1, 0.0, 0.0))).unwrap().x;
+            let u_r = lens
+                .project(&(p_c - Vector3::new(0.1, 0.0, 0.0)))
+                .unwrap()
+                .x;
             assert_eq!(k.u_right(&p_c, uv.x), Some(u_r));
             for u_right in [None, Some(u_r + 1.5)] {
                 let lin = linearize(&k, &T_c_w, &p_w, &uv, u_right).unwrap();

@@ -50,36 +50,49 @@ pub fn camera_model(camera: &Bound<'_, PyAny>) -> PyResult<CameraModel> {
         .map_err(|_| PyTypeError::new_err("camera.dist must be a sequence of real numbers"))?;
     let (fx, fy, cx, cy) = (number("fx")?, number("fy")?, number("cx")?, number("cy")?);
     let (width, height) = (size("width")?, size("height")?);
-    let coefficients = |n: usize, names: &str| -> PyResult<()> {
-        if dist.len() == n {
-            Ok(())
-        } else {
-            Err(PyValueError::new_err(format!(
-                "camera.dist must hold {n} coefficients ({names}) for the {model} model, got {}",
-                dist.len()
-            )))
-        }
-    };
-    match model.as_str() {
+    camera_model_of(&model, [fx, fy, cx, cy], &dist, width, height)
+}
+
+/// The camera of a `model` name, its `[fx, fy, cx, cy]` (pixels), `dist` and image size: the
+/// one place model names and coefficient counts are read. "pinhole": `dist` holds 0, 4 or 5
+/// radial-tangential coefficients (k1 k2 p1 p2 [k3]); "kannala_brandt": k1..k4.
+pub fn camera_model_of(
+    model: &str,
+    [fx, fy, cx, cy]: [f64; 4],
+    dist: &[f64],
+    width: u32,
+    height: u32,
+) -> PyResult<CameraModel> {
+    let invalid = |e| geometry_to_py("invalid camera", e);
+    match model {
         "pinhole" => {
-            coefficients(5, "k1 k2 p1 p2 k3")?;
-            let distortion = RadTan {
-                k1: dist[0],
-                k2: dist[1],
-                p1: dist[2],
-                p2: dist[3],
-                k3: dist[4],
+            let [k1, k2, p1, p2, k3] = match *dist {
+                [] => [0.0; 5],
+                [k1, k2, p1, p2] => [k1, k2, p1, p2, 0.0],
+                [k1, k2, p1, p2, k3] => [k1, k2, p1, p2, k3],
+                _ => {
+                    return Err(PyValueError::new_err(format!(
+                        "dist must hold 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {}",
+                        dist.len()
+                    )))
+                }
             };
+            let distortion = RadTan { k1, k2, p1, p2, k3 };
             PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
                 .map(CameraModel::from)
-                .map_err(|e| geometry_to_py("invalid camera", e))
+                .map_err(invalid)
         }
         "kannala_brandt" => {
-            coefficients(4, "k1 k2 k3 k4")?;
-            let k = [dist[0], dist[1], dist[2], dist[3]];
-            KannalaBrandtCamera::new(fx, fy, cx, cy, k, width, height)
+            let [k1, k2, k3, k4] = *dist else {
+                return Err(PyValueError::new_err(format!(
+                    "a kannala_brandt camera's dist must hold 4 coefficients (k1 k2 k3 k4), \
+                     got {}",
+                    dist.len()
+                )));
+            };
+            KannalaBrandtCamera::new(fx, fy, cx, cy, [k1, k2, k3, k4], width, height)
                 .map(CameraModel::from)
-                .map_err(|e| geometry_to_py("invalid camera", e))
+                .map_err(invalid)
         }
         other => Err(PyValueError::new_err(format!(
             "unknown camera model {other:?} (use pinhole, kannala_brandt)"

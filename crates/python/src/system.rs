@@ -1,7 +1,5 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
-use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
-use ferroslam_geometry::GeometryError;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
@@ -15,6 +13,7 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+use crate::camera::camera_model_of;
 use crate::config;
 use crate::convert;
 use crate::errors::to_py;
@@ -159,58 +158,6 @@ impl PySlamSystem {
     }
 }
 
-/// The camera of a `model` name ("pinhole": `dist` holds 0, 4 or 5 radial-tangential
-/// coefficients; "kannala_brandt": `dist` holds k1..k4).
-fn camera_model(
-    model: &str,
-    [fx, fy, cx, cy]: [f64; 4],
-    dist: &[f64],
-    width: u32,
-    height: u32,
-) -> PyResult<CameraModel> {
-    let invalid = |e: GeometryError| PyValueError::new_err(format!("invalid camera: {e}"));
-    match model {
-        "pinhole" => {
-            let d: [f64; 5] = match *dist {
-                [] => [0.0; 5],
-                [k1, k2, p1, p2] => [k1, k2, p1, p2, 0.0],
-                [k1, k2, p1, p2, k3] => [k1, k2, p1, p2, k3],
-                _ => {
-                    return Err(PyValueError::new_err(format!(
-                        "dist must hold 0, 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {}",
-                        dist.len()
-                    )))
-                }
-            };
-            let distortion = RadTan {
-                k1: d[0],
-                k2: d[1],
-                p1: d[2],
-                p2: d[3],
-                k3: d[4],
-            };
-            PinholeCamera::new(fx, fy, cx, cy, distortion, width, height)
-                .map(CameraModel::from)
-                .map_err(invalid)
-        }
-        "kannala_brandt" => {
-            let [k1, k2, k3, k4] = *dist else {
-                return Err(PyValueError::new_err(format!(
-                    "a kannala_brandt camera's dist must hold 4 coefficients (k1 k2 k3 k4), \
-                     got {}",
-                    dist.len()
-                )));
-            };
-            KannalaBrandtCamera::new(fx, fy, cx, cy, [k1, k2, k3, k4], width, height)
-                .map(CameraModel::from)
-                .map_err(invalid)
-        }
-        other => Err(PyValueError::new_err(format!(
-            "unknown camera model {other:?}: use \"pinhole\" or \"kannala_brandt\""
-        ))),
-    }
-}
-
 #[pymethods]
 impl PySlamSystem {
     #[new]
@@ -238,7 +185,7 @@ impl PySlamSystem {
             })
         };
         let (width, height) = (size("width", width)?, size("height", height)?);
-        let camera = camera_model(model, [fx, fy, cx, cy], &dist, width, height)?;
+        let camera = camera_model_of(model, [fx, fy, cx, cy], &dist, width, height)?;
         let config = config::parse(sensor, fx, width, options)?;
         let system = SlamSystem::new(camera, config.clone()).map_err(to_py)?;
         let engine = if threaded {

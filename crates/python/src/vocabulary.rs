@@ -9,9 +9,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use ferroslam_features::Descriptor;
-use ferroslam_vocabulary::{
-    BowVector, Database, EntryId, TrainParams, Vocabulary, WordId,
-};
+use ferroslam_vocabulary::{BowVector, Database, EntryId, TrainParams, Vocabulary, WordId};
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;

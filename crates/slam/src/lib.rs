@@ -38,8 +38,7 @@ pub use config::{
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
 pub use inertial::{
-    AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig,
-    Preintegrated,
+    AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig, Preintegrated,
 };
 pub use input_guard::InputGuard;
 pub use local_mapping::MappingReport;

@@ -108,7 +108,9 @@ impl MonoInitializer {
                 };
                 (*c, [pixels(reference), pixels(frame)], matches)
             }
-            CameraModel::KannalaBrandt(c) => virtual_pinhole_pairs(c, reference, frame, matches, ctx),
+            CameraModel::KannalaBrandt(c) => {
+                virtual_pinhole_pairs(c, reference, frame, matches, ctx)
+            }
         };
         match reconstruct_two_view(&pixels[0], &pixels[1], &matches, &pinhole, &options) {
             Ok(reconstruction) => Ok(TwoViewPair {

@@ -300,9 +300,9 @@ impl SlamSystem {
                 inertial: self.inertial.as_mut().and_then(|i| i.window(&self.map)),
             };
             let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
-            let mapped =
-                self.mapping
-                    .submit(work, &mut self.map, &self.ctx, vocabulary.as_ref());
+            let mapped = self
+                .mapping
+                .submit(work, &mut self.map, &self.ctx, vocabulary.as_ref());
             if let Some(mapped) = mapped {
                 // Inline: this frame's keyframe was mapped within the call.
                 if let Some((_, done)) = mapped.reports.first() {
@@ -632,10 +632,7 @@ impl SlamSystem {
 
     /// IMU preintegrated from the previous live keyframe (returned with it) to keyframe `kf`,
     /// at the newest keyframe's biases once aligned (zero before).
-    pub fn keyframe_imu(
-        &self,
-        kf: KeyFrameId,
-    ) -> Option<(KeyFrameId, &Preintegrated)> {
+    pub fn keyframe_imu(&self, kf: KeyFrameId) -> Option<(KeyFrameId, &Preintegrated)> {
         self.inertial.as_ref()?.preintegrated(kf)
     }
 

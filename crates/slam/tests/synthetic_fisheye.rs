@@ -20,8 +20,16 @@ const FRAMES: usize = 90;
 
 /// fx = fy = 150 px per radian on a 640 x 640 image: 95 degrees lands 249 px from the centre.
 fn fisheye() -> KannalaBrandtCamera {
-    KannalaBrandtCamera::new(150.0, 150.0, 320.0, 320.0, [-0.01, 0.002, 0.0, 0.0], 640, 640)
-        .unwrap()
+    KannalaBrandtCamera::new(
+        150.0,
+        150.0,
+        320.0,
+        320.0,
+        [-0.01, 0.002, 0.0, 0.0],
+        640,
+        640,
+    )
+    .unwrap()
 }
 
 /// Landmarks 2-6 m around the path, in every direction, with unique descriptors.
@@ -157,7 +165,10 @@ fn a_190_degree_fisheye_tracks_with_points_beyond_ninety_degrees() {
     );
     // Measured 128 of 2305 (the 90-95 degree band is about 4 % of the view): well above 0,
     // with room for other builds.
-    assert!(beyond_90 >= 50, "{beyond_90} tracked points beyond 90 degrees");
+    assert!(
+        beyond_90 >= 50,
+        "{beyond_90} tracked points beyond 90 degrees"
+    );
     // 0.5 px noise on rays 1/150 rad per pixel: millimetres, hundredths of a degree.
     assert!(worst_t < 0.01, "worst translation error {worst_t} m");
     assert!(worst_r < 0.2, "worst rotation error {worst_r} deg");
@@ -176,7 +187,10 @@ fn a_190_degree_fisheye_tracks_with_points_beyond_ninety_degrees() {
     let err = other.load_map(&path).unwrap_err();
     std::fs::remove_file(&path).unwrap();
     assert!(matches!(err, SlamError::MapFile { .. }), "{err}");
-    assert!(err.to_string().contains("\"kannala_brandt\" camera model"), "{err}");
+    assert!(
+        err.to_string().contains("\"kannala_brandt\" camera model"),
+        "{err}"
+    );
 }
 
 #[test]

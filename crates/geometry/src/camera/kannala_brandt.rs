@@ -16,6 +16,7 @@
 
 use nalgebra::{Matrix2x3, Vector2, Vector3};
 
+use super::validation::check_intrinsics;
 use crate::GeometryError;
 
 /// Below this `r / |p|` a point is treated as on the optical axis (the `theta_d / r` limit).
@@ -59,40 +60,15 @@ impl KannalaBrandtCamera {
         width: u32,
         height: u32,
     ) -> Result<Self, GeometryError> {
-        let invalid = |name, value, reason| {
-            Err(GeometryError::InvalidParameter {
-                name,
-                value,
-                reason,
-            })
-        };
-        for (name, value) in [("fx", fx), ("fy", fy)] {
-            if !(value.is_finite() && value > 0.0) {
-                return invalid(name, value, "focal length must be finite and positive");
-            }
-        }
-        for (name, value) in [("cx", cx), ("cy", cy)] {
-            if !value.is_finite() {
-                return invalid(name, value, "principal point must be finite");
-            }
-        }
-        for (name, value) in ["k1", "k2", "k3", "k4"].into_iter().zip(k) {
-            if !value.is_finite() {
-                return invalid(name, value, "distortion coefficients must be finite");
-            }
-        }
-        for (name, value) in [("width", width), ("height", height)] {
-            if value == 0 {
-                return invalid(name, 0.0, "image size must be positive");
-            }
-        }
+        let names = ["k1", "k2", "k3", "k4"];
+        check_intrinsics([fx, fy, cx, cy], names.into_iter().zip(k), [width, height])?;
         let max_incidence_rad = first_turning_point(&k);
         if max_incidence_rad < 10f64.to_radians() {
-            return invalid(
-                "k1",
-                k[0],
-                "the coefficients fold the image over within 10 degrees of the axis",
-            );
+            return Err(GeometryError::InvalidParameter {
+                name: "k1",
+                value: k[0],
+                reason: "the coefficients fold the image over within 10 degrees of the axis",
+            });
         }
         Ok(Self {
             fx,

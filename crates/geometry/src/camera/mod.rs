@@ -5,6 +5,7 @@
 mod kannala_brandt;
 mod model;
 mod pinhole;
+mod validation;
 
 pub use kannala_brandt::{test_fisheye_cameras, KannalaBrandtCamera};
 pub use model::CameraModel;

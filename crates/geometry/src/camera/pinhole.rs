@@ -12,6 +12,7 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Vector2, Vector3};
 
+use super::validation::check_intrinsics;
 use crate::GeometryError;
 
 /// Smallest depth (metres) accepted by [`PinholeCamera::project`].
@@ -112,34 +113,12 @@ impl PinholeCamera {
         width: u32,
         height: u32,
     ) -> Result<Self, GeometryError> {
-        let invalid = |name, value, reason| {
-            Err(GeometryError::InvalidParameter {
-                name,
-                value,
-                reason,
-            })
-        };
-        for (name, value) in [("fx", fx), ("fy", fy)] {
-            if !(value.is_finite() && value > 0.0) {
-                return invalid(name, value, "focal length must be finite and positive");
-            }
-        }
-        for (name, value) in [("cx", cx), ("cy", cy)] {
-            if !value.is_finite() {
-                return invalid(name, value, "principal point must be finite");
-            }
-        }
         let names = ["k1", "k2", "p1", "p2", "k3"];
-        for (name, value) in names.into_iter().zip(distortion.coefficients()) {
-            if !value.is_finite() {
-                return invalid(name, value, "distortion coefficients must be finite");
-            }
-        }
-        for (name, value) in [("width", width), ("height", height)] {
-            if value == 0 {
-                return invalid(name, 0.0, "image size must be positive");
-            }
-        }
+        check_intrinsics(
+            [fx, fy, cx, cy],
+            names.into_iter().zip(distortion.coefficients()),
+            [width, height],
+        )?;
         Ok(Self {
             fx,
             fy,

@@ -355,7 +355,10 @@ mod tests {
         let (_, lens) = ferroslam_geometry::camera::test_fisheye_cameras()[0];
         p.intrinsics = Intrinsics::new(&lens.into(), 40.0);
         let text = p.to_text();
-        assert!(text.lines().nth(1).unwrap().contains(" kannala_brandt "), "{text}");
+        assert!(
+            text.lines().nth(1).unwrap().contains(" kannala_brandt "),
+            "{text}"
+        );
         assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
     }
 

@@ -43,7 +43,9 @@ impl Mapping {
     /// Finish the thread's work ([`Self::collect`] with `wait`) before moving it back.
     pub(crate) fn set_threaded(&mut self, on: bool, ctx: &Context) {
         *self = match std::mem::take(self) {
-            Self::Inline(pipeline) if on => Self::Thread(MappingThread::spawn(ctx.clone(), pipeline)),
+            Self::Inline(pipeline) if on => {
+                Self::Thread(MappingThread::spawn(ctx.clone(), pipeline))
+            }
             Self::Thread(thread) if !on => Self::Inline(thread.stop_thread()),
             same => same,
         };

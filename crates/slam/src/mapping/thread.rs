@@ -97,9 +97,7 @@ impl MappingThread {
         );
         let thread = std::thread::Builder::new()
             .name("ferroslam-mapping".into())
-            .spawn(move || {
-                mapping_loop(pipeline, &ctx, inbox, report, count, &hurry, &mapping_us)
-            })
+            .spawn(move || mapping_loop(pipeline, &ctx, inbox, report, count, &hurry, &mapping_us))
             .expect("the OS refused to start the mapping thread");
         Self {
             jobs: Some(jobs),
@@ -332,7 +330,16 @@ fn mapping_loop(
     yield_to_tracking();
     for job in inbox {
         let n = job.job.work.len();
-        let run = || run_job(&mut pipeline, job, ctx, &report, interrupt, keyframe_mapping_us);
+        let run = || {
+            run_job(
+                &mut pipeline,
+                job,
+                ctx,
+                &report,
+                interrupt,
+                keyframe_mapping_us,
+            )
+        };
         let done = catch_unwind(AssertUnwindSafe(|| match &pool {
             Some(pool) => pool.install(run),
             None => run(),
@@ -371,7 +378,10 @@ fn run_job(
     #[cfg(test)]
     assert!(!job.panics, "a job that panics (test)");
     let Job {
-        epoch, mut map, job, ..
+        epoch,
+        mut map,
+        job,
+        ..
     } = job;
     map.begin_journal();
     // Tracking applies what was sent before its next frame; if it is gone, so is the job.
