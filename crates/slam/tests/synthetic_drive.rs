@@ -4,7 +4,9 @@
 //! scale does not drift when most points are far (disparity of a few pixels).
 #![allow(non_snake_case)]
 
-use ferroslam_features::{Descriptor, Keypoint};
+mod common;
+
+use ferroslam_features::Descriptor;
 use ferroslam_geometry::camera::{test_cameras, PinholeCamera};
 use ferroslam_slam::{DepthConfig, RgbdInput, SlamConfig, SlamSystem, TrackingState};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
@@ -75,13 +77,7 @@ fn scale_error(disparity_sigma: f64, frames: usize) -> f64 {
                 continue;
             }
             let d_px = bf / p_c.z + gauss(&mut rng, disparity_sigma);
-            kps.push(Keypoint {
-                x: uv.x as f32,
-                y: uv.y as f32,
-                octave: 0,
-                angle_deg: 0.0,
-                response: 1.0,
-            });
+            kps.push(common::keypoint(&uv, 0));
             descs.push(*d);
             depths.push(if d_px > 0.0 && d_px < cam.fx {
                 (bf / d_px) as f32

@@ -3,6 +3,8 @@
 //! image plane a pinhole would need) must be triangulated from rays and then tracked.
 #![allow(non_snake_case)]
 
+mod common;
+
 use ferroslam_features::{Descriptor, Keypoint};
 use ferroslam_geometry::camera::{KannalaBrandtCamera, PinholeCamera, RadTan};
 use ferroslam_geometry::se3;
@@ -89,13 +91,7 @@ fn observe(
         }
         let uv = camera.project(&p_c).unwrap()
             + Vector2::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5));
-        kps.push(Keypoint {
-            x: uv.x as f32,
-            y: uv.y as f32,
-            octave: 0,
-            angle_deg: 0.0,
-            response: 1.0,
-        });
+        kps.push(common::keypoint(&uv, 0));
         descs.push(*d);
         depths.push(if theta < DEPTH_HALF_FOV_DEG {
             p_c.z as f32

@@ -2,7 +2,9 @@
 //! translating camera (and match the truth up to scale), and never from a rotating one.
 #![allow(non_snake_case)]
 
-use ferroslam_features::{Descriptor, Keypoint};
+mod common;
+
+use ferroslam_features::Descriptor;
 use ferroslam_geometry::camera::{test_cameras, PinholeCamera};
 use ferroslam_slam::{MonoInput, Sensor, SlamConfig, SlamSystem, TrackingState};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector2, Vector3};
@@ -49,13 +51,7 @@ fn run(
                 continue;
             }
             let octave = rng.random_range(0..3u8);
-            kps.push(Keypoint {
-                x: uv.x as f32,
-                y: uv.y as f32,
-                octave,
-                angle_deg: 0.0,
-                response: 1.0,
-            });
+            kps.push(common::keypoint(&uv, octave));
             descs.push(*d);
         }
         let input = MonoInput {

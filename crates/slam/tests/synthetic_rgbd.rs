@@ -2,6 +2,8 @@
 //! unique descriptors seen through the (distorted) TUM fr1 camera along a known path.
 #![allow(non_snake_case)]
 
+mod common;
+
 use ferroslam_features::{Descriptor, Keypoint};
 use ferroslam_geometry::camera::{test_cameras, ImageBounds, PinholeCamera};
 use ferroslam_geometry::se3;
@@ -83,13 +85,7 @@ impl Scene {
             if raw.x < 5.0 || raw.y < 5.0 || raw.x > 634.0 || raw.y > 474.0 {
                 continue;
             }
-            kps.push(Keypoint {
-                x: raw.x as f32,
-                y: raw.y as f32,
-                octave: 0,
-                angle_deg: 0.0,
-                response: 1.0,
-            });
+            kps.push(common::keypoint(&raw, 0));
             descs.push(*d);
             depths.push(p_c.z as f32);
         }
