@@ -47,6 +47,7 @@ pub mod camera;
 pub mod epnp;
 pub mod error;
 pub mod pnp;
+pub mod rolling_shutter;
 pub mod se3;
 pub mod sim3;
 pub mod sim3_ransac;
