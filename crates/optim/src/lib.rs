@@ -12,7 +12,9 @@
 //!   `inv_sigma2 * I`), and the cost is `sum rho(chi2)` with `chi2 = inv_sigma2 * |e|^2`
 //!   and `rho` the identity or g2o's Huber kernel ([`robust`]).
 //!
-//! Entry points: [`optimize_pose`] (one camera, fixed points, outlier rejection),
+//! Entry points: [`optimize_pose`] (one camera, fixed points, outlier rejection;
+//! [`pose_rolling_shutter::optimize_pose_and_velocity`] for a rolling-shutter frame, its
+//! velocity estimated with the pose),
 //! [`SymbolicBa`] + [`bundle_adjust`] (Levenberg-Marquardt with a Schur complement on the
 //! points, the reduced camera system factorised with faer's sparse Cholesky on a symbolic
 //! analysis built once per problem structure) and [`local_bundle_adjust`] (ORB-SLAM's
@@ -38,6 +40,7 @@ mod lm;
 pub mod pose;
 pub mod pose_graph;
 pub mod pose_inertial;
+pub mod pose_rolling_shutter;
 pub mod residual;
 pub mod robust;
 pub mod sim3_align;
