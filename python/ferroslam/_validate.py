@@ -26,3 +26,20 @@ def finite_array(value: object, name: str, shape: Sequence[Optional[int]]) -> np
             f"{name} contains NaN or infinite values (first at index {tuple(bad.tolist())})"
         )
     return array
+
+
+# Largest deviation of R R^T from I, and of the last row from (0 0 0 1), in a rigid transform:
+# leaves room for matrices stored as float32 or printed with ~7 digits.
+RIGID_TOL = 1e-6
+
+
+def rigid_transform(value: object, name: str) -> np.ndarray:
+    """``value`` as a finite rigid ``(4, 4)`` float64 transform; ``ValueError`` naming
+    ``name`` otherwise."""
+    T = finite_array(value, name, (4, 4))
+    R = T[:3, :3]
+    if (not np.allclose(R @ R.T, np.eye(3), atol=RIGID_TOL) or np.linalg.det(R) < 0
+            or not np.allclose(T[3], [0, 0, 0, 1], atol=RIGID_TOL)):
+        raise ValueError(f"{name} is not a rigid transform (rotation not orthonormal or last "
+                         "row not 0 0 0 1)")
+    return T

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import numbers
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Union
 
@@ -41,6 +41,7 @@ import numpy.typing
 import yaml
 
 from .camera import Camera
+from ._validate import rigid_transform
 from .transforms import inverse
 
 
@@ -57,7 +58,42 @@ class ImuParams:
     accelerometer_noise_density: float  # m / s^2 / sqrt(Hz)
     accelerometer_random_walk: float  # m / s^3 / sqrt(Hz)
     rate_hz: float
-    T_b_imu: np.ndarray
+    T_b_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self) -> None:
+        # Checked before any arithmetic (1 / rate_hz, noise covariances) can use them.
+        for name in ("gyroscope_noise_density", "gyroscope_random_walk",
+                     "accelerometer_noise_density", "accelerometer_random_walk", "rate_hz"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+                raise TypeError(f"imu {name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"imu {name} must be a positive finite number, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        object.__setattr__(self, "T_b_imu", rigid_transform(self.T_b_imu, "imu T_b_imu"))
+
+    @classmethod
+    def of(cls, imu: Any) -> "ImuParams":
+        """``imu`` as ``ImuParams``: one already, or a dict of its fields (``T_b_imu``
+        optional, identity).
+
+        Raises ``TypeError`` naming ``imu`` for anything else (a string such as ``"euroc"``),
+        ``ValueError`` naming a missing or unknown key, and as the constructor for values.
+        """
+        if isinstance(imu, cls):
+            return imu
+        if not isinstance(imu, dict):
+            raise TypeError(f"imu must be ferroslam.calibration.ImuParams or a dict of its "
+                            f"fields, got {type(imu).__name__} {imu!r}"[:200])
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(str(k) for k in imu if k not in names)
+        if unknown:
+            raise ValueError(f"imu: unknown key(s) {', '.join(unknown)} (expected "
+                             f"{', '.join(names)})")
+        missing = [n for n in names[:5] if n not in imu]
+        if missing:
+            raise ValueError(f"imu: missing key(s) {', '.join(missing)}")
+        return cls(**imu)
 
 
 __all__ = ["Calibration", "ImuParams", "load_calibration", "load_imu_params", "read_camera_yaml"]

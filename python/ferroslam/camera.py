@@ -88,7 +88,10 @@ class Camera:
         """Raises ``ValueError`` naming both sizes unless ``image`` (``(H, W)`` or
         ``(H, W, C)``) is ``width x height``: features of an image of another size would be
         tracked with the wrong calibration."""
-        shape = np.shape(image)
+        if not isinstance(image, np.ndarray):
+            raise TypeError(f"{name} must be a numpy array (H, W) or (H, W, 3), got "
+                            f"{type(image).__name__}")
+        shape = image.shape
         if len(shape) < 2 or tuple(shape[:2]) != (self.height, self.width):
             size = f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else f"of shape {shape}"
             raise ValueError(f"{name} is {size} (width x height) but the camera is "

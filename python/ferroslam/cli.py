@@ -267,19 +267,11 @@ def _add_batch_parser(sub: argparse._SubParsersAction) -> None:
 def _load_config(path: Optional[Path]) -> dict:
     if path is None:
         return {}
-    if not path.is_file():
-        raise FileNotFoundError(f"config file not found: {path}")
-    try:
-        config = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a JSON text file (not UTF-8)") from None
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: invalid JSON: {err}") from None
-    if not isinstance(config, dict):
-        raise ValueError(f"{path}: the config must be a JSON object of options")
-    if "track_feature_range" in config:  # JSON has no tuples
-        config["track_feature_range"] = tuple(config["track_feature_range"])
-    return config
+    from .options import load_option_file
+
+    # Bounded and checked for names and types here; run_sequence validates it against the
+    # sensor (one schema, ferroslam.options).
+    return load_option_file(path)
 
 
 def _open_input(args: argparse.Namespace):

@@ -18,6 +18,7 @@ from tqdm import tqdm
 from .camera import Camera
 from .datasets import frame_images
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
+from .options import validate_options
 from .session import EXTRACTOR_KEYS, IMU_KEYS, Features, Session, load_vocabulary, make_extractor
 from .trajectory import Trajectory
 from .vslam import FrameResult, MonoVSlam
@@ -353,10 +354,12 @@ def run_sequence(
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
     camera = sensor[: -len(_INERTIAL)] if sensor.endswith(_INERTIAL) else sensor
     imu = _imu_stream(seq, sensor) if camera != sensor else None
-    config = dict(config or {})
-    if "sensor" in config:
+    if isinstance(config, dict) and "sensor" in config:
         raise ValueError("pass the sensor as run_sequence(sensor=...), not in config")
+    config = validate_options(config, sensor)
     n = len(seq)
+    if n == 0:  # a dataset says why when it is opened; any other sequence, here
+        raise ValueError(f"{getattr(seq, 'name', seq)}: the sequence has no frames to track")
     if max_frames is not None:
         if int(max_frames) != max_frames or max_frames < 1:
             raise ValueError(f"max_frames must be a positive integer, got {max_frames}")
@@ -369,7 +372,7 @@ def run_sequence(
         imu=seq.imu_params() if imu is not None else None,
         T_b_c=seq.T_b_c if imu is not None else None,
         imu_options={k: config[k] for k in IMU_KEYS if k in config},
-        mapping_thread=bool(config.get("mapping_thread")), system_factory=system_factory)
+        mapping_thread=config.get("mapping_thread", False), system_factory=system_factory)
     return _run(seq, session, feed, n, sensor, config, progress, realtime, imu, on_frame)
 
 
@@ -425,7 +428,7 @@ def run_source(source, config: Optional[dict] = None, max_frames: Optional[int] 
     ``config``: as :func:`run_sequence`'s (``SlamSystem`` options, ``vocabulary``,
     ``seed``); tracking and mapping run in background threads, so runs are not repeatable.
     """
-    config = dict(config or {})
+    config = validate_options(config, "mono")
     core_options = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY + ("seed",)}
     records: list[FrameResult] = []
     bar = tqdm(disable=not progress, desc=source.name, unit="frame")

@@ -13,15 +13,17 @@ from typing import Any, Callable, NamedTuple, Optional
 
 import numpy as np
 
+from ._validate import rigid_transform
+from .calibration import ImuParams
 from .camera import Camera
 from .features import OrbExtractor, sample_colors, sample_depth
+from .options import OPTIONS, validate_options
 
 __all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "Features", "Session", "load_vocabulary",
            "make_extractor"]
 
 # Options of SlamSystem.set_imu (MATLAB NumPosesThreshold, AlignmentFraction).
-IMU_KEYS = ("num_poses_threshold", "alignment_fraction", "gravity_magnitude",
-            "imu_time_offset_s")
+IMU_KEYS = tuple(o.name for o in OPTIONS if o.scope == "imu")
 # The extractor's options among the core's (SlamSystem.options holds them all, defaults
 # included: the ORB budget follows the image width).
 EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
@@ -45,6 +47,11 @@ def load_vocabulary(spec):
 
         return default_vocabulary()
     return Vocabulary.load(str(spec))
+
+
+def _size(image: np.ndarray) -> str:
+    shape = np.shape(image)
+    return f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else f"of shape {shape}"
 
 
 def _core_system(*args, **kwargs):
@@ -94,12 +101,24 @@ class Session:
                  system_factory: Optional[Callable[..., Any]] = None) -> None:
         c = camera
         self.sensor = sensor
+        inertial = imu is not None
+        options = validate_options(options, sensor, inertial, scopes=("core", "object"))
+        imu_options = validate_options(imu_options, sensor, inertial, scopes=("imu",))
+        if inertial:
+            imu = ImuParams.of(imu)
+            if T_b_c is None:
+                raise ValueError("imu needs camera_to_imu_transform: the (4, 4) camera pose "
+                                 "in the IMU (body) frame, e.g. EuRoC's T_BS")
+            T_b_c = rigid_transform(T_b_c, "camera_to_imu_transform")
+        elif T_b_c is not None:
+            raise ValueError("camera_to_imu_transform given without imu=: it would be "
+                             "ignored; pass the IMU noise parameters too, or leave it out")
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
-            model=c.model, **(options or {}))
+            model=c.model, **options)
         self.extractor = make_extractor(self.system.options)
-        if imu is not None:
-            self.system.set_imu(imu, np.asarray(T_b_c, dtype=np.float64), **(imu_options or {}))
+        if inertial:
+            self.system.set_imu(imu, T_b_c, **imu_options)
         if vocabulary is not None and vocabulary is not False and vocabulary != "":
             self.system.set_vocabulary(load_vocabulary(vocabulary))
         if mapping_thread:
@@ -115,7 +134,14 @@ class Session:
 
     def rgbd(self, image: np.ndarray, depth_m: np.ndarray,
              color: Optional[np.ndarray] = None) -> Features:
-        """As :meth:`mono`, with the depth (metres) of ``depth_m`` at each keypoint."""
+        """As :meth:`mono`, with the depth (metres) of ``depth_m`` at each keypoint.
+
+        Raises ``ValueError`` when ``depth_m`` is not the size of ``image``: its pixels
+        would be sampled at the wrong places."""
+        if np.shape(depth_m)[:2] != np.shape(image)[:2]:
+            raise ValueError(f"the depth image is {_size(depth_m)} but the colour image "
+                             f"{_size(image)} (width x height): they must be registered, "
+                             "of one size")
         keypoints, descriptors = self.extractor.detect(image)
         colors = sample_colors(image if color is None else color, keypoints)
         return Features((keypoints, descriptors, sample_depth(depth_m, keypoints)), colors,

@@ -44,7 +44,9 @@ from typing import Any, Callable, Iterable, Optional, Sequence, TextIO, Union
 import numpy as np
 
 from .camera import Camera
-from .session import Features, Session
+from .calibration import ImuParams
+from .options import check_option, validate_options
+from .session import IMU_KEYS, Features, Session
 from .stereo import StereoRectifier
 
 __all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
@@ -103,9 +105,9 @@ def _flag(name: str, value: Any) -> bool:
     return bool(value)
 
 
-def _imu_rate_hz(imu: Any) -> float:
-    """The sample rate of IMU parameters given as ``ImuParams`` or a dict."""
-    return float(imu["rate_hz"] if isinstance(imu, dict) else imu.rate_hz)
+def _check_camera(intrinsics: Any) -> None:
+    if not isinstance(intrinsics, Camera):
+        raise TypeError(f"intrinsics must be a ferroslam.Camera, got {type(intrinsics).__name__}")
 
 
 def _length(value: Any) -> str:
@@ -176,51 +178,37 @@ class _VSlam:
         seed: int = 0,
         imu: Any = None,
         camera_to_imu_transform: Optional[np.ndarray] = None,
-        num_poses_threshold: int = 20,
-        alignment_fraction: float = 0.9,
-        imu_time_offset_s: float = 0.0,
+        num_poses_threshold: Optional[int] = None,
+        alignment_fraction: Optional[float] = None,
+        imu_time_offset_s: Optional[float] = None,
         core_options: Optional[dict] = None,
         on_frame: Optional[Callable[[FrameResult], Any]] = None,
     ) -> None:
-        if not isinstance(intrinsics, Camera):
-            raise TypeError(f"intrinsics must be a ferroslam.Camera, got {type(intrinsics).__name__}")
+        _check_camera(intrinsics)
         if verbose not in (0, 1, 2, 3):
             raise ValueError(f"verbose must be 0, 1, 2 or 3, got {verbose!r}")
-        if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
-            raise ValueError(f"frame_rate_hz must be positive, got {frame_rate_hz!r}")
         self.intrinsics = intrinsics
-        self.frame_rate_hz = float(frame_rate_hz)
+        self.frame_rate_hz = _positive_real("frame_rate_hz", frame_rate_hz, "Hz")
         self.verbose = verbose
         # MATLAB's names for the core's options; those not given are left to the core.
-        given = {"scale_factor": scale_factor, "n_levels": num_levels,
-                 "n_features": max_num_points, "skip_max_frames": skip_max_frames,
+        given = {"scale_factor": scale_factor, "num_levels": num_levels,
+                 "max_num_points": max_num_points, "skip_max_frames": skip_max_frames,
                  "loop_closure_threshold": loop_closure_threshold,
-                 "track_feature_range": (None if track_feature_range is None
-                                         else tuple(_positive_int("track_feature_range", v)
-                                                    for v in track_feature_range))}
-        for name, key in (("num_levels", "n_levels"), ("max_num_points", "n_features"),
-                          ("skip_max_frames", "skip_max_frames"),
-                          ("loop_closure_threshold", "loop_closure_threshold")):
-            if given[key] is not None:
-                given[key] = _positive_int(name, given[key])
-        self.imu = imu
-        self._imu_period_s = 0.0
-        self._imu_time_offset_s = float(imu_time_offset_s)
-        if imu is not None:
-            self._imu_period_s = 1.0 / _imu_rate_hz(imu)
-            if camera_to_imu_transform is None:
-                raise ValueError("imu needs camera_to_imu_transform: the (4, 4) camera pose in "
-                                 "the IMU (body) frame, e.g. EuRoC's T_BS")
-        options = {"threaded": _flag("threaded", threaded),
-                   "loop_closure": _flag("loop_closure", loop_closure), "seed": seed,
-                   **{k: v for k, v in given.items() if v is not None}, **(core_options or {})}
+                 "track_feature_range": track_feature_range,
+                 "num_poses_threshold": num_poses_threshold,
+                 "alignment_fraction": alignment_fraction,
+                 "imu_time_offset_s": imu_time_offset_s}
+        options = validate_options(
+            {"threaded": threaded, "loop_closure": loop_closure, "seed": seed,
+             **{k: v for k, v in given.items() if v is not None}, **(core_options or {})},
+            self._sensor, imu is not None, scopes=("core", "imu", "object"))
+        imu_options = {k: options.pop(k) for k in IMU_KEYS if k in options}
+        self.imu = None if imu is None else ImuParams.of(imu)
+        self._imu_period_s = 0.0 if imu is None else 1.0 / self.imu.rate_hz
+        self._imu_time_offset_s = imu_options.get("imu_time_offset_s", 0.0)
         self._session = Session(
-            intrinsics, self._sensor, options, vocabulary=vocabulary, imu=imu,
-            T_b_c=camera_to_imu_transform,
-            imu_options=dict(num_poses_threshold=_positive_int("num_poses_threshold",
-                                                               num_poses_threshold),
-                             alignment_fraction=alignment_fraction,
-                             imu_time_offset_s=imu_time_offset_s))
+            intrinsics, self._sensor, options, vocabulary=vocabulary, imu=self.imu,
+            T_b_c=camera_to_imu_transform, imu_options=imu_options)
         self._system = self._session.system
         options = self._system.options
         self.scale_factor: float = options["scale_factor"]
@@ -502,7 +490,7 @@ class _VSlam:
 
     @localization_only.setter
     def localization_only(self, on: bool) -> None:
-        self._system.localization_only = bool(on)
+        self._system.localization_only = check_option("localization_only", on)
 
     # -- lifetime -------------------------------------------------------------------------
     def close(self) -> None:
@@ -599,6 +587,7 @@ class StereoVSlam(_VSlam):
     _sensor = "stereo"
 
     def __init__(self, intrinsics: Camera, baseline: float, **options: Any) -> None:
+        _check_camera(intrinsics)
         baseline = _positive_real("baseline", baseline, "metres")
         if np.any(intrinsics.dist != 0) or intrinsics.model != "pinhole":
             raise ValueError("StereoVSlam needs rectified images: intrinsics must have no "

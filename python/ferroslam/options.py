@@ -1,0 +1,359 @@
+"""The one declaration of every option, and the one check every entry point runs.
+
+Each option is declared once (:data:`OPTIONS`) with its type, range, unit, the sensors it
+applies to and whether it needs an IMU. The same declaration serves the Python keywords of
+``Session``, the vSLAM objects and ``run_sequence``, the ``--config`` keys of ``ferroslam
+run`` and the ``options`` of a batch SPEC; MATLAB-style keyword names (``max_num_points``,
+``num_levels``) are aliases of the core names. Defaults are not declared here: the core's
+(``ferroslam._core.default_options``) apply to every option left out.
+
+``scope`` says who takes an option: ``"core"`` (``SlamSystem`` keywords; the core's table),
+``"imu"`` (``SlamSystem.set_imu`` keywords: inertial sensors only), ``"pipeline"``
+(``run_sequence`` / ``--config`` / SPEC only) and ``"object"`` (keywords and attributes of the
+vSLAM objects). The core-scope declarations match the core's table one to one (a test checks
+it), so that they can later be generated from it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import numpy as np
+
+__all__ = ["OPTIONS", "Option", "check_option", "load_option_file", "validate_options"]
+
+SENSORS = ("mono", "stereo", "rgbd")
+_INERTIAL = "-inertial"
+_ALL = SENSORS
+_DEPTH = ("stereo", "rgbd")
+_U32_MAX = 2**32 - 1
+_U64_MAX = 2**64 - 1
+
+
+@dataclass(frozen=True)
+class Option:
+    """One option: ``kind`` is ``"int"``, ``"float"``, ``"flag"``, ``"int_pair"``,
+    ``"float_pair"`` or ``"vocabulary"``; values must lie in ``low..high`` (``None``: no
+    bound; ``open_low``/``open_high`` exclude the bound); a pair's elements each lie there
+    and increase; ``unit`` is for messages; ``sensors`` the camera sensors it applies to;
+    ``inertial`` true for options that need an IMU."""
+
+    name: str
+    kind: str
+    scope: str
+    unit: str = ""
+    low: Optional[float] = None
+    high: Optional[float] = None
+    open_low: bool = False
+    open_high: bool = False
+    sensors: tuple[str, ...] = _ALL
+    inertial: bool = False
+    aliases: tuple[str, ...] = ()
+    matlab: str = ""
+    infinite_high: bool = False  # a float (or a pair's upper value) may be +inf
+
+    def range_text(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        if self.low is not None and self.high is not None:
+            lo, hi = ("(" if self.open_low else "["), (")" if self.open_high else "]")
+            return f"in {lo}{_num(self.low)}, {_num(self.high)}{hi}{unit}"
+        if self.low is not None:
+            return f"{'>' if self.open_low else '>='} {_num(self.low)}{unit}"
+        if self.high is not None:
+            return f"{'<' if self.open_high else '<='} {_num(self.high)}{unit}"
+        return f"any{unit}"
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(x)
+
+
+# Gravity on Earth's surface is 9.780 m/s^2 (equator) to 9.832 (poles), 0.03 less at 9 km:
+# 9.7..9.9 admits every place on Earth and refuses gravity in other units (1.0 in g, 32.2 in
+# ft/s^2), which would make every IMU-predicted pose wrong.
+_GRAVITY_RANGE_M_S2 = (9.7, 9.9)
+# Calibrated camera-IMU time offsets are milliseconds (Kalibr); one of more than a second
+# means two unrelated clocks (e.g. boot time against epoch), which a constant shift would
+# only hide: every frame's IMU batch would be empty or wrong.
+_MAX_IMU_TIME_OFFSET_S = 1.0
+
+OPTIONS: tuple[Option, ...] = (
+    # -- core (SlamSystem keywords) -----------------------------------------------------
+    Option("n_features", "int", "core", "keypoints", 1, _U32_MAX,
+           aliases=("max_num_points",), matlab="MaxNumPoints"),
+    Option("ini_fast", "int", "core", "", 1, 254),
+    Option("min_fast", "int", "core", "", 1, 254),
+    Option("scale_factor", "float", "core", "", 1, None, open_low=True, matlab="ScaleFactor"),
+    Option("n_levels", "int", "core", "levels", 1, 32, aliases=("num_levels",),
+           matlab="NumLevels"),
+    Option("track_feature_range", "int_pair", "core", "points", 1, _U32_MAX,
+           matlab="TrackFeatureRange"),
+    Option("skip_max_frames", "int", "core", "frames", 1, _U32_MAX, matlab="SkipMaxFrames"),
+    Option("bf", "float", "core", "pixels * metres", 0, None, open_low=True,
+           sensors=("rgbd",)),
+    Option("baseline", "float", "core", "metres", 0, None, open_low=True,
+           sensors=("stereo",)),
+    Option("depth_threshold", "float", "core", "baselines", 0, None, open_low=True,
+           sensors=_DEPTH),
+    Option("depth_range", "float_pair", "core", "metres", 0, None, sensors=_DEPTH,
+           infinite_high=True),
+    Option("seed", "int", "core", "", 0, _U64_MAX),
+    Option("loop_closure", "flag", "core"),
+    Option("loop_closure_threshold", "int", "core", "points", 20, _U32_MAX,
+           matlab="LoopClosureThreshold"),
+    # -- set_imu keywords (MATLAB NumPosesThreshold, AlignmentFraction) ------------------
+    Option("num_poses_threshold", "int", "imu", "keyframes", 3, _U32_MAX, inertial=True,
+           matlab="NumPosesThreshold"),
+    Option("alignment_fraction", "float", "imu", "", 0, 1, open_low=True, inertial=True,
+           matlab="AlignmentFraction"),
+    Option("gravity_magnitude", "float", "imu", "m/s^2", *_GRAVITY_RANGE_M_S2, inertial=True),
+    Option("imu_time_offset_s", "float", "imu", "s", -_MAX_IMU_TIME_OFFSET_S,
+           _MAX_IMU_TIME_OFFSET_S, inertial=True),
+    # -- run_sequence / --config / SPEC --------------------------------------------------
+    Option("vocabulary", "vocabulary", "pipeline"),
+    Option("mapping_thread", "flag", "pipeline"),
+    # -- vSLAM objects -------------------------------------------------------------------
+    Option("threaded", "flag", "object"),
+    Option("localization_only", "flag", "object"),
+)
+
+_BY_NAME = {o.name: o for o in OPTIONS}
+_BY_ALIAS = {a: o for o in OPTIONS for a in o.aliases}
+# Who takes which scopes, for messages.
+_SCOPE_USERS = {
+    "core": "every entry point",
+    "imu": "every entry point (inertial sensors)",
+    "pipeline": "run_sequence, --config and batch SPEC options",
+    "object": "the vSLAM objects (MonoVSlam, StereoVSlam, RGBDVSlam) as keywords",
+}
+# The scopes a configuration (run_sequence config, --config file, SPEC options) may hold.
+CONFIG_SCOPES = ("core", "imu", "pipeline")
+
+
+def _split_sensor(sensor: str, inertial: bool) -> tuple[str, bool]:
+    if not isinstance(sensor, str):
+        raise TypeError(f"sensor must be a string, got {sensor!r}")
+    camera = sensor[: -len(_INERTIAL)] if sensor.endswith(_INERTIAL) else sensor
+    if camera not in SENSORS:
+        raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS} (optionally "
+                         f"with {_INERTIAL})")
+    return camera, bool(inertial) or camera != sensor
+
+
+def validate_options(options: Optional[dict], sensor: str, inertial: bool = False, *,
+                     scopes: tuple[str, ...] = CONFIG_SCOPES) -> dict:
+    """``options`` checked against :data:`OPTIONS` for ``sensor`` (``"mono"``, ``"stereo"``,
+    ``"rgbd"``, or with ``-inertial``, which sets ``inertial``) and normalised: canonical
+    names (aliases resolved), bools, ints, floats, pairs as tuples. Options left out stay
+    out (the core's defaults apply).
+
+    Raises:
+        TypeError: a name that is not a string; a value of the wrong type (a flag that is not
+            a bool: ``"no"`` or ``1`` is refused), naming the option.
+        ValueError: an unknown option, one given twice (as an alias too), one that does not
+            apply to ``sensor`` or needs an IMU, one of a scope not in ``scopes``, or a value
+            out of range or not finite, naming the option, the value, the range and unit.
+    """
+    camera, inertial = _split_sensor(sensor, inertial)
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise TypeError(f"options must be a dict of option names to values, got "
+                        f"{type(options).__name__}")
+    out: dict[str, Any] = {}
+    given_as: dict[str, str] = {}
+    for key, value in options.items():
+        if not isinstance(key, str):
+            raise TypeError(f"option names must be strings, got {key!r}")
+        option = _BY_NAME.get(key) or _BY_ALIAS.get(key)
+        if option is None:
+            known = ", ".join(sorted(o.name for o in OPTIONS if o.scope in scopes))
+            raise ValueError(f"unknown option {key!r} (known: {known})")
+        if option.scope not in scopes:
+            raise ValueError(f"option {key!r} is taken by {_SCOPE_USERS[option.scope]}, not "
+                             "here")
+        if option.name in given_as:
+            raise ValueError(f"option {key!r} given twice (also as {given_as[option.name]!r})")
+        if camera not in option.sensors:
+            raise ValueError(f"option {key!r} applies to sensor {' or '.join(option.sensors)}, "
+                             f"not {sensor!r}")
+        if option.inertial and not inertial:
+            raise ValueError(f"option {key!r} is an IMU option: it applies to the -inertial "
+                             f"sensors, and sensor {sensor!r} has no IMU")
+        given_as[option.name] = key
+        out[option.name] = _check_value(option, key, value)
+    _check_together(out)
+    return out
+
+
+def check_option(name: str, value: Any) -> Any:
+    """One option's value checked and normalised (attribute setters such as
+    ``localization_only``); raises as :func:`validate_options`."""
+    option = _BY_NAME.get(name) or _BY_ALIAS[name]
+    return _check_value(option, name, value)
+
+
+def _check_value(option: Option, key: str, value: Any) -> Any:
+    if option.kind == "flag":
+        if not isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"option {key!r}: expected True or False, got {value!r}")
+        return bool(value)
+    if option.kind == "vocabulary":
+        if value is None or isinstance(value, (bool, str, os.PathLike)) or hasattr(
+                value, "transform"):
+            return value
+        raise TypeError(f"option {key!r}: expected \"default\", a vocabulary file, a "
+                        f"Vocabulary or None, got {type(value).__name__}")
+    if option.kind in ("int_pair", "float_pair"):
+        element = "int" if option.kind == "int_pair" else "float"
+        if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") \
+                or len(value) != 2:
+            raise TypeError(f"option {key!r}: expected a pair (lower, upper) of "
+                            f"{element}s, got {value!r}")
+        low, high = (_scalar(option, element, key, v, i == 1) for i, v in enumerate(value))
+        if not low < high:
+            raise ValueError(f"option {key!r} = {tuple(value)!r}: lower must be below upper")
+        return (low, high)
+    return _scalar(option, option.kind, key, value, True)
+
+
+def _scalar(option: Option, kind: str, key: str, value: Any, may_be_inf: bool):
+    unit = f" of {option.unit}" if option.unit else ""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(
+            value, numbers.Integral if kind == "int" else numbers.Real):
+        what = "an integer" if kind == "int" else "a number"
+        raise TypeError(f"option {key!r}: expected {what}{unit}, got {value!r}")
+    number = int(value) if kind == "int" else float(value)
+    if kind == "float" and not math.isfinite(number) and not (
+            option.infinite_high and may_be_inf and number == math.inf):
+        raise ValueError(f"option {key!r} = {value!r}: must be a finite number{unit}")
+    low_bad = option.low is not None and (number <= option.low if option.open_low
+                                          else number < option.low)
+    high_bad = option.high is not None and (number >= option.high if option.open_high
+                                            else number > option.high)
+    if low_bad or high_bad:
+        raise ValueError(f"option {key!r} = {value!r}: must be {option.range_text()}")
+    return number
+
+
+def _check_together(options: dict) -> None:
+    if "min_fast" in options and "ini_fast" in options \
+            and options["min_fast"] > options["ini_fast"]:
+        raise ValueError(f"option 'min_fast' = {options['min_fast']} must be at most "
+                         f"'ini_fast' = {options['ini_fast']}")
+
+
+# -- option files ---------------------------------------------------------------------------
+
+# An options file is a few hundred bytes; a megabyte is far beyond any real one.
+MAX_OPTION_FILE_BYTES = 1 << 20
+# Options are flat (a pair is depth 2); SPECs nest a few levels more.
+MAX_OPTION_FILE_DEPTH = 16
+
+
+def load_option_file(path: Union[str, os.PathLike], max_bytes: int = MAX_OPTION_FILE_BYTES,
+                     max_depth: int = MAX_OPTION_FILE_DEPTH) -> dict:
+    """The mapping of a JSON (``.json``) or YAML (any other name) options file, bounded:
+    its size is checked before it is read and its nesting depth before and after parsing
+    (a deeply nested file is refused, never a ``RecursionError``).
+
+    Raises:
+        FileNotFoundError: no such file. IsADirectoryError: a folder.
+        ValueError: naming the file: not a regular file (a FIFO or device is refused before
+            it is opened, so nothing blocks), larger than ``max_bytes``, not UTF-8, invalid
+            JSON/YAML, nested deeper than ``max_depth``, not a mapping with string keys.
+    """
+    path = Path(path)
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"options file not found: {path}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise IsADirectoryError(f"{path}: is a folder, not an options file")
+    if not stat.S_ISREG(info.st_mode):
+        raise ValueError(f"{path}: not a regular file (a pipe or device is not read)")
+    if info.st_size > max_bytes:
+        raise ValueError(f"{path}: {info.st_size} bytes, more than an options file may hold "
+                         f"({max_bytes})")
+    with open(path, "rb") as f:
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise ValueError(f"{path}: more than {max_bytes} bytes")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not a UTF-8 text file ({err.reason} at byte "
+                         f"{err.start})") from None
+    if _flow_depth(text) > max_depth:
+        raise ValueError(f"{path}: nested more than {max_depth} levels deep")
+    document = _parse(path, text)
+    if _depth(document) > max_depth:
+        raise ValueError(f"{path}: nested more than {max_depth} levels deep")
+    if not isinstance(document, dict) or not all(isinstance(k, str) for k in document):
+        raise ValueError(f"{path}: an options file must hold a mapping of option names to "
+                         f"values, got {type(document).__name__}")
+    return document
+
+
+def _parse(path: Path, text: str) -> Any:
+    try:
+        if path.suffix.lower() == ".json":
+            try:
+                return json.loads(text)
+            except json.JSONDecodeError as err:
+                raise ValueError(f"{path}: invalid JSON: {err}") from None
+        import yaml
+
+        try:
+            return yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise ValueError(f"{path}: invalid YAML: {err}") from None
+    except RecursionError:  # the depth scan bounds flow nesting; this is the last guard
+        raise ValueError(f"{path}: nested too deep to parse") from None
+
+
+def _flow_depth(text: str) -> int:
+    """Deepest nesting of ``[``/``{`` outside quoted strings (JSON, YAML flow style)."""
+    depth = deepest = 0
+    quote = ""
+    escaped = False
+    for ch in text:
+        if quote:
+            if escaped:
+                escaped = False
+            elif ch == "\\" and quote == '"':
+                escaped = True
+            elif ch == quote:
+                quote = ""
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth = max(0, depth - 1)
+    return deepest
+
+
+def _depth(value: Any) -> int:
+    """Nesting depth of parsed containers, iteratively, each shared (YAML alias) container
+    counted once."""
+    deepest = 0
+    seen: set[int] = set()
+    stack = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if not isinstance(item, (dict, list)) or id(item) in seen:
+            continue
+        seen.add(id(item))
+        deepest = max(deepest, depth)
+        stack.extend((child, depth + 1)
+                     for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
