@@ -41,7 +41,7 @@ import numpy.typing
 import yaml
 
 from .camera import Camera
-from ._validate import rigid_transform
+from ._validate import read_text, rigid_transform
 from .transforms import inverse
 
 
@@ -192,9 +192,7 @@ def load_imu_params(path: Union[str, Path]) -> ImuParams:
 
 def _read_document(path: Path) -> dict[str, Any]:
     """The file's top-level mapping, as plain dicts, lists, numbers and strings."""
-    if not path.is_file():
-        raise FileNotFoundError(f"calibration file not found: {path}")
-    text = path.read_text(encoding="utf-8")
+    text = read_text(path, "calibration file")
     document = (_read_filestorage(path) if text.startswith("%YAML:") or "!!opencv-matrix" in text
                 else _read_yaml(path, text))
     if not isinstance(document, dict):

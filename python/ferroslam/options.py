@@ -297,8 +297,8 @@ def load_option_file(path: Union[str, os.PathLike], max_bytes: int = MAX_OPTION_
     if _depth(document) > max_depth:
         raise ValueError(f"{path}: nested more than {max_depth} levels deep")
     if not isinstance(document, dict) or not all(isinstance(k, str) for k in document):
-        raise ValueError(f"{path}: an options file must hold a mapping of option names to "
-                         f"values, got {type(document).__name__}")
+        raise ValueError(f"{path}: an options file must hold a JSON object (a mapping) of option "
+                         f"names to values, got {type(document).__name__}")
     return document
 
 

@@ -57,8 +57,8 @@ _EXPECTED = (
 def _layout(path: Path) -> Optional[str]:
     if (path / "rgb.txt").is_file():
         return "tum"
-    if (path / "calib.txt").is_file() and any((path / d).is_dir() for d in ("image_0", "image_l")):
-        return "kitti"
+    if any((path / d).is_dir() for d in ("image_0", "image_l")):
+        return "kitti"  # without calib.txt KittiSequence says it is missing
     if (path / "mav0").is_dir() or (path / "cam0" / "data.csv").is_file():
         return "euroc"
     return None

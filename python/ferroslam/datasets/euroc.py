@@ -24,6 +24,7 @@ from typing import Iterator, Optional, Union
 
 import numpy as np
 
+from .._validate import read_text
 from ..calibration import ImuParams
 from ..camera import Camera
 from ..io import read_asl_floats, read_asl_rows, seconds_from_ns
@@ -70,12 +71,11 @@ def read_sensor_yaml(path: Union[str, Path]) -> dict[str, object]:
     a line outside that subset.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"EuRoC sensor file not found: {path}")
+    source = read_text(path, "EuRoC sensor file")
     out: dict[str, object] = {}
     block: Optional[dict[str, object]] = None
     pending: Optional[tuple[dict[str, object], str, str, int]] = None  # multi-line list
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for number, line in enumerate(source.splitlines(), start=1):
         text = line.split("#", 1)[0].rstrip()
         if pending is not None:
             target, key, value, start = pending

@@ -23,6 +23,7 @@ from typing import Iterator, Optional, Union
 
 import numpy as np
 
+from .._validate import read_text
 from ..camera import Camera
 from ..io import read_kitti_poses, read_table
 from .images import IMAGE_EXTENSIONS, read_gray
@@ -50,10 +51,9 @@ def read_kitti_calib(path: Union[str, Path]) -> dict[str, np.ndarray]:
     for a line that is not 12 numbers.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"KITTI calibration file not found: {path}")
     out = {}
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    text = read_text(path, "KITTI calibration file")
+    for number, line in enumerate(text.splitlines(), start=1):
         name, sep, values = line.partition(":")
         if not sep:
             continue
@@ -68,7 +68,10 @@ def read_kitti_calib(path: Union[str, Path]) -> dict[str, np.ndarray]:
 
 
 def _read_times(path: Path) -> np.ndarray:
-    rows = read_table(path, 1, "KITTI times file")
+    try:
+        rows = read_table(path, 1, "KITTI times file")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: KITTI times file is not UTF-8 text") from None
     times = np.empty(len(rows))
     for r, (number, fields) in enumerate(rows):
         try:

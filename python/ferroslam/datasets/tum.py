@@ -77,8 +77,18 @@ def associate_greedy(
     return out[:, 0], out[:, 1]
 
 
+# Unix time in seconds stays below 1e11 until the year 5138; TUM lists give seconds, so a
+# larger stamp is nanoseconds (or microseconds) and would pair nothing.
+_MAX_SECONDS = 1e11
+
+
 def _read_list(path: Path, what: str) -> tuple[np.ndarray, list[str]]:
-    rows = read_table(path, 2, what)
+    try:
+        rows = read_table(path, 2, what)
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: {what} is not UTF-8 text") from None
+    if not rows:
+        raise ValueError(f"{path}: {what} lists no frames")
     stamps = np.empty(len(rows))
     for r, (number, fields) in enumerate(rows):
         try:
@@ -87,6 +97,9 @@ def _read_list(path: Path, what: str) -> tuple[np.ndarray, list[str]]:
             raise ValueError(f"{path}:{number}: bad timestamp {fields[0]!r}") from None
         if not np.isfinite(stamps[r]):
             raise ValueError(f"{path}:{number}: bad timestamp {fields[0]!r}")
+        if abs(stamps[r]) >= _MAX_SECONDS:
+            raise ValueError(f"{path}:{number}: timestamp {fields[0]} looks like nanoseconds; "
+                             "TUM lists give seconds")
         if r and stamps[r] <= stamps[r - 1]:
             raise ValueError(
                 f"{path}:{number}: timestamps out of order ({stamps[r]} after {stamps[r - 1]})"
@@ -136,6 +149,11 @@ class TumSequence:
                          self.path / depth_files[b], float(t_depth[b]))
                 for k, (a, b) in enumerate(zip(i_rgb.tolist(), i_depth.tolist()))
             ]
+            if not self.frames:
+                raise ValueError(
+                    f"{self.path}: no RGB frame has a depth frame within {max_diff} s (rgb.txt "
+                    f"{t_rgb[0]:.3f}..{t_rgb[-1]:.3f} s, depth.txt {t_depth[0]:.3f}.."
+                    f"{t_depth[-1]:.3f} s)")
         else:
             self.frames = [
                 TumFrame(k, float(t), self.path / f, None, None)
