@@ -467,17 +467,26 @@ class _VSlam:
 
     # -- maps -----------------------------------------------------------------------------
     def save_map(self, path: Union[str, Path]) -> None:
-        """Writes the map (versioned binary file with a checksum)."""
-        self._system.save_map(Path(path))
+        """Writes the map (versioned binary file with a checksum) through
+        :func:`ferroslam._files.atomic_output`: complete or not at all; a symlink at ``path``
+        is replaced, not followed; a FIFO or device is refused with ``ValueError``, a folder
+        with ``IsADirectoryError``."""
+        from ._files import atomic_output
+
+        with atomic_output(path) as tmp:
+            self._system.save_map(tmp)
 
     def load_map(self, path: Union[str, Path], *, localization_only: bool = True) -> None:
         """Replaces the map with a saved one; the next frames relocalise in it. With
         ``localization_only`` (default) the map is used as it is, never extended.
 
-        Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for a corrupt,
-        truncated or incompatible one (the object is unchanged then).
+        Raises ``FileNotFoundError`` for a missing file, ``IsADirectoryError`` for a folder
+        and ``ValueError`` for a FIFO or device (refused before opening: reading it would
+        block) or a corrupt, truncated or incompatible file (the object is unchanged then).
         """
-        self._system.load_map(Path(path))
+        from ._files import regular_file
+
+        self._system.load_map(regular_file(path, "map file"))
         # An empty map has nothing to localise in: the next frames start one.
         self._system.localization_only = (_flag("localization_only", localization_only)
                                           and self._system.num_keyframes > 0)
@@ -645,11 +654,12 @@ class StereoVSlam(_VSlam):
         """Adds a pair of uint8 images of equal size, grey or BGR (the map points take the
         left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`): rectified, or raw for
         an object made by :meth:`from_raw`."""
+        self.intrinsics.check_image(left, "left image")
+        self.intrinsics.check_image(right, "right image")
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
         started_s = time.perf_counter()
-        self.intrinsics.check_image(left, "left image")
         if self.rectifier is not None:
             left, right = self.rectifier.rectify(left, right)
         self._track(started_s, timestamp, self._session.stereo(left, right), imu=imu)
@@ -684,13 +694,13 @@ class RGBDVSlam(_VSlam):
         """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
         dtype; divided by ``depth_scale_factor``; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
         started_s = time.perf_counter()
+        self.intrinsics.check_image(color, "color image")
         depth = np.asarray(depth)
         if depth.dtype.kind not in "uif":
             raise ValueError(f"depth must be an integer or float image, got dtype {depth.dtype}")
         if depth.shape[:2] != np.shape(color)[:2]:
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
-        self.intrinsics.check_image(color, "color image")
         features = self._session.rgbd(color, depth.astype(np.float64) / self.depth_scale_factor)
         self._check_depth_scale(features.args[2])
         self._track(started_s, timestamp, features, imu=imu)
