@@ -75,10 +75,12 @@ use super::Map;
 use crate::{KeyFrame, MapError, MapPoint, Rig};
 
 mod codec;
+mod plausibility;
 #[cfg(test)]
 mod tests;
 
 use codec::{check_increasing, corrupt, Decoder, Encoder};
+pub use plausibility::{MAX_COORDINATE_M, UNIT_QUATERNION_TOLERANCE};
 
 /// The magic bytes starting every map file, as text.
 pub const MAGIC_TEXT: &str = "FSLAMMAP";
@@ -327,6 +329,7 @@ impl Map {
         if let Some(o) = origin.filter(|o| !map.keyframes.contains_key(o)) {
             return Err(corrupt(format!("the origin {o} is not a keyframe")));
         }
+        plausibility::check_plausible(&map)?;
         map.check_consistency().map_err(corrupt)?;
         Ok(map)
     }

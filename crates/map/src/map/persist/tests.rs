@@ -467,3 +467,211 @@ fn poses_are_bit_exact() {
         epsilon = 0.0
     );
 }
+
+/// `edit` applied to the sample map, saved (a valid checksum) and loaded: the error text.
+fn load_edited(edit: impl FnOnce(&mut Map, &[KeyFrameId], MapPointId)) -> String {
+    let (mut map, kfs) = sample_map();
+    let mp = *map.map_points.keys().next().unwrap();
+    edit(&mut map, &kfs, mp);
+    match load(&to_bytes(&map)) {
+        Err(MapError::CorruptMapFile { what }) => what,
+        other => panic!("expected a corrupt map file, got {other:?}"),
+    }
+}
+
+#[test]
+fn non_finite_and_absurd_points_are_refused_naming_the_point() {
+    for value in [f64::NAN, f64::INFINITY, 1e300, -2e6] {
+        let what =
+            load_edited(|map, _, mp| map.map_points.get_mut(&mp).unwrap().position.y = value);
+        assert!(what.starts_with("map point MP1: position"), "{what}");
+        assert!(what.contains(&format!("{value:?}")), "{what}");
+    }
+    // 1e6 m itself is still a place.
+    let (mut map, _) = sample_map();
+    let mp = *map.map_points.keys().next().unwrap();
+    map.map_points.get_mut(&mp).unwrap().position.x = super::MAX_COORDINATE_M;
+    load(&to_bytes(&map)).unwrap();
+    let what = load_edited(|map, _, mp| map.map_points.get_mut(&mp).unwrap().normal.z = f64::NAN);
+    assert!(what.starts_with("map point MP1: normal"), "{what}");
+    let what =
+        load_edited(|map, _, mp| map.map_points.get_mut(&mp).unwrap().max_distance = f64::INFINITY);
+    assert!(what.contains("MP1: distance range"), "{what}");
+}
+
+#[test]
+fn non_finite_and_non_rigid_poses_are_refused_naming_the_keyframe() {
+    use nalgebra::{Quaternion, UnitQuaternion};
+    let what = load_edited(|map, kfs, _| {
+        map.keyframes
+            .get_mut(&kfs[1])
+            .unwrap()
+            .T_c_w
+            .translation
+            .vector
+            .x = f64::NAN
+    });
+    assert!(
+        what.starts_with("keyframe KF1: pose T_c_w translation"),
+        "{what}"
+    );
+    let what = load_edited(|map, kfs, _| {
+        map.keyframes.get_mut(&kfs[0]).unwrap().T_c_w.rotation =
+            UnitQuaternion::new_unchecked(Quaternion::new(f64::NAN, 0.0, 0.0, 0.0))
+    });
+    assert!(
+        what.starts_with("keyframe KF0: pose T_c_w rotation quaternion"),
+        "{what}"
+    );
+    assert!(what.contains("not finite"), "{what}");
+    // A scaled rotation (norm 2): not rigid.
+    let what = load_edited(|map, kfs, _| {
+        map.keyframes.get_mut(&kfs[3]).unwrap().T_c_w.rotation =
+            UnitQuaternion::new_unchecked(Quaternion::new(2.0, 0.0, 0.0, 0.0))
+    });
+    assert!(
+        what.contains("KF3") && what.contains("has norm 2"),
+        "{what}"
+    );
+    // Within the tolerance: loads.
+    let (mut map, kfs) = sample_map();
+    let q = map
+        .keyframes
+        .get(&kfs[0])
+        .unwrap()
+        .T_c_w
+        .rotation
+        .into_inner()
+        * (1.0 + 1e-9);
+    map.keyframes.get_mut(&kfs[0]).unwrap().T_c_w.rotation = UnitQuaternion::new_unchecked(q);
+    load(&to_bytes(&map)).unwrap();
+    let what =
+        load_edited(|map, kfs, _| map.keyframes.get_mut(&kfs[1]).unwrap().timestamp = f64::NAN);
+    assert!(what.starts_with("keyframe KF1: timestamp"), "{what}");
+}
+
+#[test]
+fn non_finite_keypoints_and_depths_are_refused() {
+    let what = load_edited(|map, kfs, _| {
+        let kf = map.keyframes.get_mut(&kfs[0]).unwrap();
+        std::sync::Arc::make_mut(&mut kf.features).keypoints[4].x = f32::NAN;
+    });
+    assert!(what.starts_with("keyframe KF0: keypoint 4"), "{what}");
+    let what = load_edited(|map, kfs, _| {
+        let kf = map.keyframes.get_mut(&kfs[0]).unwrap();
+        std::sync::Arc::make_mut(&mut kf.features).depth[3] = f32::INFINITY;
+    });
+    assert!(
+        what.starts_with("keyframe KF0: depth of keypoint 3"),
+        "{what}"
+    );
+}
+
+mod fuzz {
+    //! Seeded, bounded property tests of the codec: any mutation or truncation of a valid
+    //! file is a clean `Err` (or, for a changed float, a consistent map); nothing panics.
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+
+    use super::*;
+
+    /// A fixed seed (reproducible in CI) and a bounded number of cases (about a second).
+    fn runner(cases: u32) -> TestRunner {
+        let config = Config {
+            cases,
+            failure_persistence: None,
+            ..Config::default()
+        };
+        TestRunner::new_with_rng(config, TestRng::from_seed(RngAlgorithm::ChaCha, &[53; 32]))
+    }
+
+    fn saved_sample() -> Vec<u8> {
+        to_bytes(&sample_map().0)
+    }
+
+    /// Loading never panics; what loads is consistent and plausible (it would load again).
+    fn check(bytes: &[u8]) {
+        if let Ok(map) = load(bytes) {
+            map.check_consistency().unwrap();
+            load(&to_bytes(&map)).unwrap();
+        }
+    }
+
+    #[test]
+    fn mutated_resealed_files_fail_cleanly() {
+        let bytes = saved_sample();
+        let n = bytes.len();
+        let edits = prop::collection::vec((HEADER_LEN..n - CHECKSUM_LEN, any::<u8>()), 1..8);
+        runner(512)
+            .run(&(edits, any::<bool>()), |(edits, reseal_it)| {
+                let mut bad = bytes.clone();
+                edits.iter().for_each(|&(i, b)| bad[i] = b);
+                if reseal_it {
+                    reseal(&mut bad);
+                }
+                check(&bad);
+                Ok(())
+            })
+            .unwrap();
+    }
+
+    #[test]
+    fn truncated_and_extended_files_fail_cleanly() {
+        let bytes = saved_sample();
+        let n = bytes.len();
+        runner(256)
+            .run(
+                &(0..n, prop::collection::vec(any::<u8>(), 0..64)),
+                |(cut, tail)| {
+                    let mut bad = bytes[..cut].to_vec();
+                    bad.extend_from_slice(&tail);
+                    prop_assert!(load(&bad).is_err());
+                    Ok(())
+                },
+            )
+            .unwrap();
+    }
+
+    #[test]
+    fn injected_floats_are_refused_or_plausible() {
+        // Any f64 bit pattern written over any 8 aligned-or-not payload bytes, resealed.
+        let bytes = saved_sample();
+        let n = bytes.len();
+        let special = prop_oneof![
+            Just(f64::NAN),
+            Just(f64::INFINITY),
+            Just(f64::NEG_INFINITY),
+            Just(1e300),
+            Just(-1e300),
+            any::<f64>(),
+        ];
+        runner(512)
+            .run(
+                &(HEADER_LEN..n - CHECKSUM_LEN - 8, special),
+                |(at, value)| {
+                    let mut bad = bytes.clone();
+                    bad[at..at + 8].copy_from_slice(&value.to_le_bytes());
+                    reseal(&mut bad);
+                    check(&bad);
+                    Ok(())
+                },
+            )
+            .unwrap();
+    }
+
+    #[test]
+    fn random_bytes_fail_cleanly() {
+        runner(256)
+            .run(&prop::collection::vec(any::<u8>(), 0..512), |mut bytes| {
+                prop_assert!(load(&bytes).is_err());
+                // Past the magic and version: the length, sections and checksum are tested.
+                if bytes.len() >= HEADER_LEN {
+                    bytes[..8].copy_from_slice(super::super::MAGIC);
+                    bytes[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+                    prop_assert!(load(&bytes).is_err());
+                }
+                Ok(())
+            })
+            .unwrap();
+    }
+}
