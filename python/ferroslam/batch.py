@@ -32,6 +32,7 @@ import dataclasses
 import hashlib
 import itertools
 import json
+import math
 import os
 import re
 import resource
@@ -46,6 +47,7 @@ from typing import Any, Iterator, NamedTuple, Optional, Union
 
 from tqdm import tqdm
 
+from ._files import MAX_CONFIG_BYTES, atomic_output, check_nesting, read_bounded_text, write_text
 from .download import DATASETS, DownloadError, fetch_dataset
 from .pipeline import SENSORS
 
@@ -62,6 +64,8 @@ SPEC_EXAMPLE = """\
            "options": {"depth_threshold": 35},
            "grid": {"n_features": [1000, 1500, 2000]}, "repeats": 5}]}"""
 
+# Runs one SPEC may expand to, checked before expanding ("repeats": 100000000 is a typo).
+MAX_RUNS = 10_000
 _SPEC_KEYS = ("repeats", "max_frames", "options", "runs")
 _RUN_KEYS = ("sequence", "sensor", "repeats", "max_frames", "options", "grid")
 _ROW_FILE = "row.json"  # written by the driver once a run is over: the run is done
@@ -111,8 +115,10 @@ class RunSpec:
         """The run's folder below the output folder, the same for the same SPEC entry in
         every call (which is how a second call finds the runs already done)."""
         key = json.dumps([self.sequence, self.sensor, self.option_set, self.max_frames])
-        digest = hashlib.sha1(key.encode("utf-8")).hexdigest()[:8]
-        return f"{Path(self.sequence).name}_{self.sensor}_{digest}/repeat_{self.repeat}"
+        # The whole digest: distinct runs never share a folder (8 hex digits collided).
+        digest = hashlib.sha256(key.encode("utf-8")).hexdigest()
+        slug = re.sub(r"[^A-Za-z0-9._-]+", "-", Path(self.sequence).name)[:40] or "run"
+        return f"{slug}_{self.sensor}_{digest}/repeat_{self.repeat}"
 
 
 class BatchOutcome(NamedTuple):
@@ -130,9 +136,8 @@ def load_spec(path: Union[str, Path]) -> list[RunSpec]:
     the key for a malformed SPEC; a missing sequence folder is the run's failure, not the
     SPEC's."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"SPEC file not found: {path}")
-    text = path.read_text(encoding="utf-8")
+    text = read_bounded_text(path, MAX_CONFIG_BYTES, "SPEC file")
+    check_nesting(text, str(path))
     if path.suffix.lower() == ".json":
         try:
             spec = json.loads(text)
@@ -153,6 +158,8 @@ def _load_yaml(text: str, path: Path) -> Any:
         return yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise ValueError(f"{path}: invalid YAML: {err}") from None
+    except RecursionError:  # block-style nesting, which check_nesting does not see
+        raise ValueError(f"{path}: nested too deeply") from None
 
 
 def expand_spec(spec: Any, base_dir: Path, source: str) -> list[RunSpec]:
@@ -166,16 +173,18 @@ def expand_spec(spec: Any, base_dir: Path, source: str) -> list[RunSpec]:
     defaults = _check_options(spec.get("options", {}), "options", source)
     repeats = _check_count(spec.get("repeats", 1), "repeats", source)
     max_frames = _check_limit(spec.get("max_frames"), "max_frames", source)
-    runs = [run
-            for i, entry in enumerate(entries)
-            for run in _expand_entry(entry, f"runs[{i}]", base_dir, source, defaults, repeats,
-                                     max_frames)]
+    runs: list[RunSpec] = []
+    for i, entry in enumerate(entries):
+        runs += _expand_entry(entry, f"runs[{i}]", base_dir, source, defaults, repeats,
+                              max_frames, MAX_RUNS - len(runs))
     _check_unique(runs, source)
     return runs
 
 
 def _expand_entry(entry: Any, where: str, base_dir: Path, source: str, defaults: dict,
-                  repeats: int, max_frames: Optional[int]) -> list[RunSpec]:
+                  repeats: int, max_frames: Optional[int], room: int) -> list[RunSpec]:
+    """The entry's runs; ``ValueError`` before expanding when there are more than ``room``
+    (what :data:`MAX_RUNS` leaves after the earlier entries)."""
     _check_keys(entry, _RUN_KEYS, where, source)
     sequence = entry.get("sequence")
     if not isinstance(sequence, str) or not sequence:
@@ -189,22 +198,31 @@ def _expand_entry(entry: Any, where: str, base_dir: Path, source: str, defaults:
     repeats = _check_count(entry.get("repeats", repeats), f"{where}.repeats", source)
     max_frames = _check_limit(entry.get("max_frames", max_frames), f"{where}.max_frames",
                               source)
+    grid = entry.get("grid", {})
+    _check_grid(grid, f"{where}.grid", source)
+    count = math.prod(len(values) for values in grid.values()) * repeats
+    if count > room:
+        raise ValueError(f"{source}: {where} expands to {count} runs (grid points x repeats); "
+                         f"a SPEC may have at most {MAX_RUNS} runs in all")
     # A dataset name stands in until fetch_named_sequences puts the download there.
     path = (Path(sequence) if _DATASET_NAME.match(sequence)
             else (base_dir / Path(sequence).expanduser()).resolve())
     return [RunSpec(sequence, path, sensor, {**options, **point}, max_frames, repeat)
-            for point in _grid_points(entry.get("grid", {}), f"{where}.grid", source)
+            for point in _grid_points(grid)
             for repeat in range(repeats)]
 
 
-def _grid_points(grid: Any, where: str, source: str) -> list[dict]:
-    """Every combination of the grid's values (one empty point for no grid), first key
-    slowest."""
+def _check_grid(grid: Any, where: str, source: str) -> None:
     if not isinstance(grid, dict):
         raise ValueError(f"{source}: {where} must map option names to lists of values")
     for key, values in grid.items():
         if not isinstance(values, list) or not values:
             raise ValueError(f"{source}: {where}.{key} must be a non-empty list of values")
+
+
+def _grid_points(grid: dict) -> list[dict]:
+    """Every combination of the grid's values (one empty point for no grid), first key
+    slowest."""
     return [dict(zip(grid, values)) for values in itertools.product(*grid.values())]
 
 
@@ -251,7 +269,7 @@ def execute_run(run: RunSpec, out_dir: Path) -> dict:
     ``out_dir`` and return its table row; any error becomes the row's ``status`` and
     ``error`` (the body of each Ray task, and of the serial loop of the benchmark)."""
     from .datasets import open_sequence
-    from .outputs import write_run_outputs
+    from .outputs import publish_run_outputs
     from .pipeline import run_sequence
 
     start = time.perf_counter()
@@ -261,7 +279,7 @@ def execute_run(run: RunSpec, out_dir: Path) -> dict:
         seq = open_sequence(run.path, sensor=run.sensor)
         result = run_sequence(seq, run.options, max_frames=run.max_frames, progress=False,
                               sensor=run.sensor)
-        figures = _figures(write_run_outputs(result, out_dir / run.folder))
+        figures = _figures(publish_run_outputs(result, out_dir / run.folder))
         status, error = _OK, ""
     except Exception as err:  # noqa: BLE001 - a failed run is a row, the batch goes on
         figures, status, error = {}, "failed", f"{type(err).__name__}: {err}"
@@ -345,9 +363,21 @@ def fetch_named_sequences(runs: list[RunSpec], dest: Path, progress: bool = True
 def _done_row(folder: Path, retry_failed: bool) -> Optional[dict]:
     """The row a previous call left in ``folder``, ``None`` if the run is still to do."""
     path = folder / _ROW_FILE
-    if not path.is_file():
+    if not os.path.lexists(path):
         return None
-    row = json.loads(path.read_text(encoding="utf-8"))
+    text = read_bounded_text(path, MAX_CONFIG_BYTES, "run row")
+    check_nesting(text, str(path))
+    try:
+        row = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: invalid JSON: {err} (delete the file to run it again)"
+                         ) from None
+    missing = [key for key in (*_RUN_COLUMNS, "options", "status", "run_dir")
+               if not isinstance(row, dict) or key not in row]
+    if missing or not isinstance(row["options"], dict):
+        raise ValueError(f"{path}: not a run row of ferroslam batch (no {missing[0]!r})"
+                         if missing else f"{path}: 'options' must be a JSON object"
+                         " (delete the file to run it again)")
     return None if retry_failed and row["status"] != _OK else row
 
 
@@ -405,15 +435,14 @@ def _task_row(ray: Any, ref: Any, run: RunSpec) -> dict:
 
 
 def _save_row(row: dict, folder: Path) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / _ROW_FILE).write_text(json.dumps(row, indent=2) + "\n", encoding="utf-8")
+    write_text(folder / _ROW_FILE, json.dumps(row, indent=2) + "\n")
 
 
 def write_table(rows: list[dict], path: Path) -> None:
     """``results.csv``: one row per run, one column per option key any run sets (empty: the
     core's default), missing figures empty."""
     option_keys = sorted({key for row in rows for key in row["options"]})
-    with path.open("w", newline="", encoding="utf-8") as f:
+    with atomic_output(path) as tmp, tmp.open("w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow((*_RUN_COLUMNS, *option_keys, *_RESULT_COLUMNS))
         for row in rows:
@@ -455,7 +484,7 @@ def write_summary(rows: list[dict], path: Path) -> None:
     if failed:
         lines += ["", "## Failed runs", ""]
         lines += [f"- `{row['run_dir']}` ({row['status']}): {row['error']}" for row in failed]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def _options_text(options: dict) -> str:

@@ -8,11 +8,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import re
 import sys
+import traceback
 from pathlib import Path
 from typing import Optional, Sequence
 
 from .metrics import ALIGNMENTS
+from ._files import MAX_CONFIG_BYTES, StagedFolder, check_nesting, read_bounded_text
 from .outputs import write_run_outputs
 from .pipeline import SENSORS
 
@@ -117,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="store_true", help="print the version and exit")
+    parser.add_argument("--traceback", action="store_true",
+                        help="on an error, print the stack too (or FERROSLAM_TRACEBACK=1)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     demo = sub.add_parser(
@@ -265,13 +271,20 @@ def _add_batch_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _load_config(path: Optional[Path]) -> dict:
+    """The ``--config`` JSON object; size and nesting are bounded before parsing."""
     if path is None:
         return {}
-    from .options import load_option_file
-
-    # Bounded and checked for names and types here; run_sequence validates it against the
-    # sensor (one schema, ferroslam.options).
-    return load_option_file(path)
+    text = read_bounded_text(path, MAX_CONFIG_BYTES, "config file")
+    check_nesting(text, str(path))
+    try:
+        config = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: invalid JSON: {err}") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: the config must be a JSON object of options")
+    if "track_feature_range" in config:  # JSON has no tuples
+        config["track_feature_range"] = tuple(config["track_feature_range"])
+    return config
 
 
 def _open_input(args: argparse.Namespace):
@@ -286,6 +299,7 @@ def _open_input(args: argparse.Namespace):
             raise ValueError("--camera and --fps are for videos, image folders and cameras; a "
                              f"dataset folder ({args.path}) has its own calibration and times")
         return open_sequence(args.path, args.format, sensor=args.sensor)
+    _check_camera_index(str(args.path))
     if args.sensor != "mono":
         try:
             open_sequence(args.path, sensor=args.sensor)  # says which layouts it looked for
@@ -299,6 +313,17 @@ def _open_input(args: argparse.Namespace):
                          "camera_info, flat camera.yaml)")
     source.camera = load_calibration(args.camera).cameras[0]
     return source
+
+
+# OpenCV takes a camera index as a C int.
+_CAMERA_INDEX = re.compile(r"camera:(\d+)")
+_MAX_CAMERA_INDEX = 2**31 - 1
+
+
+def _check_camera_index(spec: str) -> None:
+    match = _CAMERA_INDEX.fullmatch(spec)
+    if match and int(match.group(1)) > _MAX_CAMERA_INDEX:
+        raise ValueError(f"{spec}: camera index out of range (0..{_MAX_CAMERA_INDEX})")
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -341,31 +366,39 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
                       silent: bool, trajectory_format: str = "tum", logger=None) -> int:
-    """Run ``seq`` (a live source through ``run_source``), write every output file into
-    ``out`` and print the summary. A run that stops at an error (a corrupt image at frame N, a
-    bad ground-truth line) still writes the results of the frames before it, then reports the
-    error."""
+    """Run ``seq`` (a live source through ``run_source``), write every output file into a
+    staging folder moved into ``out`` when the run is over, and print the summary. A run that
+    stops at an error (a corrupt image at frame N, a bad ground-truth line) leaves the results
+    of an earlier run in ``out`` as they were, puts the results of the frames before the error
+    in ``out/partial-<UTC time>/``, then reports the error."""
     from .pipeline import RunError, run_sequence, run_source
 
-    out.mkdir(parents=True, exist_ok=True)  # an unwritable --out fails before tracking
     on_frame = None
     if logger is not None:
         from .viewer import make_frame_callback
 
         on_frame = make_frame_callback(logger, seq.camera)
+    stage = StagedFolder(out)  # an unwritable --out fails here, before tracking
     try:
-        if getattr(seq, "live", False):
-            result = run_source(seq, config, max_frames=max_frames, progress=not silent)
-        else:
-            result = run_sequence(seq, config, max_frames=max_frames, progress=not silent,
-                                  sensor=sensor, on_frame=on_frame)
+        with stage:
+            try:
+                if getattr(seq, "live", False):
+                    result = run_source(seq, config, max_frames=max_frames,
+                                        progress=not silent)
+                else:
+                    result = run_sequence(seq, config, max_frames=max_frames,
+                                          progress=not silent, sensor=sensor,
+                                          on_frame=on_frame)
+            except RunError as err:
+                write_run_outputs(err.partial, stage.path, trajectory_format)
+                _log_final_map(logger, err.partial)
+                raise
+            _log_final_map(logger, result)
+            summary = write_run_outputs(result, stage.path, trajectory_format)
     except RunError as err:
-        write_run_outputs(err.partial, out, trajectory_format)
-        _log_final_map(logger, err.partial)
         raise RunError(f"{err}; the results of the {err.partial.frames} frames before it are "
-                       f"in {out}/", err.partial, err.frame) from err
-    _log_final_map(logger, result)
-    summary = write_run_outputs(result, out, trajectory_format)
+                       f"in {stage.partial}/ (earlier results in {out}/ are kept)",
+                       err.partial, err.frame) from err
     if not silent:
         _print_summary(summary, out)
     return 0
@@ -470,15 +503,15 @@ def _cmd_vocab(args: argparse.Namespace) -> int:
         print(f"extracted {sum(map(len, descriptors))} descriptors from {len(images)} images")
         voc = vocabulary.Vocabulary.train(descriptors, k=args.k, levels=args.levels,
                                           seed=args.seed)
-        voc.save(args.out)
+        vocabulary.save_vocabulary(voc, args.out)
         print(f"wrote {args.out}: {voc!r}, {args.out.stat().st_size} bytes")
         if args.text is not None:
-            voc.save_dbow2_text(args.text)
+            vocabulary.save_vocabulary(voc, args.text, dbow2_text=True)
             print(f"wrote DBoW2 text {args.text}")
         return 0
     voc = (vocabulary.default_vocabulary() if args.vocabulary is None
            else vocabulary.Vocabulary.load(args.vocabulary))
-    voc.save_dbow2_text(args.out)
+    vocabulary.save_vocabulary(voc, args.out, dbow2_text=True)
     print(f"wrote DBoW2 text {args.out}: {voc!r}")
     return 0
 
@@ -497,11 +530,21 @@ def _cmd_download(args: argparse.Namespace) -> int:
     return 0
 
 
+def _one_line(err: BaseException) -> str:
+    """The error as one line: its message (the type's name when the message is empty or
+    says too little to stand alone, as for KeyError)."""
+    text = " ".join(str(err).split())
+    if isinstance(err, KeyError) or not text:
+        return f"{type(err).__name__}: {text}" if text else type(err).__name__
+    return text
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``ferroslam`` command; returns the exit status (0 success, 1 error,
-    2 usage error, 3 ``download kitti``: manual steps needed)."""
-    from .download import DownloadError
+    2 usage error, 3 ``download kitti``: manual steps needed).
 
+    Any error is printed as one line ``ferroslam: error: ...``; ``--traceback`` or the
+    environment variable ``FERROSLAM_TRACEBACK=1`` prints the stack as well."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.version:
@@ -516,15 +559,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch}
     try:
         return commands[args.command](args)
-    except (OSError, ImportError, ValueError, TypeError, OverflowError, NotImplementedError,
-            DownloadError) as err:
-        # User errors: a missing or unwritable path (OSError names it), a bad option value
-        # (the core names the option), bad data.
-        print(f"ferroslam: error: {err}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print("ferroslam: interrupted", file=sys.stderr)
         return 130
+    except Exception as err:  # noqa: BLE001 - every failure of a command is one line
+        if args.traceback or os.environ.get("FERROSLAM_TRACEBACK", "") not in ("", "0"):
+            traceback.print_exc()
+        print(f"ferroslam: error: {_one_line(err)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,7 +9,9 @@
   Gaussian-splatting tools.
 
 All raise ``ValueError`` naming the offending argument (shape, NaN/inf, range) before
-touching the file, and create missing parent folders.
+touching the file, and write through :func:`ferroslam._files.atomic_output` (missing parent
+folders created, a symlink at the target replaced rather than followed, a FIFO or device
+refused, the target changed only once the file is complete).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from ._files import atomic_output, write_text
 from ._validate import finite_array
 from .camera import Camera
 from .io import PathLike, write_euroc_trajectory, write_kitti_poses, write_tum_trajectory
@@ -122,8 +125,7 @@ def write_ply(
     if binary is None:
         binary = len(xyz) > PLY_BINARY_ABOVE_POINTS
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
+    with atomic_output(path) as tmp, open(tmp, "wb") as f:
         f.write(_ply_header(fields, len(xyz), binary))
         if binary:
             f.write(records.tobytes())
@@ -410,7 +412,6 @@ def write_colmap_model(
                                       _point2d_indices(by_image, len(image))),
     }
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     for name, text in texts.items():
-        (folder / name).write_text(text, encoding="utf-8")
+        write_text(folder / name, text)
     return folder

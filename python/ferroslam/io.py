@@ -8,7 +8,8 @@
   quaternion's ``w`` first) under a ``#timestamp [ns], p_RS_R_x [m], ...`` header.
 
 Readers raise ``FileNotFoundError`` naming the file, and ``ValueError`` naming the file and
-line for malformed lines or timestamps out of order.
+line for malformed lines or timestamps out of order. Writers go through
+:func:`ferroslam._files.atomic_output` (the file appears complete or not at all).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Union
 
 import numpy as np
 
+from ._files import atomic_output, regular_file
 from .trajectory import Trajectory
 from .transforms import poses_from_tum, tum_from_poses
 
@@ -38,24 +40,25 @@ PathLike = Union[str, "os.PathLike[str]"]
 def read_table(path: PathLike, n_columns: int, what: str = "file") -> list[tuple[int, list[str]]]:
     """Non-comment lines of a whitespace-separated text file as ``(line_number, fields)``.
 
-    Raises ``FileNotFoundError`` if ``path`` is missing and ``ValueError`` (with file and line)
-    if a line has fewer than ``n_columns`` fields.
+    Raises ``FileNotFoundError`` if ``path`` is missing, ``IsADirectoryError`` for a folder,
+    and ``ValueError`` for a FIFO or device, for text that is not UTF-8 and (with file and
+    line) if a line has fewer than ``n_columns`` fields.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} not found: {path}")
+    path = regular_file(path, what)  # a FIFO or a folder is refused before opening
     rows = []
     with open(path, encoding="utf-8") as f:
-        for number, line in enumerate(f, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            fields = text.replace(",", " ").split()
-            if len(fields) < n_columns:
-                raise ValueError(
-                    f"{path}:{number}: expected {n_columns} fields, got {len(fields)}: {text!r}"
-                )
-            rows.append((number, fields))
+        try:
+            for number, line in enumerate(f, start=1):
+                text = line.strip()
+                if not text or text.startswith("#"):
+                    continue
+                fields = text.replace(",", " ").split()
+                if len(fields) < n_columns:
+                    raise ValueError(f"{path}:{number}: expected {n_columns} fields, got "
+                                     f"{len(fields)}: {text!r}")
+                rows.append((number, fields))
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a UTF-8 text file") from None
     return rows
 
 
@@ -90,8 +93,7 @@ def write_tum_trajectory(path: PathLike, timestamps: np.ndarray, T_w_c: np.ndarr
     """
     traj = Trajectory(timestamps, T_w_c)
     rows = tum_from_poses(traj.poses)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_output(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
         for t, row in zip(traj.timestamps, rows):
             f.write(f"{t:.6f} " + " ".join(f"{v:.9f}" for v in row) + "\n")
 
@@ -112,8 +114,8 @@ def write_kitti_poses(path: PathLike, T_w_c: np.ndarray) -> None:
     T = np.asarray(T_w_c, dtype=np.float64)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise ValueError(f"T_w_c must have shape (N, 4, 4), got {T.shape}")
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, T[:, :3, :].reshape(-1, 12), fmt="%.9e")
+    with atomic_output(path) as tmp:
+        np.savetxt(tmp, T[:, :3, :].reshape(-1, 12), fmt="%.9e")
 
 
 _EUROC_HEADER = ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], "
@@ -186,8 +188,7 @@ def write_euroc_trajectory(path: PathLike, timestamps: np.ndarray, T_w_c: np.nda
     traj = Trajectory(timestamps, T_w_c)
     xyz_quat = tum_from_poses(traj.poses)
     p_q_wxyz = np.concatenate([xyz_quat[:, :3], xyz_quat[:, 6:7], xyz_quat[:, 3:6]], 1)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_output(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
         f.write(_EUROC_HEADER + "\n")
         for t_ns, row in zip(_nanoseconds(traj.timestamps), p_q_wxyz):
             f.write(f"{t_ns}," + ",".join(f"{v:.9f}" for v in row) + "\n")

@@ -1,6 +1,8 @@
 """What a run leaves in its output folder, written the same way by ``ferroslam run``,
 ``demo`` and ``batch``: trajectories, ``map.ply``, a COLMAP model, plots and
-``results.json``."""
+``results.json``. The files are written into a fresh folder beside the output folder and
+moved into it when the run is over (:class:`ferroslam._files.StagedFolder`): a failed run
+never replaces the results of an earlier one."""
 
 from __future__ import annotations
 
@@ -9,18 +11,25 @@ from pathlib import Path
 
 import numpy as np
 
+from ._files import StagedFolder, write_text
 from .export import write_colmap_model, write_ply, write_trajectory
 
-__all__ = ["write_run_outputs"]
+__all__ = ["publish_run_outputs", "write_run_outputs"]
+
+
+def publish_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
+    """:func:`write_run_outputs` into a staging folder whose files then replace those of
+    ``out``; if writing fails they are left in ``out/partial-<UTC time>/``."""
+    with StagedFolder(out) as stage:
+        return write_run_outputs(result, stage.path, trajectory_format)
 
 
 def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
     """Write what ``ferroslam run`` leaves in ``out`` (created) and return the summary put in
     results.json; one function so that ``run``, ``demo`` and ``batch`` write the same files."""
-    out.mkdir(parents=True, exist_ok=True)
     _write_outputs(result, out, result.sequence, trajectory_format)
     summary = result.summary()
-    (out / "results.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text(out / "results.json", json.dumps(summary, indent=2) + "\n")
     return summary
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from ._files import atomic_output
 from ._validate import finite_array
 from .trajectory import Trajectory
 
@@ -233,9 +234,9 @@ def _save(fig: Figure, path: Union[str, Path]) -> Path:
     parent that is a file otherwise reads "File exists")."""
     path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         fig.tight_layout()
-        fig.savefig(path)
+        with atomic_output(path) as tmp:  # the format from the target's name, not tmp's
+            fig.savefig(tmp, format=path.suffix.lstrip(".").lower() or "png")
     except OSError as err:
         raise OSError(err.errno, f"cannot write the plot to {path}: {err.strerror}") from err
     return path

@@ -29,11 +29,13 @@ Three ways in: :meth:`RerunLogger.log_frame` per frame, :func:`make_frame_callba
 from __future__ import annotations
 
 import itertools
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence, Union
 
 import numpy as np
 
+from ._files import atomic_output
 from ._validate import finite_array
 from .camera import Camera
 from .datasets import frame_images
@@ -97,10 +99,15 @@ class RerunLogger:
         self._owned = recording is None
         self.recording = recording if recording is not None else self._rr.RecordingStream(
             application_id)
+        # The .rrd file is recorded to a temporary file beside save_path (its folder created
+        # first) and moved there by close(): a recording is complete or absent.
+        self._output = ExitStack()
         if spawn:
             self.recording.spawn()
         elif save_path is not None:
-            self.recording.save(Path(save_path))
+            with ExitStack() as opening:
+                self.recording.save(opening.enter_context(atomic_output(save_path)))
+                self._output = opening.pop_all()
         self.recording.log("world", self._rr.ViewCoordinates.RDF, static=True)
         self._camera: Optional[Camera] = None
         self._state: Optional[str] = None
@@ -235,11 +242,12 @@ class RerunLogger:
 
     # -- lifetime ---------------------------------------------------------------------------
     def close(self) -> None:
-        """Sends what is buffered; a recording this logger made is then disconnected (an
-        ``.rrd`` file is complete afterwards). Idempotent."""
+        """Sends what is buffered; a recording this logger made is then disconnected and an
+        ``.rrd`` file moved to ``save_path`` (it appears there only now). Idempotent."""
         self.recording.flush()
         if self._owned:
             self.recording.disconnect()
+        self._output.close()
 
     def __enter__(self) -> RerunLogger:
         return self

@@ -15,6 +15,7 @@ from typing import Iterable, Union
 import numpy as np
 
 from .._core import KeyframeDatabase, Vocabulary
+from .._files import atomic_output
 
 __all__ = [
     "DEFAULT_VOCABULARY_PATH",
@@ -23,6 +24,7 @@ __all__ = [
     "default_vocabulary",
     "extract_descriptors",
     "image_paths",
+    "save_vocabulary",
 ]
 
 DEFAULT_VOCABULARY_PATH = Path(__file__).resolve().parent / "orb_vocabulary.fsv"
@@ -78,3 +80,18 @@ def extract_descriptors(images: Iterable[Union[str, Path]], n_features: int = 10
     extractor = OrbExtractor(n_features=n_features)
     return [np.ascontiguousarray(extractor.detect(read_gray(Path(p)))[1], dtype=np.uint8)
             .reshape(-1, 32) for p in images]
+
+
+def save_vocabulary(vocabulary: Vocabulary, path: Union[str, Path], *,
+                    dbow2_text: bool = False) -> Path:
+    """Writes ``vocabulary`` to ``path`` (ferroslam binary, or DBoW2 text as ORB-SLAM's
+    ``ORBvoc.txt`` with ``dbow2_text``) through :func:`ferroslam._files.atomic_output`: the
+    file appears complete or not at all, a symlink there is replaced, a FIFO or device is
+    refused (``ValueError``), a folder too (``IsADirectoryError``)."""
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        if dbow2_text:
+            vocabulary.save_dbow2_text(tmp)
+        else:
+            vocabulary.save(tmp)
+    return path
