@@ -69,6 +69,9 @@ def _check_target(target: Path) -> None:
         st = os.lstat(target)
     except FileNotFoundError:
         return
+    except NotADirectoryError:
+        _make_parent(target.parent)  # raises naming the parent that is a file
+        raise
     if stat.S_ISREG(st.st_mode) or stat.S_ISLNK(st.st_mode):
         return
     if stat.S_ISDIR(st.st_mode):
@@ -80,10 +83,11 @@ def _check_target(target: Path) -> None:
 def _make_parent(folder: Path) -> None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise NotADirectoryError(f"{folder}: exists and is not a folder") from None
+    except (FileExistsError, NotADirectoryError):
+        pass
     if not folder.is_dir():
-        raise NotADirectoryError(f"{folder}: exists and is not a folder")
+        blocking = next(p for p in (folder, *folder.parents) if os.path.lexists(p))
+        raise NotADirectoryError(f"{blocking}: exists and is not a folder")
 
 
 @contextmanager

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from .metrics import ALIGNMENTS
-from ._files import MAX_CONFIG_BYTES, StagedFolder, check_nesting, read_bounded_text
+from ._files import StagedFolder
 from .outputs import write_run_outputs
 from .pipeline import SENSORS
 
@@ -271,17 +271,13 @@ def _add_batch_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _load_config(path: Optional[Path]) -> dict:
-    """The ``--config`` JSON object; size and nesting are bounded before parsing."""
+    """The ``--config`` object (JSON, or YAML for other names), size- and depth-bounded before
+    parsing by the options module's loader."""
     if path is None:
         return {}
-    text = read_bounded_text(path, MAX_CONFIG_BYTES, "config file")
-    check_nesting(text, str(path))
-    try:
-        config = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: invalid JSON: {err}") from None
-    if not isinstance(config, dict):
-        raise ValueError(f"{path}: the config must be a JSON object of options")
+    from .options import load_option_file
+
+    config = load_option_file(path)
     if "track_feature_range" in config:  # JSON has no tuples
         config["track_feature_range"] = tuple(config["track_feature_range"])
     return config
