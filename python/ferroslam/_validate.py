@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import os
-import stat
-from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
@@ -55,21 +53,10 @@ MAX_TEXT_FILE_BYTES = 16 << 20
 
 def read_text(path: "os.PathLike[str] | str", what: str,
               max_bytes: int = MAX_TEXT_FILE_BYTES) -> str:
-    """The UTF-8 text of a regular file, refusing (``ValueError`` naming the file) one that
-    is not a regular file (a FIFO would block), is larger than ``max_bytes`` or is not UTF-8;
-    ``FileNotFoundError`` naming ``what`` and the file when it is missing."""
-    path = Path(path)
-    try:
-        info = path.stat()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{what} not found: {path}") from None
-    if not stat.S_ISREG(info.st_mode):
-        raise ValueError(f"{path}: {what} is not a regular file")
-    if info.st_size > max_bytes:
-        raise ValueError(f"{path}: {info.st_size} bytes, too large for a {what} "
-                         f"(at most {max_bytes})")
-    try:
-        return path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: {what} is not UTF-8 text ({err.reason} at byte "
-                         f"{err.start})") from None
+    """The UTF-8 text of the regular file ``path`` through the package's bounded reader
+    (``_files.read_bounded_text``): ``FileNotFoundError`` naming ``what`` and the file when
+    it is missing, ``ValueError`` naming the file for a FIFO/device (refused before it could
+    block), a file over ``max_bytes`` or one that is not UTF-8."""
+    from ._files import read_bounded_text
+
+    return read_bounded_text(path, max_bytes, what)

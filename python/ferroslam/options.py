@@ -20,12 +20,13 @@ import json
 import math
 import numbers
 import os
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Union
 
 import numpy as np
+
+from ._files import MAX_CONFIG_BYTES, check_nesting, read_bounded_text
 
 __all__ = ["OPTIONS", "Option", "check_option", "load_option_file", "validate_options"]
 
@@ -252,17 +253,17 @@ def _check_together(options: dict) -> None:
 
 # -- option files ---------------------------------------------------------------------------
 
-# An options file is a few hundred bytes; a megabyte is far beyond any real one.
-MAX_OPTION_FILE_BYTES = 1 << 20
 # Options are flat (a pair is depth 2); SPECs nest a few levels more.
 MAX_OPTION_FILE_DEPTH = 16
 
 
-def load_option_file(path: Union[str, os.PathLike], max_bytes: int = MAX_OPTION_FILE_BYTES,
+def load_option_file(path: Union[str, os.PathLike], max_bytes: int = MAX_CONFIG_BYTES,
                      max_depth: int = MAX_OPTION_FILE_DEPTH) -> dict:
     """The mapping of a JSON (``.json``) or YAML (any other name) options file, bounded:
-    its size is checked before it is read and its nesting depth before and after parsing
-    (a deeply nested file is refused, never a ``RecursionError``).
+    its size is checked before it is read and its nesting depth before parsing (brackets)
+    and after it (YAML block style): a deeply nested file is refused, never a
+    ``RecursionError``. Reads through the package's one bounded reader
+    (``_files.read_bounded_text``).
 
     Raises:
         FileNotFoundError: no such file. IsADirectoryError: a folder.
@@ -271,34 +272,14 @@ def load_option_file(path: Union[str, os.PathLike], max_bytes: int = MAX_OPTION_
             JSON/YAML, nested deeper than ``max_depth``, not a mapping with string keys.
     """
     path = Path(path)
-    try:
-        info = path.stat()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"options file not found: {path}") from None
-    if stat.S_ISDIR(info.st_mode):
-        raise IsADirectoryError(f"{path}: is a folder, not an options file")
-    if not stat.S_ISREG(info.st_mode):
-        raise ValueError(f"{path}: not a regular file (a pipe or device is not read)")
-    if info.st_size > max_bytes:
-        raise ValueError(f"{path}: {info.st_size} bytes, more than an options file may hold "
-                         f"({max_bytes})")
-    with open(path, "rb") as f:
-        data = f.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise ValueError(f"{path}: more than {max_bytes} bytes")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: not a UTF-8 text file ({err.reason} at byte "
-                         f"{err.start})") from None
-    if _flow_depth(text) > max_depth:
-        raise ValueError(f"{path}: nested more than {max_depth} levels deep")
+    text = read_bounded_text(path, max_bytes, "options file")
+    check_nesting(text, str(path), max_depth)
     document = _parse(path, text)
     if _depth(document) > max_depth:
-        raise ValueError(f"{path}: nested more than {max_depth} levels deep")
+        raise ValueError(f"{path}: nested deeper than {max_depth} levels")
     if not isinstance(document, dict) or not all(isinstance(k, str) for k in document):
-        raise ValueError(f"{path}: an options file must hold a JSON object (a mapping) of option "
-                         f"names to values, got {type(document).__name__}")
+        raise ValueError(f"{path}: an options file must hold a JSON object (a mapping) of "
+                         f"option names to values, got {type(document).__name__}")
     return document
 
 
@@ -315,31 +296,8 @@ def _parse(path: Path, text: str) -> Any:
             return yaml.safe_load(text)
         except yaml.YAMLError as err:
             raise ValueError(f"{path}: invalid YAML: {err}") from None
-    except RecursionError:  # the depth scan bounds flow nesting; this is the last guard
+    except RecursionError:  # check_nesting bounds flow nesting; this is the last guard
         raise ValueError(f"{path}: nested too deep to parse") from None
-
-
-def _flow_depth(text: str) -> int:
-    """Deepest nesting of ``[``/``{`` outside quoted strings (JSON, YAML flow style)."""
-    depth = deepest = 0
-    quote = ""
-    escaped = False
-    for ch in text:
-        if quote:
-            if escaped:
-                escaped = False
-            elif ch == "\\" and quote == '"':
-                escaped = True
-            elif ch == quote:
-                quote = ""
-        elif ch in "\"'":
-            quote = ch
-        elif ch in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif ch in "]}":
-            depth = max(0, depth - 1)
-    return deepest
 
 
 def _depth(value: Any) -> int:
