@@ -68,10 +68,7 @@ def read_kitti_calib(path: Union[str, Path]) -> dict[str, np.ndarray]:
 
 
 def _read_times(path: Path) -> np.ndarray:
-    try:
-        rows = read_table(path, 1, "KITTI times file")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: KITTI times file is not UTF-8 text") from None
+    rows = read_table(path, 1, "KITTI times file")
     times = np.empty(len(rows))
     for r, (number, fields) in enumerate(rows):
         try:

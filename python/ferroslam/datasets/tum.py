@@ -83,10 +83,7 @@ _MAX_SECONDS = 1e11
 
 
 def _read_list(path: Path, what: str) -> tuple[np.ndarray, list[str]]:
-    try:
-        rows = read_table(path, 2, what)
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: {what} is not UTF-8 text") from None
+    rows = read_table(path, 2, what)
     if not rows:
         raise ValueError(f"{path}: {what} lists no frames")
     stamps = np.empty(len(rows))
