@@ -132,7 +132,8 @@ class StagedFolder:
     """A run's output folder: ``with StagedFolder(out) as stage:`` write into
     ``stage.path`` (a fresh folder beside ``out``); on success its entries replace those of
     the same name in ``out``; on an exception they go to ``out/partial-<UTC time>/``
-    (``stage.partial`` then names it) and the exception propagates.
+    (``stage.partial`` then names it; ``None`` when nothing was written) and the exception
+    propagates.
 
     Raises (on entry) ``NotADirectoryError`` when ``out`` exists and is not a folder.
     """
@@ -180,7 +181,9 @@ class StagedFolder:
                 os.replace(target, trash / src.name)
             os.replace(src, target)
 
-    def _keep_partial(self) -> Path:
+    def _keep_partial(self) -> Optional[Path]:
+        if not any(self.path.iterdir()):
+            return None  # failed before writing anything: no empty partial folder
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
         for n in range(1000):
             partial = self.out / (f"partial-{stamp}" + (f"-{n}" if n else ""))
@@ -214,7 +217,8 @@ def regular_file(path: PathLike, what: str = "file") -> Path:
 
 def _require_regular(mode: int, path: Path, what: str) -> None:
     if stat.S_ISDIR(mode):
-        raise IsADirectoryError(f"{path}: is a directory, expected a {what}")
+        article = "an" if what[:1] in "aeiou" else "a"
+        raise IsADirectoryError(f"{path}: is a directory, expected {article} {what}")
     if not stat.S_ISREG(mode):
         raise ValueError(f"{path}: is {_kind(mode)}, expected a regular {what}; refusing to "
                          "read it")
