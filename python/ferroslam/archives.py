@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import IO, Callable, Optional, Union
 
+from ._files import atomic_output
+
 __all__ = ["MAX_EXTRACTED_BYTES", "extract_archive"]
 
 PathLike = Union[str, Path]
@@ -111,17 +113,16 @@ def _write_file(archive: Path, m: _Member, source: IO[bytes], target: Path, room
     """Copy ``source`` to ``target`` and return the bytes written, counted as they are
     written; past ``room_bytes`` the file is deleted and ``ValueError`` raised."""
     written = 0
-    with source, open(target, "wb") as f:
+    # Through the one writer: a link or FIFO already at the target is never written through.
+    with source, atomic_output(target) as tmp, open(tmp, "wb") as f:
         for block in iter(lambda: source.read(_BLOCK_BYTES), b""):
             written += len(block)
-            if written > room_bytes:
-                break
+            if written > room_bytes:  # raised inside: the partial file is removed
+                raise ValueError(f"{archive}: extracting member {m.name!r} goes past the "
+                                 f"limit of {_size_text(max_bytes)} in total; genuine "
+                                 "datasets are far smaller, so this looks like an archive "
+                                 "bomb")
             f.write(block)
-    if written > room_bytes:
-        target.unlink()
-        raise ValueError(f"{archive}: extracting member {m.name!r} goes past the limit of "
-                         f"{_size_text(max_bytes)} in total; genuine datasets are far "
-                         "smaller, so this looks like an archive bomb")
     return written
 
 
@@ -140,7 +141,8 @@ def _write_members(archive: Path, dest: Path, members: list[_Member],
             total_bytes += _write_file(archive, m, open_member(m.info), target,
                                        max_bytes - total_bytes, max_bytes)
         except (FileExistsError, NotADirectoryError, IsADirectoryError) as err:
-            raise ValueError(f"{archive}: member {m.name!r} clashes with {err.filename}, "
+            raise ValueError(f"{archive}: member {m.name!r} clashes with "
+                             f"{err.filename or target}, "
                              "already in the destination as a file where a folder is needed "
                              "or the reverse; move it away") from None
         written.append(target)
