@@ -16,7 +16,7 @@
 
 use nalgebra::{Matrix2x3, Vector2, Vector3};
 
-use super::validation::check_intrinsics;
+use super::validation::{check_intrinsics, check_monotonic_over_image, corner_radius};
 use crate::GeometryError;
 
 /// Below this `r / |p|` a point is treated as on the optical axis (the `theta_d / r` limit).
@@ -49,8 +49,9 @@ pub struct KannalaBrandtCamera {
 }
 
 impl KannalaBrandtCamera {
-    /// Validated constructor: finite values, positive focal lengths and image size, and a
-    /// model that is one-to-one for at least the first 10 degrees off the axis.
+    /// Validated constructor: finite values, positive focal lengths and image size, the
+    /// principal point inside the image, and `theta_d(theta)` strictly increasing and
+    /// plausible (`validation::check_monotonic_over_image`) out to the farthest image corner.
     pub fn new(
         fx: f64,
         fy: f64,
@@ -63,13 +64,17 @@ impl KannalaBrandtCamera {
         let names = ["k1", "k2", "k3", "k4"];
         check_intrinsics([fx, fy, cx, cy], names.into_iter().zip(k), [width, height])?;
         let max_incidence_rad = first_turning_point(&k);
-        if max_incidence_rad < 10f64.to_radians() {
-            return Err(GeometryError::InvalidParameter {
-                name: "k1",
-                value: k[0],
-                reason: "the coefficients fold the image over within 10 degrees of the axis",
-            });
-        }
+        check_monotonic_over_image(
+            |theta| distort(&k, theta).0,
+            |theta| {
+                let t2 = theta * theta;
+                (0..4)
+                    .map(|i| (names[i], k[i], k[i] * t2.powi(i as i32 + 1)))
+                    .collect()
+            },
+            corner_radius([fx, fy, cx, cy], [width, height]),
+            max_incidence_rad,
+        )?;
         Ok(Self {
             fx,
             fy,
@@ -299,10 +304,17 @@ mod tests {
 
     #[test]
     fn rejects_folding_coefficients_and_directions_past_the_fold() {
-        // theta_d = theta - theta^3 turns at theta = 1/sqrt(3).
-        let c =
+        // theta_d = theta - theta^3 turns at theta = 1/sqrt(3) (theta_d 0.385): a 64 px
+        // image (corner at theta_d 0.15) is inside the fold, a 640 x 480 one (1.33) is not.
+        let c = KannalaBrandtCamera::new(300.0, 300.0, 32.0, 32.0, [-1.0, 0.0, 0.0, 0.0], 64, 64)
+            .unwrap();
+        let err =
             KannalaBrandtCamera::new(300.0, 300.0, 320.0, 240.0, [-1.0, 0.0, 0.0, 0.0], 640, 480)
-                .unwrap();
+                .unwrap_err();
+        assert!(
+            err.to_string().contains("k1") && err.to_string().contains("corner"),
+            "{err}"
+        );
         assert_relative_eq!(c.max_incidence_rad(), 1.0 / 3f64.sqrt(), epsilon = 1e-9);
         assert!(c.project(&direction(0.7, 0.0, 1.0)).is_none());
         assert!(c.project(&direction(0.5, 0.0, 1.0)).is_some());
@@ -330,5 +342,28 @@ mod tests {
         assert!(c.project(&Vector3::new(0.0, 0.0, -1.0)).is_none());
         assert!(c.project(&Vector3::new(f64::NAN, 0.0, 1.0)).is_none());
         assert!(c.unproject(&Vector2::new(f64::NAN, 1.0)).is_none());
+    }
+
+    #[test]
+    fn implausible_coefficients_and_principal_points_are_named() {
+        let new = |k, cx, cy| KannalaBrandtCamera::new(285.0, 285.0, cx, cy, k, 848, 800);
+        // The T265 fisheye's calibration passes.
+        new([-0.00730, 0.04343, -0.04120, 0.00762], 424.5, 400.3).unwrap();
+        let err = new([1e3, -1e3, 1e3, -1e3], 424.0, 400.0).unwrap_err();
+        assert!(
+            matches!(err, GeometryError::InvalidParameter { name: "k1", .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("factor 3"), "{err}");
+        let err = new([0.0; 4], 900.0, 400.0).unwrap_err();
+        assert!(
+            matches!(err, GeometryError::InvalidParameter { name: "cx", .. }),
+            "{err}"
+        );
+        let err = new([0.0; 4], 424.0, -1.0).unwrap_err();
+        assert!(
+            matches!(err, GeometryError::InvalidParameter { name: "cy", .. }),
+            "{err}"
+        );
     }
 }

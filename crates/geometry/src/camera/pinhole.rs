@@ -12,7 +12,7 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Vector2, Vector3};
 
-use super::validation::check_intrinsics;
+use super::validation::{check_intrinsics, check_monotonic_over_image, corner_radius};
 use crate::GeometryError;
 
 /// Smallest depth (metres) accepted by [`PinholeCamera::project`].
@@ -103,7 +103,9 @@ impl PinholeCamera {
     /// Validated constructor.
     ///
     /// Fails with [`GeometryError::InvalidParameter`] if any value is not finite, if
-    /// `fx <= 0` or `fy <= 0`, or if `width` or `height` is 0.
+    /// `fx <= 0` or `fy <= 0`, if `width` or `height` is 0, if the principal point is
+    /// outside the image, or if the radial distortion folds the image over or scales radii
+    /// implausibly inside the image area (`validation::check_monotonic_over_image`).
     pub fn new(
         fx: f64,
         fy: f64,
@@ -118,6 +120,22 @@ impl PinholeCamera {
             [fx, fy, cx, cy],
             names.into_iter().zip(distortion.coefficients()),
             [width, height],
+        )?;
+        let RadTan { k1, k2, k3, .. } = distortion;
+        // The radial part: tangential coefficients are tiny in any real calibration and
+        // do not change the radius' growth.
+        check_monotonic_over_image(
+            |r| r * (1.0 + r * r * (k1 + r * r * (k2 + r * r * k3))),
+            |r| {
+                let r2 = r * r;
+                vec![
+                    ("k1", k1, k1 * r2),
+                    ("k2", k2, k2 * r2 * r2),
+                    ("k3", k3, k3 * r2 * r2 * r2),
+                ]
+            },
+            corner_radius([fx, fy, cx, cy], [width, height]),
+            f64::INFINITY,
         )?;
         Ok(Self {
             fx,
@@ -458,5 +476,31 @@ mod tests {
             let center = c.undistort_pixel(&Vector2::new(c.cx, c.cy));
             assert!(b.contains(&center), "{name}");
         }
+    }
+
+    #[test]
+    fn implausible_distortion_and_principal_points_are_named() {
+        let radtan = |k1, k2, k3| RadTan {
+            k1,
+            k2,
+            p1: 0.0,
+            p2: 0.0,
+            k3,
+        };
+        let new = |d, cx, cy| PinholeCamera::new(517.3, 516.5, cx, cy, d, 640, 480);
+        let name_of = |r: Result<PinholeCamera, GeometryError>| match r.unwrap_err() {
+            GeometryError::InvalidParameter { name, .. } => name,
+        };
+        // Pincushion so strong that radii grow 60-fold (monotonic, yet no lens): k1 named.
+        assert_eq!(name_of(new(radtan(100.0, 0.0, 0.0), 320.0, 240.0)), "k1");
+        assert_eq!(name_of(new(radtan(1e9, 0.0, 0.0), 320.0, 240.0)), "k1");
+        // Barrel that folds over before the corner (d r_d / d r < 0 from r = 0.58).
+        let err = new(radtan(-1.0, 0.0, 0.0), 320.0, 240.0).unwrap_err();
+        assert!(err.to_string().contains("folds"), "{err}");
+        assert_eq!(name_of(new(radtan(0.0, 0.0, -50.0), 320.0, 240.0)), "k3");
+        assert_eq!(name_of(new(radtan(0.0, 0.0, 0.0), 641.0, 240.0)), "cx");
+        assert_eq!(name_of(new(radtan(0.0, 0.0, 0.0), 320.0, -0.5)), "cy");
+        // The image's edge is still inside it.
+        new(radtan(0.0, 0.0, 0.0), 0.0, 480.0).unwrap();
     }
 }

@@ -36,5 +36,90 @@ pub(super) fn check_intrinsics(
             return invalid(name, 0.0, "image size must be positive");
         }
     }
+    for (name, value, size) in [("cx", cx, width), ("cy", cy, height)] {
+        if !(0.0..=f64::from(size)).contains(&value) {
+            return invalid(
+                name,
+                value,
+                "principal point must lie inside the image (0 to width / height pixels)",
+            );
+        }
+    }
     Ok(())
+}
+
+/// Largest factor by which distortion may scale a radius inside the image (either way).
+/// Real lenses stay far inside it: at the farthest image corner EuRoC's cam0 scales the
+/// radius by 0.80, TUM fr1 by 1.07, the T265 fisheye (Kannala-Brandt) by 0.99;
+/// `k1 = 100` scales it by 16 and more, a fold-free but meaningless image.
+pub const MAX_DISTORTION_SCALE: f64 = 3.0;
+/// Samples of the radius between the centre and the farthest corner.
+const MONOTONIC_SAMPLES: usize = 1000;
+
+/// Distortion that keeps the image one-to-one and plausible over the image area: the
+/// distorted radius `distorted(r)` (normalized units: the pinhole's `r`, the fisheye's
+/// incidence angle) must strictly increase from the centre until it reaches the farthest
+/// image corner's radius `corner` (normalized), scaling the radius by at most
+/// [`MAX_DISTORTION_SCALE`] on the way. `r` is not sampled past `max_r` (pi for the
+/// fisheye). `terms(r)` gives each coefficient's name, value and contribution at `r`: the
+/// error names the largest.
+pub(super) fn check_monotonic_over_image(
+    distorted: impl Fn(f64) -> f64,
+    terms: impl Fn(f64) -> Vec<(&'static str, f64, f64)>,
+    corner: f64,
+    max_r: f64,
+) -> Result<(), GeometryError> {
+    let blame = |r: f64, reason| {
+        let mut terms = terms(r);
+        terms.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
+        let (name, value, _) = terms[0];
+        Err(GeometryError::InvalidParameter {
+            name,
+            value,
+            reason,
+        })
+    };
+    let step = corner / MONOTONIC_SAMPLES as f64;
+    let mut previous = 0.0;
+    // Ends: by the scale bound, `r_d >= corner` once `r >= 3 * corner`.
+    for i in 1usize.. {
+        let r = (step * i as f64).min(max_r);
+        let r_d = distorted(r);
+        if !(r_d > previous) {
+            return blame(
+                r,
+                "the distortion folds the image over inside the image area (the distorted \
+                 radius stops increasing before the farthest corner)",
+            );
+        }
+        let scale = r_d / r;
+        if !(1.0 / MAX_DISTORTION_SCALE..=MAX_DISTORTION_SCALE).contains(&scale) {
+            return blame(
+                r,
+                "the distortion scales radii inside the image by more than a factor 3: \
+                 not a plausible lens",
+            );
+        }
+        if r_d >= corner {
+            return Ok(());
+        }
+        if r >= max_r {
+            return blame(
+                r,
+                "the distortion cannot reach the farthest image corner within the model's \
+                 field of view",
+            );
+        }
+        previous = r_d;
+    }
+    unreachable!("the scan ends by r = 3 * corner")
+}
+
+/// The farthest image corner's distance from the principal point in normalized units
+/// (pixels divided by the focal lengths).
+pub(super) fn corner_radius([fx, fy, cx, cy]: [f64; 4], [width, height]: [u32; 2]) -> f64 {
+    let (w, h) = (f64::from(width), f64::from(height));
+    let dx = cx.max(w - cx) / fx;
+    let dy = cy.max(h - cy) / fy;
+    dx.hypot(dy)
 }
