@@ -7,6 +7,7 @@ module requires."""
 from __future__ import annotations
 
 import hashlib
+import os
 import io
 import random
 import re
@@ -197,6 +198,20 @@ def test_resume_after_partial_file(server, tmp_path):
     download(server.url + "/a.tgz", target, progress=False, sha256=_sha(data))
     assert target.read_bytes() == data and not (tmp_path / "a.tgz.part").exists()
     assert server.requests[-1] == ("/a.tgz", "bytes=1000-")
+
+
+def test_planted_part_link_and_fifo_target_are_not_written_through(server, tmp_path):
+    data = _tgz(TUM_FILES)
+    server.files["/a.tgz"] = data
+    victim = tmp_path / "victim"
+    victim.write_bytes(b"keep me")
+    (tmp_path / "a.tgz.part").symlink_to(victim)
+    download(server.url + "/a.tgz", tmp_path / "a.tgz", progress=False, sha256=_sha(data))
+    assert victim.read_bytes() == b"keep me" and (tmp_path / "a.tgz").read_bytes() == data
+    os.mkfifo(tmp_path / "b.tgz")
+    with pytest.raises(ValueError, match="b.tgz: is a FIFO, not a regular file"):
+        download(server.url + "/a.tgz", tmp_path / "b.tgz", progress=False, sha256=_sha(data))
+    assert not (tmp_path / "b.tgz.part").exists()
 
 
 def test_interrupted_transfer_is_reported_then_resumed(server, tmp_path):

@@ -280,7 +280,8 @@ _KINDS = ["missing", "file", "dir", "fifo", "link_to_file", "link_to_dir", "dang
 
 
 @seed(53)
-@settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=2000,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(kind=st.sampled_from(_KINDS),
        name=st.text(st.characters(whitelist_categories=("L", "N"), whitelist_characters="._-"),
                     min_size=1, max_size=20).filter(lambda s: s not in (".", "..")),

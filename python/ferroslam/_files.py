@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Iterator, Optional, Union
 
 __all__ = ["MAX_CONFIG_BYTES", "MAX_NESTING", "StagedFolder", "atomic_output", "check_nesting",
+           "check_target",
            "read_bounded_text", "regular_file", "write_bytes", "write_text"]
 
 PathLike = Union[str, os.PathLike]
@@ -62,7 +63,7 @@ def _kind(mode: int) -> str:
     return next((name for test, name in _KINDS if test(mode)), "not a regular file")
 
 
-def _check_target(target: Path) -> None:
+def check_target(target: Path) -> None:
     """Refuses a target that exists and is not a regular file or a symlink (which is
     replaced, not followed)."""
     try:
@@ -101,7 +102,7 @@ def atomic_output(target: PathLike) -> Iterator[Path]:
         ValueError: ``target`` is a FIFO, device or socket.
     """
     target = Path(target)
-    _check_target(target)
+    check_target(target)
     _make_parent(target.parent)
     fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     tmp = Path(name)
@@ -109,7 +110,7 @@ def atomic_output(target: PathLike) -> Iterator[Path]:
         os.fchmod(fd, _FILE_MODE)
         os.close(fd)
         yield tmp
-        _check_target(target)  # again: it may have changed while the data was written
+        check_target(target)  # again: it may have changed while the data was written
         os.replace(tmp, target)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -168,7 +169,7 @@ class StagedFolder:
         for src in entries:  # every target checked before any is replaced
             target = self.out / src.name
             if not src.is_dir():
-                _check_target(target)
+                check_target(target)
             elif os.path.lexists(target) and not (target.is_symlink() or target.is_dir()):
                 raise NotADirectoryError(f"{target}: exists and is not a folder")
         trash = self.path / ".replaced"

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import http.client
+import os
 import re
 import socket
 import ssl
@@ -35,6 +36,7 @@ from typing import Optional, Union
 
 from tqdm import tqdm
 
+from ._files import check_target
 from .archives import extract_archive
 
 __all__ = [
@@ -262,6 +264,12 @@ def download(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     part = path.with_name(path.name + ".part")
+    # The part is appended to across calls (resume), so it cannot go through atomic_output;
+    # it gets the same refusals: no special file, and a link there is dropped, not followed.
+    check_target(path)
+    check_target(part)
+    if part.is_symlink():
+        part.unlink()
     for attempt in (0, 1):  # a part the server does not continue is restarted once
         start = part.stat().st_size if part.is_file() else 0
         response = _open(url, start, timeout)
@@ -298,6 +306,7 @@ def download(
             part.unlink()
             raise DownloadError(f"{url}: sha256 mismatch (got {actual}, expected {sha256}); "
                                 "the download was deleted, run the command again")
+    check_target(path)  # again: it may have changed during the transfer
     part.replace(path)
     return path
 
@@ -310,7 +319,8 @@ def _receive(response, part: Path, start: int, total: Optional[int], progress: b
                desc=label, disable=not progress)
     size = start
     try:
-        with open(part, "ab" if start else "wb") as f:
+        flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | (os.O_APPEND if start else os.O_TRUNC)
+        with os.fdopen(os.open(part, flags, 0o666), "wb") as f:
             while size <= max_bytes:
                 try:
                     block = response.read(_CHUNK)
