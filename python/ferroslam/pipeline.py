@@ -321,9 +321,11 @@ def run_sequence(
             ``camera``, ``has_groundtruth``, ``groundtruth()``), e.g. ``TumSequence``; a
             sequence with ``load_gray_and_color(i)`` is read in colour too
             (``ferroslam.datasets.frame_images``), so that map points take their image colour.
-        config: keyword options for ``SlamSystem``, the extractor's among them (unknown
-            keys: ``ValueError`` from the core; the rest take the defaults of the sensor and
-            image width, ``ferroslam._core.default_options``) and
+        config: keyword options for ``SlamSystem``, the extractor's among them (checked by
+            :func:`ferroslam.options.validate_options` for the sensor: unknown or
+            inapplicable keys, wrong types and values out of range raise naming the key; the
+            rest take the defaults of the sensor and image width,
+            ``ferroslam._core.default_options``) and
             ``vocabulary`` (``"default"``: the shipped one; a vocabulary file; ``None`` for
             none): lost frames relocalise against the keyframes they resemble; and
             ``mapping_thread`` (``True``: local mapping and loop closing run in their own
@@ -348,7 +350,8 @@ def run_sequence(
             (``ferroslam.viewer.make_frame_callback``).
 
     Raises:
-        ValueError: bad configuration or ``max_frames``.
+        ValueError, TypeError: bad configuration (naming the key) or ``max_frames``; a
+            sequence with no frames.
     """
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")

@@ -655,7 +655,6 @@ class StereoVSlam(_VSlam):
         left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`): rectified, or raw for
         an object made by :meth:`from_raw`."""
         self.intrinsics.check_image(left, "left image")
-        self.intrinsics.check_image(right, "right image")
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
