@@ -258,3 +258,22 @@ def test_generated_options_succeed_or_name_the_key(options, sensor):
             assert isinstance(value, bool)
         if by_name[name].kind == "float":
             assert math.isfinite(value)
+
+
+@pytest.mark.parametrize("config, error, message", [
+    ({"mapping_thread": "no"}, TypeError,
+     "option 'mapping_thread': expected True or False, got 'no'"),
+    ({"gravity_magnitude": 9.81}, ValueError, "option 'gravity_magnitude' is an IMU option"),
+    ({"threaded": True}, ValueError, "option 'threaded' is taken by the vSLAM objects"),
+    ({"localization_only": True}, ValueError,
+     "option 'localization_only' is taken by the vSLAM objects as an attribute"),
+])
+def test_run_sequence_checks_its_config_before_reading_frames(config, error, message):
+    class Unread:  # run_sequence must refuse the config before touching the sequence
+        name = "unread"
+
+    from ferroslam.pipeline import run_sequence
+
+    with pytest.raises(error) as err:
+        run_sequence(Unread(), config, sensor="rgbd", progress=False)
+    assert str(err.value).startswith(message)

@@ -9,8 +9,8 @@ run`` and the ``options`` of a batch SPEC; MATLAB-style keyword names (``max_num
 
 ``scope`` says who takes an option: ``"core"`` (``SlamSystem`` keywords; the core's table),
 ``"imu"`` (``SlamSystem.set_imu`` keywords: inertial sensors only), ``"pipeline"``
-(``run_sequence`` / ``--config`` / SPEC only) and ``"object"`` (keywords and attributes of the
-vSLAM objects). The core-scope declarations match the core's table one to one (a test checks
+(``run_sequence`` / ``--config`` / SPEC only), ``"object"`` (keywords of the vSLAM objects)
+and ``"attribute"`` (attributes of the vSLAM objects, checked with :func:`check_option`). The core-scope declarations match the core's table one to one (a test checks
 it), so that they can later be generated from it.
 """
 
@@ -122,7 +122,7 @@ OPTIONS: tuple[Option, ...] = (
     Option("mapping_thread", "flag", "pipeline"),
     # -- vSLAM objects -------------------------------------------------------------------
     Option("threaded", "flag", "object"),
-    Option("localization_only", "flag", "object"),
+    Option("localization_only", "flag", "attribute"),
 )
 
 _BY_NAME = {o.name: o for o in OPTIONS}
@@ -133,6 +133,7 @@ _SCOPE_USERS = {
     "imu": "every entry point (inertial sensors)",
     "pipeline": "run_sequence, --config and batch SPEC options",
     "object": "the vSLAM objects (MonoVSlam, StereoVSlam, RGBDVSlam) as keywords",
+    "attribute": "the vSLAM objects as an attribute (vslam.localization_only = True)",
 }
 # The scopes a configuration (run_sequence config, --config file, SPEC options) may hold.
 CONFIG_SCOPES = ("core", "imu", "pipeline")
