@@ -88,7 +88,9 @@ def _make_parent(folder: Path) -> None:
         pass
     if not folder.is_dir():
         blocking = next(p for p in (folder, *folder.parents) if os.path.lexists(p))
-        raise NotADirectoryError(f"{blocking}: exists and is not a folder")
+        raise NotADirectoryError(f"{blocking}: exists and is not a folder" if blocking == folder
+                                 else f"cannot create folder {folder}: {blocking} exists and "
+                                 "is not a folder")
 
 
 @contextmanager
