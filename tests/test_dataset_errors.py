@@ -17,6 +17,8 @@ from ferroslam.datasets import (EurocSequence, KittiSequence, TumSequence, open_
                                 read_kitti_calib, read_sensor_yaml)
 from ferroslam.pipeline import run_sequence
 
+from conftest import require_data
+
 DOCUMENTED = (FileNotFoundError, IsADirectoryError, ValueError)
 
 
@@ -139,3 +141,24 @@ def test_generated_broken_folders_raise_documented_errors(tmp_path_factory, rgb,
         assert len(seq) > 0  # a sequence that opens has usable frames
     # Only the generated folder changed: nothing written beside it.
     assert set(os.listdir(root.parent)) == before
+
+
+def _euroc(root, shared_mav0):
+    for sensor in ("cam0", "imu0"):
+        (root / "mav0" / sensor).mkdir(parents=True)
+        (root / "mav0" / sensor / "sensor.yaml").write_bytes(
+            (shared_mav0 / sensor / "sensor.yaml").read_bytes())
+    return root
+
+
+def test_euroc_empty_lists_say_so(tmp_path):
+    root = _euroc(tmp_path / "seq", require_data("euroc", "MH_01_easy_window", "mav0"))
+    cams = root / "mav0" / "cam0" / "data.csv"
+    cams.write_text("#timestamp [ns],filename\n")
+    with pytest.raises(ValueError, match=rf"{cams}: EuRoC cam0 list lists no frames"):
+        EurocSequence(root, stereo=False)
+    cams.write_text("#timestamp [ns],filename\n1403636579763555584,a.png\n")
+    imu = root / "mav0" / "imu0" / "data.csv"
+    imu.write_text("#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n")  # only the header
+    with pytest.raises(ValueError, match=rf"{imu}: EuRoC IMU file holds no samples"):
+        EurocSequence(root, stereo=False).imu()

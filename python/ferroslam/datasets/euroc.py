@@ -249,7 +249,10 @@ class EurocSequence:
         ]
 
     def _read_frames(self, cam: str) -> tuple[np.ndarray, list[Path]]:
-        stamps, rows = read_asl_rows(self.mav0 / cam / "data.csv", 2, f"EuRoC {cam} list")
+        path = self.mav0 / cam / "data.csv"
+        stamps, rows = read_asl_rows(path, 2, f"EuRoC {cam} list")
+        if not rows:
+            raise ValueError(f"{path}: EuRoC {cam} list lists no frames")
         return stamps, [self.mav0 / cam / "data" / fields[1] for fields in rows]
 
     def _check_paired(self, left_ns: np.ndarray, right_ns: np.ndarray) -> None:
@@ -339,10 +342,12 @@ class EurocSequence:
         """IMU readings ``(t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2)`` in the IMU frame.
 
         Raises ``FileNotFoundError`` naming ``imu0/data.csv`` and ``ValueError`` (file and
-        line) for malformed rows or timestamps out of order.
+        line) for malformed rows or timestamps out of order, or (file) for no samples.
         """
         path = self.mav0 / "imu0" / "data.csv"
         stamps, rows = read_asl_rows(path, 7, "EuRoC IMU file")
+        if not rows:  # an inertial run without samples would never align
+            raise ValueError(f"{path}: EuRoC IMU file holds no samples")
         values = read_asl_floats(path, rows, slice(1, 7))
         return seconds_from_ns(stamps), values[:, :3], values[:, 3:6]
 
