@@ -5,6 +5,7 @@ status 1 (argparse's usage errors: their own form, status 2); ``--traceback`` or
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -147,3 +148,11 @@ def test_subprocess_prints_one_line(tmp_path):
                           env={"PYTHONPATH": str(REPO / "python")}, timeout=120)
     assert proc.returncode == 1
     assert proc.stderr == f"ferroslam: error: {deep}: nested deeper than 32 levels\n"
+
+
+def test_vocab_export_into_a_fifo_is_refused(tmp_path, capsys):
+    fifo = tmp_path / "ORBvoc.txt"
+    os.mkfifo(fifo)
+    assert _fails(["vocab", "export-dbow2", str(fifo)], capsys) == (
+        f"ferroslam: error: {fifo}: is a FIFO, not a regular file; refusing to replace it")
+    assert [p.name for p in tmp_path.iterdir()] == ["ORBvoc.txt"]
