@@ -45,10 +45,11 @@ def test_example_spec_expands_defaults_overrides_grid_and_repeats(tmp_path):
 
 def test_grid_points_cross_every_key(tmp_path):
     spec = {"max_frames": 10, "runs": [{"sequence": "/s", "sensor": "mono", "max_frames": 5,
-                                        "grid": {"a": [1, 2], "b": ["x", "y", "z"]}}]}
+                                        "grid": {"n_levels": [6, 8],
+                                                 "scale_factor": [1.1, 1.2, 1.3]}}]}
     runs = batch.expand_spec(spec, tmp_path, "s.json")
-    assert [(r.options["a"], r.options["b"]) for r in runs] == [
-        (1, "x"), (1, "y"), (1, "z"), (2, "x"), (2, "y"), (2, "z")]
+    assert [(r.options["n_levels"], r.options["scale_factor"]) for r in runs] == [
+        (6, 1.1), (6, 1.2), (6, 1.3), (8, 1.1), (8, 1.2), (8, 1.3)]
     assert {r.max_frames for r in runs} == {5} and runs[0].path == Path("/s")
 
 
@@ -68,6 +69,21 @@ def test_grid_points_cross_every_key(tmp_path):
 ])
 def test_spec_errors_name_the_file_and_the_key(tmp_path, spec, message):
     with pytest.raises(ValueError, match=r"^bad\.json: .*" + message):
+        batch.expand_spec(spec, tmp_path, "bad.json")
+
+
+@pytest.mark.parametrize("options, grid, error, message", [
+    ({"n_features": 1000}, {"mapping_thread": ["no"]}, TypeError,
+     r"runs\[0\]: option 'mapping_thread': expected True or False, got 'no'"),
+    ({"n_featurez": 1000}, {}, ValueError, r"runs\[0\]: unknown option 'n_featurez'"),
+    ({}, {"scale_factor": [1.2, float("nan")]}, ValueError, r"runs\[0\]: option 'scale_factor'"),
+    ({"gravity_magnitude": 9.81}, {}, ValueError, r"runs\[0\]: .*'gravity_magnitude'"),
+])
+def test_spec_options_go_through_the_option_schema(tmp_path, options, grid, error, message):
+    # Every grid point is checked before any run starts (the last case: an IMU option of a
+    # run without an IMU).
+    spec = {"runs": [{"sequence": "s", "sensor": "rgbd", "options": options, "grid": grid}]}
+    with pytest.raises(error, match=r"^bad\.json: " + message):
         batch.expand_spec(spec, tmp_path, "bad.json")
 
 

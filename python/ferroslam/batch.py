@@ -49,6 +49,7 @@ from tqdm import tqdm
 
 from ._files import MAX_CONFIG_BYTES, atomic_output, check_nesting, read_bounded_text, write_text
 from .download import DATASETS, DownloadError, fetch_dataset
+from .options import validate_options
 from .pipeline import SENSORS
 
 __all__ = ["BatchOutcome", "RunSpec", "SPEC_EXAMPLE", "execute_run", "expand_spec",
@@ -207,9 +208,21 @@ def _expand_entry(entry: Any, where: str, base_dir: Path, source: str, defaults:
     # A dataset name stands in until fetch_named_sequences puts the download there.
     path = (Path(sequence) if _DATASET_NAME.match(sequence)
             else (base_dir / Path(sequence).expanduser()).resolve())
+    points = _grid_points(grid)
+    for point in points:
+        _validate_run_options({**options, **point}, sensor, where, source)
     return [RunSpec(sequence, path, sensor, {**options, **point}, max_frames, repeat)
-            for point in _grid_points(grid)
+            for point in points
             for repeat in range(repeats)]
+
+
+def _validate_run_options(options: dict, sensor: str, where: str, source: str) -> None:
+    """The run's options through the one option schema (as ``run_sequence`` would check
+    them), so that a bad value fails the SPEC before any run starts, naming the entry."""
+    try:
+        validate_options(options, sensor)
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"{source}: {where}: {err}") from None
 
 
 def _check_grid(grid: Any, where: str, source: str) -> None:
