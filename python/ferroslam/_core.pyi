@@ -265,6 +265,9 @@ class SlamSystem:
     def is_done(self) -> bool:
         """Whether every submitted frame has been tracked and mapped (always true
         synchronously)."""
+    def close(self) -> None:
+        """Finishes the submitted frames, stops and joins every thread the system started;
+        it stays usable with mapping inline. Idempotent."""
     def wait(self) -> None:
         """Blocks (without the GIL) until every submitted frame has been tracked and every
         keyframe mapped (see ``set_mapping_thread``)."""

@@ -3,6 +3,7 @@
 //!
 //! Both work on RAW image pixels (the lens distortion applied), for every model.
 
+use crate::pool;
 use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
 use nalgebra::{Vector2, Vector3};
 use numpy::ndarray::Array2;
@@ -124,7 +125,7 @@ fn map_rows<'py, const IN: usize, const OUT: usize>(
     f: impl Fn([f64; IN]) -> Option<[f64; OUT]> + Send + Sync,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let input = rows(obj, name, IN)?;
-    let output: Vec<f64> = py.detach(|| {
+    let output: Vec<f64> = pool::detach(py, || {
         input
             .chunks_exact(IN)
             .flat_map(|row| {
@@ -132,7 +133,7 @@ fn map_rows<'py, const IN: usize, const OUT: usize>(
                 f(row).unwrap_or([f64::NAN; OUT])
             })
             .collect()
-    });
+    })?;
     let a = Array2::from_shape_vec((output.len() / OUT, OUT), output)
         .unwrap_or_else(|_| unreachable!("OUT values per row"));
     Ok(PyArray2::from_owned_array(py, a))

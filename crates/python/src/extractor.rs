@@ -1,5 +1,6 @@
 //! `OrbExtractor`: the core's whole ORB extractor, one GIL-free call per image or stereo pair.
 
+use crate::pool;
 use ferroslam_features::extractor::FastThresholds;
 use ferroslam_features::{
     Features, FeaturesError, GrayImage, ImagePyramid, OrbConfig, OrbExtractor,
@@ -140,10 +141,10 @@ impl PyOrbExtractor {
         image: &Bound<'py, PyAny>,
     ) -> PyResult<FeatureArrays<'py>> {
         let (w, h, pixels) = convert::gray_image(image, "image")?;
-        let features = py.detach(|| {
+        let features = pool::detach(py, || {
             let image = GrayImage::new(w, h, &pixels)?;
             self.0.extract(&image)
-        });
+        })?;
         Ok(arrays(py, features.map_err(features_to_py)?))
     }
 
@@ -156,10 +157,10 @@ impl PyOrbExtractor {
     ) -> PyResult<Vec<Bound<'py, PyArray2<u8>>>> {
         let (w, h, pixels) = convert::gray_image(image, "image")?;
         let c = self.0.config();
-        let pyramid = py.detach(|| {
+        let pyramid = pool::detach(py, || {
             let image = GrayImage::new(w, h, &pixels)?;
             ImagePyramid::build(&image, c.scale_factor, c.n_levels)
-        });
+        })?;
         Ok(level_arrays(py, pyramid.map_err(features_to_py)?))
     }
 
@@ -172,11 +173,11 @@ impl PyOrbExtractor {
     ) -> PyResult<(FeatureArrays<'py>, FeatureArrays<'py>)> {
         let (lw, lh, left) = convert::gray_image(left, "left")?;
         let (rw, rh, right) = convert::gray_image(right, "right")?;
-        let features = py.detach(|| {
+        let features = pool::detach(py, || {
             let left = GrayImage::new(lw, lh, &left)?;
             let right = GrayImage::new(rw, rh, &right)?;
             self.0.extract_stereo(&left, &right)
-        });
+        })?;
         let (left, right) = features.map_err(features_to_py)?;
         Ok((arrays(py, left), arrays(py, right)))
     }

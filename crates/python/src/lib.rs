@@ -11,6 +11,7 @@ mod convert;
 mod errors;
 mod extractor;
 mod inertial;
+mod pool;
 mod stereo;
 mod system;
 mod vocabulary;

@@ -1,5 +1,6 @@
 //! `match_stereo`: the core's stereo matcher on its own, for inspection and tests.
 
+use crate::pool;
 use ferroslam_features::{match_stereo as core_match_stereo, ScalePyramid, StereoView};
 use numpy::PyArray1;
 use pyo3::exceptions::PyValueError;
@@ -75,7 +76,9 @@ pub fn match_stereo<'py>(
         descriptors: &rd,
         levels: &ri,
     };
-    let matches = py.detach(|| core_match_stereo(&left, &right, &pyramid, fx * baseline, fx));
+    let matches = pool::detach(py, || {
+        core_match_stereo(&left, &right, &pyramid, fx * baseline, fx)
+    })?;
     let (u, z): (Vec<f32>, Vec<f32>) = matches
         .iter()
         .map(|m| m.map_or((-1.0, -1.0), |m| (m.u_right, m.depth_m)))

@@ -1,5 +1,6 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
+use crate::pool;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
@@ -323,6 +324,27 @@ impl PySlamSystem {
         })
     }
 
+    /// Finishes the submitted frames, then stops and joins every thread this system started
+    /// (tracking and mapping threads): the system stays usable inline (queries, more
+    /// frames), with mapping inline. Idempotent.
+    fn close(&self, py: Python<'_>) -> PyResult<()> {
+        let mut engine = self.engine()?;
+        let closed = match &mut *engine {
+            Engine::Inline { system, failure } => {
+                return inline(py, system, failure, |s| s.set_concurrent_mapping(false));
+            }
+            Engine::Background { slam, pid, .. } => {
+                check_process(*pid)?;
+                pool::detach(py, || slam.stop())?.map_err(to_py)?
+            }
+        };
+        *engine = Engine::Inline {
+            system: Box::new(closed),
+            failure: None,
+        };
+        Ok(())
+    }
+
     /// Blocks (without the GIL) until every submitted frame has been tracked and mapped.
     fn wait(&self, py: Python<'_>) -> PyResult<()> {
         self.engine()?
@@ -642,11 +664,11 @@ impl Engine {
     ) -> PyResult<R> {
         match self {
             Engine::Inline { system, failure } => {
-                inline(py, system, failure, |system| Ok(job(system))).map_err(to_py)
+                inline(py, system, failure, |system| Ok(job(system)))
             }
             Engine::Background { slam, pid, .. } => {
                 check_process(*pid)?;
-                py.detach(|| slam.run(job)).map_err(to_py)
+                pool::detach(py, || slam.run(job))?.map_err(to_py)
             }
         }
     }
@@ -657,12 +679,11 @@ impl Engine {
             Engine::Inline { system, failure } => {
                 inline(py, system, failure, |system| frame.track(system))
                     .map(|inner| Some(PyTrackResult { inner }))
-                    .map_err(to_py)
             }
             Engine::Background { slam, guard, pid } => {
                 check_process(*pid)?;
                 frame.check(guard).map_err(to_py)?;
-                py.detach(|| slam.submit(frame)).map_err(to_py)?;
+                pool::detach(py, || slam.submit(frame))?.map_err(to_py)?;
                 Ok(None)
             }
         }
@@ -676,19 +697,21 @@ fn inline<R>(
     system: &mut SlamSystem,
     failure: &mut Option<SlamError>,
     job: impl FnOnce(&mut SlamSystem) -> Result<R, SlamError> + Send,
-) -> Result<R, SlamError>
+) -> PyResult<R>
 where
     R: Send,
 {
     if let Some(error) = failure {
-        return Err(error.clone());
+        return Err(to_py(error.clone()));
     }
-    let outcome = py.detach(|| catch_unwind(AssertUnwindSafe(|| job(system))));
-    outcome.unwrap_or_else(|panic| {
-        let error = SlamError::from_panic("tracking", &*panic);
-        *failure = Some(error.clone());
-        Err(error)
-    })
+    let outcome = pool::detach(py, || catch_unwind(AssertUnwindSafe(|| job(system))))?;
+    outcome
+        .unwrap_or_else(|panic| {
+            let error = SlamError::from_panic("tracking", &*panic);
+            *failure = Some(error.clone());
+            Err(error)
+        })
+        .map_err(to_py)
 }
 
 /// A threaded system's threads exist only in the process that created it: used in a

@@ -4,6 +4,7 @@
 //! File errors name the file: unreadable -> `OSError` (`FileNotFoundError` when missing),
 //! anything wrong inside the file -> `ValueError`.
 
+use crate::pool;
 use std::collections::HashSet;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -92,7 +93,7 @@ impl PyVocabulary {
     fn bow(&self, py: Python<'_>, descriptors: &Bound<'_, PyAny>) -> PyResult<BowVector> {
         let descs = descriptor_rows(descriptors, "descriptors")?;
         let voc = &*self.inner;
-        Ok(py.detach(move || voc.transform(&descs, 0).0))
+        pool::detach(py, move || voc.transform(&descs, 0).0)
     }
 }
 
@@ -140,8 +141,7 @@ impl PyVocabulary {
             seed,
             ..TrainParams::default()
         };
-        let voc = py
-            .detach(move || Vocabulary::train(&images, &params))
+        let voc = pool::detach(py, move || Vocabulary::train(&images, &params))?
             .map_err(|e| PyValueError::new_err(format!("descriptor_list: {e}")))?;
         Ok(PyVocabulary {
             inner: Arc::new(voc),
@@ -151,9 +151,8 @@ impl PyVocabulary {
     /// Reads the compact binary format written by `save` (checksummed).
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let voc = py
-            .detach(|| Vocabulary::load(&path))
-            .map_err(|e| file_error(&path, e))?;
+        let voc =
+            pool::detach(py, || Vocabulary::load(&path))?.map_err(|e| file_error(&path, e))?;
         Ok(PyVocabulary {
             inner: Arc::new(voc),
         })
@@ -162,8 +161,7 @@ impl PyVocabulary {
     /// Reads DBoW2's text format (ORB-SLAM's `ORBvoc.txt`).
     #[staticmethod]
     fn load_dbow2_text(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let voc = py
-            .detach(|| Vocabulary::load_dbow2_text(&path))
+        let voc = pool::detach(py, || Vocabulary::load_dbow2_text(&path))?
             .map_err(|e| file_error(&path, e))?;
         Ok(PyVocabulary {
             inner: Arc::new(voc),
@@ -172,14 +170,12 @@ impl PyVocabulary {
 
     /// Writes the compact binary format.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.save(&path))
-            .map_err(|e| file_error(&path, e))
+        pool::detach(py, || self.inner.save(&path))?.map_err(|e| file_error(&path, e))
     }
 
     /// Writes DBoW2's text format, readable by ORB-SLAM2/3.
     fn save_dbow2_text(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        py.detach(|| self.inner.save_dbow2_text(&path))
-            .map_err(|e| file_error(&path, e))
+        pool::detach(py, || self.inner.save_dbow2_text(&path))?.map_err(|e| file_error(&path, e))
     }
 
     /// The BoW vector of an image's `(N, 32)` uint8 descriptors: word id -> weight,
@@ -253,7 +249,7 @@ impl PyKeyframeDatabase {
         let id = entry_id(id, "id")?;
         let descs = descriptor_rows(descriptors, "descriptors")?;
         let (voc, db) = (&*self.vocabulary, &mut self.inner);
-        Ok(py.detach(move || db.add(id, &voc.transform(&descs, 0).0)))
+        pool::detach(py, move || db.add(id, &voc.transform(&descs, 0).0))
     }
 
     /// Removes keyframe `id`; returns whether it was present.
@@ -285,10 +281,10 @@ impl PyKeyframeDatabase {
         }
         let descs = descriptor_rows(descriptors, "descriptors")?;
         let (voc, db) = (&*self.vocabulary, &self.inner);
-        Ok(py.detach(move || {
+        pool::detach(py, move || {
             let bow = voc.transform(&descs, 0).0;
             db.query(&bow, max_results, |id| !excluded.contains(&i64::from(id)))
-        }))
+        })
     }
 
     fn __len__(&self) -> usize {

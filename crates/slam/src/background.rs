@@ -173,7 +173,8 @@ pub struct BackgroundSlam {
     pending: Arc<AtomicUsize>,
     /// Keyframes the mapping thread has queued or is processing.
     mapping_backlog: Option<Arc<AtomicUsize>>,
-    worker: Option<JoinHandle<()>>,
+    /// Gives the system back when it ends ([`BackgroundSlam::stop`]).
+    worker: Option<JoinHandle<SlamSystem>>,
 }
 
 impl BackgroundSlam {
@@ -189,7 +190,10 @@ impl BackgroundSlam {
         let done = Arc::clone(&pending);
         let worker = std::thread::Builder::new()
             .name("ferroslam-slam".into())
-            .spawn(move || worker_loop(&mut system, inbox, report, done))
+            .spawn(move || {
+                worker_loop(&mut system, inbox, report, done);
+                system
+            })
             .expect("the OS refused to start the SLAM thread");
         Self {
             sender: Some(sender),
@@ -259,6 +263,21 @@ impl BackgroundSlam {
     /// An error local mapping met, or a stopped thread.
     pub fn wait(&self) -> Result<(), SlamError> {
         self.run(SlamSystem::finish_mapping)?
+    }
+
+    /// Finishes the queued frames and keyframes, stops and joins the mapping thread and the
+    /// tracking thread, and gives the system back (mapping inline): no thread is left.
+    /// Afterwards every call of this handle reports a stopped thread.
+    ///
+    /// # Errors
+    /// An error mapping the queued keyframes met, or a thread that had already failed
+    /// (its threads are joined all the same).
+    pub fn stop(&mut self) -> Result<SlamSystem, SlamError> {
+        let mapping_stopped = self.run(|system| system.set_concurrent_mapping(false));
+        self.sender = None;
+        let system = self.worker.take().and_then(|worker| worker.join().ok());
+        mapping_stopped??;
+        system.ok_or_else(stopped)
     }
 }
 
@@ -363,6 +382,20 @@ mod tests {
             message,
             "internal error in local mapping (please report): index out of bounds"
         );
+    }
+
+    #[test]
+    fn stop_joins_both_threads_and_gives_the_system_back() {
+        let mut slam = BackgroundSlam::spawn(system(), true);
+        for i in 0..5 {
+            slam.submit(empty(i as f64)).unwrap();
+        }
+        let system = slam.stop().unwrap();
+        assert!(!system.concurrent_mapping());
+        assert_eq!(slam.take_results().len(), 5);
+        assert!(slam.worker.is_none());
+        assert!(matches!(slam.submit(empty(9.0)), Err(e) if e.to_string().contains("stopped")));
+        assert!(slam.stop().is_err());
     }
 
     #[test]
