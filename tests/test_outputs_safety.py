@@ -334,3 +334,16 @@ def test_writer_property(tmp_path_factory, kind, name, depth, fail):
         assert not target.is_symlink() and target.read_text() == "new"
         assert [p.name for p in target.parent.iterdir() if p.name.endswith(".tmp")] == []
     assert _snapshot(outside) == {"victim": (stat.S_IFREG, b"keep")}
+
+
+@pytest.mark.parametrize("reader", ["image", "video"])
+def test_image_and_video_readers_refuse_a_fifo_without_blocking(tmp_path, reader):
+    from ferroslam.datasets.images import read_gray
+    from ferroslam.sources import VideoSource
+
+    fifo = tmp_path / ("frame.png" if reader == "image" else "clip.avi")
+    os.mkfifo(fifo)
+    open_it = (lambda: read_gray(fifo)) if reader == "image" else (lambda: VideoSource(fifo))
+    what = "image" if reader == "image" else "video file"
+    with pytest.raises(ValueError, match=f"^{fifo}: is a FIFO, expected a regular {what}"):
+        open_it()

@@ -24,6 +24,7 @@ from typing import Any, Iterable, Iterator, Optional, Union
 import cv2
 import numpy as np
 
+from ._files import regular_file
 from .camera import Camera
 from .datasets.images import IMAGE_EXTENSIONS, read_gray, read_gray_and_color
 
@@ -133,9 +134,7 @@ class VideoSource(_CaptureSource):
     """
 
     def __init__(self, path: Union[str, Path], *, camera: Optional[Camera] = None) -> None:
-        path = Path(path).expanduser()
-        if not path.is_file():
-            raise FileNotFoundError(f"video file not found: {path}")
+        path = regular_file(Path(path).expanduser(), "video file")
         super().__init__(str(path), path.stem, camera)
         self._timestamps: Optional[np.ndarray] = None
         self._reader: Optional[tuple[Any, Iterator[float]]] = None

@@ -7,6 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .._files import regular_file
+
 __all__ = ["IMAGE_EXTENSIONS", "read_depth", "read_gray", "read_gray_and_color"]
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
@@ -16,8 +18,7 @@ def _read(path: Path) -> np.ndarray:
     """The bytes of an image file."""
     if path.suffix.lower() not in IMAGE_EXTENSIONS:
         raise ValueError(f"unsupported image type {path.suffix!r} (use .png or .jpg): {path}")
-    if not path.is_file():
-        raise FileNotFoundError(f"image not found: {path}")
+    regular_file(path, "image")  # a FIFO or device is refused before it could block
     # np.fromfile + imdecode also handles non-ASCII paths, unlike cv2.imread.
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
