@@ -313,7 +313,7 @@ def _figures(summary: dict) -> dict:
         "tracked_frames": summary["tracked_frames"],
         "frames": summary["frames"],
         "ate_rmse_m": metrics.get("ate_frames", {}).get("rmse"),
-        "scale_error": metrics.get("path_length", {}).get("scale_error"),
+        "scale_error": metrics.get("scale_error"),
         "rpe_trans_rmse_m": metrics.get("rpe_frames", {}).get("trans_rmse_m"),
         "rpe_rot_rmse_deg": metrics.get("rpe_frames", {}).get("rot_rmse_deg"),
         "frame_ms_median": frame_ms.get("median"),

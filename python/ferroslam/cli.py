@@ -434,10 +434,12 @@ def _print_summary(summary: dict, out: Path) -> None:
             m = metrics[name]
             align = "Sim(3), longest segment" if m["align"] == "sim3" else "SE(3)"
             print(f"{label:<15} RMSE {m['rmse']:.4f} m  ({align}, {m['pairs']} poses)")
+    if "scale_error" in metrics:
+        print(f"scale error     {100 * metrics['scale_error']:+.2f} %  (Sim(3) alignment's scale)")
     if "path_length" in metrics:
         p = metrics["path_length"]
         print(f"path length     {p['estimate_m']:.3f} m vs {p['reference_m']:.3f} m "
-              f"(scale error {100 * p['scale_error']:+.2f} %)")
+              "(longer with per-frame jitter)")
     if "rpe_frames" in metrics:
         r = metrics["rpe_frames"]
         print(f"RPE (1 frame)   {r['trans_rmse_m']:.4f} m  {r['rot_rmse_deg']:.3f} deg RMSE")

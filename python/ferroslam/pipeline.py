@@ -54,7 +54,10 @@ class RunResult:
     ``SlamSystem.loops``) and ``loop_stats`` what loop detection did; ``inertial``: the
     camera-IMU alignment at the end (``SlamSystem.inertial_alignment``) for the ``-inertial``
     sensors. With ground truth: ATE (SE(3), or Sim(3) over the longest segment for monocular
-    runs without an IMU alignment), RPE and path length (metric scale; not for those runs).
+    runs without an IMU alignment), RPE, path length and ``scale_error`` (metric scale; not
+    for those runs): the estimate's scale relative to the ground truth minus 1, from a Sim(3)
+    alignment (``1 / s - 1`` for the alignment's scale ``s``). Path lengths are not a scale
+    measure: per-frame jitter adds length.
     ``camera``: the intrinsics of the images tracked (for exports such as COLMAP models).
     ``dropped_frames``: for a live run (:func:`run_source`), the frames read but not tracked
     because tracking was behind (``None`` otherwise: every frame is tracked); its timings are
@@ -84,6 +87,7 @@ class RunResult:
     ate_keyframes: Optional[AteResult] = None
     rpe_frames: Optional[RpeResult] = None
     path_length: Optional[PathLengthResult] = None
+    scale_error: Optional[float] = None
     metric_errors: list = field(default_factory=list)
     dropped_frames: Optional[int] = None
 
@@ -170,8 +174,10 @@ class RunResult:
             p = self.path_length
             out["metrics"]["path_length"] = {
                 "estimate_m": p.estimate_m, "reference_m": p.reference_m, "pairs": p.pairs,
-                "scale_error": p.scale_error,
+                "ratio": p.estimate_m / p.reference_m if p.reference_m > 0 else None,
             }
+        if self.scale_error is not None:
+            out["metrics"]["scale_error"] = self.scale_error
         return out
 
 
@@ -295,6 +301,7 @@ def _evaluate(result: RunResult, gt: Trajectory) -> None:
             ("ate_keyframes", lambda: ate(gt, result.keyframes, align="se3")),
             ("rpe_frames", lambda: rpe(gt, result.trajectory, delta=1, align="none")),
             ("path_length", lambda: path_length(gt, result.trajectory)),
+            ("scale_error", lambda: 1.0 / ate(gt, result.trajectory, align="sim3").scale - 1.0),
         )
     for name, compute in cases:
         try:
