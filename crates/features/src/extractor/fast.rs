@@ -293,7 +293,7 @@ fn compass_candidate<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> bool
 /// corner at threshold `t` (where `arc_contrast > t`, without computing it). Each circle pixel
 /// becomes a flag, 1 when brighter than the centre by more than `t` and 2 when darker, and
 /// an arc of 9 whose flags share a bit is a corner: one byte per lane for both polarities,
-/// and `&` rather than `min`, so half the work of [`arc_contrast`].
+/// and `&` rather than `min` (60-65 % of the cost of [`arc_contrast`] on a TUM frame).
 #[inline(always)] // into score_row_avx2
 fn segment_test<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> [u8; N] {
     let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
