@@ -277,4 +277,106 @@ mod tests {
             Err(VocabularyError::Truncated { .. })
         ));
     }
+
+    mod fuzz {
+        //! Seeded, bounded property tests of both readers: random bytes and mutations of
+        //! valid files (binary resealed with its checksum so the parser sees them) are a
+        //! clean `Err` or a valid vocabulary; nothing panics.
+        use proptest::prelude::*;
+        use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+
+        use super::*;
+
+        fn runner(cases: u32) -> TestRunner {
+            let config = Config {
+                cases,
+                failure_persistence: None,
+                ..Config::default()
+            };
+            TestRunner::new_with_rng(config, TestRng::from_seed(RngAlgorithm::ChaCha, &[53; 32]))
+        }
+
+        /// k = 3, L = 2: 13 nodes, 9 words.
+        fn sample() -> Vocabulary {
+            let parents = vec![0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 3, 3];
+            let descriptors = (0..13u8).map(|i| [i.wrapping_mul(37); 32]).collect();
+            let weights = (0..13).map(|i| f64::from(i) * 0.25).collect();
+            Vocabulary::from_raw_parts(3, 2, Weighting::TfIdf, parents, descriptors, weights)
+                .unwrap()
+        }
+
+        fn reseal(bytes: &mut [u8]) {
+            if bytes.len() >= 8 {
+                let body = bytes.len() - 8;
+                let sum = checksum(&bytes[..body]);
+                bytes[body..].copy_from_slice(&sum.to_le_bytes());
+            }
+        }
+
+        #[test]
+        fn mutated_binary_files_fail_cleanly() {
+            let bytes = sample().to_bytes();
+            let n = bytes.len();
+            let edits = prop::collection::vec((0..n - 8, any::<u8>()), 1..6);
+            runner(512)
+                .run(&(edits, any::<bool>(), 0..n + 1), |(edits, seal, cut)| {
+                    let mut bad = bytes.clone();
+                    edits.iter().for_each(|&(i, b)| bad[i] = b);
+                    bad.truncate(cut);
+                    if seal {
+                        reseal(&mut bad);
+                    }
+                    if let Ok(v) = Vocabulary::from_bytes(&bad) {
+                        // Whatever loads is a vocabulary that saves and loads again.
+                        prop_assert_eq!(Vocabulary::from_bytes(&v.to_bytes()).unwrap(), v);
+                    }
+                    Ok(())
+                })
+                .unwrap();
+        }
+
+        #[test]
+        fn random_binary_bytes_fail_cleanly() {
+            runner(256)
+                .run(&prop::collection::vec(any::<u8>(), 0..256), |mut bytes| {
+                    prop_assert!(Vocabulary::from_bytes(&bytes).is_err());
+                    if bytes.len() >= HEADER_LEN + 8 {
+                        bytes[..8].copy_from_slice(MAGIC);
+                        bytes[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+                        reseal(&mut bytes);
+                        let _ = Vocabulary::from_bytes(&bytes);
+                    }
+                    Ok(())
+                })
+                .unwrap();
+        }
+
+        #[test]
+        fn mutated_and_random_text_files_fail_cleanly() {
+            let mut text = Vec::new();
+            sample().write_dbow2_text(&mut text).unwrap();
+            let n = text.len();
+            // Bytes likely to keep the text parseable (digits, spaces, newlines, signs).
+            let byte = prop_oneof![
+                prop::sample::select(b"0123456789 \n-.e".to_vec()),
+                any::<u8>()
+            ];
+            let edits = prop::collection::vec((0..n, byte), 1..6);
+            runner(512)
+                .run(&(edits, 0..n + 1), |(edits, cut)| {
+                    let mut bad = text.clone();
+                    edits.iter().for_each(|&(i, b)| bad[i] = b);
+                    bad.truncate(cut);
+                    let _ = Vocabulary::read_dbow2_text(&bad[..]);
+                    Ok(())
+                })
+                .unwrap();
+            runner(256)
+                .run(&prop::collection::vec(any::<u8>(), 0..256), |bytes| {
+                    prop_assert!(Vocabulary::read_dbow2_text(&bytes[..]).is_err());
+                    Ok(())
+                })
+                .unwrap();
+        }
+    }
 }
