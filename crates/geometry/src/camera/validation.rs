@@ -60,9 +60,10 @@ const MONOTONIC_SAMPLES: usize = 1000;
 /// distorted radius `distorted(r)` (normalized units: the pinhole's `r`, the fisheye's
 /// incidence angle) must strictly increase from the centre until it reaches the farthest
 /// image corner's radius `corner` (normalized), scaling the radius by at most
-/// [`MAX_DISTORTION_SCALE`] on the way. `r` is not sampled past `max_r` (pi for the
-/// fisheye). `terms(r)` gives each coefficient's name, value and contribution at `r`: the
-/// error names the largest.
+/// [`MAX_DISTORTION_SCALE`] on the way. `max_r` is where the model's field of view ends
+/// (infinite for the pinhole; the fisheye's last incidence angle, beyond which pixels do
+/// not unproject: a fisheye's image circle may end before the corners). `terms(r)` gives
+/// each coefficient's name, value and contribution at `r`: the error names the largest.
 pub(super) fn check_monotonic_over_image(
     distorted: impl Fn(f64) -> f64,
     terms: impl Fn(f64) -> Vec<(&'static str, f64, f64)>,
@@ -100,15 +101,8 @@ pub(super) fn check_monotonic_over_image(
                  not a plausible lens",
             );
         }
-        if r_d >= corner {
+        if r_d >= corner || r >= max_r {
             return Ok(());
-        }
-        if r >= max_r {
-            return blame(
-                r,
-                "the distortion cannot reach the farthest image corner within the model's \
-                 field of view",
-            );
         }
         previous = r_d;
     }
