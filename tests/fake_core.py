@@ -31,7 +31,7 @@ class FakeSlamSystem:
     # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
     KNOWN = {"n_features", "ini_fast", "min_fast", "scale_factor", "n_levels",
              "track_feature_range", "skip_max_frames", "bf", "baseline", "depth_threshold",
-             "depth_range", "seed", "loop_closure", "loop_closure_threshold"}
+             "depth_range", "seed", "deterministic", "loop_closure", "loop_closure_threshold"}
     EXTRACTOR_DEFAULTS = {"n_features": 1000, "ini_fast": 20, "min_fast": 7,
                           "scale_factor": 1.2, "n_levels": 8}
 

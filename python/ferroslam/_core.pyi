@@ -76,6 +76,9 @@ class _SlamOptions(TypedDict, total=False):
     for RGB-D, (0, inf) for stereo."""
     seed: int
     """Seed of every random choice (RANSAC), >= 0."""
+    deterministic: bool
+    """With the mapping thread, wait for each keyframe's mapping before the next frame so
+    that poses and map equal the inline run's (default False: tracking runs ahead)."""
     loop_closure: bool
     """Detect and close loops once a vocabulary is set (default True)."""
     loop_closure_threshold: int

@@ -100,6 +100,7 @@ const OPTIONS: &[Opt] = &[
     field!("depth_threshold", depth.depth_threshold, number),
     field!("depth_range", depth.depth_range, pair),
     field!("seed", seed, int),
+    field!("deterministic", deterministic, flag),
     field!("loop_closure", loop_closing.loop_closure, flag),
     field!(
         "loop_closure_threshold",

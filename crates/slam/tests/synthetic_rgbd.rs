@@ -141,6 +141,55 @@ fn track_path(
     keyframes
 }
 
+/// The bytes of a run's frame trajectory (timestamps, translations, rotations) and map
+/// points: equal bytes are bit-identical results.
+fn result_bytes(system: &SlamSystem) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    for (t, T_w_c) in system.frame_trajectory() {
+        let (v, q) = (T_w_c.translation.vector, T_w_c.rotation.coords);
+        for x in [t].iter().chain(v.iter()).chain(q.iter()) {
+            bytes.extend(x.to_le_bytes());
+        }
+    }
+    for p in system.map_points() {
+        p.iter().for_each(|x| bytes.extend(x.to_le_bytes()));
+    }
+    bytes
+}
+
+/// A keyframe at least every 4 frames, so that local BA, culling and fusion run often.
+fn frequent_keyframes() -> SlamConfig {
+    let mut config = SlamConfig::default();
+    config.tracking.skip_max_frames = 4;
+    config
+}
+
+#[test]
+fn two_runs_of_one_input_and_seed_are_bit_identical() {
+    let scene = Scene::new(5, 1500);
+    let first = run_with(&scene, 60, 0.5, frequent_keyframes());
+    let keyframes = first.map().num_keyframes();
+    // 6 measured.
+    assert!(keyframes >= 5, "{keyframes} keyframes: local BA and culling must run");
+    let second = run_with(&scene, 60, 0.5, frequent_keyframes());
+    assert_eq!(result_bytes(&second), result_bytes(&first));
+}
+
+#[test]
+fn the_deterministic_mapping_thread_equals_inline_mapping() {
+    let scene = Scene::new(5, 1500);
+    let inline = run_with(&scene, 60, 0.5, frequent_keyframes());
+    let config = SlamConfig {
+        deterministic: true,
+        ..frequent_keyframes()
+    };
+    let mut threaded = SlamSystem::new(scene.camera, config).unwrap();
+    threaded.set_concurrent_mapping(true).unwrap();
+    track_path(&mut threaded, &scene, 60, 0.5, &mut ChaCha8Rng::seed_from_u64(99));
+    threaded.finish_mapping().unwrap();
+    assert_eq!(result_bytes(&threaded), result_bytes(&inline));
+}
+
 #[test]
 fn tracks_a_synthetic_path_with_millimetre_accuracy() {
     let scene = Scene::new(1, 1500);

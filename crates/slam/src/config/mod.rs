@@ -58,6 +58,11 @@ pub struct SlamConfig {
     pub sensor: Sensor,
     /// Seed of every random choice (RANSAC), mixed with the frame or keyframe index.
     pub seed: u64,
+    /// With the mapping thread: tracking waits for each keyframe's mapping job before the
+    /// next frame and mapping is never hurried, so that a run's poses and map equal the
+    /// inline ones (at the cost of the thread's overlap). No effect inline, which is always
+    /// deterministic.
+    pub deterministic: bool,
     /// ORB extraction (the extractor reads these; the core checks keypoint octaves against
     /// the pyramid).
     pub extractor: ExtractorConfig,
@@ -98,6 +103,7 @@ impl SlamConfig {
         Self {
             sensor,
             seed: 0,
+            deterministic: false,
             extractor: ExtractorConfig::for_width(640),
             depth: DepthConfig::for_sensor(sensor),
             initialization: InitializationConfig::default(),

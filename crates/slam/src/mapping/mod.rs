@@ -52,7 +52,8 @@ impl Mapping {
     }
 
     /// Hands keyframe work over: inline it is processed at once and its result returned;
-    /// the thread queues it (its result comes with a later [`Self::collect`]).
+    /// the thread queues it (its result comes with a later [`Self::collect`], or is waited
+    /// for and returned with `SlamConfig::deterministic`).
     pub(crate) fn submit(
         &mut self,
         work: KeyFrameWork,
@@ -75,7 +76,12 @@ impl Mapping {
             }
             Self::Thread(thread) => {
                 thread.push(work, map, vocabulary);
-                None
+                // Deterministic: mapped before the call returns, in the inline order of
+                // events (the queue was empty: every keyframe before was waited for too).
+                ctx.config
+                    .deterministic
+                    .then(|| thread.collect(map, vocabulary, true).pop())
+                    .flatten()
             }
         }
     }

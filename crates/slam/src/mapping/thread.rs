@@ -73,6 +73,8 @@ pub(crate) struct MappingThread {
     backlog: Arc<AtomicUsize>,
     /// Tracking waits for the job in flight (see [`Interrupt`]); cleared with each dispatch.
     interrupt: Arc<AtomicBool>,
+    /// `SlamConfig::deterministic`: never hurried (wall time must not decide anything).
+    deterministic: bool,
     /// When tracking started the last frame, and the wall time since the frame before.
     last_frame: Option<Instant>,
     frame_interval: Option<Duration>,
@@ -95,6 +97,7 @@ impl MappingThread {
             Arc::clone(&interrupt),
             Arc::clone(&keyframe_mapping_us),
         );
+        let deterministic = ctx.config.deterministic;
         let thread = std::thread::Builder::new()
             .name("ferroslam-mapping".into())
             .spawn(move || mapping_loop(pipeline, &ctx, inbox, report, count, &hurry, &mapping_us))
@@ -111,6 +114,7 @@ impl MappingThread {
             renamed_in_flight: HashMap::new(),
             backlog,
             interrupt,
+            deterministic,
             last_frame: None,
             frame_interval: None,
             keyframe_mapping_us,
@@ -125,6 +129,9 @@ impl MappingThread {
 
     /// Tracking starts a frame (the pace of frames decides whether mapping is hurried).
     pub(crate) fn frame_started(&mut self) {
+        if self.deterministic {
+            return;
+        }
         let now = Instant::now();
         self.frame_interval = self.last_frame.map(|last| now - last);
         self.last_frame = Some(now);
