@@ -80,6 +80,9 @@ class FakeSlamSystem:
     def frame_segments(self):
         return np.zeros(len(self.stamps), dtype=np.uint32)
 
+    def close(self):
+        pass
+
     def wait(self):
         pass
 

@@ -120,3 +120,19 @@ def test_close_joins_every_thread(threaded):
     s.close()
     assert not s.mapping_thread
     assert s.num_keyframes == 0
+
+
+def test_vslam_close_joins_its_threads():
+    # The finding of issue 53: 10 threaded objects went from 3 to 45 threads, still 45 after
+    # close(). The objects' close() now stops what their core system started.
+    from ferroslam import Camera, RGBDVSlam
+
+    camera = Camera(517.3, 516.5, 318.6, 255.3, width=640, height=480)
+    RGBDVSlam(camera, depth_scale_factor=5000, threaded=True).close()
+    baseline = settled_thread_count(0, timeout_s=1.0)
+    objects = [RGBDVSlam(camera, depth_scale_factor=5000, threaded=True) for _ in range(10)]
+    assert thread_count() >= baseline + 10
+    for vslam in objects:
+        vslam.close()
+    assert settled_thread_count(baseline) == baseline
+    assert objects[0].poses()[1].shape == (0, 4, 4)  # still readable after close

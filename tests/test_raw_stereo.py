@@ -182,6 +182,9 @@ def test_imu_transform_moves_to_the_rectified_camera(monkeypatch):
     (np.diag([2.0, 1.0, 1.0, 1.0]), r"T_left_right is not a rigid transform"),
     (np.eye(4), r"T_left_right has a zero baseline"),
     (_rig((0, 0, 0), (-0.1, 0, 0)), r"right camera on the \+x side.*\(T_left_right\)"),
+    # The finding of issue 53: a raw rig rotated 180 degrees about y "tracked".
+    (_rig((0, np.pi, 0), (0.1, 0, 0)), r"T_left_right turns the right camera 180 degrees away"),
+    (_rig((0, 0.55 * np.pi, 0), (0.1, 0, 0)), r"turns the right camera 99 degrees away"),
     ("abc", r"T_left_right must be a \(4, 4\) rigid transform"),
 ])
 def test_from_raw_refuses_a_bad_rig(T, message):

@@ -44,6 +44,11 @@ def _rig_pose(T_left_right: np.ndarray) -> np.ndarray:
             or not np.allclose(T[3], [0, 0, 0, 1], atol=_RIGID_TOL)):
         raise ValueError("T_left_right is not a rigid transform (rotation not orthonormal or "
                          "last row not 0 0 0 1)")
+    if R[2, 2] <= 0.0:  # the cosine between the two optical axes
+        angle = np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))
+        raise ValueError(f"T_left_right turns the right camera {angle:.0f} degrees away from "
+                         "the left one: a stereo pair's cameras face the same hemisphere "
+                         "(is the transform inverted, or given in another convention?)")
     if np.linalg.norm(T[:3, 3]) < _MIN_BASELINE_M:
         raise ValueError(f"T_left_right has a zero baseline (translation {T[:3, 3]} m): the "
                          "cameras must be apart for stereo depth")

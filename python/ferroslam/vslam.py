@@ -503,10 +503,12 @@ class _VSlam:
 
     # -- lifetime -------------------------------------------------------------------------
     def close(self) -> None:
-        """Finishes the queued frames, releases the log file; ``add_frame`` raises afterwards.
-        Idempotent."""
+        """Finishes the queued frames, stops and joins every thread the object started
+        (tracking and mapping), releases the log file; ``add_frame`` raises afterwards, the
+        map and poses stay readable. Idempotent."""
         if not self._closed:
             self.wait()
+            self._system.close()
         self._closed = True
         if self._log is not None:
             self._log.close()
