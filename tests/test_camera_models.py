@@ -146,7 +146,22 @@ def test_bad_arrays_are_named(method, value, error, message):
 
 
 def test_a_fisheye_the_core_refuses_is_a_value_error():
-    # Folds over 5 degrees off the axis: Camera takes the numbers, the core's model refuses.
-    camera = Camera.kannala_brandt(300, 300, 320, 240, [-100.0, 0, 0, 0], 640, 480)
+    # Folds over 5 degrees off the axis: the core's checks refuse it when Camera is built.
     with pytest.raises(ValueError, match=r"invalid camera: invalid parameter `k1`.*fold"):
-        camera.project([[0.0, 0.0, 1.0]])
+        Camera.kannala_brandt(300, 300, 320, 240, [-100.0, 0, 0, 0], 640, 480)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    # The findings of issue 53: implausible cameras were accepted and "tracked".
+    (dict(cx=900.0), r"`cx` = 900: principal point must lie inside the image.*640x480"),
+    (dict(cy=-3.0), r"`cy` = -3: principal point must lie inside the image"),
+    (dict(dist=[100.0, 0, 0, 0, 0]), r"`k1` = 100: .*factor 3"),
+    (dict(dist=[1e9, 0, 0, 0, 0]), r"`k1` = 1000000000: "),
+    (dict(model="kannala_brandt", dist=[1e3, -1e3, 1e3, -1e3]), r"invalid camera: .*`k\d`"),
+])
+def test_implausible_cameras_are_refused_at_construction(kwargs, message):
+    base = dict(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    if kwargs.get("model") == "kannala_brandt":
+        base["dist"] = [0.0] * 4
+    with pytest.raises(ValueError, match=message):
+        Camera(**{**base, **kwargs})

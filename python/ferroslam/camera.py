@@ -83,6 +83,18 @@ class Camera:
         if dist.shape != (len(names),) or not np.all(np.isfinite(dist)):
             raise ValueError(f"dist must be {what}, finite, got {self.dist!r}")
         object.__setattr__(self, "dist", dist)
+        self._check_plausible()
+
+    def _check_plausible(self) -> None:
+        """The core's plausibility checks (principal point inside the ``width x height``
+        image, distortion monotonic and of lens-like size out to the image corners), run at
+        construction through the core's one camera conversion, so they live in one place."""
+        from ._core import project_points  # the conversion checks the camera, then no points
+
+        try:
+            project_points(self, np.zeros((0, 3)))
+        except ValueError as err:
+            raise ValueError(f"{err} (camera {self.width}x{self.height} pixels)") from None
 
     def check_image(self, image: np.ndarray, name: str = "image") -> None:
         """Raises ``ValueError`` naming both sizes unless ``image`` (``(H, W)`` or

@@ -106,6 +106,7 @@ OPTIONS: tuple[Option, ...] = (
     Option("depth_range", "float_pair", "core", "metres", 0, None, sensors=_DEPTH,
            infinite_high=True),
     Option("seed", "int", "core", "", 0, _U64_MAX),
+    Option("deterministic", "flag", "core"),
     Option("loop_closure", "flag", "core"),
     Option("loop_closure_threshold", "int", "core", "points", 20, _U32_MAX,
            matlab="LoopClosureThreshold"),
