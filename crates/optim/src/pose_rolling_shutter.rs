@@ -74,7 +74,8 @@ pub struct PoseVelocityEstimate {
 /// # Errors
 /// As [`crate::optimize_pose`], and [`OptimError::InvalidInput`] when `time_offsets_s` does
 /// not have one finite entry per observation or the prior is not finite with a positive
-/// semi-definite information (its diagonal >= 0).
+/// semi-definite information (its diagonal >= 0); [`OptimError::NotPositiveDefinite`] when
+/// no damping makes a round's system factorisable.
 #[allow(non_snake_case)]
 pub fn optimize_pose_and_velocity(
     T_c_w: &Isometry3<f64>,
@@ -99,7 +100,7 @@ pub fn optimize_pose_and_velocity(
         let active: Vec<usize> = (0..obs.len())
             .filter(|&i| !outlier[i] && problem.chi2(&start, i).is_some())
             .collect();
-        state = problem.refine(start, &active, round < ROBUST_ROUNDS);
+        state = problem.refine(start, &active, round < ROBUST_ROUNDS)?;
         for (i, flag) in outlier.iter_mut().enumerate() {
             let stereo = obs[i].u_right.is_some();
             *flag = problem
@@ -223,53 +224,50 @@ impl Problem<'_> {
     }
 
     /// Levenberg-Marquardt on pose and velocity over the `active` observations.
-    fn refine(&self, start: State, active: &[usize], robust: bool) -> State {
+    fn refine(&self, start: State, active: &[usize], robust: bool) -> Result<State, OptimError> {
         let mut state = start;
         if active.is_empty() {
-            return state;
+            return Ok(state);
         }
         let mut current = self.evaluate(&state, active, robust);
         let mut damping = Damping::new(INITIAL_LAMBDA);
         for _ in 0..ITERATIONS_PER_ROUND {
             let (h, g) = (current.h, current.g);
             let d = h.diagonal().map(damping_diagonal);
-            let accepted = loop {
-                if damping.exhausted() {
-                    break None;
-                }
-                let lambda = damping.lambda();
-                let mut hd = h;
-                for j in 0..12 {
-                    hd[(j, j)] += lambda * d[j];
-                }
-                let Some(chol) = hd.cholesky() else {
-                    damping.reject();
-                    continue;
-                };
-                let dx = chol.solve(&(-g));
-                let candidate = (
-                    se3::retract(&dx.fixed_rows::<6>(0).into_owned(), &state.0),
-                    state.1 + dx.fixed_rows::<6>(6),
-                );
-                let at = self.evaluate(&candidate, active, robust);
-                let predicted =
-                    predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
-                let actual = current.cost - at.cost;
-                if actual > 0.0 && predicted > 0.0 {
-                    damping.accept(actual / predicted);
-                    break Some((candidate, at, actual));
-                }
-                damping.reject();
-            };
-            let Some((candidate, at, actual)) = accepted else {
+            let mut tried = None;
+            let accepted = damping.find_step(
+                |lambda| {
+                    let hd = h + Matrix12::from_diagonal(&(lambda * d));
+                    let dx = hd
+                        .cholesky()
+                        .ok_or(OptimError::NotPositiveDefinite { column: 0 })?
+                        .solve(&(-g));
+                    let predicted =
+                        predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
+                    Ok((dx, predicted))
+                },
+                |(dx, predicted)| {
+                    let moved = (
+                        se3::retract(&dx.fixed_rows::<6>(0).into_owned(), &state.0),
+                        state.1 + dx.fixed_rows::<6>(6),
+                    );
+                    let at = self.evaluate(&moved, active, robust);
+                    let new_cost = at.cost;
+                    tried = Some((moved, at));
+                    (current.cost - new_cost, *predicted, new_cost)
+                },
+            )?;
+            // The last step tried is the accepted one: its system is the next iteration's.
+            let (Some(new_cost), Some((moved, at))) = (accepted, tried) else {
                 break;
             };
-            state = candidate;
+            let gain = current.cost - new_cost;
+            state = moved;
             current = at;
-            if actual <= DECREASE_TOLERANCE {
+            if gain <= DECREASE_TOLERANCE {
                 break;
             }
         }
-        state
+        Ok(state)
     }
 }
