@@ -78,9 +78,10 @@ def test_orbslam3_settings_with_k1_1e9_are_refused(tmp_path):
         "Camera1.cx: 318.6\nCamera1.cy: 255.3\nCamera1.k1: 1e9\nCamera1.k2: 0.0\n"
         "Camera1.p1: 0.0\nCamera1.p2: 0.0\nCamera.width: 640\nCamera.height: 480\n"
     )
-    camera = load_calibration(settings).cameras[0]
-    with pytest.raises(ValueError, match=re.escape("`k1` = 1000000000: the distortion")):
-        system_of(camera)
+    # Refused as the file is read (Camera runs the core's checks), naming file and key.
+    with pytest.raises(ValueError, match=re.escape(f"{settings}: Camera1.fx: invalid camera: "
+                                                   "invalid parameter `k1` = 1000000000")):
+        load_calibration(settings)
 
 
 # -- maps -------------------------------------------------------------------------------------
