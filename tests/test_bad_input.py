@@ -162,7 +162,7 @@ def test_save_map_never_writes_through_a_planted_partial_link(tmp_path):
 
 @pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="no /dev/zero")
 def test_vocabulary_load_refuses_devices_at_once():
-    with pytest.raises((ValueError, OSError), match="not a regular file"):
+    with pytest.raises((ValueError, OSError), match="expected a regular vocabulary file"):
         Vocabulary.load("/dev/zero")
 
 
@@ -473,7 +473,7 @@ def test_cli_unwritable_outputs_are_one_line_errors(argv, capsys):
 def test_vocabulary_load_refuses_a_fifo_without_blocking(tmp_path):
     fifo = tmp_path / "voc.fifo"
     os.mkfifo(fifo)
-    with pytest.raises((ValueError, OSError), match="not a regular file"):
+    with pytest.raises((ValueError, OSError), match="expected a regular vocabulary file"):
         Vocabulary.load(str(fifo))
 
 

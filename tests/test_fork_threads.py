@@ -86,6 +86,44 @@ def test_threaded_system_in_a_fork_is_refused_clearly():
     assert out.split() == ["0"]
 
 
+def test_mapping_thread_in_a_fork_is_refused_and_dropped_without_a_hang():
+    out = run_script("""
+    import gc, os
+    from ferroslam._core import SlamSystem
+    s = SlamSystem(517.3, 516.5, 318.6, 255.3, [], 640, 480)
+    s.set_mapping_thread(True)
+    pid = os.fork()
+    if pid == 0:
+        try:
+            s.wait()
+            code = 2
+        except RuntimeError as e:
+            code = 0 if "created in another process" in str(e) else 1
+        del s
+        gc.collect()  # the drop must not join the parent's mapping thread
+        os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    s.set_mapping_thread(False)  # the parent's system is unaffected
+    print(os.waitstatus_to_exitcode(status), s.mapping_thread)
+    """)
+    assert out.split() == ["0", "False"]
+
+
+def test_inline_system_without_threads_works_in_a_fork():
+    out = run_script("""
+    import os
+    from ferroslam._core import SlamSystem
+    s = SlamSystem(517.3, 516.5, 318.6, 255.3, [], 640, 480)
+    pid = os.fork()
+    if pid == 0:
+        s.wait()
+        os._exit(0 if not s.mapping_thread else 1)
+    _, status = os.waitpid(pid, 0)
+    print(os.waitstatus_to_exitcode(status))
+    """)
+    assert out.split() == ["0"]
+
+
 def thread_count() -> int:
     return len(os.listdir("/proc/self/task"))
 

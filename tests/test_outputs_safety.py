@@ -20,7 +20,7 @@ from ferroslam._files import StagedFolder, atomic_output, read_bounded_text, reg
     write_text
 from ferroslam.datasets import TumSequence
 from ferroslam.export import write_colmap_model, write_ply
-from ferroslam.vocabulary import default_vocabulary, save_vocabulary
+from ferroslam.vocabulary import DEFAULT_VOCABULARY_PATH, default_vocabulary, save_vocabulary
 
 from fake_core import FakeSlamSystem
 
@@ -166,6 +166,30 @@ def test_vocabulary_save_refuses_a_fifo(tmp_path):
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
 
 
+def test_core_writers_called_directly_refuse_special_files(tmp_path):
+    """``ferroslam._core`` writes through the core's one writer (``ferroslam-files``): the
+    same refusals as the Python writer, for a caller that bypasses the package."""
+    from ferroslam import _core
+
+    fifo = _fifo(tmp_path / "target")
+    voc = _core.Vocabulary.load(str(DEFAULT_VOCABULARY_PATH))
+    for save in (voc.save, voc.save_dbow2_text,
+                 _core.SlamSystem(517.3, 516.5, 318.6, 255.3, [], 640, 480).save_map):
+        with pytest.raises(ValueError, match="target: .*is a FIFO, not a regular file; refusing"):
+            save(str(fifo))
+        assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    with pytest.raises(ValueError, match="map file .*target: is a FIFO, expected a regular map file"):
+        _core.SlamSystem(517.3, 516.5, 318.6, 255.3, [], 640, 480).load_map(str(fifo))
+    with pytest.raises(ValueError, match="is a FIFO, expected a regular vocabulary file"):
+        _core.Vocabulary.load(str(fifo))
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    (tmp_path / "voc.bin").symlink_to(victim)
+    voc.save(str(tmp_path / "voc.bin"))
+    assert victim.read_text() == "keep me" and not (tmp_path / "voc.bin").is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["target", "victim.txt", "voc.bin"]
+
+
 def test_colmap_folder_link_is_not_written_through(tmp_path):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
@@ -192,7 +216,23 @@ def test_staged_folder_failure_keeps_previous_results(tmp_path):
     assert (out / "trajectory.txt").read_text() == "complete"
     assert stage.partial.parent == out and stage.partial.name.startswith("partial-")
     assert (stage.partial / "trajectory.txt").read_text() == ""
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging folder left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert not [p for p in out.iterdir() if p.name.startswith(".staging")]
+
+
+def test_staged_folder_stages_inside_out_and_leaves_no_empty_folder(tmp_path):
+    out = tmp_path / "volume"
+    with pytest.raises(RuntimeError, match="no frame"):
+        with StagedFolder(out) as stage:
+            # inside --out: a --out that is a mount point gets renames, not cross-device moves
+            assert stage.path.parent == out and os.stat(stage.path).st_dev == os.stat(out).st_dev
+            raise RuntimeError("no frame")
+    assert stage.partial is None and not out.exists()
+    out.mkdir()
+    with pytest.raises(RuntimeError, match="no frame"):
+        with StagedFolder(out):
+            raise RuntimeError("no frame")
+    assert out.is_dir() and list(out.iterdir()) == []  # the user's folder stays
 
 
 def test_staged_folder_refuses_a_fifo_entry_and_keeps_the_results(tmp_path):

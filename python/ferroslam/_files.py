@@ -15,8 +15,9 @@ Writing (:func:`atomic_output`):
 * the target changes only when the write succeeded; on failure the temporary file is
   removed and a previous file stays as it was.
 
-Run folders (:class:`StagedFolder`): a run writes into a fresh temporary folder beside
-``--out``; when it ends, its entries are moved into ``--out`` (a planted symlink there is
+Run folders (:class:`StagedFolder`): a run writes into a fresh hidden folder inside
+``--out`` (``.staging-*``: the same filesystem as the results, so moves are renames even
+when ``--out`` is a mount point); when it ends, its entries are moved into ``--out`` (a planted symlink there is
 replaced, never followed; a directory entry such as ``colmap/`` replaces the old one
 whole). A failed run leaves the previous results in ``--out`` as they were and its partial
 results in ``--out/partial-<UTC time>/``.
@@ -133,7 +134,7 @@ def write_bytes(target: PathLike, data: bytes) -> Path:
 
 class StagedFolder:
     """A run's output folder: ``with StagedFolder(out) as stage:`` write into
-    ``stage.path`` (a fresh folder beside ``out``); on success its entries replace those of
+    ``stage.path`` (a fresh hidden folder inside ``out``); on success its entries replace those of
     the same name in ``out``; on an exception they go to ``out/partial-<UTC time>/``
     (``stage.partial`` then names it; ``None`` when nothing was written) and the exception
     propagates.
@@ -145,12 +146,14 @@ class StagedFolder:
         self.out = Path(out)
         self.path: Optional[Path] = None
         self.partial: Optional[Path] = None
+        self._created = False
 
     def __enter__(self) -> StagedFolder:
+        self._created = not os.path.lexists(self.out)
         _make_parent(self.out)  # an unwritable --out fails before the run
-        # Beside the real folder (same filesystem, so the moves are renames).
-        real = self.out.resolve()
-        self.path = Path(tempfile.mkdtemp(prefix=f".{real.name}.staging-", dir=real.parent))
+        # Inside the folder: the same filesystem as its entries even when --out is a mount
+        # point (a volume), so every move is a rename.
+        self.path = Path(tempfile.mkdtemp(prefix=".staging-", dir=self.out))
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -165,6 +168,11 @@ class StagedFolder:
                 self.partial = self._keep_partial()
         finally:
             shutil.rmtree(self.path, ignore_errors=True)  # rmtree never follows links
+            if self._created and self.partial is None and exc_type is not None:
+                try:
+                    self.out.rmdir()  # a run that wrote nothing leaves no new empty folder
+                except OSError:
+                    pass
 
     def _publish(self) -> None:
         entries = sorted(self.path.iterdir())

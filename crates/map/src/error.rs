@@ -65,7 +65,7 @@ pub enum MapError {
         got: usize,
     },
     /// Reading or writing a map file failed (the `std::io::Error` kind and message).
-    #[error("map file I/O error ({kind:?}): {message}")]
+    #[error("{message}")]
     MapFileIo {
         /// Kind of the underlying I/O error.
         kind: std::io::ErrorKind,

@@ -7,7 +7,9 @@ use ferroslam_geometry::GeometryError;
 use ferroslam_slam::SlamError as CoreError;
 use ferroslam_vocabulary::VocabularyError;
 use pyo3::create_exception;
-use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{
+    PyFileNotFoundError, PyIsADirectoryError, PyOSError, PyRuntimeError, PyValueError,
+};
 use pyo3::PyErr;
 
 create_exception!(
@@ -40,10 +42,13 @@ pub fn to_py(err: CoreError) -> PyErr {
 pub fn vocabulary_file_error(path: &Path, err: VocabularyError) -> PyErr {
     let message = format!("{}: {err}", path.display());
     match err {
-        VocabularyError::Io(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            PyFileNotFoundError::new_err(message)
-        }
-        VocabularyError::Io(_) => PyOSError::new_err(message),
+        VocabularyError::Io(e) => match e.kind() {
+            std::io::ErrorKind::NotFound => PyFileNotFoundError::new_err(message),
+            std::io::ErrorKind::IsADirectory => PyIsADirectoryError::new_err(message),
+            // a special file or one too large: the caller's path is wrong
+            std::io::ErrorKind::InvalidInput => PyValueError::new_err(message),
+            _ => PyOSError::new_err(message),
+        },
         _ => PyValueError::new_err(message),
     }
 }

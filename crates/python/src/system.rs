@@ -1,6 +1,7 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
 use crate::pool;
+use std::mem::ManuallyDrop;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
@@ -139,15 +140,20 @@ impl PyTrackResult {
 pub struct PySlamSystem {
     /// Behind a mutex so that a second Python thread calling in meanwhile gets a clear
     /// error (the system is not thread-safe) rather than PyO3's "Already borrowed".
-    engine: Mutex<Engine>,
+    /// `ManuallyDrop`: in a forked child an engine with threads is leaked, never dropped
+    /// (see `Drop`).
+    engine: Mutex<ManuallyDrop<Engine>>,
     /// The configuration the system was built with.
     config: SlamConfig,
+    /// The process that created the system, the only one its threads exist in.
+    pid: u32,
 }
 
 impl PySlamSystem {
-    /// The engine, if no other thread is using it.
-    fn engine(&self) -> PyResult<MutexGuard<'_, Engine>> {
-        self.engine.try_lock().map_err(|e| match e {
+    /// The engine, if no other thread is using it and its threads (if any) exist in this
+    /// process.
+    fn engine(&self) -> PyResult<MutexGuard<'_, ManuallyDrop<Engine>>> {
+        let engine = self.engine.try_lock().map_err(|e| match e {
             TryLockError::WouldBlock => PyRuntimeError::new_err(
                 "this SlamSystem is in use by another thread: it is not thread-safe; feed it \
                  from one thread (threaded=True already tracks and maps in threads of its own)",
@@ -155,7 +161,28 @@ impl PySlamSystem {
             TryLockError::Poisoned(_) => PyRuntimeError::new_err(
                 "this SlamSystem failed in an earlier call (internal error); create a new one",
             ),
-        })
+        })?;
+        if engine.has_threads() && std::process::id() != self.pid {
+            // Every call would wait for threads that were not copied into the fork.
+            return Err(PyRuntimeError::new_err(
+                "this SlamSystem was created in another process (this is a fork of it) and \
+                 runs threads (threaded, or a mapping thread), which do not exist here; \
+                 create a new system in this process",
+            ));
+        }
+        Ok(engine)
+    }
+}
+
+impl Drop for PySlamSystem {
+    /// Joins the threads, except in a forked child: there they do not exist and joining
+    /// would wait forever, so the engine is leaked (the child's memory, freed at its exit).
+    fn drop(&mut self) {
+        let engine = self.engine.get_mut().unwrap_or_else(|p| p.into_inner());
+        if !(engine.has_threads() && std::process::id() != self.pid) {
+            // SAFETY: dropped once, here; the engine is never used after the system.
+            unsafe { ManuallyDrop::drop(engine) };
+        }
     }
 }
 
@@ -194,7 +221,6 @@ impl PySlamSystem {
             Engine::Background {
                 slam: BackgroundSlam::spawn(system, true),
                 guard,
-                pid: std::process::id(),
             }
         } else {
             Engine::Inline {
@@ -203,8 +229,9 @@ impl PySlamSystem {
             }
         };
         Ok(Self {
-            engine: Mutex::new(engine),
+            engine: Mutex::new(ManuallyDrop::new(engine)),
             config,
+            pid: std::process::id(),
         })
     }
 
@@ -305,10 +332,9 @@ impl PySlamSystem {
     /// the core rejected raise here). Synchronous mode: always empty (track_* returns them).
     fn take_results(&self) -> PyResult<Vec<PyTrackResult>> {
         let engine = self.engine()?;
-        let Engine::Background { slam, pid, .. } = &*engine else {
+        let Engine::Background { slam, .. } = &**engine else {
             return Ok(Vec::new());
         };
-        check_process(*pid)?;
         slam.take_results()
             .into_iter()
             .map(|r| r.map(|inner| PyTrackResult { inner }).map_err(to_py))
@@ -318,7 +344,7 @@ impl PySlamSystem {
     /// Whether every submitted frame has been tracked and mapped (always true when
     /// synchronous).
     fn is_done(&self) -> PyResult<bool> {
-        Ok(match &*self.engine()? {
+        Ok(match &**self.engine()? {
             Engine::Inline { .. } => true,
             Engine::Background { slam, .. } => slam.is_idle(),
         })
@@ -329,16 +355,13 @@ impl PySlamSystem {
     /// frames), with mapping inline. Idempotent.
     fn close(&self, py: Python<'_>) -> PyResult<()> {
         let mut engine = self.engine()?;
-        let closed = match &mut *engine {
+        let closed = match &mut **engine {
             Engine::Inline { system, failure } => {
                 return inline(py, system, failure, |s| s.set_concurrent_mapping(false));
             }
-            Engine::Background { slam, pid, .. } => {
-                check_process(*pid)?;
-                pool::detach(py, || slam.stop())?.map_err(to_py)?
-            }
+            Engine::Background { slam, .. } => pool::detach(py, || slam.stop())?.map_err(to_py)?,
         };
-        *engine = Engine::Inline {
+        **engine = Engine::Inline {
             system: Box::new(closed),
             failure: None,
         };
@@ -402,7 +425,7 @@ impl PySlamSystem {
     /// Whether frames are processed in a background thread.
     #[getter]
     fn threaded(&self) -> PyResult<bool> {
-        Ok(matches!(*self.engine()?, Engine::Background { .. }))
+        Ok(matches!(**self.engine()?, Engine::Background { .. }))
     }
 
     /// The sensor this system was created for: "mono", "stereo" or "rgbd".
@@ -647,15 +670,22 @@ enum Engine {
         system: Box<SlamSystem>,
         failure: Option<SlamError>,
     },
-    /// Tracking and mapping in threads of the process `pid` that created them.
+    /// Tracking and mapping in threads of their own.
     Background {
         slam: BackgroundSlam,
         guard: InputGuard,
-        pid: u32,
     },
 }
 
 impl Engine {
+    /// Whether the engine runs threads: threaded, or inline with a mapping thread.
+    fn has_threads(&self) -> bool {
+        match self {
+            Engine::Inline { system, .. } => system.concurrent_mapping(),
+            Engine::Background { .. } => true,
+        }
+    }
+
     /// Runs `job` on the system (after the frames queued before it), without the GIL.
     fn run<R: Send + 'static>(
         &mut self,
@@ -666,10 +696,7 @@ impl Engine {
             Engine::Inline { system, failure } => {
                 inline(py, system, failure, |system| Ok(job(system)))
             }
-            Engine::Background { slam, pid, .. } => {
-                check_process(*pid)?;
-                pool::detach(py, || slam.run(job))?.map_err(to_py)
-            }
+            Engine::Background { slam, .. } => pool::detach(py, || slam.run(job))?.map_err(to_py),
         }
     }
 
@@ -680,8 +707,7 @@ impl Engine {
                 inline(py, system, failure, |system| frame.track(system))
                     .map(|inner| Some(PyTrackResult { inner }))
             }
-            Engine::Background { slam, guard, pid } => {
-                check_process(*pid)?;
+            Engine::Background { slam, guard } => {
                 frame.check(guard).map_err(to_py)?;
                 pool::detach(py, || slam.submit(frame))?.map_err(to_py)?;
                 Ok(None)
@@ -712,16 +738,4 @@ where
             Err(error)
         })
         .map_err(to_py)
-}
-
-/// A threaded system's threads exist only in the process that created it: used in a
-/// forked child, every call would wait for threads that are not there.
-fn check_process(pid: u32) -> PyResult<()> {
-    if std::process::id() == pid {
-        return Ok(());
-    }
-    Err(PyRuntimeError::new_err(
-        "this threaded SlamSystem was created in another process (this is a fork of it): its \
-         tracking and mapping threads do not exist here; create a new system in this process",
-    ))
 }

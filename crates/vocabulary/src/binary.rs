@@ -17,7 +17,7 @@
 //! The root is implicit (zero descriptor, weight 0); leaves are the nodes without children.
 //! About 44 bytes per node: 49 MB for a `k = 10, L = 6` tree with 10^6 words.
 
-use std::io::Read;
+use std::io::{Read, Write};
 use std::path::Path;
 
 use ferroslam_features::Descriptor;
@@ -146,13 +146,14 @@ impl Vocabulary {
         Vocabulary::from_raw_parts(k, levels, weighting, parents, descriptors, weights)
     }
 
-    /// Writes the binary format to `path`.
+    /// Writes the binary format to `path` through [`ferroslam_files::write_atomically`] (a
+    /// temporary file renamed over `path`; a folder, FIFO or device there is refused).
     ///
     /// # Errors
     /// [`VocabularyError::Io`] when the file cannot be written.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
-        std::fs::write(path, self.to_bytes())?;
-        Ok(())
+        let bytes = self.to_bytes();
+        ferroslam_files::write_atomically(path.as_ref(), |w| Ok(w.write_all(&bytes)?))
     }
 
     /// Reads the binary format from `path`.

@@ -104,12 +104,14 @@ impl Vocabulary {
         Ok(vocabulary)
     }
 
-    /// [`Vocabulary::write_dbow2_text`] to a file.
+    /// [`Vocabulary::write_dbow2_text`] to a file, through
+    /// [`ferroslam_files::write_atomically`] (a temporary file renamed over `path`; a folder,
+    /// FIFO or device there is refused).
     ///
     /// # Errors
     /// [`VocabularyError::Io`].
     pub fn save_dbow2_text(&self, path: impl AsRef<Path>) -> Result<()> {
-        self.write_dbow2_text(std::fs::File::create(path)?)
+        ferroslam_files::write_atomically(path.as_ref(), |w| self.write_dbow2_text(w))
     }
 
     /// [`Vocabulary::read_dbow2_text`] from a file.

@@ -10,7 +10,7 @@ pub enum VocabularyError {
     #[error("no training descriptors")]
     NoTrainingData,
     /// Reading or writing a file failed.
-    #[error("I/O error: {0}")]
+    #[error(transparent)]
     Io(#[from] std::io::Error),
     /// The binary file does not start with the ferroslam vocabulary magic bytes.
     #[error("not a ferroslam vocabulary file (bad magic bytes)")]

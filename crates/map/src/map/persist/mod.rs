@@ -65,8 +65,7 @@
 //! assert!(Map::load(&mut &bytes[..bytes.len() - 1]).is_err()); // truncated
 //! ```
 
-use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::path::Path;
 
 use ferroslam_features::ScalePyramid;
@@ -199,37 +198,26 @@ impl Map {
         Self::decode_payload(payload, version)
     }
 
-    /// [`Map::save`] to a file, created or replaced. The map is written to a new temporary
-    /// file beside `path` (`<path>.<random>.partial`, created exclusively: a file or link
-    /// planted under that name is never written through) and renamed over `path`, so an
-    /// interrupted save leaves any previous file intact.
+    /// [`Map::save`] to a file, created or replaced through [`ferroslam_files::write_atomically`]:
+    /// a temporary file beside `path` renamed over it, so an interrupted save leaves any
+    /// previous file intact; a folder, FIFO or device at `path` is refused, a symlink there
+    /// replaced (never written through); missing parent folders are created.
     ///
     /// # Errors
-    /// [`MapError::MapFileIo`].
+    /// [`MapError::MapFileIo`] naming the path.
     pub fn save_to_path(&self, path: impl AsRef<Path>) -> Result<(), MapError> {
-        let path = path.as_ref();
-        let (file, partial) = create_temporary_beside(path)?;
-        let write = || -> Result<(), MapError> {
-            let mut w = BufWriter::new(file);
-            self.save(&mut w)?;
-            w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-            Ok(std::fs::rename(&partial, path)?)
-        };
-        let result = write();
-        if result.is_err() {
-            // Best effort: the error being reported matters more than a leftover file.
-            let _ = std::fs::remove_file(&partial);
-        }
-        result
+        ferroslam_files::write_atomically(path.as_ref(), |w| self.save(w))
     }
 
     /// [`Map::load`] from a file; bytes after the map's checksum are refused.
     ///
     /// # Errors
-    /// As [`Map::load`]; [`MapError::MapFileIo`] (kind `NotFound`, ...) if the file cannot
-    /// be read, [`MapError::CorruptMapFile`] for trailing bytes.
+    /// As [`Map::load`]; [`MapError::MapFileIo`] naming the path if the file cannot be read
+    /// or is not a regular file (a FIFO or a device is refused before reading: it could
+    /// block or never end), [`MapError::CorruptMapFile`] for trailing bytes.
     pub fn load_from_path(path: impl AsRef<Path>) -> Result<Map, MapError> {
-        let mut r = BufReader::new(File::open(path)?);
+        let file = ferroslam_files::open_regular(path.as_ref(), u64::MAX, "map file")?;
+        let mut r = BufReader::new(file);
         let map = Self::load(&mut r)?;
         if !read_up_to(&mut r, 1)?.is_empty() {
             return Err(corrupt("bytes after the checksum".into()));
@@ -382,35 +370,4 @@ fn read_up_to(r: &mut impl Read, n: u64) -> Result<Vec<u8>, MapError> {
     let mut out = Vec::new();
     r.take(n).read_to_end(&mut out)?;
     Ok(out)
-}
-
-/// A new file beside `path`, named `<path>.<random>.partial` and created exclusively (never
-/// an existing file or a link), with its name.
-fn create_temporary_beside(path: &Path) -> std::io::Result<(File, std::path::PathBuf)> {
-    let mut last_error = None;
-    // A name taken by chance (or planted) is skipped; a few draws find a free one.
-    for _ in 0..8 {
-        let mut name = path.as_os_str().to_owned();
-        name.push(format!(".{:016x}.partial", random_u64()));
-        let partial = std::path::PathBuf::from(name);
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&partial)
-        {
-            Ok(file) => return Ok((file, partial)),
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last_error = Some(e),
-            Err(e) => return Err(e),
-        }
-    }
-    Err(last_error.expect("at least one attempt"))
-}
-
-/// 64 random bits from the standard library: each `RandomState` draws new keys, seeded
-/// from the operating system's randomness.
-fn random_u64() -> u64 {
-    use std::hash::{BuildHasher, Hasher};
-    std::collections::hash_map::RandomState::new()
-        .build_hasher()
-        .finish()
 }

@@ -225,26 +225,41 @@ fn path_helpers_round_trip_and_report_missing_files() {
             ..
         })
     ));
-    let unwritable = map.save_to_path(dir.join("no-such-dir").join("map.fslam"));
-    assert!(matches!(unwritable, Err(MapError::MapFileIo { .. })));
+    // The parent is a file: refused, naming it.
+    let unwritable = map.save_to_path(path.join("map.fslam"));
+    assert!(
+        matches!(&unwritable, Err(MapError::MapFileIo { message, .. }) if message.contains("map.fslam")),
+        "{unwritable:?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[cfg(unix)]
 #[test]
-fn save_never_writes_through_a_planted_partial_link() {
+fn save_replaces_a_link_and_load_refuses_a_fifo() {
     let (map, _) = sample_map();
     let dir = std::env::temp_dir().join(format!("ferroslam-map-link-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let victim = dir.join("victim.txt");
     std::fs::write(&victim, b"keep me").unwrap();
     let path = dir.join("map.fslam");
-    std::os::unix::fs::symlink(&victim, dir.join("map.fslam.partial")).unwrap();
+    std::os::unix::fs::symlink(&victim, &path).unwrap();
     map.save_to_path(&path).unwrap();
     assert_eq!(std::fs::read(&victim).unwrap(), b"keep me");
     assert_same(&map, &Map::load_from_path(&path).unwrap());
-    // Only the map, the victim and the planted link are left: no temporary file.
-    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 3);
+    // Only the map and the victim are left: no temporary file.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 2);
+    // A FIFO would block `open` until a writer came: refused before it is opened.
+    let fifo = dir.join("pipe.fslam");
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let err = Map::load_from_path(&fifo).unwrap_err();
+    assert!(err.to_string().contains("is a FIFO"), "{err}");
+    let err = map.save_to_path(&fifo).unwrap_err();
+    assert!(err.to_string().contains("refusing to replace it"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
