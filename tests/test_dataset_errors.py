@@ -9,7 +9,7 @@ import os
 import cv2
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, given
 from hypothesis import strategies as st
 
 from ferroslam import load_calibration
@@ -18,6 +18,7 @@ from ferroslam.datasets import (EurocSequence, KittiSequence, TumSequence, open_
 from ferroslam.pipeline import run_sequence
 
 from conftest import require_data
+from fuzzing import fuzz
 
 DOCUMENTED = (FileNotFoundError, IsADirectoryError, ValueError)
 
@@ -112,9 +113,9 @@ _LIST = st.lists(_LINE, max_size=6).map(lambda lines: "\n".join(lines) + "\n")
 _BYTES = st.one_of(_LIST.map(str.encode), st.binary(max_size=40))
 
 
-@settings(max_examples=150, deadline=500, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(rgb=_BYTES, depth=_BYTES, kind=st.sampled_from(["tum", "kitti", "euroc"]))
+@fuzz(150, deadline=500,
+      suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 def test_generated_broken_folders_raise_documented_errors(tmp_path_factory, rgb, depth, kind):
     root = tmp_path_factory.mktemp("gen")
     before = set(os.listdir(root.parent))

@@ -11,7 +11,7 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, given
 from hypothesis import strategies as st
 
 from ferroslam import Camera, session
@@ -20,6 +20,7 @@ from ferroslam.calibration import ImuParams
 from ferroslam.options import OPTIONS, load_option_file, validate_options
 from ferroslam.session import Session
 from ferroslam.vslam import MonoVSlam, RGBDVSlam, StereoVSlam
+from fuzzing import fuzz
 
 CAMERA = Camera(500.0, 500.0, 320.0, 240.0)
 IMU = dict(gyroscope_noise_density=1.7e-4, gyroscope_random_walk=1.9e-5,
@@ -242,9 +243,8 @@ _SENSORS = st.sampled_from(["mono", "stereo", "rgbd", "mono-inertial", "stereo-i
                             "rgbd-inertial"])
 
 
-@settings(max_examples=400, deadline=200, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow])
 @given(st.dictionaries(_KEYS, _VALUES, max_size=4), _SENSORS)
+@fuzz(400, deadline=200, suppress_health_check=[HealthCheck.too_slow])
 def test_generated_options_succeed_or_name_the_key(options, sensor):
     try:
         out = validate_options(options, sensor)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, seed, settings
+from hypothesis import HealthCheck, given
 from hypothesis import strategies as st
 
 from ferroslam import Camera, MonoVSlam, cli, io, session
@@ -23,6 +23,7 @@ from ferroslam.export import write_colmap_model, write_ply
 from ferroslam.vocabulary import DEFAULT_VOCABULARY_PATH, default_vocabulary, save_vocabulary
 
 from fake_core import FakeSlamSystem
+from fuzzing import fuzz
 
 CAMERA = Camera(500.0, 500.0, 320.0, 240.0)
 
@@ -319,13 +320,11 @@ _KINDS = ["missing", "file", "dir", "fifo", "link_to_file", "link_to_dir", "dang
           "parent_is_file"]
 
 
-@seed(53)
-@settings(max_examples=60, deadline=2000,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(kind=st.sampled_from(_KINDS),
        name=st.text(st.characters(whitelist_categories=("L", "N"), whitelist_characters="._-"),
                     min_size=1, max_size=20).filter(lambda s: s not in (".", "..")),
        depth=st.integers(0, 3), fail=st.booleans())
+@fuzz(60, deadline=2000, suppress_health_check=[HealthCheck.function_scoped_fixture])
 def test_writer_property(tmp_path_factory, kind, name, depth, fail):
     root = tmp_path_factory.mktemp("prop")
     box, outside = root / "box", root / "outside"
