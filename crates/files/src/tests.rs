@@ -173,8 +173,6 @@ fn a_link_at_the_target_is_replaced_not_written_through() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
-
     /// Whatever sequence of writes succeeds or fails, the file holds the last successful
     /// one and nothing else is left beside it.
     #[test]
