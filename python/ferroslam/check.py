@@ -134,6 +134,7 @@ _OPENING_CAUSES = (
     ("distortion", "distortion"),
     ("out of order", "frame times"),
     ("the same time", "frame times"),
+    ("image size", "image size"),
     ("calibration", "calibration"),
     ("camera", "calibration"),
 )
@@ -285,7 +286,7 @@ def _imu_units(seq: Any, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> 
         system.set_imu(seq.imu_params(), np.asarray(seq.T_b_c, np.float64))
         system.add_imu(t, gyro, accel)
     except ValueError as err:
-        return Check("imu units", ERROR, f"{err}: convert the samples to rad/s and m/s^2")
+        return Check("imu units", ERROR, str(err))  # the core says which unit it looks like
     finally:
         system.close()
     return Check("imu units", OK, "rad/s and m/s^2 (gyro under 35 rad/s, mean |accel| "
