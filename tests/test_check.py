@@ -92,6 +92,9 @@ def test_the_time_offset_is_found_within_3_ms(shifted, shift_s):
     else:  # a shift of tens of ms is worth correcting: the line says the value to set
         assert line["verdict"] == "warning", line
         assert f"imu_time_offset_s = {offset:.4f}" in line["message"], line
+    assert set(report) == {"status", "ok", "checks", "imu_time_offset_s",
+                           "imu_time_offset_uncertainty_s"}
+    assert {"name", "verdict", "message", "values"} == set(report["checks"][0])
     # The rest of the window is sound: every other check is ok.
     assert [c["name"] for c in report["checks"] if c["verdict"] != "ok"] in (
         [], ["time offset"])
@@ -187,6 +190,29 @@ def test_image_size_against_the_calibration_and_run_fails_before_tracking(tmp_pa
     err = capsys.readouterr().err
     assert err.startswith("ferroslam: error: image size: ") and "752x480" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_image_folder_with_its_camera_file(tmp_path, capsys):
+    """The first 20 cam0 images (names in nanoseconds) with a flat camera file: ok at EuRoC's
+    size, an image size error at another."""
+    images = tmp_path / "images"
+    images.mkdir()
+    for frame in sorted((require_data(*MH_01) / "mav0" / "cam0" / "data").iterdir())[:20]:
+        (images / frame.name).symlink_to(frame)
+    camera = tmp_path / "camera.yaml"
+    intrinsics = "fx: 458.654\nfy: 457.296\ncx: 367.215\ncy: 248.375\nk1: -0.28340811\n" \
+                 "k2: 0.07395907\np1: 0.00019359\np2: 1.76187114e-05\n"
+    camera.write_text(intrinsics + "width: 752\nheight: 480\n")
+    status, out = _check([images, "--camera", camera], capsys)
+    assert status == 0, out
+    assert [line.split()[:2] for line in out.splitlines()] == [
+        ["ok", "image"], ["ok", "distortion:"], ["ok", "frame"], ["ok", "frame"]]
+    assert "20 frames at 20.00 Hz" in out
+    camera.write_text(intrinsics + "width: 800\nheight: 600\n")
+    status, out = _check([images, "--camera", camera], capsys)
+    assert status == 1
+    assert "error   image size: frame 0 is 752x480 (width x height) but the camera is " \
+        "800x600" in out
 
 
 def test_frame_times_out_of_order_or_repeated_are_errors(tmp_path, capsys):

@@ -354,7 +354,8 @@ def check_imu(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, params: Any,
     return checks
 
 
-def _time_offset(seq: Any, sensor: str, imu: tuple) -> tuple[Check, Optional[TimeOffsetEstimate]]:
+def _time_offset(seq: Any, sensor: str, t_imu: np.ndarray,
+                 gyro: np.ndarray) -> tuple[Check, Optional[TimeOffsetEstimate]]:
     """The offset from a visual-only run over the first seconds (:mod:`ferroslam.time_offset`)."""
     from .pipeline import run_sequence
 
@@ -366,7 +367,7 @@ def _time_offset(seq: Any, sensor: str, imu: tuple) -> tuple[Check, Optional[Tim
                @ np.asarray(seq.T_b_c, np.float64)[:3, :3])
     period = float(np.median(np.diff(seq.timestamps)))
     try:
-        est = estimate_imu_time_offset(traj.timestamps, traj.poses, imu[0], imu[1], R_imu_c,
+        est = estimate_imu_time_offset(traj.timestamps, traj.poses, t_imu, gyro, R_imu_c,
                                        max_offset_s=_MAX_OFFSET_S,
                                        max_gap_s=_FRAME_GAP * period)
     except ValueError as err:
@@ -416,15 +417,20 @@ def check_sequence(seq: Any, sensor: Optional[str] = None, *,
                                                                      None)))
     if not sensor.endswith("-inertial"):
         return report
+    if not _has_imu(seq):
+        checks.append(Check("imu samples", ERROR, f"sensor {sensor} needs an IMU and "
+                                                  f"{getattr(seq, 'name', 'the input')} has "
+                                                  "none: choose a sensor without -inertial"))
+        return report
     try:
-        imu = seq.imu()
+        t, gyro, accel = seq.imu()
     except ValueError as err:  # the loader refuses samples out of order, non-finite values
         checks.append(Check("imu samples", ERROR, f"{err}: fix the IMU file"))
         return report
-    units = _imu_units(seq, *imu)
+    units = _imu_units(seq, t, gyro, accel)
     checks.append(units)
-    checks.extend(check_imu(*imu, seq.imu_params(), seq.timestamps))
+    checks.extend(check_imu(t, gyro, accel, seq.imu_params(), seq.timestamps))
     if time_offset and units.verdict != ERROR:
-        check, report.time_offset = _time_offset(seq, sensor, imu)
+        check, report.time_offset = _time_offset(seq, sensor, t, gyro)
         checks.append(check)
     return report
