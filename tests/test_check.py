@@ -143,6 +143,20 @@ def test_the_suggested_offset_has_the_sign_the_run_uses(shifted):
     assert distance["reversed"] > 1e-3
 
 
+def test_a_window_that_hardly_rotates_gives_no_offset(euroc_micro, capsys):
+    """V1_01 before take-off (0.2 deg net rotation, rotor vibration): the rates correlate (the
+    vibration is seen by both) but the rotation is too small to trust the peak: a warning, and
+    no estimate in the JSON. The rotor vibration also shows in the noise line."""
+    status, out = _check([euroc_micro, "--json"], capsys)
+    report = json.loads(out)
+    assert status == 0 and report["imu_time_offset_s"] is None
+    lines = {c["name"]: c for c in report["checks"]}
+    assert lines["time offset"]["verdict"] == "warning"
+    assert "hardly rotate" in lines["time offset"]["message"]
+    assert lines["time offset"]["values"]["rotation_rate_rad_s"] < 0.05
+    assert lines["imu noise"]["verdict"] == "warning"
+
+
 def _edit_camera(mav0: Path, old: str, new: str) -> None:
     path = mav0 / "cam0" / "sensor.yaml"
     text = path.read_text()

@@ -52,16 +52,17 @@ _REST_WINDOW_S = 1.0  # the quietest window of this length is taken as "at rest"
 # trust the IMU far more than it deserves.
 _NOISE_RATIO = 10.0
 
-# The time offset: the visual run's window, the offsets searched (the option allows +-1 s;
-# correlations of rotation rates are ambiguous beyond a fraction of a second of motion),
-# a correlation below which the estimate is not trusted, and the rotation rate that makes it
-# sharp.
+# The time offset: the visual run's window (the first seconds; hand-held or flying data
+# rotates from the start), the offsets searched (the option allows +-1 s; every offset
+# searched costs the window's ends, which the shifted IMU must still cover), a correlation
+# below which the estimate is not trusted, and the rotation rate below which the peak is too
+# flat to mean anything.
 _OFFSET_WINDOW_S = 15.0
 _MAX_OFFSET_S = 0.2
 _MIN_CORRELATION = 0.7
 _MIN_ROTATION_RAD_S = 0.05
-# An offset is worth setting when above this and 3 standard deviations: under a millisecond
-# no visual-inertial estimator shows a difference.
+# An offset is worth setting when above this and 3 standard deviations: a fifth of a 200 Hz
+# IMU's period, what the core's interpolation of the samples resolves anyway.
 _NEGLIGIBLE_OFFSET_S = 0.001
 
 
@@ -381,7 +382,8 @@ def _time_offset(seq: Any, sensor: str, t_imu: np.ndarray,
              f"{visual})")
     if est.rotation_rate_rad_s < _MIN_ROTATION_RAD_S:
         return Check("time offset", WARNING,
-                     f"{found}: the first {_OFFSET_WINDOW_S:g} s hardly rotate "
+                     f"{found}: the first {traj.timestamps[-1] - traj.timestamps[0]:.1f} s "
+                     "hardly rotate "
                      f"({est.rotation_rate_rad_s:.3f} rad/s RMS); rotate the camera there to "
                      "measure the offset", values), None
     if est.correlation < _MIN_CORRELATION or est.at_search_edge:
