@@ -61,6 +61,7 @@ _EPILOG = """\
 examples:
   ferroslam demo                                  RGB-D SLAM on the bundled TUM sample
   ferroslam download tum freiburg1_xyz --to data  fetch a full TUM sequence (~0.5 GB)
+  ferroslam check data/rgbd_dataset_freiburg1_xyz --sensor rgbd
   ferroslam run data/rgbd_dataset_freiburg1_xyz --sensor rgbd
   ferroslam eval ate groundtruth.txt out/rgbd_dataset_freiburg1_xyz/trajectory.txt
 
