@@ -57,7 +57,7 @@ _NOISE_RATIO = 10.0
 # searched costs the window's ends, which the shifted IMU must still cover), a correlation
 # below which the estimate is not trusted, and the rotation rate below which the peak is too
 # flat to mean anything.
-_OFFSET_WINDOW_S = 15.0
+_OFFSET_WINDOW_S = 10.0
 _MAX_OFFSET_S = 0.2
 _MIN_CORRELATION = 0.7
 _MIN_ROTATION_RAD_S = 0.05
@@ -408,7 +408,7 @@ def check_sequence(seq: Any, sensor: Optional[str] = None, *,
                    time_offset: bool = True) -> CheckReport:
     """Every check of ``seq`` for ``sensor`` (default :func:`sensor_of`): the cheap ones,
     the depth scale (``rgbd``), the IMU and, with ``time_offset``, the camera-IMU time offset
-    (``-inertial``; a visual-only run over the first 15 s)."""
+    (``-inertial``; a visual-only run over the first 10 s)."""
     sensor = sensor or sensor_of(seq)
     checks = cheap_checks(seq, sensor)
     report = CheckReport(checks)

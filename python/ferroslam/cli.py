@@ -225,7 +225,7 @@ def _add_check_parser(sub: argparse._SubParsersAction) -> None:
         description="Check PATH as 'ferroslam run' would read it: image sizes against the\n"
                     "calibration, the distortion over the whole image, frame times, the depth\n"
                     "scale, the IMU (rate, gaps, units, gravity, noise) and the camera-IMU\n"
-                    "time offset (from a visual-only run over the first 15 s). One line per\n"
+                    "time offset (from a visual-only run over the first 10 s). One line per\n"
                     "check: ok, warning or error, and what to do. Exit status 1 on an error.",
         epilog=_LAYOUTS, formatter_class=argparse.RawDescriptionHelpFormatter)
     check.add_argument("path", type=Path, help="what 'ferroslam run' takes")
