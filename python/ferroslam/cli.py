@@ -1,5 +1,6 @@
 """Command line: ``ferroslam demo`` (the bundled sample), ``ferroslam run`` (track a sequence),
-``ferroslam eval ate|rpe``, ``ferroslam download`` (public datasets) and ``ferroslam vocab``.
+``ferroslam eval ate|rpe``, ``ferroslam download`` (public datasets), ``ferroslam vocab`` and
+``ferroslam check`` (what would make a run fail, before it).
 
 ``build_parser()`` is separate from ``main()`` so the parser is testable without a process.
 """
@@ -60,6 +61,7 @@ _EPILOG = """\
 examples:
   ferroslam demo                                  RGB-D SLAM on the bundled TUM sample
   ferroslam download tum freiburg1_xyz --to data  fetch a full TUM sequence (~0.5 GB)
+  ferroslam check data/rgbd_dataset_freiburg1_xyz --sensor rgbd
   ferroslam run data/rgbd_dataset_freiburg1_xyz --sensor rgbd
   ferroslam eval ate groundtruth.txt out/rgbd_dataset_freiburg1_xyz/trajectory.txt
 
@@ -112,7 +114,7 @@ def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ferroslam`` argument parser (``demo``, ``run``, ``eval {ate,rpe}``, ``download``,
-    ``vocab {train,export-dbow2}``, ``batch``)."""
+    ``vocab {train,export-dbow2}``, ``batch``, ``check``)."""
     from .demo import DEMO_CONFIGS
     from .download import DATASETS
 
@@ -212,7 +214,30 @@ def build_parser() -> argparse.ArgumentParser:
     dl.add_argument("--silent", action="store_true", help="no progress bar")
     _add_vocab_parser(sub)
     _add_batch_parser(sub)
+    _add_check_parser(sub)
     return parser
+
+
+def _add_check_parser(sub: argparse._SubParsersAction) -> None:
+    """``check``: what would make a run fail, before it (``ferroslam.check``)."""
+    check = sub.add_parser(
+        "check", help="check a sequence and its calibration before running it",
+        description="Check PATH as 'ferroslam run' would read it: image sizes against the\n"
+                    "calibration, the distortion over the whole image, frame times, the depth\n"
+                    "scale, the IMU (rate, gaps, units, gravity, noise) and the camera-IMU\n"
+                    "time offset (from a visual-only run over the first 10 s). One line per\n"
+                    "check: ok, warning or error, and what to do. Exit status 1 on an error.",
+        epilog=_LAYOUTS, formatter_class=argparse.RawDescriptionHelpFormatter)
+    check.add_argument("path", type=Path, help="what 'ferroslam run' takes")
+    check.add_argument("--sensor", choices=SENSORS,
+                       help="the setup to check for (default: all the input holds: depth, "
+                            "stereo pairs, IMU)")
+    check.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
+                       help="dataset layout (default: detect)")
+    check.add_argument("--camera", type=Path, metavar="FILE", help="calibration, as for run")
+    check.add_argument("--fps", type=_positive_rate, help="frame rate of an image folder")
+    check.add_argument("--json", action="store_true",
+                       help="print only JSON: the checks and imu_time_offset_s (seconds)")
 
 
 def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
@@ -327,9 +352,34 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         config["seed"] = args.seed
     seq = _open_input(args)
+    from .check import require_cheap_checks
+
+    require_cheap_checks(seq, args.sensor)
     out = args.out if args.out is not None else Path("out") / seq.name
     return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
                              args.trajectory_format, _rerun_logger(args))
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from .check import CheckReport, check_sequence, opening_error
+    from .datasets import is_sequence_folder
+
+    sensor = args.sensor
+    if sensor is None:  # open a dataset with all it holds, anything else as run does
+        dataset = args.format != "auto" or is_sequence_folder(args.path)
+        args.sensor = "" if dataset else "mono"
+    try:
+        seq = _open_input(args)
+    except (OSError, ValueError) as err:
+        report = CheckReport([opening_error(err)])
+    else:
+        report = check_sequence(seq, sensor)
+    if args.json:
+        print(json.dumps(report.to_json(), indent=2))
+    else:
+        for check in report.checks:
+            print(check.line())
+    return 1 if report.failed else 0
 
 
 def _rerun_logger(args: argparse.Namespace):
@@ -554,7 +604,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         parser.print_help()
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
-                "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch}
+                "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch,
+                "check": _cmd_check}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:
