@@ -36,7 +36,7 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Optional, Union
+from typing import Any, Generator, Optional, Union
 
 import cv2
 import numpy as np
@@ -140,13 +140,13 @@ class _ImageStream:
     def __init__(self, path: Path, topics: tuple[str, ...], frame_of: dict[Key, int]) -> None:
         self._path, self._topics, self._frame_of = path, topics, frame_of
         self._buffer: dict[Key, Any] = {}
-        self._messages: Optional[Iterator[tuple[Key, Any]]] = None
+        self._messages: Optional[Generator[tuple[Key, Any], None, None]] = None
         self._read: dict[str, int] = {}
         self._last: tuple[int, list[Any]] = (-1, [])  # colour and depth are asked apart
         self.peak_buffered = 0
         """The most messages the buffer held at once (the memory bound, for tests)."""
 
-    def _pass(self) -> Iterator[tuple[Key, Any]]:
+    def _pass(self) -> Generator[tuple[Key, Any], None, None]:
         with _any_reader()([self._path]) as reader:
             connections = [c for c in reader.connections if c.topic in self._topics]
             for connection, _, raw in reader.messages(connections=connections):
@@ -386,8 +386,9 @@ class BagSequence:
         self._stream = _ImageStream(_reader_paths(path)[0], images,
                                     {key: i for i, keys in enumerate(self._frames)
                                      for key in keys})
-        self._imu = (_unite_imu(scan.imu[self.topics.gyro], scan.imu[self.topics.accel],
-                                self.topics, self.notes) if self.topics.gyro else None)
+        gyro, accel = self.topics.gyro, self.topics.accel
+        self._imu = (_unite_imu(scan.imu[gyro], scan.imu[accel], self.topics, self.notes)
+                     if gyro is not None and accel is not None else None)
         if self._imu is not None:
             before = int(np.searchsorted(self.timestamps_ns, self._imu[0][0]))
             if before:
@@ -412,7 +413,7 @@ class BagSequence:
         if repeated.size:
             raise ValueError(f"{first}: two images stamped {stamps[first][repeated[0]]:.9f} s")
         chosen = np.arange(len(stamps[first]))
-        partners = []
+        partners: list[np.ndarray] = []
         for topic in images[1:]:
             i, j = associate_greedy(stamps[first][chosen], stamps[topic], tolerance)
             if i.size == 0:
@@ -456,7 +457,8 @@ class BagSequence:
             if calibration.T_left_right is None:
                 raise ValueError(f"{self.path}: the calibration does not relate its two "
                                  "cameras (Kalibr: cam1.T_cn_cnm1; ORB-SLAM3: Stereo.T_c1_c2)")
-            self.rectifier = StereoRectifier(*self.raw_cameras, calibration.T_left_right)
+            self.rectifier = StereoRectifier(calibration.cameras[0], calibration.cameras[1],
+                                             calibration.T_left_right)
             self.camera, self.baseline_m = self.rectifier.camera, self.rectifier.baseline_m
             T_cam0_c = self.rectifier.T_left_rect
         self._T_cam0_c = T_cam0_c
@@ -506,8 +508,9 @@ class BagSequence:
         if hasattr(message, "format"):  # CompressedImage: decoded as image files are
             data = np.asarray(message.data, dtype=np.uint8)
             flags = (cv2.IMREAD_GRAYSCALE, cv2.IMREAD_COLOR)[: 1 + colour]
-            images = tuple(cv2.imdecode(data, f) for f in flags)
-            if any(im is None for im in images):
+            decoded = [cv2.imdecode(data, f) for f in flags]
+            images = tuple(im for im in decoded if im is not None and im.size)
+            if len(images) != len(flags):
                 raise ValueError(f"{topic}: a {message.format!r} image could not be decoded")
             return images
         image = _raw_pixels(message, topic)
