@@ -423,3 +423,17 @@ def test_image_encodings(tmp_path):
                  topics=["/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw"])
     mono = open_bag(path, sensor="mono", camera=camera, topics=["/camera/infra1/image_rect_raw"])
     np.testing.assert_array_equal(mono.load_gray(1), bgr[..., 0])
+
+
+def test_a_lone_mcap_file_opens(tmp_path):
+    """An ``.mcap`` file without its ROS 2 folder (no metadata.yaml) is a bag too."""
+    with BagWriter(tmp_path / "recording", "mcap") as bag:
+        for i in range(3):
+            bag.image("/cam/image_raw", 10**9 * (i + 1), np.full((6, 8), i, np.uint8), "mono8")
+    lone = tmp_path / "lone.mcap"
+    next((tmp_path / "recording").glob("*.mcap")).rename(lone)
+    from ferroslam import Camera
+
+    seq = open_bag(lone, sensor="mono", camera=Camera(5.0, 5.0, 4.0, 3.0, np.zeros(5), 8, 6))
+    assert [int(seq.load_gray(i)[0, 0]) for i in range(len(seq))] == [0, 1, 2]
+    np.testing.assert_array_equal(seq.timestamps, [1.0, 2.0, 3.0])
