@@ -97,12 +97,12 @@ def _any_reader() -> Any:
     return AnyReader
 
 
-def _reader_paths(path: Path) -> list[Path]:
-    """What AnyReader opens: the ``.bag`` file, or the ROS 2 bag folder (a lone ``.mcap`` or
-    ``.db3`` file stands for its folder when ``metadata.yaml`` is beside it)."""
+def _reader_path(path: Path) -> Path:
+    """What AnyReader opens: the ``.bag`` or lone ``.mcap`` file, or the ROS 2 bag folder (an
+    ``.mcap`` or ``.db3`` file stands for its folder when ``metadata.yaml`` is beside it)."""
     if path.suffix.lower() in (".mcap", ".db3") and (path.parent / _ROS2_METADATA).is_file():
-        return [path.parent]
-    return [path]
+        return path.parent
+    return path
 
 
 @dataclass(frozen=True)
@@ -189,28 +189,28 @@ def _stamp_ns(message: Any) -> int:
     return int(stamp.sec) * 10**9 + int(stamp.nanosec)
 
 
-def _scan(path: Path, image_topics: set[str], info_topics: set[str],
+def _scan(reader: Any, image_topics: set[str], info_topics: set[str],
           imu_topics: set[str]) -> _Scan:
+    """One pass of the open ``reader`` over the topics (see :class:`_Scan`)."""
     scan = _Scan({t: [] for t in image_topics}, {}, {}, {t: [] for t in imu_topics})
     wanted = image_topics | info_topics | imu_topics
-    with _any_reader()([path]) as reader:
-        connections = [c for c in reader.connections if c.topic in wanted]
-        for connection, _, raw in reader.messages(connections=connections):
-            topic = connection.topic
-            if topic in info_topics and topic in scan.infos:
-                continue
-            message = reader.deserialize(raw, connection.msgtype)
-            if topic in image_topics:
-                scan.stamps[topic].append(_stamp_ns(message))
-                if connection.msgtype == _IMAGE:
-                    scan.encodings.setdefault(topic, str(message.encoding))
-                else:
-                    scan.encodings.setdefault(topic, str(message.format))
-            elif topic in info_topics:
-                scan.infos[topic] = message
+    connections = [c for c in reader.connections if c.topic in wanted]
+    for connection, _, raw in reader.messages(connections=connections):
+        topic = connection.topic
+        if topic in info_topics and topic in scan.infos:
+            continue
+        message = reader.deserialize(raw, connection.msgtype)
+        if topic in image_topics:
+            scan.stamps[topic].append(_stamp_ns(message))
+            if connection.msgtype == _IMAGE:
+                scan.encodings.setdefault(topic, str(message.encoding))
             else:
-                w, a = message.angular_velocity, message.linear_acceleration
-                scan.imu[topic].append((_stamp_ns(message), (w.x, w.y, w.z), (a.x, a.y, a.z)))
+                scan.encodings.setdefault(topic, str(message.format))
+        elif topic in info_topics:
+            scan.infos[topic] = message
+        else:
+            w, a = message.angular_velocity, message.linear_acceleration
+            scan.imu[topic].append((_stamp_ns(message), (w.x, w.y, w.z), (a.x, a.y, a.z)))
     return scan
 
 
@@ -231,11 +231,12 @@ def _camera_info_topic(image_topic: str, infos: list[str]) -> Optional[str]:
     return next((t for t in infos if t.rsplit("/", 1)[0] == namespace), None)
 
 
-def find_topics(types: dict[str, str], sensor: str, path: Path,
-                topics: Optional[list[str]] = None) -> BagTopics:
+def _find_topics(types: dict[str, str], sensor: str, path: Path,
+                 topics: Optional[list[str]] = None) -> BagTopics:
     """The topics ``sensor`` reads among ``types`` (topic -> message type), found by type and
-    name (see the module doc), or among ``topics`` only, in their order. Raises
-    ``ValueError`` naming the topics for a missing, unknown or ambiguous one."""
+    name (see the module doc), or among ``topics`` only, in their order; IMU topics only for
+    the inertial sensors. Raises ``ValueError`` naming the topics for a missing, unknown or
+    ambiguous one."""
     if topics is not None:
         unknown = [t for t in topics if t not in types]
         if unknown:
@@ -244,7 +245,10 @@ def find_topics(types: dict[str, str], sensor: str, path: Path,
         order = list(topics)
     else:
         order = sorted(types)
-    of_type = lambda kinds: [t for t in order if types[t] in kinds]  # noqa: E731
+
+    def of_type(kinds: tuple[str, ...]) -> list[str]:
+        return [t for t in order if types[t] in kinds]
+
     camera = sensor.removesuffix("-inertial")
     images = [t for t in of_type(_IMAGE_TYPES) if "depth" not in t.lower()]
     depth = None
@@ -254,11 +258,14 @@ def find_topics(types: dict[str, str], sensor: str, path: Path,
     images = _pick(images, 2 if camera == "stereo" else 1, "image", path)
     infos = [t for t in sorted(types) if types[t] == _CAMERA_INFO]
     gyro = accel = None
-    if sensor.endswith("-inertial") or topics is None:
+    if sensor.endswith("-inertial"):
         imus = of_type((_IMU,))
+        if not imus:
+            raise ValueError(f"{path}: sensor {sensor!r} needs an IMU, and the bag has no "
+                             f"{_IMU} topic")
         if len(imus) == 1:
             gyro = accel = imus[0]
-        elif imus:
+        else:
             gyros = [t for t in imus if "gyro" in t.lower()]
             accels = [t for t in imus if "accel" in t.lower()]
             if len(imus) != 2 or len(gyros) != 1 or len(accels) != 1:
@@ -266,9 +273,6 @@ def find_topics(types: dict[str, str], sensor: str, path: Path,
                                  "gyro and an accel topic; name them (topics=[...]; command "
                                  "line: --topics)")
             gyro, accel = gyros[0], accels[0]
-        elif sensor.endswith("-inertial"):
-            raise ValueError(f"{path}: sensor {sensor!r} needs an IMU, and the bag has no "
-                             f"{_IMU} topic")
     return BagTopics(tuple(images), depth, tuple(_camera_info_topic(t, infos) for t in images),
                      gyro, accel)
 
@@ -366,13 +370,12 @@ class BagSequence:
         self.notes: list[str] = []
         camera_kind = sensor.removesuffix("-inertial")
         self.is_stereo = self.is_rectified = camera_kind == "stereo"
-        with _any_reader()(_reader_paths(path)) as reader:
-            types = {c.topic: c.msgtype for c in reader.connections}
-        self.topics = find_topics(types, sensor, path, topics)
-        images = self.topics.images + ((self.topics.depth,) if self.topics.depth else ())
-        imu_topics = {t for t in (self.topics.gyro, self.topics.accel) if t}
-        scan = _scan(_reader_paths(path)[0], set(images),
-                     {t for t in self.topics.camera_info if t}, imu_topics)
+        with _any_reader()([_reader_path(path)]) as reader:
+            self.topics = _find_topics({c.topic: c.msgtype for c in reader.connections},
+                                       sensor, path, topics)
+            images = self.topics.images + ((self.topics.depth,) if self.topics.depth else ())
+            scan = _scan(reader, set(images), {t for t in self.topics.camera_info if t},
+                         {t for t in (self.topics.gyro, self.topics.accel) if t})
         for topic in images:
             if not scan.stamps[topic]:
                 raise ValueError(f"{path}: topic {topic} holds no messages")
@@ -383,7 +386,7 @@ class BagSequence:
         self.timestamps_ns = np.array([scan.stamps[images[0]][k[0][1]] for k in self._frames],
                                       dtype=np.int64)
         self.timestamps = seconds_from_ns(self.timestamps_ns)
-        self._stream = _ImageStream(_reader_paths(path)[0], images,
+        self._stream = _ImageStream(_reader_path(path), images,
                                     {key: i for i, keys in enumerate(self._frames)
                                      for key in keys})
         gyro, accel = self.topics.gyro, self.topics.accel
