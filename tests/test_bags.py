@@ -302,8 +302,9 @@ def test_16uc1_depth_is_millimetres_unless_told(tum, tmp_path):
 # -- the real T265 recording ---------------------------------------------------------------------
 
 
-def t265_camchain(path: Path) -> Path:
-    """The README's fisheye intrinsics and nominal 64 mm rig as a Kalibr camchain."""
+def t265_camchain(path: Path, with_imu: bool = False) -> Path:
+    """The README's fisheye intrinsics and nominal 64 mm rig as a Kalibr camchain; with
+    ``with_imu`` an identity camera-IMU pose, nominal too (none is published)."""
     source = yaml.safe_load((require_data("rosbag", "t265_locoffice") / "calibration.yaml")
                             .read_text())
     chain = {}
@@ -315,6 +316,9 @@ def t265_camchain(path: Path) -> Path:
     T_c1_c0 = np.eye(4)
     T_c1_c0[0, 3] = -source["cam1"]["T_cam0_cam1_translation_m"][0]
     chain["cam1"]["T_cn_cnm1"] = T_c1_c0.tolist()
+    if with_imu:
+        chain["cam0"]["T_cam_imu"] = np.eye(4).tolist()
+        chain["cam1"]["T_cam_imu"] = T_c1_c0.tolist()
     path.write_text(yaml.safe_dump(chain))
     return path
 
@@ -362,6 +366,25 @@ def test_t265_bag_parses_to_fisheye_pairs_and_one_united_imu(tmp_path):
     period = np.median(np.diff(t))
     assert imu_batch_end(t, float(bag.timestamps[0]), period) == 0
     assert imu_batch_end(t, float(bag.timestamps[1]), period) > 0
+
+
+def test_cli_says_what_the_t265_bag_lacks(tmp_path, capsys):
+    """``ferroslam run`` on the real recording, stereo-inertial: its 3 frames run, and the
+    summary says which IMU samples were dropped and which frame got none (the poses mean
+    nothing: the camera-IMU pose is nominal)."""
+    imu = tmp_path / "imu.yaml"
+    imu.write_text("gyroscope_noise_density: 1.0e-3\ngyroscope_random_walk: 1.0e-5\n"
+                   "accelerometer_noise_density: 1.0e-2\naccelerometer_random_walk: 1.0e-4\n"
+                   "update_rate: 200.0\n")
+    bag_file = require_data("rosbag", "t265_locoffice", "trimmed_locoffice.bag")
+    assert cli.main(["run", str(bag_file), "--sensor", "stereo-inertial", "--camera",
+                     str(t265_camchain(tmp_path / "c.yaml", with_imu=True)), "--imu", str(imu), "--out",
+                     str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    assert "sequence        trimmed_locoffice  (stereo-inertial)" in printed
+    assert "/3  keyframes" in printed
+    assert "note: 4 of 19 /camera/gyro/sample samples lie outside" in printed
+    assert "note: 1 frame(s) before the first IMU sample (1553180224.371165 s)" in printed
 
 
 # -- errors --------------------------------------------------------------------------------------

@@ -364,7 +364,9 @@ def run_sequence(
 
     Raises:
         ValueError, TypeError: bad configuration (naming the key) or ``max_frames``; a
-            sequence with no frames.
+            sequence with no frames; for RGB-D, a sequence's ``depth_factor`` that puts the
+            first frame's median depth outside 0.1-20 m (naming the scale that would not,
+            :func:`ferroslam.depth_scale.check_depth_scale`).
     """
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
