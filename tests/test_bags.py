@@ -269,7 +269,12 @@ def tum(tmp_path_factory):
 def test_tum_bags_give_the_folder_trajectory(tum):
     """Calibration from CameraInfo, depth at TUM's scale: the folder run's poses. The stamps
     went through integer nanoseconds, so they agree to the float64 step at 1.3e9 s (2.4e-7 s):
-    TUM's decimal seconds and seconds_from_ns round to neighbouring doubles at times."""
+    TUM's decimal seconds and seconds_from_ns round to neighbouring doubles at times.
+
+    Colour goes in as the JPEG files (CompressedImage), decoded as the folder decodes them.
+    Written as raw rgb8 of the decoded colour instead, the grey image is a conversion, not the
+    JPEG's luma (0.3 % of the pixels differ, by up to 5 levels), and the run is another one
+    (measured over these 60 frames: up to 3.2 cm apart, ATE 3.58 against 2.89 cm)."""
     expected = run_sequence(TumSequence(tum["folder"]), INLINE, max_frames=TUM_FRAMES,
                             progress=False, sensor="rgbd")
     assert expected.tracked_frames == TUM_FRAMES

@@ -174,8 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "camera:N")
     algo = run.add_argument_group("algorithm")
     algo.add_argument("--sensor", choices=SENSORS, required=True,
-                      help="camera setup: mono (any layout), rgbd (TUM), stereo (KITTI, EuRoC); "
-                           "-inertial adds the IMU (EuRoC)")
+                      help="camera setup: mono (any layout), rgbd (TUM, bags), stereo (KITTI, "
+                           "EuRoC, bags); -inertial adds the IMU (EuRoC, bags)")
     algo.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
                       help="dataset layout (default: detect)")
     algo.add_argument("--config", type=Path,
