@@ -334,9 +334,9 @@ def _open_input(args: argparse.Namespace):
         if args.fps is not None:
             raise ValueError(f"--fps is for image folders; {args.path} has its own frame times")
         if bag:
-            seq = open_bag(args.path, sensor=args.sensor, topics=args.topics, camera=args.camera,
-                           imu=args.imu, depth_scale=args.depth_scale)
-            return seq, list(seq.notes)
+            recording = open_bag(args.path, sensor=args.sensor, topics=args.topics,
+                                 camera=args.camera, imu=args.imu, depth_scale=args.depth_scale)
+            return recording, list(recording.notes)
         calibration = load_calibration(args.camera) if args.camera is not None else None
         seq = open_sequence(args.path, args.format, sensor=args.sensor, calibration=calibration,
                             depth_factor=args.depth_scale)
@@ -344,8 +344,9 @@ def _open_input(args: argparse.Namespace):
         if calibration is not None:
             layout = args.format if args.format != "auto" else detect_format(args.path)
             notes.append(f"calibration from {args.camera}, not the {layout} layout's own")
-        if getattr(seq, "depth_factor", None) is not None and args.sensor.startswith("rgbd"):
-            notes.append(f"depth scale {seq.depth_factor:g} pixel values per metre")
+        depth_factor = getattr(seq, "depth_factor", None)
+        if depth_factor is not None and args.sensor.startswith("rgbd"):
+            notes.append(f"depth scale {depth_factor:g} pixel values per metre")
         return seq, notes
     _check_camera_index(str(args.path))
     if args.depth_scale is not None:
