@@ -479,3 +479,15 @@ def test_a_lone_mcap_file_opens(tmp_path):
     seq = open_bag(lone, sensor="mono", camera=Camera(5.0, 5.0, 4.0, 3.0, np.zeros(5), 8, 6))
     assert [int(seq.load_gray(i)[0, 0]) for i in range(len(seq))] == [0, 1, 2]
     np.testing.assert_array_equal(seq.timestamps, [1.0, 2.0, 3.0])
+
+
+def test_cli_bag_options(euroc, tmp_path, capsys):
+    """``--topics`` reaches the bag (an unknown one is named); bag options on a folder are
+    refused."""
+    assert cli.main(["run", str(euroc["bags"]["sqlite3"]), "--sensor", "mono", "--topics",
+                     "/nope", "--camera", str(euroc["camchain"]), "--silent"]) == 1
+    assert "no topic /nope in the bag (topics: /cam0/image_raw, /cam1/image_raw, /imu0)" in \
+        capsys.readouterr().err
+    assert cli.main(["run", str(euroc["folder"]), "--sensor", "stereo", "--topics", "/cam0",
+                     "--silent"]) == 1
+    assert "--topics and --imu are for ROS bags" in capsys.readouterr().err

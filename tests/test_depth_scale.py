@@ -167,3 +167,11 @@ def test_depth_scale_is_refused_where_there_is_no_depth(tmp_path, capsys):
     assert exit_.value.code == 2
     assert "option 'depth_scale' = 0.0: must be > 0" in capsys.readouterr().err
 
+
+
+def test_camera_is_refused_for_kitti(kitti_stereo, tmp_path, capsys):
+    camera = tmp_path / "camera.yaml"
+    camera.write_text(FLAT_FR1)
+    assert cli.main(["run", str(kitti_stereo), "--sensor", "stereo", "--camera", str(camera),
+                     "--silent"]) == 1
+    assert "calib.txt holds the rectified cameras its images are in" in capsys.readouterr().err
