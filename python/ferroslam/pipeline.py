@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from .camera import Camera
 from .datasets import frame_images
+from .depth_scale import check_depth_scale
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .options import validate_options
 from .session import EXTRACTOR_KEYS, IMU_KEYS, Features, Session, load_vocabulary, make_extractor
@@ -194,7 +195,9 @@ class RunError(ValueError):
 
 
 class _RgbdFeed:
-    """Loads the grey and colour image and the depth of a frame."""
+    """Loads the grey and colour image and the depth of a frame. A sequence that says its
+    depth scale (``depth_factor``) has it checked on the first frame, before any tracking:
+    a wrong one would scale the whole map silently."""
 
     def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
@@ -202,6 +205,9 @@ class _RgbdFeed:
                 f"{getattr(seq, 'name', seq)} has no depth images: use sensor 'stereo' or 'mono'"
             )
         self.seq = seq
+        if getattr(seq, "depth_factor", None) is not None and len(seq):
+            check_depth_scale(seq.load_depth(0), seq.depth_factor,
+                              f"{getattr(seq, 'name', seq)} frame 0")
 
     def system_options(self) -> dict:
         return {}
@@ -358,7 +364,9 @@ def run_sequence(
 
     Raises:
         ValueError, TypeError: bad configuration (naming the key) or ``max_frames``; a
-            sequence with no frames.
+            sequence with no frames; for RGB-D, a sequence's ``depth_factor`` that puts the
+            first frame's median depth outside 0.1-20 m (naming the scale that would not,
+            :func:`ferroslam.depth_scale.check_depth_scale`).
     """
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")

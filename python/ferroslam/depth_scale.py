@@ -1,0 +1,60 @@
+"""Whether a depth scale (depth pixel value per metre) makes an RGB-D scene plausible.
+
+A wrong scale does not stop tracking: every map point and the trajectory come out scaled by
+the ratio of the right scale to the given one, and nothing else looks wrong. RGB-D cameras
+measure about 0.1 to 20 m (RealSense D4xx from 0.1 m, Kinect to about 10 m), so a median
+depth outside that span means the scale is wrong, and the raw median says which of the
+common scales is right.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["COMMON_DEPTH_FACTORS", "PLAUSIBLE_MEDIAN_DEPTH_M", "check_depth_scale"]
+
+PLAUSIBLE_MEDIAN_DEPTH_M = (0.1, 20.0)
+"""The median depth, metres, an RGB-D frame of a real scene has."""
+
+COMMON_DEPTH_FACTORS = {
+    1.0: "metres",
+    1000.0: "millimetres: RealSense, Azure Kinect, ROS 16UC1",
+    5000.0: "TUM RGB-D",
+}
+"""The depth scales cameras and datasets use, and whose they are."""
+
+# The middle of the plausible span on a log scale (1.4 m, a room): of the common scales that
+# make a frame plausible, the one nearest it is suggested.
+_TYPICAL_DEPTH_M = math.sqrt(PLAUSIBLE_MEDIAN_DEPTH_M[0] * PLAUSIBLE_MEDIAN_DEPTH_M[1])
+
+
+def check_depth_scale(depth_m: np.ndarray, depth_factor: float, where: str) -> Optional[float]:
+    """The median of the valid (finite, positive) depths of ``depth_m`` (metres at
+    ``depth_factor`` pixel values per metre), ``None`` when there is none to judge.
+
+    Raises ``ValueError`` naming ``where``, the scale, the median and the common scale that
+    would make it plausible, when the median lies outside :data:`PLAUSIBLE_MEDIAN_DEPTH_M`.
+    """
+    depth = np.asarray(depth_m, dtype=np.float64)
+    valid = depth[np.isfinite(depth) & (depth > 0)]
+    if valid.size == 0:
+        return None
+    median = float(np.median(valid))
+    low, high = PLAUSIBLE_MEDIAN_DEPTH_M
+    if low <= median <= high:
+        return median
+    raw = median * depth_factor
+    fitting = [f for f in COMMON_DEPTH_FACTORS if low <= raw / f <= high]
+    if fitting:
+        best = min(fitting, key=lambda f: abs(math.log(raw / f / _TYPICAL_DEPTH_M)))
+        advice = (f"a scale of {best:g} ({COMMON_DEPTH_FACTORS[best]}) gives "
+                  f"{raw / best:.2f} m (command line: --depth-scale {best:g})")
+    else:
+        advice = (f"a scale near {raw / _TYPICAL_DEPTH_M:.3g} would put it at "
+                  f"{_TYPICAL_DEPTH_M:.1f} m")
+    raise ValueError(f"{where}: a depth scale of {depth_factor:g} pixel values per metre puts "
+                     f"the median depth at {median:.3g} m, outside the {low:g}-{high:g} m of "
+                     f"an RGB-D scene; {advice}")
