@@ -265,8 +265,9 @@ def test_depth_scale_names_the_factor_that_makes_it_plausible():
     assert check_depth_scale(depth_mm / 1000.0, 1000.0).verdict == "ok"
     as_metres = check_depth_scale(depth_mm, 1.0)  # millimetres read as metres: 1800 m
     assert as_metres.verdict == "error"
-    assert "with depth factor 1000 it would be 1.80 m: give --depth-scale 1000" in \
-        as_metres.message
+    assert "a scale of 1000 (millimetres: RealSense, Azure Kinect, ROS 16UC1) gives 1.80 m " \
+        "(command line: --depth-scale 1000)" in as_metres.message
+    assert as_metres.values["suggested_depth_factor"] == 1000.0
     assert check_depth_scale(np.zeros((4, 4)), 5000.0).verdict == "error"
 
 

@@ -22,6 +22,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from .depth_scale import assess_depth_scale, describe
 from .time_offset import TimeOffsetEstimate, estimate_imu_time_offset
 
 __all__ = ["Check", "CheckReport", "check_depth_scale", "check_frame_times", "check_imu",
@@ -30,13 +31,6 @@ __all__ = ["Check", "CheckReport", "check_depth_scale", "check_frame_times", "ch
 
 OK, WARNING, ERROR = "ok", "warning", "error"
 
-# Median scene depth a depth camera plausibly sees, metres (issue 54: 0.1-20 m), and the
-# depth a room-sized scene typically has, to choose among the common depth factors.
-_DEPTH_RANGE_M = (0.1, 20.0)
-_TYPICAL_DEPTH_M = 2.0
-# Depth pixel values per metre in common use: metres (float images), millimetres (RealSense,
-# Azure Kinect, ROS 16UC1), TUM's fifth of a millimetre, tenths of a millimetre.
-_COMMON_DEPTH_FACTORS = (1.0, 1000.0, 5000.0, 10000.0)
 _DEPTH_FRAMES = 5  # frames sampled over the sequence for the depth check
 
 # A frame interval this many times the median is a gap (frames dropped).
@@ -243,30 +237,25 @@ def require_cheap_checks(seq: Any, sensor: str) -> None:
 
 def check_depth_scale(depth_m: np.ndarray, depth_factor: Optional[float]) -> Check:
     """The median valid depth (metres, as read with ``depth_factor`` pixel values per metre)
-    against 0.1-20 m; outside it, the common factor that brings it nearest to a room's
-    depth (an error: a map at the wrong scale tracks but is wrong)."""
-    valid = np.asarray(depth_m, dtype=np.float64)
-    valid = valid[np.isfinite(valid) & (valid > 0)]
-    if valid.size == 0:
+    against :data:`~ferroslam.depth_scale.PLAUSIBLE_MEDIAN_DEPTH_M`
+    (:func:`~ferroslam.depth_scale.assess_depth_scale`); outside it, an error naming the common
+    factor that makes it plausible (a map at the wrong scale tracks but is wrong)."""
+    finding = assess_depth_scale(depth_m, 1.0 if depth_factor is None else depth_factor)
+    if finding.median_m is None:
         return Check("depth scale", ERROR, "no valid depth in the frames sampled: check the "
                                            "depth images (all zero?)")
-    median = float(np.median(valid))
-    values = {"median_depth_m": median, "depth_factor": depth_factor}
-    low, high = _DEPTH_RANGE_M
+    values: dict[str, Any] = {"median_depth_m": finding.median_m, "depth_factor": depth_factor}
     factor = "" if depth_factor is None else f" with depth factor {depth_factor:g}"
-    if low <= median <= high:
-        return Check("depth scale", OK, f"median depth {median:.2f} m{factor}", values)
-    todo = "the depth images are not in the unit the calibration says"
-    if depth_factor is not None:
-        raw = median * depth_factor
-        plausible = [f for f in _COMMON_DEPTH_FACTORS if low <= raw / f <= high]
-        if plausible:
-            best = min(plausible, key=lambda f: abs(np.log(raw / f / _TYPICAL_DEPTH_M)))
-            values["suggested_depth_factor"] = best
-            todo = (f"with depth factor {best:g} it would be {raw / best:.2f} m: give "
-                    f"--depth-scale {best:g} (or depth_factor in camera.yaml)")
-    return Check("depth scale", ERROR, f"median depth {median:.3g} m{factor} is outside "
-                                       f"{low:g}-{high:g} m: {todo}", values)
+    if finding.advice is None:
+        return Check("depth scale", OK, f"median depth {finding.median_m:.2f} m{factor}", values)
+    if depth_factor is None:
+        return Check("depth scale", ERROR, f"median depth {finding.median_m:.3g} m: the depth "
+                                           "images are not in the unit the calibration says",
+                     values)
+    if finding.suggested_factor is not None:
+        values["suggested_depth_factor"] = finding.suggested_factor
+    return Check("depth scale", ERROR, f"{describe(finding, depth_factor)}; {finding.advice}",
+                 values)
 
 
 def _depth_samples(seq: Any) -> np.ndarray:
