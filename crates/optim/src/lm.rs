@@ -4,6 +4,8 @@
 //! `[MIN_DIAGONAL, MAX_DIAGONAL]` (Marquardt's scale-invariant damping, clamped as in
 //! Ceres so that directions with no information still get a positive pivot).
 
+use nalgebra::{SMatrix, SVector};
+
 use crate::error::OptimError;
 
 /// Smallest diagonal used for damping.
@@ -102,6 +104,26 @@ impl Damping {
 /// `(H + lambda D) dx = -g`: `-g^T dx + lambda dx^T D dx` (cost `F = sum rho(chi2)`).
 pub(crate) fn predicted_decrease(g_dot_dx: f64, lambda: f64, dx_d_dx: f64) -> f64 {
     -g_dot_dx + lambda * dx_d_dx
+}
+
+/// The damped step of a small dense system: `dx` solving `(H + lambda diag(d)) dx = -g`, and
+/// the model's [`predicted_decrease`] for it.
+///
+/// # Errors
+/// [`OptimError::NotPositiveDefinite`] when the damped matrix has no Cholesky factor.
+pub(crate) fn dense_damped_step<const N: usize>(
+    h: &SMatrix<f64, N, N>,
+    g: &SVector<f64, N>,
+    d: &SVector<f64, N>,
+    lambda: f64,
+) -> Result<(SVector<f64, N>, f64), OptimError> {
+    let hd = h + SMatrix::<f64, N, N>::from_diagonal(&(lambda * d));
+    let dx = hd
+        .cholesky()
+        .ok_or(OptimError::NotPositiveDefinite { column: 0 })?
+        .solve(&(-g));
+    let predicted = predicted_decrease(g.dot(&dx), lambda, dx.component_mul(d).dot(&dx));
+    Ok((dx, predicted))
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::lm::{damping_diagonal, predicted_decrease, Damping};
+use crate::lm::{damping_diagonal, dense_damped_step, Damping};
 use crate::residual;
 use crate::robust::{chi2_threshold, cost_and_weight};
 use ferroslam_geometry::se3;
@@ -194,19 +194,12 @@ fn refine(
             if damping.exhausted() {
                 break None;
             }
-            let lambda = damping.lambda();
-            let mut hd = h;
-            for j in 0..6 {
-                hd[(j, j)] += lambda * d[j];
-            }
-            let Some(chol) = hd.cholesky() else {
+            let Ok((dx, predicted)) = dense_damped_step(&h, &g, &d, damping.lambda()) else {
                 damping.reject();
                 continue;
             };
-            let dx = chol.solve(&(-g));
             let candidate = se3::retract(&dx, &pose);
             let at = evaluate(k, &candidate, obs, active, robust);
-            let predicted = predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
             let actual = current.cost - at.cost;
             if actual > 0.0 && predicted > 0.0 {
                 damping.accept(actual / predicted);

@@ -46,7 +46,7 @@ use std::ops::Range;
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::lm::{damping_diagonal, predicted_decrease, Damping};
+use crate::lm::{damping_diagonal, dense_damped_step, Damping};
 use crate::pose::{self, PoseObservation, ITERATIONS_PER_ROUND, ROBUST_ROUNDS, ROUNDS};
 use crate::robust::{CHI2_MONO, CHI2_STEREO};
 use ferroslam_geometry::se3;
@@ -346,16 +346,7 @@ impl Problem<'_> {
             let d = h.diagonal().map(damping_diagonal);
             let mut candidate = (x, None);
             let accepted = damping.find_step(
-                |lambda| {
-                    let hd = h + Matrix15::from_diagonal(&(lambda * d));
-                    let dx = hd
-                        .cholesky()
-                        .ok_or(OptimError::NotPositiveDefinite { column: 0 })?
-                        .solve(&(-g));
-                    let predicted =
-                        predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
-                    Ok((dx, predicted))
-                },
+                |lambda| dense_damped_step(&h, &g, &d, lambda),
                 |(dx, predicted)| {
                     let moved = x.retract(dx);
                     let (new_cost, at) = self.evaluate(&moved, active, robust);

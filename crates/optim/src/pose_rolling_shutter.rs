@@ -13,7 +13,7 @@
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::lm::{damping_diagonal, predicted_decrease, Damping};
+use crate::lm::{damping_diagonal, dense_damped_step, Damping};
 use crate::pose::{self, PoseObservation, ITERATIONS_PER_ROUND, ROBUST_ROUNDS, ROUNDS};
 use crate::residual;
 use crate::robust::{chi2_threshold, cost_and_weight};
@@ -236,16 +236,7 @@ impl Problem<'_> {
             let d = h.diagonal().map(damping_diagonal);
             let mut tried = None;
             let accepted = damping.find_step(
-                |lambda| {
-                    let hd = h + Matrix12::from_diagonal(&(lambda * d));
-                    let dx = hd
-                        .cholesky()
-                        .ok_or(OptimError::NotPositiveDefinite { column: 0 })?
-                        .solve(&(-g));
-                    let predicted =
-                        predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
-                    Ok((dx, predicted))
-                },
+                |lambda| dense_damped_step(&h, &g, &d, lambda),
                 |(dx, predicted)| {
                     let moved = (
                         se3::retract(&dx.fixed_rows::<6>(0).into_owned(), &state.0),

@@ -9,12 +9,12 @@
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::lm::{damping_diagonal, predicted_decrease, Damping};
+use crate::lm::{damping_diagonal, dense_damped_step, Damping};
 use crate::residual::{self, validate_measurement};
 use crate::robust::Huber;
 use ferroslam_geometry::sim3::{Sim3, Vector7, SCALE};
 use ferroslam_geometry::so3;
-use nalgebra::{Matrix2x3, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use nalgebra::{Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
 
 /// ORB-SLAM's `th2` for monocular loop closing (`OptimizeSim3(..., th2 = 10, ...)`).
 pub const SIM3_TH2_MONO: f64 = 10.0;
@@ -322,19 +322,7 @@ impl Problem<'_> {
             let d = h.diagonal().map(damping_diagonal);
             let mut candidate = s_12;
             let accepted = damping.find_step(
-                |lambda| {
-                    let mut hd = h;
-                    for j in 0..7 {
-                        hd[(j, j)] += lambda * d[j];
-                    }
-                    let chol = hd
-                        .cholesky()
-                        .ok_or(OptimError::NotPositiveDefinite { column: 0 })?;
-                    let dx: SVector<f64, 7> = chol.solve(&(-g));
-                    let predicted =
-                        predicted_decrease(g.dot(&dx), lambda, dx.component_mul(&d).dot(&dx));
-                    Ok((dx, predicted))
-                },
+                |lambda| dense_damped_step(&h, &g, &d, lambda),
                 |(dx, predicted)| {
                     candidate = Sim3::exp(dx) * s_12;
                     let new_cost = self.cost(&candidate, active);
