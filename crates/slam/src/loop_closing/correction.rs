@@ -115,9 +115,12 @@ pub(super) fn correct_loop(
         loop_links.push((k, new));
     }
 
+    // Only points still alive under their own id were moved by the correction. A point
+    // fused into another must not lend its keyframe to the survivor: several may resolve
+    // to one survivor, and which of them a hash map kept depended on its random order.
     let corrected_points: HashMap<MapPointId, KeyFrameId> = corrected_by
         .into_iter()
-        .filter_map(|(m, k)| map.resolve_map_point(m).map(|m| (m, k)))
+        .filter(|(m, _)| map.map_point(*m).is_some())
         .collect();
     let costs = optimize_essential_graph(
         map,
