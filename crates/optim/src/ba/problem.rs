@@ -2,7 +2,8 @@
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::residual;
+use crate::residual::{self, Linearization};
+use ferroslam_geometry::se3;
 use crate::robust::chi2_threshold;
 use nalgebra::{Isometry3, Vector2, Vector3};
 use rayon::prelude::*;
@@ -20,12 +21,48 @@ pub struct Observation {
     pub u_right: Option<f64>,
     /// Information weight `1 / sigma^2` (1/pixels^2).
     pub inv_sigma2: f64,
+    /// Rolling shutter: the fixed motion `D` of the camera from its pose's reference line
+    /// to this observation's row (`ferroslam_geometry::rolling_shutter::motion_over`), so
+    /// that the point is seen from `D * T_c_w`; `None` for a global shutter (or the
+    /// reference line), which keeps the arithmetic of `T_c_w` itself.
+    pub readout_motion: Option<Isometry3<f64>>,
 }
 
+#[allow(non_snake_case)]
 impl Observation {
     /// True for a stereo / RGB-D observation (3 residual rows).
     pub fn is_stereo(&self) -> bool {
         self.u_right.is_some()
+    }
+
+    /// The pose the observation was made from, `D * T_c_w` (see [`Self::readout_motion`]).
+    fn seen_from(&self, T_c_w: &Isometry3<f64>) -> Isometry3<f64> {
+        self.readout_motion.map_or(*T_c_w, |D| D * T_c_w)
+    }
+
+    /// `inv_sigma2 * |e|^2` of the point `p_w` seen from the pose `T_c_w` (see
+    /// [`residual::chi2`]).
+    pub fn chi2(&self, k: &Intrinsics, T_c_w: &Isometry3<f64>, p_w: &Vector3<f64>) -> Option<f64> {
+        let T = self.seen_from(T_c_w);
+        residual::chi2(k, &T, p_w, &self.uv, self.u_right, self.inv_sigma2)
+    }
+
+    /// [`residual::linearize`] of the point `p_w` seen from the pose `T_c_w`, with
+    /// `d_e_d_xi` for the left perturbation of `T_c_w`: `D * exp(xi) * T_c_w` is
+    /// `exp(Ad(D) xi) * D * T_c_w`, so the Jacobian of the row's pose is carried through
+    /// the adjoint.
+    pub fn linearize(
+        &self,
+        k: &Intrinsics,
+        T_c_w: &Isometry3<f64>,
+        p_w: &Vector3<f64>,
+    ) -> Option<Linearization> {
+        let T = self.seen_from(T_c_w);
+        let mut l = residual::linearize(k, &T, p_w, &self.uv, self.u_right)?;
+        if let Some(D) = &self.readout_motion {
+            l.d_e_d_xi *= se3::adjoint(D);
+        }
+        Some(l)
     }
 }
 
@@ -99,14 +136,7 @@ impl BaProblem {
     /// not in front of the camera (or non-finite). Panics if `i` is out of range.
     pub fn chi2(&self, i: usize) -> Option<f64> {
         let o = &self.observations[i];
-        residual::chi2(
-            &self.intrinsics,
-            &self.poses[o.pose],
-            &self.points[o.point],
-            &o.uv,
-            o.u_right,
-            o.inv_sigma2,
-        )
+        o.chi2(&self.intrinsics, &self.poses[o.pose], &self.points[o.point])
     }
 
     /// ORB-SLAM's classification of every observation at the current estimate: outlier iff
