@@ -5,8 +5,8 @@ use ferroslam_features::{
     ProjectionQuery, ScalePyramid, StereoView,
 };
 use ferroslam_geometry::camera::CameraModel;
-use ferroslam_map::{FrameFeatures, MapPointId, Rgb};
 use ferroslam_geometry::rolling_shutter::motion_over;
+use ferroslam_map::{FrameFeatures, MapPointId, Rgb};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 
 use crate::context::{Context, InputShape};

@@ -19,8 +19,8 @@ use ferroslam_optim::{local_bundle_adjust, BaProblem, Observation};
 use nalgebra::Vector2;
 
 use crate::context::Context;
-use crate::frame::readout_motion;
 use crate::error::SlamError;
+use crate::frame::readout_motion;
 
 /// Bundle adjustment of the keyframes `local` (the map's origin stays fixed) and every point
 /// they see, with the other keyframes observing those points held fixed; ORB-SLAM's robust

@@ -233,13 +233,18 @@ mod tests {
             let bottom = rs.time_offset_s(&Vector2::new(5.0, f64::from(height - 1)));
             assert_relative_eq!(bottom - top, 0.02, epsilon = 1e-15);
             assert_relative_eq!(top, -0.01, epsilon = 1e-15);
-            let global = model.with_readout(0.0, ReadoutDirection::TopToBottom).unwrap();
+            let global = model
+                .with_readout(0.0, ReadoutDirection::TopToBottom)
+                .unwrap();
             assert_eq!(global, model);
             assert_eq!(global.time_offset_s(&Vector2::new(5.0, 0.0)), 0.0);
             for bad in [-1e-3, f64::NAN, f64::INFINITY] {
                 assert!(matches!(
                     model.with_readout(bad, ReadoutDirection::TopToBottom),
-                    Err(GeometryError::InvalidParameter { name: "readout_s", .. })
+                    Err(GeometryError::InvalidParameter {
+                        name: "readout_s",
+                        ..
+                    })
                 ));
             }
         }

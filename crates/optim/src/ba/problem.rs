@@ -3,8 +3,8 @@
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
 use crate::residual::{self, Linearization};
-use ferroslam_geometry::se3;
 use crate::robust::chi2_threshold;
+use ferroslam_geometry::se3;
 use nalgebra::{Isometry3, Vector2, Vector3};
 use rayon::prelude::*;
 
@@ -203,7 +203,14 @@ mod tests {
             DVector::from_column_slice(e.as_slice())
         };
         let analytic = DMatrix::from_column_slice(3, 6, l.d_e_d_xi.as_slice());
-        check_jacobian("d_e_d_xi", &analytic, e_of_pose, &DVector::zeros(6), 1e-6, 1e-4);
+        check_jacobian(
+            "d_e_d_xi",
+            &analytic,
+            e_of_pose,
+            &DVector::zeros(6),
+            1e-6,
+            1e-4,
+        );
         let e_of_point = |x: &DVector<f64>| {
             let p = Vector3::from_column_slice(x.as_slice());
             let e = residual::residual(&k, &(D * T), &p, &o.uv, o.u_right).unwrap();

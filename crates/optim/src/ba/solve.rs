@@ -262,9 +262,9 @@ pub(crate) fn visual_cost(
                 .filter(|(_, &a)| a)
                 .map(|(o, _)| {
                     o.chi2(k, &poses[o.pose], &points[o.point])
-                    .map_or(f64::INFINITY, |c| {
-                        cost_and_weight(c, o.is_stereo(), robust).0
-                    })
+                        .map_or(f64::INFINITY, |c| {
+                            cost_and_weight(c, o.is_stereo(), robust).0
+                        })
                 })
                 .sum::<f64>()
         })

@@ -288,7 +288,8 @@ impl Context<'_> {
                 for &i in obs.iter().filter(|&&i| self.active[i]) {
                     let o = &visual.observations[i];
                     // None is unreachable at an accepted estimate (its cost is finite).
-                    let Some(l) = o.linearize(&visual.intrinsics, &est.poses[o.pose], &est.points[*p])
+                    let Some(l) =
+                        o.linearize(&visual.intrinsics, &est.poses[o.pose], &est.points[*p])
                     else {
                         continue;
                     };

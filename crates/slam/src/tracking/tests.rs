@@ -198,12 +198,17 @@ fn panning_frame(
     readout_camera: &CameraModel,
 ) -> (Map, Frame, Isometry3<f64>, Vector6<f64>) {
     use ferroslam_geometry::rolling_shutter::motion_over;
-    let T_c_w = Isometry3::new(Vector3::new(0.05, -0.02, 0.1), Vector3::new(0.02, 0.1, -0.03));
+    let T_c_w = Isometry3::new(
+        Vector3::new(0.05, -0.02, 0.1),
+        Vector3::new(0.02, 0.1, -0.03),
+    );
     let xi_dot = Vector6::new(0.1, 0.0, -0.05, 0.2, 1.5, -0.3);
     let mut rng_state = 12345u64;
     let mut uniform = || {
         // A fixed LCG: the scene is the same every run.
-        rng_state = rng_state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        rng_state = rng_state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (rng_state >> 11) as f64 / (1u64 << 53) as f64
     };
     let (mut keypoints, mut points_w) = (Vec::new(), Vec::new());
@@ -216,7 +221,8 @@ fn panning_frame(
         let mut uv = uv0;
         for _ in 0..10 {
             let dt = readout_camera.time_offset_s(&uv);
-            let Some(next) = readout_camera.project(&(motion_over(&xi_dot, dt) * T_c_w * p_w).coords)
+            let Some(next) =
+                readout_camera.project(&(motion_over(&xi_dot, dt) * T_c_w * p_w).coords)
             else {
                 break;
             };
@@ -250,8 +256,10 @@ fn panning_frame(
         map.add_observation(m, kf, i).unwrap();
         frame.map_points[i] = Some(m);
     }
-    frame.T_c_w = Isometry3::new(Vector3::new(0.01, 0.01, -0.01), Vector3::new(0.005, -0.01, 0.0))
-        * T_c_w;
+    frame.T_c_w = Isometry3::new(
+        Vector3::new(0.01, 0.01, -0.01),
+        Vector3::new(0.005, -0.01, 0.0),
+    ) * T_c_w;
     (map, frame, T_c_w, xi_dot)
 }
 
@@ -285,8 +293,14 @@ fn rolling_shutter_tracking_recovers_the_pose_a_global_shutter_model_misses() {
     // Noise-free rows: the rolling-shutter model is exact up to its prior's pull, the
     // global-shutter one carries the skew of 45 mrad over the image.
     assert!(rs_t < 1e-3 && rs_r < 1e-3, "{rs_t} m, {rs_r} rad");
-    assert!(gs_t > 10.0 * rs_t && gs_r > 10.0 * rs_r, "{gs_t} vs {rs_t}, {gs_r} vs {rs_r}");
+    assert!(
+        gs_t > 10.0 * rs_t && gs_r > 10.0 * rs_r,
+        "{gs_t} vs {rs_t}, {gs_r} vs {rs_r}"
+    );
     assert_eq!(rs_inliers, frame.len());
-    assert!((rs_xi - xi_dot).fixed_rows::<3>(3).norm() < 0.1, "{rs_xi} vs {xi_dot}");
+    assert!(
+        (rs_xi - xi_dot).fixed_rows::<3>(3).norm() < 0.1,
+        "{rs_xi} vs {xi_dot}"
+    );
     assert_eq!(gs_xi, Vector6::zeros());
 }
