@@ -36,7 +36,7 @@ class FakeSlamSystem:
                           "scale_factor": 1.2, "n_levels": 8}
 
     def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
-                 model="pinhole", **config):
+                 model="pinhole", rolling_shutter_readout_s=0.0, **config):
         unknown = set(config) - self.KNOWN
         if unknown:
             raise ValueError(f"unknown option(s) {sorted(unknown)}")

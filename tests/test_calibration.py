@@ -443,3 +443,58 @@ def test_bad_files(tmp_path):
         load_calibration(_write(tmp_path, text))
     text = ROS_CAMERA_INFO.replace("rows: 3\n  cols: 3\n  data: [517.3", "data: [517.3", 1)
     assert load_calibration(_write(tmp_path, text)).cameras[0].fx == 517.3  # flat 9 values
+
+
+# --- rolling-shutter readout: one key per format, absent = 0 (global shutter) ----------------
+
+def _flat_fr1(prefix: str) -> str:
+    return "".join(f"{prefix}{k}: {v}\n" for k, v in zip(
+        ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"), (*TUM_FR1, *TUM_FR1_DIST)))
+
+
+@pytest.mark.parametrize("text, readout_s", [
+    (_flat_fr1("") + "rolling_shutter_readout_s: 0.02\n", 0.02),
+    ("%YAML:1.0\n" + _flat_fr1("Camera.") + "Camera.rollingShutterReadout: 0.025\n", 0.025),
+    (_flat_fr1("Camera1.") + "Camera1.rollingShutterReadout: 1.5e-2\n", 0.015),
+    (_flat_fr1(""), 0.0),
+    ("%YAML:1.0\n" + _flat_fr1("Camera."), 0.0),
+], ids=["flat", "orbslam-legacy", "camera1-prefix", "flat-absent", "orbslam-absent"])
+def test_flat_and_orbslam_readout_keys(tmp_path, text, readout_s):
+    camera = read_camera_yaml(_write(tmp_path, text, "camera.yaml"))
+    _assert_camera(camera, TUM_FR1, TUM_FR1_DIST, (640, 480))
+    assert camera.rolling_shutter_readout_s == readout_s
+
+
+def test_orbslam3_readout_per_camera(tmp_path):
+    text = ORBSLAM3_STEREO_INERTIAL.replace(
+        "Camera.width: 752", "Camera1.rollingShutterReadout: 0.02\nCamera.width: 752")
+    calib = load_calibration(_write(tmp_path, text))
+    assert [c.rolling_shutter_readout_s for c in calib.cameras] == [0.02, 0.0]
+
+
+def test_kalibr_line_delay_is_a_readout_over_the_image_height(tmp_path):
+    text = KALIBR_CAMCHAIN.replace("  rostopic: /cam0/image_raw",
+                                   "  line_delay: 5.0e-05\n  rostopic: /cam0/image_raw", 1)
+    calib = load_calibration(_write(tmp_path, text, "camchain.yaml"))
+    assert calib.cameras[0].rolling_shutter_readout_s == pytest.approx(5e-5 * 480)
+    assert calib.cameras[1].rolling_shutter_readout_s == 0.0
+
+
+@pytest.mark.parametrize("key, text", [
+    ("rolling_shutter_readout_s", _flat_fr1("") + "rolling_shutter_readout_s: -0.01\n"),
+    ("rolling_shutter_readout_s", _flat_fr1("") + "rolling_shutter_readout_s: fast\n"),
+    ("Camera.rollingShutterReadout",
+     "%YAML:1.0\n" + _flat_fr1("Camera.") + "Camera.rollingShutterReadout: .nan\n"),
+])
+def test_bad_readouts_name_the_file_and_key(tmp_path, key, text):
+    path = _write(tmp_path, text, "camera.yaml")
+    with pytest.raises(ValueError, match=key) as info:
+        read_camera_yaml(path)
+    assert str(path) in str(info.value)
+
+
+def test_kalibr_bad_line_delay_is_named(tmp_path):
+    text = KALIBR_CAMCHAIN.replace("  rostopic: /cam0/image_raw",
+                                   "  line_delay: -1.0e-05\n  rostopic: /cam0/image_raw", 1)
+    with pytest.raises(ValueError, match="cam0.line_delay"):
+        load_calibration(_write(tmp_path, text, "camchain.yaml"))

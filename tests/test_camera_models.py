@@ -165,3 +165,38 @@ def test_implausible_cameras_are_refused_at_construction(kwargs, message):
         base["dist"] = [0.0] * 4
     with pytest.raises(ValueError, match=message):
         Camera(**{**base, **kwargs})
+
+
+def test_rolling_shutter_readout_is_a_camera_attribute():
+    base = dict(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    assert Camera(**base).rolling_shutter_readout_s == 0.0  # a global shutter by default
+    camera = Camera(**base, rolling_shutter_readout_s=np.float32(0.025))
+    assert camera.rolling_shutter_readout_s == pytest.approx(0.025)
+    assert type(camera.rolling_shutter_readout_s) is float
+    fisheye = Camera.kannala_brandt(300, 300, 320, 240, [0.0] * 4, 640, 480,
+                                    rolling_shutter_readout_s=0.02)
+    assert fisheye.rolling_shutter_readout_s == 0.02
+    # The readout changes no projection: it is a time, not a lens.
+    points = np.array([[0.1, -0.2, 2.0]])
+    np.testing.assert_array_equal(camera.project(points), Camera(**base).project(points))
+
+
+@pytest.mark.parametrize("value, error, message", [
+    (-0.001, ValueError, r"rolling_shutter_readout_s must be >= 0 seconds .*-0.001"),
+    (float("nan"), ValueError, r"rolling_shutter_readout_s must be finite"),
+    (float("inf"), ValueError, r"rolling_shutter_readout_s must be finite"),
+    ("20ms", TypeError, r"rolling_shutter_readout_s must be a real number of seconds"),
+    (True, TypeError, r"rolling_shutter_readout_s must be a real number of seconds"),
+])
+def test_bad_readouts_are_refused_naming_the_attribute(value, error, message):
+    with pytest.raises(error, match=message):
+        Camera(500.0, 500.0, 320.0, 240.0, rolling_shutter_readout_s=value)
+
+
+def test_the_core_refuses_a_bad_readout_too():
+    from ferroslam._core import SlamSystem
+
+    with pytest.raises(ValueError, match=r"rolling_shutter_readout_s.*readout_s"):
+        SlamSystem(500.0, 500.0, 320.0, 240.0, [0.0] * 5, 640, 480,
+                   rolling_shutter_readout_s=-0.01)
+    SlamSystem(500.0, 500.0, 320.0, 240.0, [0.0] * 5, 640, 480, rolling_shutter_readout_s=0.02)

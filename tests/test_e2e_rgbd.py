@@ -61,6 +61,25 @@ def test_keyframe_and_frame_ate(rpy_run):
     assert rpe.rot_deg_rmse < RPE_ROT_BOUND_DEG
 
 
+# The freiburg1 camera's rolling shutter (FR1_READOUT_S, the TumSequence default) modelled:
+# measured 1.13 cm ATE and 0.56 cm RPE per frame at 15 ms (2.14 / 0.84 cm as a global
+# shutter; sweep in docs/benchmarks.md). The bounds are the issue's targets, 40 % and 25 %
+# above the measured figures: room for the run-to-run spread of inline TUM RGB-D runs
+# (docs/benchmarks.md, "Reproducible runs"), none for the global-shutter figures.
+ROLLING_SHUTTER_ATE_BOUND_M = 0.016
+ROLLING_SHUTTER_RPE_BOUND_M = 0.007
+
+
+def test_the_fr1_rolling_shutter_model_reaches_the_targets(rpy_run):
+    seq, result = rpy_run
+    assert seq.camera.rolling_shutter_readout_s > 0
+    gt = Trajectory(*seq.groundtruth())
+    frames = metrics.ate(gt, result.trajectory, align="se3")
+    rpe = metrics.rpe(gt, result.trajectory, delta=1, align="none")
+    assert frames.rmse < ROLLING_SHUTTER_ATE_BOUND_M, f"frame ATE {frames.rmse:.4f} m"
+    assert rpe.trans_rmse < ROLLING_SHUTTER_RPE_BOUND_M, f"RPE {rpe.trans_rmse:.4f} m"
+
+
 def test_keyframe_frames_hold_their_keyframes_final_pose(rpy_run):
     """A keyframe's frame is anchored to that keyframe before local BA and loop closing move
     it, so the frame trajectory ends with the keyframe's corrected pose. Anchored after

@@ -16,6 +16,7 @@ from ferroslam.datasets import (
     open_sequence,
     replay_order,
 )
+from ferroslam.datasets.tum import FR1_READOUT_S
 
 
 def _associate_py(first, second, max_difference):
@@ -107,6 +108,10 @@ def test_camera_from_yaml_and_argument(tum_desk, tmp_path):
         renamed = tmp_path / name
         shutil.copytree(tum_desk, renamed)
         assert TumSequence(renamed).camera == TUM_CAMERAS[number]
+        # No frames of the freiburg2/3 Kinects to measure a readout on: global shutters.
+        assert TUM_CAMERAS[number].rolling_shutter_readout_s == 0.0
+    assert cam.rolling_shutter_readout_s == 0.0  # a camera.yaml without the key
+    assert TUM_CAMERAS[1].rolling_shutter_readout_s == FR1_READOUT_S > 0
 
 
 def test_missing_folder_and_files(tum_desk, tmp_path):

@@ -149,6 +149,7 @@ class SlamSystem:
         *,
         sensor: _Sensor = "rgbd",
         model: _CameraModel = "pinhole",
+        rolling_shutter_readout_s: float = 0.0,
         threaded: bool = False,
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
@@ -164,6 +165,10 @@ class SlamSystem:
             model: ``"pinhole"`` or ``"kannala_brandt"`` (a fisheye, tracked on unit rays so
                 that fields of view beyond 180 degrees work; not with ``sensor="stereo"``,
                 which needs rectified pinhole images: see ``StereoVSlam.from_raw``).
+            rolling_shutter_readout_s: seconds the sensor reads its rows over, top first
+                (>= 0, finite; 0 = global shutter, today's arithmetic): each keypoint is seen
+                from the pose at its row's time, the frame's velocity estimated with its pose
+                (``ferroslam.Camera.rolling_shutter_readout_s``).
             threaded: process frames in a background thread fed through a bounded queue
                 (8 frames; ``track_*`` block when it is full): ``track_*`` check the input,
                 queue the frame and return None; ``take_results`` gives the results in order.
@@ -490,6 +495,7 @@ class _CameraLike(Protocol):
     dist: NDArray[np.float64]
     width: int
     height: int
+    rolling_shutter_readout_s: float
 
 def project_points(camera: _CameraLike, points: NDArray[np.float64]) -> NDArray[np.float64]:
     """``(N, 2)`` float64 RAW image pixels (lens distortion applied) of ``(N, 3)`` float64

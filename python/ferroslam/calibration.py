@@ -16,6 +16,12 @@ a renamed file still loads:
   ``camera_info`` YAML (the same keys, matrices as ``{rows, cols, data}``; ``plumb_bob`` or
   ``equidistant`` distortion).
 
+Rolling shutter: a camera's readout (seconds from its first row to its last, rows top first;
+``Camera.rolling_shutter_readout_s``, 0 = global shutter when absent) is read from Kalibr's
+``line_delay`` (seconds per row, times the image height), a flat file's
+``rolling_shutter_readout_s`` and ORB-SLAM-style settings' ``Camera.rollingShutterReadout`` /
+``Camera1.rollingShutterReadout`` (seconds; our key, as ORB-SLAM models no rolling shutter).
+
 Kannala-Brandt (fisheye) cameras come out as ``Camera(model="kannala_brandt")`` with the four
 coefficients of OpenCV's ``cv2.fisheye``, which all these formats share.
 
@@ -115,6 +121,14 @@ _KALIBR_IMU_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk",
                     "accelerometer_noise_density", "accelerometer_random_walk")
 # Key prefixes of a camera's fields in legacy ORB-SLAM settings and flat camera files.
 _FLAT_PREFIXES = ("Camera.", "Camera1.", "")
+# The rolling-shutter readout (seconds, first row to last; absent = 0, a global shutter), one
+# key per format: a flat camera.yaml's, ORB-SLAM-style settings' (after the camera's prefix:
+# ``Camera.``, ``Camera1.``; our key, ORB-SLAM has none), and Kalibr's per-row delay (seconds
+# per row, times the image height).
+_FLAT_READOUT_KEY = "rolling_shutter_readout_s"
+_ORBSLAM_READOUT_KEY = "rollingShutterReadout"
+_KALIBR_LINE_DELAY_KEY = "line_delay"
+
 _MISSING = object()
 
 
@@ -336,12 +350,12 @@ class _Fields:
 
     def camera(self, where: str, fx: float, fy: float, cx: float, cy: float,
                dist: np.typing.ArrayLike, width: int, height: int,
-               model: str = "pinhole") -> Camera:
-        """A :class:`Camera` of ``model``, its validation errors naming the file and
-        ``where``."""
+               model: str = "pinhole", readout_s: float = 0.0) -> Camera:
+        """A :class:`Camera` of ``model`` (``readout_s``: its rolling-shutter readout),
+        its validation errors naming the file and ``where``."""
         try:
             return Camera(fx, fy, cx, cy, np.array(dist, dtype=np.float64), width, height,
-                          model)
+                          model, rolling_shutter_readout_s=readout_s)
         except (TypeError, ValueError) as error:
             raise ValueError(f"{self.path}: {self.prefix}{where}: {error}") from None
 
@@ -371,10 +385,15 @@ def _reader_for(fields: _Fields) -> Callable[[_Fields], Calibration]:
 def _prefixed_camera(fields: _Fields, prefix: str, width: int, height: int,
                      model: str) -> Camera:
     """An ORB-SLAM-style camera of ``model``: ``<prefix>fx`` ... and the model's
-    coefficients (``<prefix>k1 k2 p1 p2 k3`` or ``<prefix>k1 k2 k3 k4``), absent ones 0."""
+    coefficients (``<prefix>k1 k2 p1 p2 k3`` or ``<prefix>k1 k2 k3 k4``), absent ones 0, and
+    the readout ``<prefix>rollingShutterReadout`` (``rolling_shutter_readout_s`` in a flat
+    file), seconds, absent 0."""
     fx, fy, cx, cy = (fields.number(prefix + key) for key in ("fx", "fy", "cx", "cy"))
     dist = [fields.number(prefix + key, 0.0) for key in _DIST_KEYS[model]]
-    return fields.camera(prefix + "fx", fx, fy, cx, cy, dist, width, height, model)
+    readout_key = prefix + _ORBSLAM_READOUT_KEY if prefix else _FLAT_READOUT_KEY
+    readout_s = fields.number(readout_key, 0.0)
+    where = readout_key if readout_key in fields else prefix + "fx"
+    return fields.camera(where, fx, fy, cx, cy, dist, width, height, model, readout_s)
 
 
 def _orbslam_model(fields: _Fields) -> str:
@@ -436,7 +455,8 @@ def _read_kalibr_camchain(fields: _Fields) -> Calibration:
 
 def _kalibr_camera(cam: _Fields) -> Camera:
     """``pinhole`` with ``radtan`` (k1 k2 r1 r2), ``none`` or ``equidistant`` (Kalibr's
-    ``pinhole-equi``: the Kannala-Brandt k1..k4) distortion."""
+    ``pinhole-equi``: the Kannala-Brandt k1..k4) distortion; ``line_delay`` (seconds per
+    row, absent 0) makes the readout ``line_delay * height``."""
     cam.model("camera_model", _MISSING, ("pinhole",))
     distortion = cam.model("distortion_model", _MISSING, tuple(_KALIBR_DISTORTIONS))
     fu, fv, pu, pv = cam.array("intrinsics", (4,))
@@ -446,7 +466,11 @@ def _kalibr_camera(cam: _Fields) -> Camera:
         raise cam.error("resolution", f"must be whole pixels, got {[width, height]}")
     model = _KALIBR_DISTORTIONS[distortion]
     dist = coeffs + [0.0] if model == "pinhole" else coeffs
-    return cam.camera("intrinsics", fu, fv, pu, pv, dist, int(width), int(height), model)
+    # Kalibr's rolling-shutter calibration gives the delay between rows, seconds.
+    line_delay_s = cam.number(_KALIBR_LINE_DELAY_KEY, 0.0)
+    where = _KALIBR_LINE_DELAY_KEY if _KALIBR_LINE_DELAY_KEY in cam else "intrinsics"
+    return cam.camera(where, fu, fv, pu, pv, dist, int(width), int(height), model,
+                      line_delay_s * height)
 
 
 def _read_opencv_camera(fields: _Fields) -> Calibration:

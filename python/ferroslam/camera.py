@@ -34,9 +34,17 @@ class Camera:
       (``theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)``); build it with
       :meth:`kannala_brandt`.
 
+    ``rolling_shutter_readout_s``: seconds the sensor takes to read its rows, top to bottom,
+    from the first row to the last (the frame's timestamp is the middle row's time); ``0``
+    (default) is a global shutter. With a readout, tracking estimates each frame's velocity
+    with its pose and sees every keypoint from the pose its row was read at. Calibration
+    files carry it as Kalibr ``line_delay`` (times the height), ``rolling_shutter_readout_s``
+    (flat ``camera.yaml``) or ``Camera.rollingShutterReadout`` (ORB-SLAM-style settings); see
+    :mod:`ferroslam.calibration`.
+
     Raises ``TypeError`` naming the field for a value that is not a real number (a string, a
     bool) or a size that is not an integer, ``ValueError`` for non-positive focal lengths or
-    image size, non-finite values, an unknown model or bad ``dist``.
+    image size, non-finite values, a negative readout, an unknown model or bad ``dist``.
     """
 
     fx: float
@@ -47,21 +55,27 @@ class Camera:
     width: int = 640
     height: int = 480
     model: str = "pinhole"
+    rolling_shutter_readout_s: float = 0.0
 
     @classmethod
     def kannala_brandt(cls, fx: float, fy: float, cx: float, cy: float, k, width: int,
-                       height: int) -> "Camera":
+                       height: int, rolling_shutter_readout_s: float = 0.0) -> "Camera":
         """A Kannala-Brandt fisheye camera; ``k`` = ``(k1, k2, k3, k4)``."""
-        return cls(fx, fy, cx, cy, k, width, height, model="kannala_brandt")
+        return cls(fx, fy, cx, cy, k, width, height, model="kannala_brandt",
+                   rolling_shutter_readout_s=rolling_shutter_readout_s)
 
     def __post_init__(self) -> None:
-        for name in ("fx", "fy", "cx", "cy"):
+        for name in ("fx", "fy", "cx", "cy", "rolling_shutter_readout_s"):
             value = getattr(self, name)
+            unit = "seconds" if name == "rolling_shutter_readout_s" else "pixels"
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-                raise TypeError(f"{name} must be a real number of pixels, got {value!r}")
+                raise TypeError(f"{name} must be a real number of {unit}, got {value!r}")
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value!r}")
             object.__setattr__(self, name, float(value))
+        if self.rolling_shutter_readout_s < 0:
+            raise ValueError("rolling_shutter_readout_s must be >= 0 seconds (0 = global "
+                             f"shutter), got {self.rolling_shutter_readout_s!r}")
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"fx and fy must be positive, got fx = {self.fx}, fy = {self.fy}")
         for name in ("width", "height"):

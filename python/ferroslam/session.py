@@ -115,7 +115,7 @@ class Session:
                              "ignored; pass the IMU noise parameters too, or leave it out")
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
-            model=c.model, **options)
+            model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s, **options)
         self.extractor = make_extractor(self.system.options)
         if inertial:
             self.system.set_imu(imu, T_b_c, **imu_options)

@@ -128,7 +128,9 @@ class StereoRectifier:
         self.R2 = R2
         self.P1, self.P2 = P1, P2
         self.baseline_m = float(-P2[0, 3] / P2[0, 0])
-        self.camera = Camera(P1[0, 0], P1[1, 1], P1[0, 2], P1[1, 2], np.zeros(5), *size)
+        # Rectified rows stand in for the raw rows' times (a small rotation of the image).
+        self.camera = Camera(P1[0, 0], P1[1, 1], P1[0, 2], P1[1, 2], np.zeros(5), *size,
+                             rolling_shutter_readout_s=left.rolling_shutter_readout_s)
         self._raw = (left, right)
         self._maps = (
             init_map(left.K, left.dist, R1, P1, size, cv2.CV_16SC2),

@@ -1,6 +1,7 @@
 //! The per-keypoint arrays a keyframe is built from.
 
 use ferroslam_features::{Descriptor, ImageBounds, Keypoint, KeypointGrid};
+use nalgebra::Vector6;
 
 use crate::MapError;
 
@@ -30,6 +31,14 @@ pub struct FrameFeatures {
     pub colors: Option<Vec<Rgb>>,
     /// Grid over `keypoints` for [`KeypointGrid::features_in_area`].
     pub grid: KeypointGrid,
+    /// Rolling shutter: seconds from the frame's timestamp to the readout of each keypoint's
+    /// row in its camera (from the raw pixel it was detected at); empty for a global shutter
+    /// (every offset 0). Set by [`FrameFeatures::with_time_offsets`].
+    pub time_offsets_s: Vec<f64>,
+    /// Velocity `[v; w]` (metres and radians per second) of the frame's `T_c_w` over its
+    /// readout, as tracking estimated it (zero for a global shutter): keypoint `i` was seen
+    /// from `D(time_offsets_s[i]) * T_c_w` (`ferroslam_geometry::rolling_shutter`).
+    pub xi_dot: Vector6<f64>,
 }
 
 impl FrameFeatures {
@@ -74,7 +83,34 @@ impl FrameFeatures {
             u_right,
             colors: None,
             grid,
+            time_offsets_s: Vec::new(),
+            xi_dot: Vector6::zeros(),
         })
+    }
+
+    /// The same features with each keypoint's row time offset (seconds, see
+    /// [`Self::time_offsets_s`]).
+    ///
+    /// # Errors
+    /// [`MapError::LengthMismatch`] unless there is one offset per keypoint.
+    pub fn with_time_offsets(self, time_offsets_s: Vec<f64>) -> Result<Self, MapError> {
+        if time_offsets_s.len() != self.len() {
+            return Err(MapError::LengthMismatch {
+                field: "time_offsets_s",
+                expected: self.len(),
+                got: time_offsets_s.len(),
+            });
+        }
+        Ok(Self {
+            time_offsets_s,
+            ..self
+        })
+    }
+
+    /// Seconds from the frame's timestamp to the readout of keypoint `i`'s row; 0 for a
+    /// global shutter or an out-of-range `i`.
+    pub fn time_offset_s(&self, i: usize) -> f64 {
+        self.time_offsets_s.get(i).copied().unwrap_or(0.0)
     }
 
     /// The same features with a colour per keypoint.

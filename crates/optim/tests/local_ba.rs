@@ -328,6 +328,7 @@ fn points_seen_only_by_fixed_poses_stay_fixed() {
             uv,
             u_right: None,
             inv_sigma2: 1.0,
+            readout_motion: None,
         });
     }
     let symbolic = SymbolicBa::new(&s.problem).unwrap();

@@ -5,6 +5,7 @@
 
 use crate::pool;
 use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
+use ferroslam_geometry::rolling_shutter::ReadoutDirection;
 use nalgebra::{Vector2, Vector3};
 use numpy::ndarray::Array2;
 use numpy::{PyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -15,7 +16,7 @@ use crate::convert;
 use crate::errors::geometry_to_py;
 
 /// The `CameraModel` of a `ferroslam.Camera` (its `model`, `fx fy cx cy`, `dist`, `width`,
-/// `height` attributes): the one conversion from the Python camera to the core's.
+/// `height`, `rolling_shutter_readout_s` attributes): the one conversion from the Python camera to the core's.
 ///
 /// `TypeError` for a value of the wrong type, `ValueError` (naming the parameter) for an
 /// unknown model, a wrong number of coefficients or values the core refuses.
@@ -51,21 +52,24 @@ pub fn camera_model(camera: &Bound<'_, PyAny>) -> PyResult<CameraModel> {
         .map_err(|_| PyTypeError::new_err("camera.dist must be a sequence of real numbers"))?;
     let (fx, fy, cx, cy) = (number("fx")?, number("fy")?, number("cx")?, number("cy")?);
     let (width, height) = (size("width")?, size("height")?);
-    camera_model_of(&model, [fx, fy, cx, cy], &dist, width, height)
+    let readout_s = number("rolling_shutter_readout_s")?;
+    camera_model_of(&model, [fx, fy, cx, cy], &dist, width, height, readout_s)
 }
 
 /// The camera of a `model` name, its `[fx, fy, cx, cy]` (pixels), `dist` and image size: the
 /// one place model names and coefficient counts are read. "pinhole": `dist` holds 0, 4 or 5
-/// radial-tangential coefficients (k1 k2 p1 p2 [k3]); "kannala_brandt": k1..k4.
+/// radial-tangential coefficients (k1 k2 p1 p2 [k3]); "kannala_brandt": k1..k4. Rows are
+/// read top first over `readout_s` seconds (0: a global shutter).
 pub fn camera_model_of(
     model: &str,
     [fx, fy, cx, cy]: [f64; 4],
     dist: &[f64],
     width: u32,
     height: u32,
+    readout_s: f64,
 ) -> PyResult<CameraModel> {
     let invalid = |e| geometry_to_py("invalid camera", e);
-    match model {
+    let camera = match model {
         "pinhole" => {
             let [k1, k2, p1, p2, k3] = match *dist {
                 [] => [0.0; 5],
@@ -98,7 +102,10 @@ pub fn camera_model_of(
         other => Err(PyValueError::new_err(format!(
             "unknown camera model {other:?} (use pinhole, kannala_brandt)"
         ))),
-    }
+    }?;
+    camera
+        .with_readout(readout_s, ReadoutDirection::TopToBottom)
+        .map_err(|e| geometry_to_py("invalid camera: rolling_shutter_readout_s", e))
 }
 
 /// The rows of `obj`, a float64 `(N, columns)` array named `name`, copied out (the core

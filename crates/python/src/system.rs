@@ -189,7 +189,7 @@ impl Drop for PySlamSystem {
 #[pymethods]
 impl PySlamSystem {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", model = "pinhole", threaded = false, **options))]
+    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", model = "pinhole", rolling_shutter_readout_s = 0.0, threaded = false, **options))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         fx: f64,
@@ -201,6 +201,7 @@ impl PySlamSystem {
         height: i64,
         sensor: &str,
         model: &str,
+        rolling_shutter_readout_s: f64,
         threaded: bool,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
@@ -213,7 +214,14 @@ impl PySlamSystem {
             })
         };
         let (width, height) = (size("width", width)?, size("height", height)?);
-        let camera = camera_model_of(model, [fx, fy, cx, cy], &dist, width, height)?;
+        let camera = camera_model_of(
+            model,
+            [fx, fy, cx, cy],
+            &dist,
+            width,
+            height,
+            rolling_shutter_readout_s,
+        )?;
         let config = config::parse(sensor, fx, width, options)?;
         let system = SlamSystem::new(camera, config.clone()).map_err(to_py)?;
         let engine = if threaded {

@@ -5,8 +5,9 @@ use ferroslam_features::{
     ProjectionQuery, ScalePyramid, StereoView,
 };
 use ferroslam_geometry::camera::CameraModel;
+use ferroslam_geometry::rolling_shutter::motion_over;
 use ferroslam_map::{FrameFeatures, MapPointId, Rgb};
-use nalgebra::{Isometry3, Vector2, Vector3};
+use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 
 use crate::context::{Context, InputShape};
 use crate::error::SlamError;
@@ -244,6 +245,7 @@ impl Frame {
             depth,
             u_right,
             input.colors,
+            time_offsets_s(input.keypoints, camera),
             ctx.bounds,
         )
     }
@@ -264,6 +266,7 @@ impl Frame {
             vec![-1.0; n],
             vec![-1.0; n],
             input.colors,
+            time_offsets_s(input.keypoints, &ctx.camera),
             ctx.bounds,
         )
     }
@@ -299,6 +302,8 @@ impl Frame {
             depth,
             u_right,
             input.colors,
+            // Rectified rows stand in for the raw ones: the core never sees the raw pair.
+            time_offsets_s(input.left.keypoints, &ctx.camera),
             ctx.bounds,
         )
     }
@@ -312,6 +317,7 @@ impl Frame {
         depth: Vec<f32>,
         u_right: Vec<f32>,
         colors: Option<&[Rgb]>,
+        time_offsets_s: Vec<f64>,
         bounds: ImageBounds,
     ) -> Result<Self, SlamError> {
         let n = keypoints.len();
@@ -319,6 +325,9 @@ impl Frame {
             FrameFeatures::new(keypoints, descriptors.to_vec(), depth, u_right, bounds)?;
         if let Some(colors) = colors {
             features = features.with_colors(colors.to_vec())?;
+        }
+        if !time_offsets_s.is_empty() {
+            features = features.with_time_offsets(time_offsets_s)?;
         }
         Ok(Self {
             index,
@@ -428,7 +437,33 @@ pub fn unproject_depth(
         CameraModel::Pinhole(c) => c.unproject(&uv) * z,
         CameraModel::KannalaBrandt(_) => point_at_depth(&camera.unproject(&uv)?, z)?,
     };
-    Some(T_w_c * nalgebra::Point3::from(p_c)).map(|p| p.coords)
+    // Depth is measured in the camera at its row's time (RGB-D: registered to the colour
+    // image, so sampled at the colour row's time): D^-1 brings it to the reference line.
+    let p_c = Point3::from(p_c);
+    let p_c = readout_motion(features, i).map_or(p_c, |D| D.inverse_transform_point(&p_c));
+    Some((T_w_c * p_c).coords)
+}
+
+/// The motion `D` of the camera from its frame's reference line to the row of keypoint `i`
+/// (`D(dt) * T_c_w` is the pose it was seen from, see
+/// [`ferroslam_geometry::rolling_shutter`]), at the velocity tracking estimated; `None` for
+/// a global shutter or the reference line, where the pose is `T_c_w` itself.
+#[allow(non_snake_case)]
+pub fn readout_motion(features: &FrameFeatures, i: usize) -> Option<Isometry3<f64>> {
+    let dt = features.time_offset_s(i);
+    (dt != 0.0).then(|| motion_over(&features.xi_dot, dt))
+}
+
+/// Seconds from the frame's timestamp to the readout of each keypoint's row (`keypoints` in
+/// the camera's raw pixels); empty for a global shutter, so no per-keypoint work is done.
+fn time_offsets_s(keypoints: &[Keypoint], camera: &CameraModel) -> Vec<f64> {
+    if camera.rolling_shutter().is_global() {
+        return Vec::new();
+    }
+    keypoints
+        .iter()
+        .map(|kp| camera.time_offset_s(&Vector2::new(kp.x as f64, kp.y as f64)))
+        .collect()
 }
 
 /// The point along unit `ray` at z-depth `z` (depth cameras measure along the optical

@@ -1,6 +1,16 @@
 //! The map-to-bundle-adjustment adapter: which keyframes, points and observations of the
 //! map a local (or global) BA problem holds, and writing the solution back (ORB-SLAM
 //! `Optimizer::LocalBundleAdjustment` around the solver of `ferroslam_optim`).
+//!
+//! Rolling shutter: a keyframe observation is projected from the pose of its row,
+//! `D(dt) * T_c_w` ([`readout_motion`]), with the keyframe's velocity as tracking estimated it,
+//! held fixed. Why not a variable: over one readout the velocity moves a row by at most half
+//! a readout times the rate (a few pixels), which the frame's own reprojections already
+//! pinned down against the motion-model prior in tracking; in local BA the same
+//! observations would only constrain it again, while adding 6 unknowns per keyframe that no
+//! other factor ties to its neighbours' poses (no IMU), a gauge-like freedom the Schur
+//! solver would need a prior for anyway. Fixed, the problem keeps its structure and its
+//! global-shutter arithmetic (`readout_motion` is `None` there).
 
 use std::collections::{HashMap, HashSet};
 
@@ -10,6 +20,7 @@ use nalgebra::Vector2;
 
 use crate::context::Context;
 use crate::error::SlamError;
+use crate::frame::readout_motion;
 
 /// Bundle adjustment of the keyframes `local` (the map's origin stays fixed) and every point
 /// they see, with the other keyframes observing those points held fixed; ORB-SLAM's robust
@@ -97,6 +108,7 @@ impl LocalProblem {
                     uv: Vector2::new(kp.x as f64, kp.y as f64),
                     u_right: (ur >= 0.0).then_some(ur as f64),
                     inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
+                    readout_motion: readout_motion(f, i),
                 });
                 obs_keys.push((m, k));
             }

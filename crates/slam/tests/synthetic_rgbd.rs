@@ -170,7 +170,10 @@ fn two_runs_of_one_input_and_seed_are_bit_identical() {
     let first = run_with(&scene, 60, 0.5, frequent_keyframes());
     let keyframes = first.map().num_keyframes();
     // 6 measured.
-    assert!(keyframes >= 5, "{keyframes} keyframes: local BA and culling must run");
+    assert!(
+        keyframes >= 5,
+        "{keyframes} keyframes: local BA and culling must run"
+    );
     let second = run_with(&scene, 60, 0.5, frequent_keyframes());
     assert_eq!(result_bytes(&second), result_bytes(&first));
 }
@@ -185,7 +188,13 @@ fn the_deterministic_mapping_thread_equals_inline_mapping() {
     };
     let mut threaded = SlamSystem::new(scene.camera, config).unwrap();
     threaded.set_concurrent_mapping(true).unwrap();
-    track_path(&mut threaded, &scene, 60, 0.5, &mut ChaCha8Rng::seed_from_u64(99));
+    track_path(
+        &mut threaded,
+        &scene,
+        60,
+        0.5,
+        &mut ChaCha8Rng::seed_from_u64(99),
+    );
     threaded.finish_mapping().unwrap();
     assert_eq!(result_bytes(&threaded), result_bytes(&inline));
 }

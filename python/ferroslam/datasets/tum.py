@@ -5,6 +5,13 @@ Layout: ``<seq>/rgb.txt``, ``<seq>/depth.txt`` (``timestamp path`` lines) and op
 centre in the motion-capture frame). RGB frames are paired with depth frames like TUM's
 ``associate.py``: candidate pairs with ``|t_rgb - t_depth| < max_diff`` (0.02 s), taken
 greedily by increasing time difference, each frame used at most once.
+
+Cameras: the freiburg camera named in the folder (:data:`TUM_CAMERAS`). The freiburg1 camera
+has a rolling shutter of :data:`FR1_READOUT_S` (rows top first, measured on fr1/rpy); the
+freiburg2 and freiburg3 cameras are treated as global shutters (readout 0): their Kinects
+are rolling-shutter sensors too, but no frames of them are here to measure a readout on and
+no published figure is known. Pass ``camera=`` (or a ``camera.yaml`` with
+``rolling_shutter_readout_s``) to set one.
 """
 
 from __future__ import annotations
@@ -21,11 +28,18 @@ from ..camera import Camera
 from ..io import read_table, read_tum_trajectory
 from .images import read_depth, read_gray, read_gray_and_color
 
-__all__ = ["TUM_CAMERAS", "TumFrame", "TumSequence", "associate_greedy"]
+__all__ = ["FR1_READOUT_S", "TUM_CAMERAS", "TumFrame", "TumSequence", "associate_greedy"]
 
 # Intrinsics from the TUM benchmark page (ROS default for the IR camera aside); 640x480.
+# Rolling shutter: the freiburg1 Kinect's colour readout was measured once, by a sweep of
+# readouts on the fr1/rpy fixture (scripts/rolling_shutter_sweep.py; table and choice in
+# docs/benchmarks.md, "Rolling shutter on TUM fr1/rpy"), not fitted per sequence. The
+# freiburg2/3 Kinects have no frames here to measure on and no published figure: they keep
+# 0 (a global shutter, the arithmetic of before).
+FR1_READOUT_S = 0.015
 TUM_CAMERAS = {
-    1: Camera(517.3, 516.5, 318.6, 255.3, np.array([0.2624, -0.9531, -0.0054, 0.0026, 1.1633])),
+    1: Camera(517.3, 516.5, 318.6, 255.3, np.array([0.2624, -0.9531, -0.0054, 0.0026, 1.1633]),
+              rolling_shutter_readout_s=FR1_READOUT_S),
     2: Camera(520.9, 521.0, 325.1, 249.7, np.array([0.2312, -0.7849, -0.0033, -0.0001, 0.9172])),
     3: Camera(535.4, 539.2, 320.1, 247.6, np.zeros(5)),
 }

@@ -17,6 +17,7 @@
 use nalgebra::{Matrix2x3, Vector2, Vector3};
 
 use super::validation::{check_intrinsics, check_monotonic_over_image, corner_radius};
+use crate::rolling_shutter::RollingShutter;
 use crate::GeometryError;
 
 /// Below this `r / |p|` a point is treated as on the optical axis (the `theta_d / r` limit).
@@ -45,6 +46,8 @@ pub struct KannalaBrandtCamera {
     pub width: u32,
     /// Image height (pixels).
     pub height: u32,
+    /// When each row of a raw image is read ([`RollingShutter::global`] from [`Self::new`]).
+    pub shutter: RollingShutter,
     max_incidence_rad: f64,
 }
 
@@ -92,6 +95,7 @@ impl KannalaBrandtCamera {
             k,
             width,
             height,
+            shutter: RollingShutter::global(),
             max_incidence_rad,
         })
     }

@@ -9,6 +9,8 @@
 use nalgebra::{Matrix2x3, Vector2, Vector3};
 
 use super::{ImageBounds, KannalaBrandtCamera, PinholeCamera};
+use crate::rolling_shutter::{ReadoutDirection, RollingShutter};
+use crate::GeometryError;
 
 /// A calibrated camera of one of the supported models.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,6 +44,60 @@ impl CameraModel {
             Self::Pinhole(c) => (c.width, c.height),
             Self::KannalaBrandt(c) => (c.width, c.height),
         }
+    }
+
+    /// When each line of the raw image is read (global shutter unless set by
+    /// [`Self::with_readout`]).
+    pub fn rolling_shutter(&self) -> &RollingShutter {
+        match self {
+            Self::Pinhole(c) => &c.shutter,
+            Self::KannalaBrandt(c) => &c.shutter,
+        }
+    }
+
+    /// The same camera with a rolling shutter reading its lines over `readout_s` seconds
+    /// (first to last line, >= 0 and finite; 0 is a global shutter) in `direction`, the
+    /// frame's timestamp at the middle line (see [`RollingShutter::from_readout`]).
+    ///
+    /// # Errors
+    /// [`GeometryError::InvalidParameter`] naming `readout_s` for a negative or non-finite
+    /// readout.
+    pub fn with_readout(
+        mut self,
+        readout_s: f64,
+        direction: ReadoutDirection,
+    ) -> Result<Self, GeometryError> {
+        if !(readout_s.is_finite() && readout_s >= 0.0) {
+            return Err(GeometryError::InvalidParameter {
+                name: "readout_s",
+                value: readout_s,
+                reason: "must be finite and >= 0 seconds (0 = global shutter)",
+            });
+        }
+        let (width, height) = self.size();
+        let lines = match direction {
+            ReadoutDirection::TopToBottom | ReadoutDirection::BottomToTop => height,
+            ReadoutDirection::LeftToRight | ReadoutDirection::RightToLeft => width,
+        };
+        // A 1-line image reads at once: nothing to model.
+        let shutter = if readout_s == 0.0 || lines < 2 {
+            RollingShutter::global()
+        } else {
+            RollingShutter::from_readout(readout_s, lines, direction)?
+        };
+        match &mut self {
+            Self::Pinhole(c) => c.shutter = shutter,
+            Self::KannalaBrandt(c) => c.shutter = shutter,
+        }
+        Ok(self)
+    }
+
+    /// Seconds from the frame's timestamp to the readout of the line through the RAW image
+    /// pixel `uv_raw` (0 for a global shutter).
+    pub fn time_offset_s(&self, uv_raw: &Vector2<f64>) -> f64 {
+        let (width, height) = self.size();
+        let extent = Vector2::new(f64::from(width), f64::from(height));
+        self.rolling_shutter().time_offset_s(uv_raw, &extent)
     }
 
     /// The pinhole camera, if this is one (stereo rectification and the virtual right
@@ -162,6 +218,35 @@ mod tests {
             assert_relative_eq!(ray, p.normalize(), epsilon = 1e-10);
             let b = model.bounds();
             assert!(b.max_x > b.min_x && b.max_y > b.min_y);
+        }
+    }
+
+    #[test]
+    fn a_readout_spreads_row_times_over_it_for_every_model() {
+        for model in test_models() {
+            assert!(model.rolling_shutter().is_global());
+            let (_, height) = model.size();
+            let rs = model
+                .with_readout(0.02, ReadoutDirection::TopToBottom)
+                .unwrap();
+            let top = rs.time_offset_s(&Vector2::new(5.0, 0.0));
+            let bottom = rs.time_offset_s(&Vector2::new(5.0, f64::from(height - 1)));
+            assert_relative_eq!(bottom - top, 0.02, epsilon = 1e-15);
+            assert_relative_eq!(top, -0.01, epsilon = 1e-15);
+            let global = model
+                .with_readout(0.0, ReadoutDirection::TopToBottom)
+                .unwrap();
+            assert_eq!(global, model);
+            assert_eq!(global.time_offset_s(&Vector2::new(5.0, 0.0)), 0.0);
+            for bad in [-1e-3, f64::NAN, f64::INFINITY] {
+                assert!(matches!(
+                    model.with_readout(bad, ReadoutDirection::TopToBottom),
+                    Err(GeometryError::InvalidParameter {
+                        name: "readout_s",
+                        ..
+                    })
+                ));
+            }
         }
     }
 

@@ -13,6 +13,7 @@
 use nalgebra::{Matrix2, Matrix2x3, Vector2, Vector3};
 
 use super::validation::{check_intrinsics, check_monotonic_over_image, corner_radius};
+use crate::rolling_shutter::RollingShutter;
 use crate::GeometryError;
 
 /// Smallest depth (metres) accepted by [`PinholeCamera::project`].
@@ -97,6 +98,8 @@ pub struct PinholeCamera {
     pub width: u32,
     /// Image height (pixels).
     pub height: u32,
+    /// When each row of a raw image is read ([`RollingShutter::global`] from [`Self::new`]).
+    pub shutter: RollingShutter,
 }
 
 impl PinholeCamera {
@@ -145,6 +148,7 @@ impl PinholeCamera {
             distortion,
             width,
             height,
+            shutter: RollingShutter::global(),
         })
     }
 
@@ -281,6 +285,7 @@ pub fn test_cameras() -> Vec<(&'static str, PinholeCamera)> {
         distortion,
         width,
         height,
+        shutter: RollingShutter::global(),
     };
     vec![
         (

@@ -16,7 +16,6 @@ use crate::block_pattern::factorize_upper;
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
 use crate::lm::{damping_diagonal, predicted_decrease, Damping};
-use crate::residual;
 use crate::robust::cost_and_weight;
 use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::SymbolicLlt;
@@ -262,17 +261,10 @@ pub(crate) fn visual_cost(
                 .zip(active)
                 .filter(|(_, &a)| a)
                 .map(|(o, _)| {
-                    residual::chi2(
-                        k,
-                        &poses[o.pose],
-                        &points[o.point],
-                        &o.uv,
-                        o.u_right,
-                        o.inv_sigma2,
-                    )
-                    .map_or(f64::INFINITY, |c| {
-                        cost_and_weight(c, o.is_stereo(), robust).0
-                    })
+                    o.chi2(k, &poses[o.pose], &points[o.point])
+                        .map_or(f64::INFINITY, |c| {
+                            cost_and_weight(c, o.is_stereo(), robust).0
+                        })
                 })
                 .sum::<f64>()
         })
@@ -308,13 +300,7 @@ impl Context<'_> {
         }
         let o = &problem.observations[i];
         // None is unreachable for an accepted estimate (its cost is finite).
-        let l = residual::linearize(
-            &self.k,
-            &problem.poses[o.pose],
-            &problem.points[o.point],
-            &o.uv,
-            o.u_right,
-        )?;
+        let l = o.linearize(&self.k, &problem.poses[o.pose], &problem.points[o.point])?;
         let chi2 = o.inv_sigma2 * l.e.norm_squared();
         let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
         Some(ObservationJacobians {

@@ -138,6 +138,8 @@ impl BaProblem {
                 uv: Vector2::new(line.number(u)?, line.number(v)?),
                 u_right,
                 inv_sigma2: line.number(inv_sigma2)?,
+                // The text format records global-shutter problems only.
+                readout_motion: None,
             });
         }
         if let Some(extra) = lines.next_nonempty() {
@@ -320,6 +322,7 @@ mod tests {
                     uv: Vector2::new(404.5, 213.125),
                     u_right: Some(391.2),
                     inv_sigma2: 1.0,
+                    readout_motion: None,
                 },
                 Observation {
                     pose: 1,
@@ -327,6 +330,7 @@ mod tests {
                     uv: Vector2::new(100.0 / 7.0, 30.0),
                     u_right: None,
                     inv_sigma2: 1.0 / 1.44,
+                    readout_motion: None,
                 },
             ],
         }

@@ -11,7 +11,6 @@ use super::HUBER_DELTA_INERTIAL;
 use crate::ba::solve::visual_cost;
 use crate::error::OptimError;
 use crate::lm::{damping_diagonal, predicted_decrease, Damping};
-use crate::residual;
 use crate::robust::{cost_and_weight, Huber};
 use faer::linalg::solvers::Solve;
 use faer::{Mat, Side};
@@ -289,13 +288,9 @@ impl Context<'_> {
                 for &i in obs.iter().filter(|&&i| self.active[i]) {
                     let o = &visual.observations[i];
                     // None is unreachable at an accepted estimate (its cost is finite).
-                    let Some(l) = residual::linearize(
-                        &visual.intrinsics,
-                        &est.poses[o.pose],
-                        &est.points[*p],
-                        &o.uv,
-                        o.u_right,
-                    ) else {
+                    let Some(l) =
+                        o.linearize(&visual.intrinsics, &est.poses[o.pose], &est.points[*p])
+                    else {
                         continue;
                     };
                     let chi2 = o.inv_sigma2 * l.e.norm_squared();

@@ -137,6 +137,7 @@ pub fn flight(seed: u64, keyframes: usize, points: usize) -> (InertialBaProblem,
                 uv: uv + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)),
                 u_right: None,
                 inv_sigma2: 1.0,
+                readout_motion: None,
             });
         }
         true_points.push(p);

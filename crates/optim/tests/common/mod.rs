@@ -136,6 +136,7 @@ pub fn scene(spec: &SceneSpec) -> Scene {
                 uv: noisy,
                 u_right,
                 inv_sigma2: 1.0 / (spec.pixel_sigma * spec.pixel_sigma),
+                readout_motion: None,
             });
         }
     }

@@ -320,6 +320,13 @@ pub struct TrackingConfig {
     pub imu_prediction_search_width: f64,
     /// Frames after a relocalisation searched with `relocalised_search_width` (ORB-SLAM: 2).
     pub relocalised_wide_search_frames: usize,
+    /// Rolling shutter: how far (standard deviation, radians per second) a frame's angular
+    /// velocity may differ from the motion model's average over the last frame interval.
+    /// A hand-held camera changes its rate by a few rad/s^2, so about 0.1 rad/s in 33 ms;
+    /// twice that leaves the rows room to pull it where the model lags.
+    pub velocity_prior_sigma_rad_s: f64,
+    /// The same for the linear velocity, metres per second (hand-held: about 1 m/s^2).
+    pub velocity_prior_sigma_m_s: f64,
     /// Ratio test of the bag-of-words matching against reference and relocalisation
     /// candidates, best over second-best descriptor distance (ORB-SLAM `SearchByBoW`: 0.7
     /// reference, 0.75 relocalisation; 0.75 for both).
@@ -383,6 +390,8 @@ impl TrackingConfig {
             relocalised_search_width: 5.0,
             imu_prediction_search_width: 5.0,
             relocalised_wide_search_frames: 2,
+            velocity_prior_sigma_rad_s: 0.2,
+            velocity_prior_sigma_m_s: 0.05,
             reference_nn_ratio: 0.75,
             local_search_nn_ratio: 0.8,
             neighbourhood_covisibles: 10,

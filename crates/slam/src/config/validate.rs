@@ -117,6 +117,7 @@ impl SlamConfig {
         check!(s, > 0, t.relocalisation_window_s);
         check!(s, > 0, t.motion_search_radius_px, t.local_search_width);
         check!(s, > 0, t.relocalised_search_width, t.imu_prediction_search_width);
+        check!(s, > 0, t.velocity_prior_sigma_rad_s, t.velocity_prior_sigma_m_s);
         check!(s, > 0, t.frontal_radius, t.oblique_radius);
         check!(s, >= t.motion_search_radius_px, t.motion_retry_radius_px);
         check!(s, >= 1, t.neighbourhood_covisibles);

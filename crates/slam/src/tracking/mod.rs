@@ -10,9 +10,11 @@ use std::time::{Duration, Instant};
 use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
 use ferroslam_features::{match_brute_force, Descriptor, MatchOptions, ProjectionQuery};
 use ferroslam_geometry::pnp::{pnp_ransac, PnpRansacOptions};
+use ferroslam_geometry::rolling_shutter::velocity_between;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
+use ferroslam_optim::pose_rolling_shutter::{optimize_pose_and_velocity, VelocityPrior};
 use ferroslam_optim::{optimize_pose, optimize_pose_inertial, InertialLink, PoseObservation};
-use nalgebra::{Isometry3, Point3, Vector2};
+use nalgebra::{Isometry3, Point3, Vector2, Vector6};
 
 use crate::config::TrackingConfig;
 use crate::context::Context;
@@ -89,7 +91,8 @@ impl Tracker {
         std::mem::take(&mut self.pose_optimisation).as_secs_f64() * 1e3
     }
 
-    /// [`optimize_frame_pose`], timed.
+    /// [`optimize_frame_pose`], timed, with the motion model's velocity as the prior of a
+    /// rolling-shutter frame's.
     fn optimize_pose(
         &mut self,
         frame: &mut Frame,
@@ -97,9 +100,21 @@ impl Tracker {
         ctx: &Context,
     ) -> Result<usize, SlamError> {
         let start = Instant::now();
-        let inliers = optimize_frame_pose(frame, map, ctx);
+        let prior = self.velocity_prior(frame);
+        let inliers = optimize_frame_pose(frame, map, ctx, &prior);
         self.pose_optimisation += start.elapsed();
         inliers
+    }
+
+    /// The velocity `[v; w]` of `T_c_w` the constant-velocity model predicts for `frame`:
+    /// the last frame-to-frame motion over its time; zero without a motion model (after a
+    /// relocalisation, where the prior then holds the rows to a still camera).
+    fn velocity_prior(&self, frame: &Frame) -> Vector6<f64> {
+        let (Some(last), Some(T_c_l)) = (self.last_frame.as_ref(), self.velocity) else {
+            return Vector6::zeros();
+        };
+        let dt = frame.timestamp - last.timestamp;
+        velocity_between(&Isometry3::identity(), &T_c_l, dt).unwrap_or_else(Vector6::zeros)
     }
 
     /// Estimates `frame.T_c_w` against the map. Returns whether tracking succeeded; on success
@@ -812,22 +827,54 @@ fn search_last_frame(
 
 /// Motion-only BA of `frame` on its map point and temporary point matches; sets the pose and
 /// the outlier flags.
+///
+/// A rolling-shutter camera's frame is estimated with its velocity (the velocity of
+/// `T_c_w`, kept in `frame.features.xi_dot` for the depth points and the keyframe it may
+/// become), each match seen at its row's time, `prior_xi_dot` the velocity it is drawn to
+/// (`tracking.velocity_prior_sigma_*` of the configuration). A global shutter keeps
+/// ORB-SLAM's pose-only problem and arithmetic.
 pub fn optimize_frame_pose(
     frame: &mut Frame,
     map: &Map,
     ctx: &Context,
+    prior_xi_dot: &Vector6<f64>,
 ) -> Result<usize, SlamError> {
     let (obs, index) = frame_observations(frame, map);
     if obs.len() < 3 {
         return Ok(0);
     }
     let mut outlier = vec![false; obs.len()];
-    let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.intrinsics, &mut outlier)?;
-    frame.T_c_w = estimate.T_c_w;
+    let num_inliers = if ctx.camera.rolling_shutter().is_global() {
+        let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.intrinsics, &mut outlier)?;
+        frame.T_c_w = estimate.T_c_w;
+        estimate.num_inliers
+    } else {
+        let tracking = &ctx.config.tracking;
+        let prior = VelocityPrior::isotropic(
+            *prior_xi_dot,
+            tracking.velocity_prior_sigma_m_s,
+            tracking.velocity_prior_sigma_rad_s,
+        );
+        let offsets: Vec<f64> = index
+            .iter()
+            .map(|&i| frame.features.time_offset_s(i))
+            .collect();
+        let estimate = optimize_pose_and_velocity(
+            &frame.T_c_w,
+            &prior,
+            &obs,
+            &offsets,
+            &ctx.intrinsics,
+            &mut outlier,
+        )?;
+        frame.T_c_w = estimate.T_c_w;
+        frame.features.xi_dot = estimate.xi_dot;
+        estimate.num_inliers
+    };
     for (k, &i) in index.iter().enumerate() {
         frame.outlier[i] = outlier[k];
     }
-    Ok(estimate.num_inliers)
+    Ok(num_inliers)
 }
 
 /// The frame's map point and temporary point matches as pose observations, with the

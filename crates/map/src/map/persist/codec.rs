@@ -381,6 +381,10 @@ impl Codec for FrameFeatures {
             u_right,
             colors,
             grid,
+            // Map files keep no row times: a loaded map's keyframes are adjusted as seen
+            // by a global shutter.
+            time_offsets_s: Vec::new(),
+            xi_dot: nalgebra::Vector6::zeros(),
         })
     }
 }
