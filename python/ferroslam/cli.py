@@ -70,8 +70,9 @@ outputs (in --out):
   trajectory.txt      every tracked frame, TUM format (timestamp tx ty tz qx qy qz qw, T_w_c);
                       --trajectory-format kitti / euroc (trajectory.csv) for the others
   keyframes.txt       keyframe poses, same format
-  colmap/             keyframes and map points as a COLMAP text model (cameras.txt,
-                      images.txt, points3D.txt)
+  colmap/             COLMAP model: images/ (the keyframes' images), sparse/0/ (cameras,
+                      images with their 2-D points, points with their tracks; text)
+  mesh.ply, dense.ply with --dense (rgbd): TSDF mesh and dense cloud of the keyframes
   map.ply             map points (world frame = first camera, metres), PLY
   plot.png            top and side views against the ground truth, map points
   trajectory_top.png  top view only
@@ -160,6 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
                            '{"n_features": 2000, "depth_threshold": 35}')
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
     algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
+    algo.add_argument("--dense", action="store_true",
+                      help="rgbd: fuse the keyframes' depth into mesh.ply and dense.ply (TSDF, "
+                           "pip install 'ferroslam[dense]'; voxel and truncation: the "
+                           "dense_voxel_m, dense_truncation_m options of --config)")
     source = run.add_argument_group("video, image folder and camera")
     source.add_argument("--camera", type=Path, metavar="FILE",
                         help="calibration (required for these): ORB-SLAM3 settings, Kalibr "
@@ -212,7 +217,20 @@ def build_parser() -> argparse.ArgumentParser:
     dl.add_argument("--silent", action="store_true", help="no progress bar")
     _add_vocab_parser(sub)
     _add_batch_parser(sub)
+    _add_export_parser(sub)
     return parser
+
+
+def _add_export_parser(sub: argparse._SubParsersAction) -> None:
+    """``export MAP --colmap DIR``: a saved map as a COLMAP model."""
+    export = sub.add_parser(
+        "export", help="write a saved map as a COLMAP model",
+        description="Write the keyframes, keypoints, points and tracks of a map file\n"
+                    "(save_map) as a COLMAP text model in DIR/sparse/0/. A map file holds no\n"
+                    "images: DIR/image_timestamps.txt names the source frame of each image.")
+    export.add_argument("map", type=Path, help="map file")
+    export.add_argument("--colmap", type=Path, required=True, metavar="DIR",
+                        help="output folder (created)")
 
 
 def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
@@ -326,6 +344,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     config = _load_config(args.config)
     if args.seed is not None:
         config["seed"] = args.seed
+    if args.dense:
+        config["dense"] = True
     seq = _open_input(args)
     out = args.out if args.out is not None else Path("out") / seq.name
     return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
@@ -456,6 +476,15 @@ def _print_summary(summary: dict, out: Path) -> None:
           "results.json)")
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .colmap import TIMESTAMPS_FILE, export_map_file
+
+    folder = export_map_file(args.map, args.colmap)
+    print(f"COLMAP model in {folder}/sparse/0/; a map file holds no images: put the frames "
+          f"listed in {folder}/{TIMESTAMPS_FILE} in {folder}/images/ under those names")
+    return 0
+
+
 def _cmd_batch(args: argparse.Namespace) -> int:
     from .batch import run_batch
 
@@ -554,7 +583,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         parser.print_help()
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
-                "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch}
+                "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch,
+                "export": _cmd_export}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:

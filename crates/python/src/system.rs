@@ -24,7 +24,7 @@ use crate::vocabulary::PyVocabulary;
 
 /// What `map_point_colors` gives points without a colour: mid grey, as the exporters draw
 /// uncoloured points.
-const UNCOLORED: [u8; 3] = [128; 3];
+pub const UNCOLORED: [u8; 3] = [128; 3];
 
 fn state_name(state: TrackingState) -> &'static str {
     match state {
@@ -533,6 +533,14 @@ impl PySlamSystem {
                 colors[i].unwrap_or(UNCOLORED)[c]
             }),
         ))
+    }
+
+    /// The map as images and tracks, in one dict of arrays (see `ferroslam._core.pyi`):
+    /// every keyframe's pose and keypoints (raw image pixels) with the map point each
+    /// observes (row of `points_xyz`, -1 for none), and the points.
+    fn sparse_model<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let model = self.engine()?.run(py, |s| s.sparse_model())?;
+        crate::sparse_model::model_dict(py, model)
     }
 
     /// Writes the map to `path` (versioned binary file with a checksum).
