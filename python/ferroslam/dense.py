@@ -1,7 +1,9 @@
 """A dense surface from RGB-D keyframes: TSDF fusion of their depth at their final poses
 (after local BA and loop closing), with colour, into a triangle mesh and a point cloud.
 
-Fusion runs in Open3D (``ScalableTSDFVolume``, CPU), an optional extra: ``pip install
+Fusion runs in Open3D (its tensor ``VoxelBlockGrid`` on the CPU: a hash map of voxel blocks
+allocated where depth falls, so memory follows the surface, not the scene's bounding box),
+an optional extra: ``pip install
 'ferroslam[dense]'`` (``open3d-cpu``). Open3D's 0.20 wheel links the system library
 libusb-1.0 (Debian/Ubuntu ``libusb-1.0-0``); :func:`require_open3d` names it when it is
 missing.
@@ -33,6 +35,13 @@ DEFAULT_VOXEL_M = 0.01
 # Four voxels: wider than the Kinect's depth noise at 2-3 m (~1-2 cm) so a surface seen
 # from several keyframes averages instead of breaking up, narrow enough to keep thin objects.
 DEFAULT_TRUNCATION_M = 0.04
+# Voxel blocks of 16^3 (Open3D's default), and the blocks the hash map starts with: it grows
+# as the surface does (a desk scene at 1 cm takes a few thousand).
+_BLOCK_RESOLUTION = 16
+_INITIAL_BLOCKS = 1000
+# A voxel enters the mesh once seen in this many depth images (summed weights): surfaces seen
+# once are kept, so the mesh covers everything the keyframes saw.
+_MIN_WEIGHT = 1.0
 # Structured-light depth noise grows with the square of the distance (~4 cm at 4 m); farther
 # depth would blur the surface more than it adds.
 DEFAULT_MAX_DEPTH_M = 4.0
@@ -106,34 +115,44 @@ def fuse_tsdf(camera: Camera, T_w_c: np.ndarray, images: Sequence[np.ndarray],
         raise ValueError(f"need 0 < voxel_m ({voxel_m}) < truncation_m ({truncation_m}) and "
                          f"max_depth_m ({max_depth_m}) > 0")
     map_x, map_y = _undistortion_maps(camera)
-    intrinsic = o3d.camera.PinholeCameraIntrinsic(camera.width, camera.height, camera.fx,
-                                                  camera.fy, camera.cx, camera.cy)
+    K = o3d.core.Tensor([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1.0]],
+                        o3d.core.float64)
     start = time.perf_counter()
-    volume = o3d.pipelines.integration.ScalableTSDFVolume(
-        voxel_length=voxel_m, sdf_trunc=truncation_m,
-        color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
+    float32 = o3d.core.float32
+    grid = o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"), attr_dtypes=(float32, float32, float32),
+        attr_channels=(1, 1, 3), voxel_size=voxel_m, block_resolution=_BLOCK_RESOLUTION,
+        block_count=_INITIAL_BLOCKS, device=o3d.core.Device("CPU:0"))
+    trunc_voxels = truncation_m / voxel_m
     for T, image, depth in zip(poses, images, depths_m):
         if np.shape(depth)[:2] != (camera.height, camera.width):
             raise ValueError(f"a depth image is {np.shape(depth)[:2]}, the camera "
                              f"{camera.height}x{camera.width} (rows x columns)")
         rgb = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB if image.ndim == 2 else cv2.COLOR_BGR2RGB)
-        rgb = cv2.remap(rgb, map_x, map_y, cv2.INTER_LINEAR)
+        rgb = cv2.remap(rgb, map_x, map_y, cv2.INTER_LINEAR).astype(np.float32) / 255.0
         depth = np.nan_to_num(np.asarray(depth, np.float32), nan=0.0)
-        depth = cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST)
-        rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
-            o3d.geometry.Image(np.ascontiguousarray(rgb)), o3d.geometry.Image(depth),
-            depth_scale=1.0, depth_trunc=max_depth_m, convert_rgb_to_intensity=False)
-        volume.integrate(rgbd, intrinsic, np.linalg.inv(T))  # extrinsic = T_c_w
-    mesh = volume.extract_triangle_mesh()
-    cloud = volume.extract_point_cloud()
+        depth = o3d.t.geometry.Image(o3d.core.Tensor(
+            np.ascontiguousarray(cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST))))
+        color = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(rgb)))
+        T_c_w = o3d.core.Tensor(np.linalg.inv(T), o3d.core.float64)
+        blocks = grid.compute_unique_block_coordinates(depth, K, T_c_w, 1.0, max_depth_m,
+                                                       trunc_voxel_multiplier=trunc_voxels)
+        grid.integrate(blocks, depth, color, K, K, T_c_w, 1.0, max_depth_m,
+                       trunc_voxel_multiplier=trunc_voxels)
+    mesh = grid.extract_triangle_mesh(weight_threshold=_MIN_WEIGHT)
+    cloud = grid.extract_point_cloud(weight_threshold=_MIN_WEIGHT)
     fusion_s = time.perf_counter() - start
-    to_u8 = lambda c: np.round(np.asarray(c) * 255.0).astype(np.uint8).reshape(-1, 3)
     return DenseModel(
-        vertices=np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3),
-        triangles=np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3),
-        vertex_colors=to_u8(mesh.vertex_colors),
-        points=np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3),
-        point_colors=to_u8(cloud.colors), fusion_s=fusion_s, frames=len(poses))
+        vertices=mesh.vertex.positions.numpy().astype(np.float64).reshape(-1, 3),
+        triangles=mesh.triangle.indices.numpy().astype(np.int64).reshape(-1, 3),
+        vertex_colors=_u8(mesh.vertex.colors.numpy()),
+        points=cloud.point.positions.numpy().astype(np.float64).reshape(-1, 3),
+        point_colors=_u8(cloud.point.colors.numpy()), fusion_s=fusion_s, frames=len(poses))
+
+
+def _u8(colors: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` uint8 from Open3D's float colours in [0, 1]."""
+    return np.round(np.clip(colors, 0.0, 1.0) * 255.0).astype(np.uint8).reshape(-1, 3)
 
 
 def write_mesh_ply(path: Path, dense: DenseModel) -> Path:
