@@ -429,6 +429,8 @@ def _log_final_map(logger, result) -> None:
         logger.log_map(result.map_points, result.map_point_colors,
                        keyframe_poses_T_w_c=result.keyframes.poses, loops=result.loops,
                        keyframe_ids=result.keyframe_ids)
+        if result.dense is not None:
+            logger.log_mesh(result.dense)
 
 
 def _print_summary(summary: dict, out: Path) -> None:

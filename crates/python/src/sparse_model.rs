@@ -27,12 +27,7 @@ pub fn model_dict<'py>(py: Python<'py>, model: SparseModel) -> PyResult<Bound<'p
     let mut point_index = Vec::new();
     for image in &model.images {
         keypoints.extend(image.keypoints_raw_px.iter().map(|uv| [uv.x, uv.y]));
-        point_index.extend(
-            image
-                .point_index
-                .iter()
-                .map(|p| p.map_or(-1, |i| i as i64)),
-        );
+        point_index.extend(image.point_index.iter().map(|p| p.map_or(-1, |i| i as i64)));
         offsets.push(keypoints.len() as i64);
     }
     let poses: Vec<_> = model.images.iter().map(|image| image.T_w_c).collect();
