@@ -472,6 +472,10 @@ def _print_summary(summary: dict, out: Path) -> None:
               f"(refinement {inertial['refinement']})")
     elif inertial:
         print(f"IMU alignment   {inertial['status']}: {inertial.get('reason', '')}")
+    if "dense" in summary:
+        d = summary["dense"]
+        print(f"dense mesh      {d['mesh_vertices']} vertices, {d['mesh_triangles']} triangles "
+              f"from {d['frames']} keyframes (fusion {d['fusion_s']:.1f} s)")
     for err in summary["metric_errors"]:
         print(f"note: {err}")
     print(f"results in      {out}/ (trajectory, keyframes, map.ply, colmap/, plot.png, "
