@@ -171,6 +171,14 @@ def test_metric_errors_are_clear():
         metrics.rpe(ref, ref, delta=5)
     with pytest.raises(ValueError, match="empty"):
         metrics.stats(np.zeros(0))
+    for metric in (metrics.ate, metrics.rpe, metrics.path_length):
+        with pytest.raises(TypeError, match="traj_est must be a ferroslam.Trajectory .* got "
+                                            "ndarray"):
+            metric(ref, T)
+        with pytest.raises(TypeError, match="traj_ref must be a ferroslam.Trajectory .* got list"):
+            metric([1, 2, 3], ref)
+        with pytest.raises(ValueError, match="max_diff must be a finite number of seconds"):
+            metric(ref, ref, max_diff=float("nan"))
 
 
 def test_trajectory_validation():

@@ -132,12 +132,16 @@ class Calibration:
         imu: IMU noise densities, random walks and rate, or ``None``.
         T_left_right: ``(4, 4)`` pose of ``cameras[1]`` in ``cameras[0]``'s frame, ``None``
             unless the file has two cameras and relates them.
+        depth_factor: depth pixel value per metre of the RGB-D camera's depth images
+            (``metres = pixel / depth_factor``: 5000 for TUM, 1000 for millimetres), ``None``
+            where the file gives none; see :data:`DEPTH_FACTOR_KEYS`.
     """
 
     cameras: list[Camera]
     camera_to_imu: list[Optional[np.ndarray]]
     imu: Optional[ImuParams] = None
     T_left_right: Optional[np.ndarray] = None
+    depth_factor: Optional[float] = None
 
     @property
     def baseline_m(self) -> Optional[float]:
@@ -166,7 +170,7 @@ def load_calibration(path: Union[str, Path],
             an unsupported camera or distortion model (the supported ones listed).
     """
     fields = _Fields(_read_document(Path(path)), Path(path))
-    calibration = _reader_for(fields)(fields)
+    calibration = replace(_reader_for(fields)(fields), depth_factor=_depth_factor(fields))
     if imu_path is not None:
         calibration = replace(calibration, imu=load_imu_params(imu_path))
     return calibration
@@ -465,6 +469,22 @@ def _read_opencv_camera(fields: _Fields) -> Calibration:
     camera = fields.camera("camera_matrix", K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist,
                            fields.integer("image_width"), fields.integer("image_height"), model)
     return Calibration([camera], [None])
+
+
+# The keys that give the depth factor: ORB-SLAM3 settings 1.0, ORB-SLAM2 / legacy settings,
+# a flat camera.yaml.
+DEPTH_FACTOR_KEYS = ("RGBD.DepthMapFactor", "DepthMapFactor", "depth_scale")
+
+
+def _depth_factor(fields: _Fields) -> Optional[float]:
+    """The depth factor of the first of :data:`DEPTH_FACTOR_KEYS` the file holds."""
+    key = next((k for k in DEPTH_FACTOR_KEYS if k in fields), None)
+    if key is None:
+        return None
+    value = fields.number(key)
+    if value <= 0:
+        raise fields.error(key, f"must be a positive pixel value per metre, got {value!r}")
+    return value
 
 
 def _imu_params(fields: _Fields) -> Optional[ImuParams]:

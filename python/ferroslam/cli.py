@@ -1,5 +1,6 @@
 """Command line: ``ferroslam demo`` (the bundled sample), ``ferroslam run`` (track a sequence),
-``ferroslam eval ate|rpe``, ``ferroslam download`` (public datasets) and ``ferroslam vocab``.
+``ferroslam eval ate|rpe``, ``ferroslam download`` (public datasets), ``ferroslam vocab`` and
+``ferroslam check`` (what would make a run fail, before it).
 
 ``build_parser()`` is separate from ``main()`` so the parser is testable without a process.
 """
@@ -45,6 +46,23 @@ def _non_negative_seconds(text: str) -> float:
     return value
 
 
+def _depth_scale(text: str) -> float:
+    from .options import check_option
+
+    try:
+        return float(check_option("depth_scale", float(text)))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _topic_list(text: str) -> list[str]:
+    topics = [t.strip() for t in text.split(",") if t.strip()]
+    if not topics:
+        raise argparse.ArgumentTypeError(f"expected topic names separated by commas, got "
+                                         f"{text!r}")
+    return topics
+
+
 def _add_eval_inputs(p: argparse.ArgumentParser, default_align: str) -> None:
     p.add_argument("ref", type=Path, help="reference (ground-truth) trajectory file")
     p.add_argument("est", type=Path, help="estimated trajectory file")
@@ -60,6 +78,7 @@ _EPILOG = """\
 examples:
   ferroslam demo                                  RGB-D SLAM on the bundled TUM sample
   ferroslam download tum freiburg1_xyz --to data  fetch a full TUM sequence (~0.5 GB)
+  ferroslam check data/rgbd_dataset_freiburg1_xyz --sensor rgbd
   ferroslam run data/rgbd_dataset_freiburg1_xyz --sensor rgbd
   ferroslam eval ate groundtruth.txt out/rgbd_dataset_freiburg1_xyz/trajectory.txt
 
@@ -81,11 +100,16 @@ outputs (in --out):
 _LAYOUTS = """\
 dataset layouts (--format auto detects them):
   tum    PATH/rgb.txt, depth.txt, groundtruth.txt (optional); the camera from the folder name
-         (freiburg1/2/3 or fr1/2/3) or PATH/camera.yaml
+         (freiburg1/2/3 or fr1/2/3), PATH/camera.yaml or --camera
   kitti  PATH/image_0/ (and image_1/ for stereo), calib.txt, times.txt; ground truth
          poses.txt or ../../poses/NN.txt (optional)
   euroc  PATH/mav0/cam0/ (and cam1/): data.csv, data/, sensor.yaml; ground truth
          mav0/state_groundtruth_estimate0/data.csv (optional)
+
+ROS bags (.bag, a ROS 2 bag folder, .mcap; pip install 'ferroslam[ros]'; no ground truth):
+  images, depth, CameraInfo and IMU topics found by type and name (or --topics); the
+  calibration from CameraInfo or --camera (stereo: --camera with the rig's extrinsics, e.g. a
+  Kalibr camchain); the IMU noise model from --imu
 
 other sources (--sensor mono, --camera FILE; no ground truth, so no ATE):
   video     a video file OpenCV reads (.mp4, .avi, ...); frame times from the stream
@@ -113,7 +137,7 @@ def _add_output_options(p: argparse.ArgumentParser, default_out: str) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ferroslam`` argument parser (``demo``, ``run``, ``eval {ate,rpe}``, ``download``,
-    ``vocab {train,export-dbow2}``, ``batch``)."""
+    ``vocab {train,export-dbow2}``, ``batch``, ``check``)."""
     from .demo import DEMO_CONFIGS
     from .download import DATASETS
 
@@ -149,13 +173,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("path", type=Path,
                      help="sequence folder (TUM RGB-D, KITTI odometry or EuRoC (ASL) layout), "
-                          "video file, image folder or camera:N")
+                          "ROS bag (.bag, ROS 2 folder, .mcap), video file, image folder or "
+                          "camera:N")
     algo = run.add_argument_group("algorithm")
     algo.add_argument("--sensor", choices=SENSORS, required=True,
-                      help="camera setup: mono (any layout), rgbd (TUM), stereo (KITTI, EuRoC); "
-                           "-inertial adds the IMU (EuRoC)")
-    algo.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
-                      help="dataset layout (default: detect)")
+                      help="camera setup: mono (any layout), rgbd (TUM, bags), stereo (KITTI, "
+                           "EuRoC, bags); -inertial adds the IMU (EuRoC, bags)")
     algo.add_argument("--config", type=Path,
                       help="JSON file of SlamSystem/extractor options, e.g. "
                            '{"n_features": 2000, "depth_threshold": 35}')
@@ -165,13 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="rgbd: fuse the keyframes' depth into mesh.ply and dense.ply (TSDF, "
                            "pip install 'ferroslam[dense]'; voxel and truncation: the "
                            "dense_voxel_m, dense_truncation_m options of --config)")
-    source = run.add_argument_group("video, image folder and camera")
-    source.add_argument("--camera", type=Path, metavar="FILE",
-                        help="calibration (required for these): ORB-SLAM3 settings, Kalibr "
-                             "camchain, OpenCV or ROS camera_info, flat camera.yaml")
-    source.add_argument("--fps", type=_positive_rate,
-                        help="frame rate of an image folder (frame i at i/fps s), for names "
-                             "that are not times")
+    _add_input_options(run)
     _add_output_options(run, "out/<sequence name>")
 
     ev = sub.add_parser("eval", help="evaluate trajectory files",
@@ -217,8 +234,53 @@ def build_parser() -> argparse.ArgumentParser:
     dl.add_argument("--silent", action="store_true", help="no progress bar")
     _add_vocab_parser(sub)
     _add_batch_parser(sub)
+    _add_check_parser(sub)
     _add_export_parser(sub)
     return parser
+
+
+def _add_input_options(parser: argparse.ArgumentParser) -> None:
+    """How PATH is read, the same for ``run`` and ``check``."""
+    source = parser.add_argument_group("calibration and input")
+    source.add_argument("--format", choices=("auto", "tum", "kitti", "euroc"), default="auto",
+                        help="dataset layout (default: detect)")
+    source.add_argument("--camera", type=Path, metavar="FILE",
+                        help="calibration: ORB-SLAM3 settings, Kalibr camchain, OpenCV or ROS "
+                             "camera_info, flat camera.yaml; required for videos, image "
+                             "folders and cameras, replaces a dataset folder's own, and a "
+                             "bag's CameraInfo")
+    source.add_argument("--depth-scale", type=_depth_scale, metavar="FACTOR",
+                        help="depth pixel value per metre of RGB-D depth (TUM 5000, "
+                             "millimetres 1000); default: the calibration's DepthMapFactor / "
+                             "depth_scale, else the layout's")
+    source.add_argument("--fps", type=_positive_rate,
+                        help="frame rate of an image folder (frame i at i/fps s), for names "
+                             "that are not times")
+    source.add_argument("--topics", type=_topic_list, metavar="T1,T2,...",
+                        help="ROS bag: the topics to read, left before right (default: found "
+                             "by type and name)")
+    source.add_argument("--imu", type=Path, metavar="FILE",
+                        help="ROS bag: the IMU noise model (Kalibr imu.yaml, EuRoC "
+                             "sensor.yaml, ORB-SLAM3 settings), for -inertial sensors")
+
+
+def _add_check_parser(sub: argparse._SubParsersAction) -> None:
+    """``check``: what would make a run fail, before it (``ferroslam.check``)."""
+    check = sub.add_parser(
+        "check", help="check a sequence and its calibration before running it",
+        description="Check PATH as 'ferroslam run' would read it: image sizes against the\n"
+                    "calibration, the distortion over the whole image, frame times, the depth\n"
+                    "scale, the IMU (rate, gaps, units, gravity, noise) and the camera-IMU\n"
+                    "time offset (from a visual-only run over the first 10 s). One line per\n"
+                    "check: ok, warning or error, and what to do. Exit status 1 on an error.",
+        epilog=_LAYOUTS, formatter_class=argparse.RawDescriptionHelpFormatter)
+    check.add_argument("path", type=Path, help="what 'ferroslam run' takes")
+    check.add_argument("--sensor", choices=SENSORS,
+                       help="the setup to check for (default: all the input holds: depth, "
+                            "stereo pairs, IMU)")
+    _add_input_options(check)
+    check.add_argument("--json", action="store_true",
+                       help="print only JSON: the checks and imu_time_offset_s (seconds)")
 
 
 def _add_export_parser(sub: argparse._SubParsersAction) -> None:
@@ -302,18 +364,38 @@ def _load_config(path: Optional[Path]) -> dict:
 
 
 def _open_input(args: argparse.Namespace):
-    """The dataset sequence, or the video / image folder / camera source, ``args.path``
-    names; a source gets the ``--camera`` calibration."""
+    """The dataset sequence, bag, or video / image folder / camera source ``args.path``
+    names, and the notes on it for the summary; ``--camera`` is a source's calibration and
+    replaces a dataset folder's or a bag's own."""
+    from .bags import is_bag, open_bag
     from .calibration import load_calibration
-    from .datasets import is_sequence_folder, open_sequence
+    from .datasets import detect_format, is_sequence_folder, open_sequence
     from .sources import open_source
 
-    if args.format != "auto" or is_sequence_folder(args.path):
-        if args.camera is not None or args.fps is not None:
-            raise ValueError("--camera and --fps are for videos, image folders and cameras; a "
-                             f"dataset folder ({args.path}) has its own calibration and times")
-        return open_sequence(args.path, args.format, sensor=args.sensor)
+    bag = is_bag(args.path)
+    if not bag and (args.topics is not None or args.imu is not None):
+        raise ValueError(f"--topics and --imu are for ROS bags; {args.path} is not one")
+    if bag or args.format != "auto" or is_sequence_folder(args.path):
+        if args.fps is not None:
+            raise ValueError(f"--fps is for image folders; {args.path} has its own frame times")
+        if bag:
+            recording = open_bag(args.path, sensor=args.sensor, topics=args.topics,
+                                 camera=args.camera, imu=args.imu, depth_scale=args.depth_scale)
+            return recording, list(recording.notes)
+        calibration = load_calibration(args.camera) if args.camera is not None else None
+        seq = open_sequence(args.path, args.format, sensor=args.sensor, calibration=calibration,
+                            depth_factor=args.depth_scale)
+        notes = []
+        if calibration is not None:
+            layout = args.format if args.format != "auto" else detect_format(args.path)
+            notes.append(f"calibration from {args.camera}, not the {layout} layout's own")
+        depth_factor = getattr(seq, "depth_factor", None)
+        if depth_factor is not None and args.sensor.startswith("rgbd"):
+            notes.append(f"depth scale {depth_factor:g} pixel values per metre")
+        return seq, notes
     _check_camera_index(str(args.path))
+    if args.depth_scale is not None:
+        raise ValueError(f"--depth-scale is for RGB-D folders and bags; {args.path} has no depth")
     if args.sensor != "mono":
         try:
             open_sequence(args.path, sensor=args.sensor)  # says which layouts it looked for
@@ -326,7 +408,7 @@ def _open_input(args: argparse.Namespace):
                          "--camera FILE (ORB-SLAM3 settings, Kalibr camchain, OpenCV or ROS "
                          "camera_info, flat camera.yaml)")
     source.camera = load_calibration(args.camera).cameras[0]
-    return source
+    return source, []
 
 
 # OpenCV takes a camera index as a C int.
@@ -346,10 +428,35 @@ def _cmd_run(args: argparse.Namespace) -> int:
         config["seed"] = args.seed
     if args.dense:
         config["dense"] = True
-    seq = _open_input(args)
+    seq, notes = _open_input(args)
+    from .check import require_cheap_checks
+
+    require_cheap_checks(seq, args.sensor)
     out = args.out if args.out is not None else Path("out") / seq.name
     return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
-                             args.trajectory_format, _rerun_logger(args))
+                             args.trajectory_format, _rerun_logger(args), notes)
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from .check import CheckReport, check_sequence, opening_error
+    from .datasets import is_sequence_folder
+
+    sensor = args.sensor
+    if sensor is None:  # open a dataset with all it holds, anything else as run does
+        dataset = args.format != "auto" or is_sequence_folder(args.path)
+        args.sensor = "" if dataset else "mono"
+    try:
+        seq, _ = _open_input(args)
+    except (OSError, ValueError) as err:
+        report = CheckReport([opening_error(err)])
+    else:
+        report = check_sequence(seq, sensor)
+    if args.json:
+        print(json.dumps(report.to_json(), indent=2))
+    else:
+        for check in report.checks:
+            print(check.line())
+    return 1 if report.failed else 0
 
 
 def _rerun_logger(args: argparse.Namespace):
@@ -381,7 +488,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
-                      silent: bool, trajectory_format: str = "tum", logger=None) -> int:
+                      silent: bool, trajectory_format: str = "tum", logger=None,
+                      notes: Sequence[str] = ()) -> int:
     """Run ``seq`` (a live source through ``run_source``), write every output file into a
     staging folder moved into ``out`` when the run is over, and print the summary. A run that
     stops at an error (a corrupt image at frame N, a bad ground-truth line) leaves the results
@@ -416,7 +524,7 @@ def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int],
                        f"in {stage.partial}/ (earlier results in {out}/ are kept)",
                        err.partial, err.frame) from err
     if not silent:
-        _print_summary(summary, out)
+        _print_summary(summary, out, notes)
     return 0
 
 
@@ -433,7 +541,7 @@ def _log_final_map(logger, result) -> None:
             logger.log_mesh(result.dense)
 
 
-def _print_summary(summary: dict, out: Path) -> None:
+def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
     print(f"sequence        {summary['sequence']}  ({summary['sensor']})")
     print(f"tracked frames  {summary['tracked_frames']}/{summary['frames']}  "
           f"keyframes {summary['keyframes']}  map points {summary['map_points']}")
@@ -476,8 +584,8 @@ def _print_summary(summary: dict, out: Path) -> None:
         d = summary["dense"]
         print(f"dense mesh      {d['mesh_vertices']} vertices, {d['mesh_triangles']} triangles "
               f"from {d['frames']} keyframes (fusion {d['fusion_s']:.1f} s)")
-    for err in summary["metric_errors"]:
-        print(f"note: {err}")
+    for note in [*notes, *summary["metric_errors"]]:
+        print(f"note: {note}")
     print(f"results in      {out}/ (trajectory, keyframes, map.ply, colmap/, plot.png, "
           "results.json)")
 
@@ -590,7 +698,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
                 "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch,
-                "export": _cmd_export}
+                "check": _cmd_check, "export": _cmd_export}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:

@@ -217,8 +217,15 @@ class RpeResult:
 def _associated_aligned(
     traj_ref: Trajectory, traj_est: Trajectory, align: str, max_diff: float
 ) -> tuple[Trajectory, Trajectory, float, Optional[np.ndarray]]:
+    for name, value in (("traj_ref", traj_ref), ("traj_est", traj_est)):
+        if not isinstance(value, Trajectory):
+            raise TypeError(f"{name} must be a ferroslam.Trajectory (Trajectory(timestamps, "
+                            "poses) or io.read_tum_trajectory(path)), got "
+                            f"{type(value).__name__}")
     if align not in ALIGNMENTS:
         raise ValueError(f"align must be one of {ALIGNMENTS}, got {align!r}")
+    if not (isinstance(max_diff, (int, float)) and 0 <= max_diff < float("inf")):
+        raise ValueError(f"max_diff must be a finite number of seconds >= 0, got {max_diff!r}")
     idx_ref, idx_est = associate(traj_ref.timestamps, traj_est.timestamps, max_diff)
     if idx_ref.size == 0:
         raise ValueError(

@@ -9,7 +9,8 @@ run`` and the ``options`` of a batch SPEC; MATLAB-style keyword names (``max_num
 
 ``scope`` says who takes an option: ``"core"`` (``SlamSystem`` keywords; the core's table),
 ``"imu"`` (``SlamSystem.set_imu`` keywords: inertial sensors only), ``"pipeline"``
-(``run_sequence`` / ``--config`` / SPEC only), ``"object"`` (keywords of the vSLAM objects)
+(``run_sequence`` / ``--config`` / SPEC only), ``"source"`` (how the input is read: ``ferroslam
+run`` flags, ``open_sequence`` / ``open_bag`` keywords), ``"object"`` (keywords of the vSLAM objects)
 and ``"attribute"`` (attributes of the vSLAM objects, checked with :func:`check_option`). The core-scope declarations match the core's table one to one (a test checks
 it), so that they can later be generated from it.
 """
@@ -134,6 +135,11 @@ OPTIONS: tuple[Option, ...] = (
            sensors=("rgbd",), default=DEFAULT_TRUNCATION_M),
     Option("dense_max_depth_m", "float", "pipeline", "metres", 0, None, open_low=True,
            sensors=("rgbd",), default=DEFAULT_MAX_DEPTH_M),
+    # -- the input (ferroslam run flags, open_sequence / open_bag keywords) ---------------
+    Option("depth_scale", "float", "source", "depth pixel values per metre", 0, None,
+           open_low=True, sensors=("rgbd",)),
+    Option("pair_tolerance_s", "float", "source", "s", 0, 1, open_low=True,
+           sensors=("stereo", "rgbd")),
     # -- vSLAM objects -------------------------------------------------------------------
     Option("threaded", "flag", "object"),
     Option("localization_only", "flag", "attribute"),
@@ -148,6 +154,8 @@ _SCOPE_USERS = {
     "pipeline": "run_sequence, --config and batch SPEC options",
     "object": "the vSLAM objects (MonoVSlam, StereoVSlam, RGBDVSlam) as keywords",
     "attribute": "the vSLAM objects as an attribute (vslam.localization_only = True)",
+    "source": "the input: ferroslam run's flags (--depth-scale), open_sequence and open_bag "
+              "keywords",
 }
 # The scopes a configuration (run_sequence config, --config file, SPEC options) may hold.
 CONFIG_SCOPES = ("core", "imu", "pipeline")

@@ -19,6 +19,7 @@ from .camera import Camera
 from .colmap import SparseModel
 from .datasets import frame_images
 from .dense import DenseModel, fuse_tsdf
+from .depth_scale import check_depth_scale
 from .keyframe_images import KeyframeImages
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .options import OPTIONS, pipeline_default, validate_options
@@ -209,7 +210,9 @@ class RunError(ValueError):
 
 
 class _RgbdFeed:
-    """Loads the grey and colour image and the depth of a frame."""
+    """Loads the grey and colour image and the depth of a frame. A sequence that says its
+    depth scale (``depth_factor``) has it checked on the first frame, before any tracking:
+    a wrong one would scale the whole map silently."""
 
     def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
@@ -217,6 +220,9 @@ class _RgbdFeed:
                 f"{getattr(seq, 'name', seq)} has no depth images: use sensor 'stereo' or 'mono'"
             )
         self.seq = seq
+        if getattr(seq, "depth_factor", None) is not None and len(seq):
+            check_depth_scale(seq.load_depth(0), seq.depth_factor,
+                              f"{getattr(seq, 'name', seq)} frame 0")
 
     def system_options(self) -> dict:
         return {}
@@ -386,7 +392,9 @@ def run_sequence(
 
     Raises:
         ValueError, TypeError: bad configuration (naming the key) or ``max_frames``; a
-            sequence with no frames.
+            sequence with no frames; for RGB-D, a sequence's ``depth_factor`` that puts the
+            first frame's median depth outside 0.1-20 m (naming the scale that would not,
+            :func:`ferroslam.depth_scale.check_depth_scale`).
     """
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")

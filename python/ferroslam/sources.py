@@ -8,6 +8,9 @@ sequences for :func:`ferroslam.pipeline.run_sequence` (``len``, ``load_gray(i)``
 ``load_gray_and_color(i)``, ``timestamps``, ``camera``, ``name``, ``has_groundtruth = False``). None carries a
 calibration: give it as ``camera=`` (e.g. ``ferroslam.load_calibration(path).cameras[0]``).
 
+ROS bags (``.bag``, ROS 2 folders, ``.mcap``) are recordings of whole rigs: :func:`open_bag`
+(from :mod:`ferroslam.bags`) opens one as a sequence, with its stereo pairs, depth and IMU.
+
 :class:`CameraSource` and :class:`VideoSource` read through the same code (``cv2.VideoCapture``
 of a device index or of a path), so a camera's timestamps and decoding are what a video's are.
 """
@@ -25,11 +28,12 @@ import cv2
 import numpy as np
 
 from ._files import regular_file
+from .bags import BagSequence, open_bag
 from .camera import Camera
 from .datasets.images import IMAGE_EXTENSIONS, read_gray, read_gray_and_color
 
-__all__ = ["CameraSource", "ImageFolderSource", "LatestFrameReader", "VideoSource",
-           "open_source"]
+__all__ = ["BagSequence", "CameraSource", "ImageFolderSource", "LatestFrameReader",
+           "VideoSource", "open_bag", "open_source"]
 
 Frame = tuple[float, np.ndarray]
 """``(timestamp_s, image)``: seconds, BGR or grey uint8."""

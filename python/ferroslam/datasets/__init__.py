@@ -16,7 +16,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-from ..calibration import read_camera_yaml
+from ..calibration import Calibration, read_camera_yaml
 from ..camera import Camera
 from .euroc import EurocFrame, EurocSequence, ImuParams, read_sensor_yaml
 from .kitti import KittiFrame, KittiSequence, read_kitti_calib
@@ -94,7 +94,8 @@ def frame_images(seq: Any, i: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str = "",
-                  rectify: bool = True, **kwargs) -> Sequence:
+                  rectify: bool = True, calibration: Optional[Calibration] = None,
+                  depth_factor: Optional[float] = None, **kwargs) -> Sequence:
     """Open a sequence folder as ``TumSequence``, ``KittiSequence`` or ``EurocSequence``.
 
     ``format`` is ``"auto"`` (see :func:`detect_format`), ``"tum"``, ``"kitti"`` or
@@ -104,9 +105,15 @@ def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str =
     raw (``load_stereo`` gives raw pairs, the rig is ``left_camera``, ``right_camera``,
     ``T_left_right``: feed it to ``StereoVSlam.from_raw``).
 
+    ``calibration`` (``ferroslam.load_calibration(FILE)``; command line ``--camera FILE``)
+    replaces the layout's own: TUM takes its first camera and its depth factor, EuRoC its
+    cameras and extrinsics (``EurocSequence(calibration=)``). ``depth_factor`` (``--depth-scale``)
+    is the depth pixel value per metre of a TUM-layout folder, over the calibration's.
+
     Raises ``FileNotFoundError`` for a missing folder and ``ValueError`` for an unknown
-    format or layout, or ``rectify=False`` for a format whose images are not raw stereo
-    pairs (TUM, KITTI: rectified already).
+    format or layout, ``rectify=False`` for a format whose images are not raw stereo
+    pairs (TUM, KITTI: rectified already), a calibration for KITTI (its ``calib.txt`` holds
+    the rectified cameras the images are in) or a depth factor for a layout without depth.
     """
     path = Path(path).expanduser()
     if not path.is_dir():
@@ -116,6 +123,20 @@ def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str =
         format = detect_format(path)
     if format not in _LOADERS:
         raise ValueError(f"unknown dataset format {format!r} (use auto, {', '.join(_LOADERS)})")
+    if calibration is not None and format == "kitti":
+        raise ValueError(f"{path}: a KITTI folder's calib.txt holds the rectified cameras its "
+                         "images are in; a calibration cannot replace it")
+    if depth_factor is not None and format != "tum":
+        raise ValueError(f"{path}: a depth scale is for RGB-D folders (TUM layout), not "
+                         f"{format}")
+    if calibration is not None and format == "tum":
+        kwargs["camera"] = calibration.cameras[0]
+        if depth_factor is None:
+            depth_factor = calibration.depth_factor
+    elif calibration is not None:
+        kwargs["calibration"] = calibration
+    if depth_factor is not None:
+        kwargs["depth_factor"] = depth_factor
     if sensor.startswith("mono"):
         kwargs.setdefault("with_depth" if format == "tum" else "stereo", False)
     if format == "euroc":

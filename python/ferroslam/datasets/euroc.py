@@ -25,7 +25,7 @@ from typing import Iterator, Optional, Union
 import numpy as np
 
 from .._validate import read_text
-from ..calibration import ImuParams
+from ..calibration import Calibration, ImuParams
 from ..camera import Camera
 from ..io import read_asl_floats, read_asl_rows, seconds_from_ns
 from ..stereo import StereoRectifier
@@ -178,6 +178,11 @@ class EurocSequence:
             ``load_gray`` return the raw images, ``camera`` is raw cam0, and the rig is
             ``left_camera``, ``right_camera``, ``T_left_right`` (for
             ``StereoVSlam.from_raw``, which rectifies internally).
+        calibration: replaces the cameras of the ``sensor.yaml`` files (``ferroslam run
+            --camera FILE``): its raw cameras, their relative pose ``T_left_right`` and, where
+            it gives them, their poses in the IMU (``T_b_cam = T_b_imu @ T_imu_cam``, with
+            ``T_b_imu`` from ``imu0/sensor.yaml``); without camera-IMU poses the
+            ``sensor.yaml`` ones stay.
 
     Attributes:
         timestamps: ``(N,)`` float64 seconds; ``timestamps_ns``: ``(N,)`` int64 nanoseconds.
@@ -200,7 +205,7 @@ class EurocSequence:
     """
 
     def __init__(self, path: Union[str, Path], *, stereo: bool = True,
-                 rectify: bool = True) -> None:
+                 rectify: bool = True, calibration: Optional[Calibration] = None) -> None:
         path = Path(path).expanduser().resolve()
         if not path.is_dir():
             raise FileNotFoundError(f"EuRoC sequence folder not found: {path}")
@@ -210,6 +215,8 @@ class EurocSequence:
         self.is_rectified = self.is_stereo and bool(rectify)
 
         cam0, self.T_b_cam0 = _read_camera(self.mav0 / "cam0")
+        if calibration is not None:
+            cam0, self.T_b_cam0 = self._given_camera(calibration, 0, self.T_b_cam0)
         left_ns, left_files = self._read_frames("cam0")
         right_files: list[Optional[Path]] = [None] * len(left_files)
         self.rectifier: Optional[StereoRectifier] = None
@@ -221,12 +228,16 @@ class EurocSequence:
         self.T_left_right: Optional[np.ndarray] = None
         if self.is_stereo:
             cam1, self.T_b_cam1 = _read_camera(self.mav0 / "cam1")
+            if calibration is not None:
+                cam1, self.T_b_cam1 = self._given_camera(calibration, 1, self.T_b_cam1)
             self.raw_cameras = (cam0, cam1)
             self.left_camera, self.right_camera = cam0, cam1
             right_ns, files = self._read_frames("cam1")
             self._check_paired(left_ns, right_ns)
             right_files = list(files)
-            self.T_left_right = np.linalg.inv(self.T_b_cam0) @ self.T_b_cam1
+            self.T_left_right = (calibration.T_left_right
+                                 if calibration is not None and calibration.T_left_right
+                                 is not None else np.linalg.inv(self.T_b_cam0) @ self.T_b_cam1)
         if self.is_rectified:
             self.rectifier = StereoRectifier(cam0, cam1, self.T_left_right)
             self.baseline_m = self.rectifier.baseline_m
@@ -247,6 +258,19 @@ class EurocSequence:
                 zip(self.timestamps.tolist(), left_ns.tolist(), left_files, right_files)
             )
         ]
+
+    def _given_camera(self, calibration: Calibration, k: int, T_b_cam: np.ndarray
+                      ) -> tuple[Camera, np.ndarray]:
+        """Camera ``k`` of ``calibration`` and its pose in the body frame (the
+        ``sensor.yaml`` one, ``T_b_cam``, where the calibration gives none)."""
+        if len(calibration.cameras) <= k:
+            raise ValueError(f"the calibration given for {self.mav0} has "
+                             f"{len(calibration.cameras)} camera(s); stereo needs 2")
+        T_imu_cam = calibration.camera_to_imu[k]
+        if T_imu_cam is not None:
+            has_imu = (self.mav0 / "imu0" / "sensor.yaml").is_file()
+            T_b_cam = (self.imu_params().T_b_imu if has_imu else np.eye(4)) @ T_imu_cam
+        return calibration.cameras[k], T_b_cam
 
     def _read_frames(self, cam: str) -> tuple[np.ndarray, list[Path]]:
         path = self.mav0 / cam / "data.csv"

@@ -16,7 +16,7 @@ from typing import Iterator, Optional, Union
 
 import numpy as np
 
-from ..calibration import read_camera_yaml
+from ..calibration import load_calibration
 from ..camera import Camera
 from ..io import read_table, read_tum_trajectory
 from .images import read_depth, read_gray, read_gray_and_color
@@ -29,6 +29,9 @@ TUM_CAMERAS = {
     2: Camera(520.9, 521.0, 325.1, 249.7, np.array([0.2312, -0.7849, -0.0033, -0.0001, 0.9172])),
     3: Camera(535.4, 539.2, 320.1, 247.6, np.zeros(5)),
 }
+
+# Depth pixel value per metre of every TUM sequence.
+TUM_DEPTH_FACTOR = 5000.0
 
 _FREIBURG = re.compile(r"(?:freiburg|(?<![a-z])fr)([123])(?![0-9])", re.IGNORECASE)
 
@@ -110,11 +113,14 @@ class TumSequence:
     Args:
         path: sequence folder (with ``rgb.txt`` and, if ``with_depth``, ``depth.txt``).
         camera: explicit intrinsics; otherwise ``<path>/camera.yaml`` if present, otherwise
-            the freiburg camera named in the folder name (``freiburg1``/``fr1`` ... ``fr3``).
+            the freiburg camera named in the folder name (``freiburg1``/``fr1`` ... ``fr3``),
+            so a folder of any name reads with ``camera`` given.
         with_depth: require ``depth.txt`` and pair every RGB frame with a depth frame
             (frames without a depth partner are dropped, as in ``associate.py``).
         max_diff: pairing tolerance in seconds.
-        depth_factor: depth pixel value per metre (5000 for TUM).
+        depth_factor: depth pixel value per metre; otherwise the depth factor of
+            ``<path>/camera.yaml`` (``depth_scale``, ``DepthMapFactor``) when ``camera`` is not
+            given and the file has one, else TUM's 5000.
 
     Raises:
         FileNotFoundError: the folder or a list file is missing (message names it).
@@ -128,15 +134,20 @@ class TumSequence:
         *,
         with_depth: bool = True,
         max_diff: float = 0.02,
-        depth_factor: float = 5000.0,
+        depth_factor: Optional[float] = None,
     ) -> None:
         self.path = Path(path).expanduser().resolve()
         if not self.path.is_dir():
             raise FileNotFoundError(f"TUM sequence folder not found: {self.path}")
+        file_factor = None
+        if camera is None:
+            camera, file_factor = self._find_camera()
+        if depth_factor is None:
+            depth_factor = file_factor if file_factor is not None else TUM_DEPTH_FACTOR
         if not (np.isfinite(depth_factor) and depth_factor > 0):
             raise ValueError(f"depth_factor must be a positive number, got {depth_factor}")
         self.depth_factor = float(depth_factor)
-        self.camera = camera if camera is not None else self._find_camera()
+        self.camera = camera
         t_rgb, rgb_files = _read_list(self.path / "rgb.txt", "TUM rgb list")
         if with_depth:
             t_depth, depth_files = _read_list(self.path / "depth.txt", "TUM depth list")
@@ -158,17 +169,20 @@ class TumSequence:
             ]
         self.timestamps = np.array([f.timestamp for f in self.frames], dtype=np.float64)
 
-    def _find_camera(self) -> Camera:
+    def _find_camera(self) -> tuple[Camera, Optional[float]]:
+        """The camera and, from a ``camera.yaml``, its depth factor (``None`` if none)."""
         yaml = self.path / "camera.yaml"
         if yaml.is_file():
-            return read_camera_yaml(yaml)
+            calibration = load_calibration(yaml)
+            return calibration.cameras[0], calibration.depth_factor
         match = _FREIBURG.search(self.path.name)
         if match is None:
             raise ValueError(
                 f"cannot tell the camera of {self.path}: the folder name names no freiburg "
-                "camera (fr1/fr2/fr3); add a camera.yaml or pass camera=Camera(...)"
+                "camera (fr1/fr2/fr3); add a camera.yaml or pass camera=Camera(...) (command "
+                "line: --camera FILE)"
             )
-        return TUM_CAMERAS[int(match.group(1))]
+        return TUM_CAMERAS[int(match.group(1))], None
 
     @property
     def name(self) -> str:
