@@ -69,11 +69,17 @@ class KeyframeImages:
 
     def image(self, timestamp_s: float) -> np.ndarray:
         """The image of the keyframe at ``timestamp_s``, as it was added."""
-        return cv2.imdecode(np.frombuffer(self.png(timestamp_s), np.uint8), cv2.IMREAD_UNCHANGED)
+        return _decode(self.png(timestamp_s))
 
     def depth_m(self, timestamp_s: float) -> np.ndarray:
         """The depth image (float32 metres, 0 for none) of the keyframe at ``timestamp_s``
         (``KeyError`` if none was kept)."""
-        png = np.frombuffer(self._depth_m[float(timestamp_s)], np.uint8)
-        return cv2.imdecode(png, cv2.IMREAD_UNCHANGED).astype(np.float32) * np.float32(
-            DEPTH_STEP_M)
+        steps = _decode(self._depth_m[float(timestamp_s)])
+        return steps.astype(np.float32) * np.float32(DEPTH_STEP_M)
+
+
+def _decode(png: bytes) -> np.ndarray:
+    """The pixels of a PNG this class encoded (so it decodes)."""
+    pixels = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert pixels is not None, "a PNG encoded by KeyframeImages.add"
+    return pixels

@@ -534,11 +534,11 @@ def _complete_keyframe_images(images: KeyframeImages, keyframe_stamps: np.ndarra
             images.add(float(t), feed.image(data), feed.depth(data))
 
 
-def _fuse_keyframes(result: RunResult, config: dict) -> DenseModel:
+def _fuse_keyframes(camera: Camera, keyframes: Trajectory, images: KeyframeImages,
+                    config: dict) -> DenseModel:
     """The TSDF mesh of the run's keyframes at their final poses."""
-    model, images = result.sparse_model, result.keyframe_images
-    return fuse_tsdf(result.camera, model.T_w_c, [images.image(t) for t in model.timestamps],
-                     [images.depth_m(t) for t in model.timestamps],
+    return fuse_tsdf(camera, keyframes.poses, [images.image(t) for t in keyframes.timestamps],
+                     [images.depth_m(t) for t in keyframes.timestamps],
                      voxel_m=pipeline_default(config, "dense_voxel_m"),
                      truncation_m=pipeline_default(config, "dense_truncation_m"),
                      max_depth_m=pipeline_default(config, "dense_max_depth_m"))
@@ -634,9 +634,9 @@ def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progres
         keyframe_images=keyframe_images,
         **_map_outputs(system),
     )
-    _complete_keyframe_images(keyframe_images, result.sparse_model.timestamps, seq, feed)
+    _complete_keyframe_images(keyframe_images, result.keyframes.timestamps, seq, feed)
     if dense and failure is None:
-        result.dense = _fuse_keyframes(result, config)
+        result.dense = _fuse_keyframes(seq.camera, result.keyframes, keyframe_images, config)
     evaluation_error = None
     if getattr(seq, "has_groundtruth", False):
         try:

@@ -735,6 +735,7 @@ class RGBDVSlam(_VSlam):
         self.wait()
         _, stamps, poses = self._system.keyframe_trajectory()
         images = self._keyframe_images
+        assert images is not None  # every RGBDVSlam keeps its keyframes' pixels
         images.keep_only(stamps)
         kept = [i for i, t in enumerate(stamps) if t in images]
         return fuse_tsdf(
