@@ -58,15 +58,8 @@ pub fn model_dict<'py>(py: Python<'py>, model: SparseModel) -> PyResult<Bound<'p
             Array2::from_shape_fn((points.len(), 3), |(i, c)| points[i].position[c]),
         ),
     )?;
-    d.set_item(
-        "point_colors",
-        PyArray2::from_owned_array(
-            py,
-            Array2::from_shape_fn((points.len(), 3), |(i, c)| {
-                points[i].color.unwrap_or(crate::system::UNCOLORED)[c]
-            }),
-        ),
-    )?;
+    let colors: Vec<_> = points.iter().map(|p| p.color).collect();
+    d.set_item("point_colors", convert::colors_array(py, &colors))?;
     Ok(d)
 }
 
