@@ -53,3 +53,14 @@ def euroc_micro() -> Path:
 @pytest.fixture(scope="session")
 def kitti_mono() -> Path:
     return require_data("kitti", "odometry_06_first51")
+
+
+@pytest.fixture(scope="session")
+def tum_rpy_dense_run(tum_rpy):
+    """One RGB-D run over the 300 frames of TUM fr1/rpy with dense fusion, shared by the
+    COLMAP and dense tests (a run takes tens of seconds on CI's two cores)."""
+    from ferroslam.datasets import open_sequence
+    from ferroslam.pipeline import run_sequence
+
+    seq = open_sequence(tum_rpy)
+    return seq, run_sequence(seq, {"dense": True}, sensor="rgbd", progress=False)

@@ -92,6 +92,10 @@ class FakeSlamSystem:
     def loop_stats(self):
         return {"keyframes_checked": 0, "with_candidates": 0, "verified": 0, "rejected": 0}
 
+    @property
+    def num_keyframes(self) -> int:
+        return len(self.kf)
+
     def keyframe_trajectory(self):
         ids = np.arange(len(self.kf), dtype=np.uint32)
         return ids, np.array(self.stamps)[self.kf], np.array(self.poses)[self.kf]
@@ -101,3 +105,10 @@ class FakeSlamSystem:
 
     def map_point_colors(self):
         return np.full((10, 3), 128, np.uint8)
+
+    def sparse_model(self):
+        ids, stamps, poses = self.keyframe_trajectory()
+        return {"keyframe_ids": ids, "timestamps": stamps, "T_w_c": poses,
+                "keypoint_offsets": np.zeros(len(ids) + 1, np.int64),
+                "keypoints_px": np.zeros((0, 2)), "point_index": np.zeros(0, np.int64),
+                "points_xyz": self.map_points(), "point_colors": self.map_point_colors()}

@@ -260,3 +260,22 @@ def test_cli_rerun_save_records_the_run_live(tmp_path):
     points = _cells(rows["/world/map/points"], "Points3D:positions")
     assert len(points) >= 2  # the map at keyframes, then the final one
     assert len(points[-1]) > 500
+
+
+def test_a_dense_mesh_is_logged_with_its_colours(tmp_path):
+    from ferroslam.dense import DenseModel
+
+    vertices = np.array([[0.0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]])
+    dense = DenseModel(vertices=vertices, triangles=np.array([[0, 1, 2], [1, 3, 2]]),
+                       vertex_colors=np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255],
+                                               [9, 9, 9]], np.uint8),
+                       points=vertices, point_colors=np.zeros((4, 3), np.uint8),
+                       fusion_s=0.0, frames=1)
+    path = tmp_path / "mesh.rrd"
+    with RerunLogger(save_path=path) as logger:
+        logger.log_mesh(dense)
+    rows = _read(path)["/world/map/mesh"]
+    np.testing.assert_allclose(_cells(rows, "Mesh3D:vertex_positions")[0], vertices)
+    assert _cells(rows, "Mesh3D:triangle_indices")[0] == [[0, 1, 2], [1, 3, 2]]
+    np.testing.assert_array_equal(_rgba(_cells(rows, "Mesh3D:vertex_colors")[0])[:, :3],
+                                  dense.vertex_colors)

@@ -21,7 +21,8 @@ else:
 
 __all__ = [
     "KeyframeDatabase", "OrbExtractor", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
-    "__version__", "default_options", "match_stereo", "project_points", "unproject_pixels",
+    "__version__", "default_options", "load_sparse_model", "match_stereo", "project_points",
+    "unproject_pixels",
 ]
 
 __version__: str
@@ -332,6 +333,14 @@ class SlamSystem:
         each the colour of the keypoint that created the point (the ``colors`` given with
         its frame); grey ``(128, 128, 128)`` for points made from frames given without
         colours, as the exporters draw uncoloured points."""
+    def sparse_model(self) -> dict[str, NDArray[Any]]:
+        """The map as images and tracks, in one call (GIL released): ``keyframe_ids (K,)``
+        uint32, ``timestamps (K,)`` float64 s, ``T_w_c (K, 4, 4)`` float64,
+        ``keypoint_offsets (K + 1,)`` int64 (keyframe ``k``'s keypoints are rows
+        ``offsets[k]:offsets[k + 1]``), ``keypoints_px (N, 2)`` float64 raw image pixels
+        (the lens distortion applied), ``point_index (N,)`` int64 (row of ``points_xyz``
+        the keypoint observes, -1 for none), ``points_xyz (M, 3)`` float64 metres (the
+        order of ``map_points``), ``point_colors (M, 3)`` uint8 RGB."""
     def save_map(self, path: str | os.PathLike[str]) -> None:
         """Writes the map to ``path`` (versioned binary format with a checksum).
 
@@ -454,6 +463,19 @@ class SlamSystem:
         "keyframe_ids" (K,) uint32, "keyframe_timestamps" (K,), "velocities" (K, 3) m/s in the
         world, "timestamp", "acceleration_excitation" m/s^2}``.
         """
+
+def load_sparse_model(
+    path: str | os.PathLike[str],
+) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    """``(camera, model)`` of a map file: ``camera`` the dict (``sensor``, ``model``, ``fx``,
+    ``fy``, ``cx``, ``cy``, ``dist``, ``width``, ``height``) of the camera it was built with,
+    ``model`` as ``SlamSystem.sparse_model``. Read without the GIL.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: a corrupt or truncated file, another format version, or a file without
+            its camera record.
+    """
 
 def default_options(sensor: _Sensor, width: int) -> dict[str, Any]:
     """The options a ``SlamSystem`` of ``sensor`` for images ``width`` pixels wide uses when

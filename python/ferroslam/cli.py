@@ -89,8 +89,9 @@ outputs (in --out):
   trajectory.txt      every tracked frame, TUM format (timestamp tx ty tz qx qy qz qw, T_w_c);
                       --trajectory-format kitti / euroc (trajectory.csv) for the others
   keyframes.txt       keyframe poses, same format
-  colmap/             keyframes and map points as a COLMAP text model (cameras.txt,
-                      images.txt, points3D.txt)
+  colmap/             COLMAP model: images/ (the keyframes' images), sparse/0/ (cameras,
+                      images with their 2-D points, points with their tracks; text)
+  mesh.ply, dense.ply with --dense (rgbd): TSDF mesh and dense cloud of the keyframes
   map.ply             map points (world frame = first camera, metres), PLY
   plot.png            top and side views against the ground truth, map points
   trajectory_top.png  top view only
@@ -183,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
                            '{"n_features": 2000, "depth_threshold": 35}')
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
     algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
+    algo.add_argument("--dense", action="store_true",
+                      help="rgbd: fuse the keyframes' depth into mesh.ply and dense.ply (TSDF, "
+                           "pip install 'ferroslam[dense]'; voxel and truncation: the "
+                           "dense_voxel_m, dense_truncation_m options of --config)")
     _add_input_options(run)
     _add_output_options(run, "out/<sequence name>")
 
@@ -230,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_vocab_parser(sub)
     _add_batch_parser(sub)
     _add_check_parser(sub)
+    _add_export_parser(sub)
     return parser
 
 
@@ -275,6 +281,18 @@ def _add_check_parser(sub: argparse._SubParsersAction) -> None:
     _add_input_options(check)
     check.add_argument("--json", action="store_true",
                        help="print only JSON: the checks and imu_time_offset_s (seconds)")
+
+
+def _add_export_parser(sub: argparse._SubParsersAction) -> None:
+    """``export MAP --colmap DIR``: a saved map as a COLMAP model."""
+    export = sub.add_parser(
+        "export", help="write a saved map as a COLMAP model",
+        description="Write the keyframes, keypoints, points and tracks of a map file\n"
+                    "(save_map) as a COLMAP text model in DIR/sparse/0/. A map file holds no\n"
+                    "images: DIR/image_timestamps.txt names the source frame of each image.")
+    export.add_argument("map", type=Path, help="map file")
+    export.add_argument("--colmap", type=Path, required=True, metavar="DIR",
+                        help="output folder (created)")
 
 
 def _add_vocab_parser(sub: argparse._SubParsersAction) -> None:
@@ -408,6 +426,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     config = _load_config(args.config)
     if args.seed is not None:
         config["seed"] = args.seed
+    if args.dense:
+        config["dense"] = True
     seq, notes = _open_input(args)
     from .check import require_cheap_checks
 
@@ -517,6 +537,8 @@ def _log_final_map(logger, result) -> None:
         logger.log_map(result.map_points, result.map_point_colors,
                        keyframe_poses_T_w_c=result.keyframes.poses, loops=result.loops,
                        keyframe_ids=result.keyframe_ids)
+        if result.dense is not None:
+            logger.log_mesh(result.dense)
 
 
 def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
@@ -558,10 +580,23 @@ def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
               f"(refinement {inertial['refinement']})")
     elif inertial:
         print(f"IMU alignment   {inertial['status']}: {inertial.get('reason', '')}")
+    if "dense" in summary:
+        d = summary["dense"]
+        print(f"dense mesh      {d['mesh_vertices']} vertices, {d['mesh_triangles']} triangles "
+              f"from {d['frames']} keyframes (fusion {d['fusion_s']:.1f} s)")
     for note in [*notes, *summary["metric_errors"]]:
         print(f"note: {note}")
     print(f"results in      {out}/ (trajectory, keyframes, map.ply, colmap/, plot.png, "
           "results.json)")
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .colmap import TIMESTAMPS_FILE, export_map_file
+
+    folder = export_map_file(args.map, args.colmap)
+    print(f"COLMAP model in {folder}/sparse/0/; a map file holds no images: put the frames "
+          f"listed in {folder}/{TIMESTAMPS_FILE} in {folder}/images/ under those names")
+    return 0
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
@@ -663,7 +698,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
                 "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch,
-                "check": _cmd_check}
+                "check": _cmd_check, "export": _cmd_export}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:

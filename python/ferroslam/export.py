@@ -265,16 +265,17 @@ def _image_names(image_names: Optional[Sequence[str]], keyframe_ids: np.ndarray)
     return names
 
 
-def _index_array(value: object, name: str, n_rows: Optional[int], bound: int) -> np.ndarray:
-    """``(n_rows,)`` (``None``: any length) int64 indices in ``[0, bound)``."""
+def _index_array(value: object, name: str, n_rows: Optional[int], bound: int,
+                 low: int = 0) -> np.ndarray:
+    """``(n_rows,)`` (``None``: any length) int64 indices in ``[low, bound)``."""
     index = np.asarray(value)
     shape_ok = index.ndim == 1 and n_rows in (None, index.shape[0])
     if not shape_ok or (index.size and not np.issubdtype(index.dtype, np.integer)):
         raise ValueError(f"{name} must be ({'N' if n_rows is None else n_rows},) integers, "
                          f"got {index.dtype} of shape {index.shape}")
     index = index.astype(np.int64)
-    if index.size and (index.min() < 0 or index.max() >= bound):
-        raise ValueError(f"{name} must lie in [0, {bound})")
+    if index.size and (index.min() < low or index.max() >= bound):
+        raise ValueError(f"{name} must lie in [{low}, {bound})")
     return index
 
 
@@ -282,7 +283,7 @@ def _observations(
     observations: Optional[Sequence[object]], n_images: int, n_points: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Checked ``(keyframe_index (K,), point_index (K,), uv_px (K, 2))``, each point seen at
-    most once per keyframe."""
+    most once per keyframe; point index -1 is a keypoint without a point."""
     if observations is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2))
     try:
@@ -291,8 +292,9 @@ def _observations(
         raise ValueError("observations must be (keyframe_index, point_index, uv_px)") from None
     uv = finite_array(uv_px, "observations uv_px", (None, 2))
     image = _index_array(keyframe_index, "observations keyframe_index", len(uv), n_images)
-    point = _index_array(point_index, "observations point_index", len(uv), n_points)
-    if np.unique(image * n_points + point).size != len(uv):
+    point = _index_array(point_index, "observations point_index", len(uv), n_points, low=-1)
+    seen = point >= 0
+    if np.unique(image[seen] * n_points + point[seen]).size != np.count_nonzero(seen):
         raise ValueError("observations see a point twice in one keyframe")
     return image, point, uv
 
@@ -302,6 +304,12 @@ def _groups(keys: np.ndarray, n_groups: int) -> list[np.ndarray]:
     order = np.argsort(keys, kind="stable")
     bounds = np.searchsorted(keys[order], np.arange(n_groups + 1))
     return [order[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _tracks(point: np.ndarray, n_points: int) -> list[np.ndarray]:
+    """Observation rows of each point (rows without a point, -1, in none)."""
+    seen = np.flatnonzero(point >= 0)
+    return [seen[rows] for rows in _groups(point[seen], n_points)]
 
 
 def _point2d_indices(by_image: list[np.ndarray], n_observations: int) -> np.ndarray:
@@ -325,11 +333,14 @@ def _images_txt(
     T_c_w = inverse(T_w_c)
     q_xyzw = matrix_to_quat(T_c_w[:, :3, :3])
     header = _COLMAP_HEADERS["images.txt"]
-    lines = [header.format(n=len(names), mean=_mean(len(point), len(names)))]
+    n_observations = int(np.count_nonzero(point >= 0))
+    lines = [header.format(n=len(names), mean=_mean(n_observations, len(names)))]
     for i, rows in enumerate(by_image):
         pose = np.concatenate([q_xyzw[i, 3:], q_xyzw[i, :3], T_c_w[i, :3, 3]])
         lines.append(f"{image_ids[i]} {_numbers(pose)} {_COLMAP_CAMERA_ID} {names[i]}\n")
-        lines.append(" ".join(f"{_numbers(uv_px[r] + _COLMAP_PIXEL_OFFSET)} {point[r] + 1}"
+        # POINT3D_ID -1: a keypoint without a point (COLMAP's "invalid" id).
+        lines.append(" ".join(f"{_numbers(uv_px[r] + _COLMAP_PIXEL_OFFSET)} "
+                              f"{point[r] + 1 if point[r] >= 0 else -1}"
                               for r in rows) + "\n")
     return "".join(lines)
 
@@ -381,8 +392,10 @@ def write_colmap_model(
             ``[0, 1]``); grey 128 if not given.
         observations: optional ``(keyframe_index (K,), point_index (K,), uv_px (K, 2))``:
             point ``points_xyz[point_index]`` seen in keyframe ``keyframe_index`` (a row of
-            the keyframe arrays) at raw pixel ``uv_px``; at most once per keyframe. Without
-            them the images list no 2-D points and the points have empty tracks.
+            the keyframe arrays) at raw pixel ``uv_px``; at most once per keyframe. Point
+            index -1 is a keypoint without a point (listed in POINTS2D with POINT3D_ID
+            -1, in no track). Without them the images list no 2-D points and the points
+            have empty tracks.
         image_names: optional ``N`` unique names without whitespace, the image files
             relative to the tools' image folder (default ``keyframe_<id:06d>.png``).
 
@@ -408,7 +421,7 @@ def write_colmap_model(
     texts = {
         "cameras.txt": _COLMAP_HEADERS["cameras.txt"] + camera_line + "\n",
         "images.txt": _images_txt(image_ids, T_w_c, names, by_image, point, uv_px),
-        "points3D.txt": _points3d_txt(xyz, rgb, _groups(point, len(xyz)), image_ids[image],
+        "points3D.txt": _points3d_txt(xyz, rgb, _tracks(point, len(xyz)), image_ids[image],
                                       _point2d_indices(by_image, len(image))),
     }
     folder = Path(folder)

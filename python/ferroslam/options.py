@@ -28,8 +28,10 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from ._files import MAX_CONFIG_BYTES, check_nesting, read_bounded_text
+from .dense import DEFAULT_MAX_DEPTH_M, DEFAULT_TRUNCATION_M, DEFAULT_VOXEL_M
 
-__all__ = ["OPTIONS", "Option", "check_option", "load_option_file", "validate_options"]
+__all__ = ["OPTIONS", "Option", "check_option", "load_option_file", "pipeline_default",
+           "validate_options"]
 
 SENSORS = ("mono", "stereo", "rgbd")
 _INERTIAL = "-inertial"
@@ -60,6 +62,9 @@ class Option:
     aliases: tuple[str, ...] = ()
     matlab: str = ""
     infinite_high: bool = False  # a float (or a pair's upper value) may be +inf
+    # The default of an option the core does not take (scope "pipeline"); core options
+    # take the core's (``default_options``).
+    default: Any = None
 
     def range_text(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
@@ -122,6 +127,14 @@ OPTIONS: tuple[Option, ...] = (
     # -- run_sequence / --config / SPEC --------------------------------------------------
     Option("vocabulary", "vocabulary", "pipeline"),
     Option("mapping_thread", "flag", "pipeline"),
+    # TSDF fusion of the RGB-D keyframes into mesh.ply (ferroslam.dense; run --dense).
+    Option("dense", "flag", "pipeline", sensors=("rgbd",), default=False),
+    Option("dense_voxel_m", "float", "pipeline", "metres", 0, None, open_low=True,
+           sensors=("rgbd",), default=DEFAULT_VOXEL_M),
+    Option("dense_truncation_m", "float", "pipeline", "metres", 0, None, open_low=True,
+           sensors=("rgbd",), default=DEFAULT_TRUNCATION_M),
+    Option("dense_max_depth_m", "float", "pipeline", "metres", 0, None, open_low=True,
+           sensors=("rgbd",), default=DEFAULT_MAX_DEPTH_M),
     # -- the input (ferroslam run flags, open_sequence / open_bag keywords) ---------------
     Option("depth_scale", "float", "source", "depth pixel values per metre", 0, None,
            open_low=True, sensors=("rgbd",)),
@@ -204,6 +217,11 @@ def validate_options(options: Optional[dict], sensor: str, inertial: bool = Fals
     return out
 
 
+def pipeline_default(options: dict, name: str) -> Any:
+    """``options[name]``, or the declared default of that pipeline option."""
+    return options.get(name, _BY_NAME[name].default)
+
+
 def check_option(name: str, value: Any) -> Any:
     """One option's value checked and normalised (attribute setters such as
     ``localization_only``); raises as :func:`validate_options`."""
@@ -255,6 +273,12 @@ def _scalar(option: Option, kind: str, key: str, value: Any, may_be_inf: bool):
 
 
 def _check_together(options: dict) -> None:
+    voxel_m = pipeline_default(options, "dense_voxel_m")
+    truncation_m = pipeline_default(options, "dense_truncation_m")
+    if ("dense_voxel_m" in options or "dense_truncation_m" in options) \
+            and not voxel_m < truncation_m:
+        raise ValueError(f"option 'dense_truncation_m' = {truncation_m} must exceed "
+                         f"'dense_voxel_m' = {voxel_m}: the distance field spans voxels")
     if "min_fast" in options and "ini_fast" in options \
             and options["min_fast"] > options["ini_fast"]:
         raise ValueError(f"option 'min_fast' = {options['min_fast']} must be at most "

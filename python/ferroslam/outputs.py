@@ -1,7 +1,8 @@
 """What a run leaves in its output folder, written the same way by ``ferroslam run``,
-``demo`` and ``batch``: trajectories, ``map.ply``, a COLMAP model, plots and
-``results.json``. The files are written into a fresh folder beside the output folder and
-moved into it when the run is over (:class:`ferroslam._files.StagedFolder`): a failed run
+``demo`` and ``batch``: trajectories, ``map.ply``, a COLMAP model (``colmap/images/`` and
+``colmap/sparse/0/``), with ``dense`` the TSDF mesh (``mesh.ply``) and dense cloud
+(``dense.ply``), plots and ``results.json``. The files are written into a fresh folder
+beside the output folder and moved into it when the run is over (:class:`ferroslam._files.StagedFolder`): a failed run
 never replaces the results of an earlier one."""
 
 from __future__ import annotations
@@ -12,7 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from ._files import StagedFolder, write_text
-from .export import write_colmap_model, write_ply, write_trajectory
+from .colmap import write_colmap
+from .dense import write_dense_outputs
+from .export import write_ply, write_trajectory
 
 __all__ = ["publish_run_outputs", "write_run_outputs"]
 
@@ -35,7 +38,7 @@ def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict
 
 def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None:
     """Trajectories (in ``trajectory_format``), map points with their colours (PLY), the
-    keyframes and points as a COLMAP text model (``colmap/``) and plots; the plots show the
+    keyframes and points as a COLMAP model (``colmap/``), the dense mesh if fused, and plots; the plots show the
     estimate and map aligned to the ground truth when ATE could be computed."""
     # matplotlib (a third of a second) only once a run writes its plots, not for `--help`.
     from .plot import plot_overview, plot_trajectory_top_view
@@ -45,10 +48,11 @@ def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None
         write_trajectory(out / f"{stem}{suffix}", trajectory.timestamps, trajectory.poses,
                          format=trajectory_format)
     write_ply(out / "map.ply", result.map_points, result.map_point_colors)
-    if result.camera is not None:
-        write_colmap_model(out / "colmap", result.camera, result.keyframe_ids,
-                           result.keyframes.poses, result.map_points,
-                           point_colors=result.map_point_colors)
+    if result.camera is not None and result.sparse_model is not None:
+        write_colmap(out / "colmap", result.camera, result.sparse_model,
+                     result.keyframe_images)
+    if result.dense is not None:
+        write_dense_outputs(out, result.dense)
     if not len(result.trajectory):
         return  # nothing tracked: nothing to draw
     ate = result.ate_frames

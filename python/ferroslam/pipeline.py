@@ -16,10 +16,13 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import Camera
+from .colmap import SparseModel
 from .datasets import frame_images
+from .dense import DenseModel, fuse_tsdf
 from .depth_scale import check_depth_scale
+from .keyframe_images import KeyframeImages
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
-from .options import validate_options
+from .options import OPTIONS, pipeline_default, validate_options
 from .session import EXTRACTOR_KEYS, IMU_KEYS, Features, Session, load_vocabulary, make_extractor
 from .trajectory import Trajectory
 from .vslam import FrameResult, MonoVSlam
@@ -30,7 +33,7 @@ __all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_e
 SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
 _INERTIAL = "-inertial"
 # Pipeline options that are not SlamSystem keywords.
-_PIPELINE_ONLY = ("vocabulary", "mapping_thread") + IMU_KEYS
+_PIPELINE_ONLY = tuple(o.name for o in OPTIONS if o.scope == "pipeline") + IMU_KEYS
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "matching_ms", "pose_optimisation_ms",
             "mapping_ms", "local_ba_ms", "loop_closing_ms", "track_call_ms", "frame_ms")
 
@@ -60,6 +63,11 @@ class RunResult:
     alignment (``1 / s - 1`` for the alignment's scale ``s``). Path lengths are not a scale
     measure: per-frame jitter adds length.
     ``camera``: the intrinsics of the images tracked (for exports such as COLMAP models).
+    ``sparse_model``: the keyframes' keypoints and the points' tracks
+    (:class:`~ferroslam.colmap.SparseModel`); ``keyframe_images``: the images (and, with
+    ``dense``, depth) of the keyframes in the map; ``dense``: the TSDF mesh of the RGB-D
+    keyframes at their final poses (:class:`~ferroslam.dense.DenseModel`), with the
+    ``dense`` option.
     ``dropped_frames``: for a live run (:func:`run_source`), the frames read but not tracked
     because tracking was behind (``None`` otherwise: every frame is tracked); its timings are
     ``tracking_ms``, ``mapping_ms`` and ``latency_ms`` (``FrameResult.latency_ms``).
@@ -83,6 +91,9 @@ class RunResult:
     loop_stats: dict = field(default_factory=dict)
     inertial: Optional[dict] = None
     camera: Optional[Camera] = None
+    sparse_model: Optional[SparseModel] = None
+    keyframe_images: Optional[KeyframeImages] = None
+    dense: Optional[DenseModel] = None
     groundtruth: Optional[Trajectory] = None
     ate_frames: Optional[AteResult] = None
     ate_keyframes: Optional[AteResult] = None
@@ -151,6 +162,10 @@ class RunResult:
             "loops": len(self.loops),
             "keyframes": len(self.keyframes),
             "map_points": int(self.map_points.shape[0]),
+            **({"dense": {"mesh_vertices": len(self.dense.vertices),
+                          "mesh_triangles": len(self.dense.triangles),
+                          "points": len(self.dense.points), "frames": self.dense.frames,
+                          "fusion_s": self.dense.fusion_s}} if self.dense is not None else {}),
             "timing_ms": timing,
             "inertial": _jsonable(self.inertial),
             "metrics": {},
@@ -223,6 +238,11 @@ class _RgbdFeed:
         return data[1]
 
     @staticmethod
+    def depth(data) -> np.ndarray:
+        """The depth image (metres) of loaded ``data``."""
+        return data[2]
+
+    @staticmethod
     def features(session: Session, data) -> Features:
         gray, color, depth = data
         return session.rgbd(gray, depth, color)
@@ -257,6 +277,10 @@ class _StereoFeed:
         return data[0]
 
     @staticmethod
+    def depth(data) -> None:
+        return None
+
+    @staticmethod
     def features(session: Session, data) -> Features:
         return session.stereo(*data)
 
@@ -279,6 +303,10 @@ class _MonoFeed:
     def image(data) -> np.ndarray:
         """The image of loaded ``data`` (for ``on_frame``), in colour where there is."""
         return data[1]
+
+    @staticmethod
+    def depth(data) -> None:
+        return None
 
     @staticmethod
     def features(session: Session, data) -> Features:
@@ -431,6 +459,7 @@ def _map_outputs(system) -> dict:
         loop_stats=system.loop_stats(),
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
         map_point_colors=np.asarray(system.map_point_colors(), dtype=np.uint8).reshape(-1, 3),
+        sparse_model=SparseModel.from_core(system.sparse_model()),
     )
 
 
@@ -480,6 +509,41 @@ def run_source(source, config: Optional[dict] = None, max_frames: Optional[int] 
         )
 
 
+def _keep_keyframe(images: KeyframeImages, system, timestamp_s: float, image: np.ndarray,
+                   depth_m: Optional[np.ndarray]) -> None:
+    """Keeps a new keyframe's image; forgets those of culled keyframes once they are as many
+    as the live ones, so memory follows the map."""
+    images.add(timestamp_s, image, depth_m)
+    if len(images) > 2 * system.num_keyframes:
+        images.keep_only(system.keyframe_trajectory()[1])
+
+
+def _complete_keyframe_images(images: KeyframeImages, keyframe_stamps: np.ndarray, seq,
+                              feed) -> None:
+    """Keeps exactly the images of the map's keyframes: those of culled keyframes go, and a
+    keyframe no track result announced (a monocular map's first, chosen when the second
+    view came) is loaded again from the sequence."""
+    images.keep_only(keyframe_stamps)
+    frame_of = {float(t): i for i, t in enumerate(seq.timestamps)}
+    for t in keyframe_stamps:
+        if t not in images and float(t) in frame_of:
+            try:
+                data = feed.load(frame_of[float(t)])
+            except (OSError, ValueError):
+                continue  # the model names the image all the same; the run's error says why
+            images.add(float(t), feed.image(data), feed.depth(data))
+
+
+def _fuse_keyframes(camera: Camera, keyframes: Trajectory, images: KeyframeImages,
+                    config: dict) -> DenseModel:
+    """The TSDF mesh of the run's keyframes at their final poses."""
+    return fuse_tsdf(camera, keyframes.poses, [images.image(t) for t in keyframes.timestamps],
+                     [images.depth_m(t) for t in keyframes.timestamps],
+                     voxel_m=pipeline_default(config, "dense_voxel_m"),
+                     truncation_m=pipeline_default(config, "dense_truncation_m"),
+                     max_depth_m=pipeline_default(config, "dense_max_depth_m"))
+
+
 def _jsonable(value):
     """``value`` with numpy arrays and scalars turned into lists and floats."""
     if isinstance(value, dict):
@@ -505,6 +569,8 @@ def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progres
     imu_from = 0
     imu_period_s = 1.0 / float(seq.imu_params().rate_hz) if imu is not None else 0.0
     failure: Optional[tuple[int, Exception]] = None
+    dense = bool(pipeline_default(config, "dense"))
+    keyframe_images = KeyframeImages(keep_depth=dense)
     for i in bar:
         if realtime:
             time.sleep(max(0.0, start + float(seq.timestamps[i] - seq.timestamps[0])
@@ -522,6 +588,9 @@ def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progres
                     system.add_imu(*(a[imu_from:imu_to] for a in imu))
                 imu_from = imu_to
             res = session.track(float(seq.timestamps[i]), features)
+            if res.is_keyframe:
+                _keep_keyframe(keyframe_images, system, float(seq.timestamps[i]),
+                               feed.image(data), feed.depth(data))
             if on_frame is not None:
                 on_frame(res, image=feed.image(data), keypoints=features.keypoints,
                          timestamp_s=float(seq.timestamps[i]), system=system)
@@ -562,8 +631,12 @@ def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progres
         init_reasons=init_reasons,
         inertial=system.inertial_alignment() if imu is not None else None,
         camera=getattr(seq, "camera", None),
+        keyframe_images=keyframe_images,
         **_map_outputs(system),
     )
+    _complete_keyframe_images(keyframe_images, result.keyframes.timestamps, seq, feed)
+    if dense and failure is None:
+        result.dense = _fuse_keyframes(seq.camera, result.keyframes, keyframe_images, config)
     evaluation_error = None
     if getattr(seq, "has_groundtruth", False):
         try:

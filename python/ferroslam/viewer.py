@@ -49,6 +49,7 @@ KEYPOINTS = "world/camera/image/keypoints"
 MAP_POINTS = "world/map/points"
 KEYFRAMES = "world/map/keyframes"
 LOOPS = "world/map/loops"
+MESH = "world/map/mesh"
 STATE = "tracking/state"
 NUM_TRACKED = "tracking/num_tracked"
 # Map points without colours.
@@ -208,6 +209,14 @@ class RerunLogger:
             self.recording.log(LOOPS, rr.LineStrips3D(
                 _loop_segments(loops, keyframe_ids, keyframe_poses_T_w_c), colors=(255, 0, 0)))
 
+    def log_mesh(self, dense: Any) -> None:
+        """Logs a fused surface (``ferroslam.dense.DenseModel``: vertices, triangles, vertex
+        colours) at the current time."""
+        self.recording.log(MESH, self._rr.Mesh3D(
+            vertex_positions=dense.vertices.astype(np.float32),
+            triangle_indices=dense.triangles.astype(np.uint32),
+            vertex_colors=dense.vertex_colors))
+
     def log_system(self, system: Any) -> None:
         """Logs the current map of a ``ferroslam._core.SlamSystem``: points in their colours,
         keyframes and loops (see :meth:`log_map`)."""
@@ -239,6 +248,8 @@ class RerunLogger:
         self.log_map(result.map_points, result.map_point_colors,
                      keyframe_poses_T_w_c=result.keyframes.poses, loops=result.loops,
                      keyframe_ids=result.keyframe_ids)
+        if getattr(result, "dense", None) is not None:
+            self.log_mesh(result.dense)
 
     # -- lifetime ---------------------------------------------------------------------------
     def close(self) -> None:

@@ -45,6 +45,7 @@ import numpy as np
 
 from .camera import Camera
 from .calibration import ImuParams
+from .keyframe_images import KeyframeImages
 from .options import check_option, validate_options
 from .session import IMU_KEYS, Features, Session
 from .stereo import StereoRectifier
@@ -222,9 +223,12 @@ class _VSlam:
         self._processed = 0
         self._dropped = 0
         self._draining = False
-        # (timestamp_s, add_frame call time) of the frames added but not yet processed, oldest
-        # first: results come in the order frames were added.
-        self._in_flight: collections.deque[tuple[float, float]] = collections.deque()
+        # (timestamp_s, add_frame call time, pixels to keep if it becomes a keyframe) of the
+        # frames added but not yet processed, oldest first: results come in the order frames
+        # were added.
+        self._in_flight: collections.deque[tuple[float, float, Any]] = collections.deque()
+        # The keyframes' images, for the outputs that need pixels (RGBDVSlam.dense_mesh).
+        self._keyframe_images: Optional[KeyframeImages] = None
         self._last_timestamp: Optional[float] = None
         self._last = None
         self._new_keyframe = False
@@ -248,9 +252,10 @@ class _VSlam:
         return float(timestamp)
 
     def _track(self, started_s: float, timestamp: Optional[float], features: Features,
-               imu: Optional[Sequence[np.ndarray]] = None) -> None:
+               imu: Optional[Sequence[np.ndarray]] = None, pixels: Any = None) -> None:
         """Hands a frame's features (with their colours) to the core; ``started_s``:
-        ``time.perf_counter()`` at the ``add_frame`` call (for the latency)."""
+        ``time.perf_counter()`` at the ``add_frame`` call (for the latency); ``pixels``:
+        ``(image, depth_m)`` kept if the frame becomes a keyframe."""
         if self._closed:
             raise RuntimeError(f"this {type(self).__name__} is closed")
         t = self._timestamp(timestamp)
@@ -266,7 +271,7 @@ class _VSlam:
         result = self._session.track(t, features)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
-        self._in_flight.append((t, started_s))
+        self._in_flight.append((t, started_s, pixels))
         if result is not None:
             self._absorb(result)
         self._drain()
@@ -307,7 +312,9 @@ class _VSlam:
 
     def _absorb(self, result: Any) -> None:
         previous = self._last.state if self._last is not None else "not_initialized"
-        timestamp_s, started_s = self._in_flight.popleft()
+        timestamp_s, started_s, pixels = self._in_flight.popleft()
+        if result.is_keyframe and pixels is not None and self._keyframe_images is not None:
+            self._keyframe_images.add(timestamp_s, *pixels)
         self._last = result
         self._processed += 1
         self._new_keyframe |= bool(result.is_keyframe)
@@ -688,6 +695,7 @@ class RGBDVSlam(_VSlam):
         super().__init__(intrinsics, core_options=core, **options)
         # The range in use: the one given, else the core's default for RGB-D.
         self.depth_range: tuple[float, float] = tuple(self._system.options["depth_range"])
+        self._keyframe_images = KeyframeImages(keep_depth=True)
 
     def add_frame(self, color: np.ndarray, depth: np.ndarray,
                   timestamp: Optional[float] = None,
@@ -702,9 +710,40 @@ class RGBDVSlam(_VSlam):
         if depth.shape[:2] != np.shape(color)[:2]:
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
-        features = self._session.rgbd(color, depth.astype(np.float64) / self.depth_scale_factor)
+        depth_m = depth.astype(np.float64) / self.depth_scale_factor
+        features = self._session.rgbd(color, depth_m)
         self._check_depth_scale(features.args[2])
-        self._track(started_s, timestamp, features, imu=imu)
+        self._track(started_s, timestamp, features, imu=imu, pixels=(color, depth_m))
+
+    def dense_mesh(self, *, voxel_m: Optional[float] = None,
+                   truncation_m: Optional[float] = None,
+                   max_depth_m: Optional[float] = None):
+        """The keyframes' depth fused at their current poses (after local BA and loop
+        closing; call it when done) into a coloured TSDF mesh and dense cloud
+        (:class:`ferroslam.dense.DenseModel`; write it with
+        :func:`ferroslam.dense.write_dense_outputs`). Settings left out take the
+        ``dense_*`` option defaults (:data:`ferroslam.options.OPTIONS`).
+
+        Only keyframes' images are kept (PNG-encoded), so memory follows the map. Raises
+        ``ImportError`` without Open3D (``pip install 'ferroslam[dense]'``)."""
+        from .dense import fuse_tsdf
+        from .options import pipeline_default
+
+        given = {"dense_voxel_m": voxel_m, "dense_truncation_m": truncation_m,
+                 "dense_max_depth_m": max_depth_m}
+        settings = validate_options({k: v for k, v in given.items() if v is not None}, "rgbd")
+        self.wait()
+        _, stamps, poses = self._system.keyframe_trajectory()
+        images = self._keyframe_images
+        assert images is not None  # every RGBDVSlam keeps its keyframes' pixels
+        images.keep_only(stamps)
+        kept = [i for i, t in enumerate(stamps) if t in images]
+        return fuse_tsdf(
+            self.intrinsics, np.asarray(poses).reshape(-1, 4, 4)[kept],
+            [images.image(stamps[i]) for i in kept], [images.depth_m(stamps[i]) for i in kept],
+            voxel_m=pipeline_default(settings, "dense_voxel_m"),
+            truncation_m=pipeline_default(settings, "dense_truncation_m"),
+            max_depth_m=pipeline_default(settings, "dense_max_depth_m"))
 
     def _check_depth_scale(self, depth_m: np.ndarray) -> None:
         """Warns once when a frame has depth at its keypoints but none of it inside

@@ -64,6 +64,7 @@ pub mod keyframe;
 pub mod map;
 pub mod map_point;
 pub mod rig;
+pub mod sparse_model;
 
 #[cfg(test)]
 pub(crate) mod test_support;
@@ -75,3 +76,4 @@ pub use keyframe::KeyFrame;
 pub use map::{Map, MapEdit, MapJournal, COVISIBILITY_THRESHOLD};
 pub use map_point::MapPoint;
 pub use rig::Rig;
+pub use sparse_model::{SparseImage, SparseModel, SparsePoint};

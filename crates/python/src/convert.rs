@@ -2,9 +2,9 @@
 
 use ferroslam_features::{Descriptor, FeaturesError, GrayImage, Keypoint};
 use nalgebra::Isometry3;
-use numpy::ndarray::{Array1, Array3, Dimension};
+use numpy::ndarray::{Array1, Array2, Array3, Dimension};
 use numpy::PyReadonlyArray2 as Image;
-use numpy::{Element, PyArray, PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray};
+use numpy::{Element, PyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -134,6 +134,19 @@ pub fn pose_stack<'py>(py: Python<'py>, poses: &[Isometry3<f64>]) -> Bound<'py, 
         }
     }
     PyArray3::from_owned_array(py, a)
+}
+
+/// What a point without a colour is given: mid grey, as the exporters draw uncoloured points.
+const UNCOLORED: [u8; 3] = [128; 3];
+
+/// `(N, 3)` uint8 RGB of per-point colours, [`UNCOLORED`] where there is none.
+pub fn colors_array<'py>(py: Python<'py>, colors: &[Option<[u8; 3]>]) -> Bound<'py, PyArray2<u8>> {
+    PyArray2::from_owned_array(
+        py,
+        Array2::from_shape_fn((colors.len(), 3), |(i, c)| {
+            colors[i].unwrap_or(UNCOLORED)[c]
+        }),
+    )
 }
 
 /// A 1-D float64 array.

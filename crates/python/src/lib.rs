@@ -12,6 +12,7 @@ mod errors;
 mod extractor;
 mod inertial;
 mod pool;
+mod sparse_model;
 mod stereo;
 mod system;
 mod vocabulary;
@@ -27,6 +28,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
     m.add_function(wrap_pyfunction!(camera::project_points, m)?)?;
     m.add_function(wrap_pyfunction!(camera::unproject_pixels, m)?)?;
+    m.add_function(wrap_pyfunction!(sparse_model::load_sparse_model, m)?)?;
     m.add_class::<extractor::PyOrbExtractor>()?;
     m.add_class::<vocabulary::PyVocabulary>()?;
     m.add_class::<vocabulary::PyKeyframeDatabase>()?;

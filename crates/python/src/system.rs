@@ -22,10 +22,6 @@ use crate::errors::to_py;
 use crate::inertial;
 use crate::vocabulary::PyVocabulary;
 
-/// What `map_point_colors` gives points without a colour: mid grey, as the exporters draw
-/// uncoloured points.
-const UNCOLORED: [u8; 3] = [128; 3];
-
 fn state_name(state: TrackingState) -> &'static str {
     match state {
         TrackingState::NotInitialized => "not_initialized",
@@ -535,12 +531,15 @@ impl PySlamSystem {
     /// of the keypoint that created each; grey 128 for points made without colours.
     fn map_point_colors<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u8>>> {
         let colors = self.engine()?.run(py, |s| s.map_point_colors())?;
-        Ok(PyArray2::from_owned_array(
-            py,
-            Array2::from_shape_fn((colors.len(), 3), |(i, c)| {
-                colors[i].unwrap_or(UNCOLORED)[c]
-            }),
-        ))
+        Ok(convert::colors_array(py, &colors))
+    }
+
+    /// The map as images and tracks, in one dict of arrays (see `ferroslam._core.pyi`):
+    /// every keyframe's pose and keypoints (raw image pixels) with the map point each
+    /// observes (row of `points_xyz`, -1 for none), and the points.
+    fn sparse_model<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let model = self.engine()?.run(py, |s| s.sparse_model())?;
+        crate::sparse_model::model_dict(py, model)
     }
 
     /// Writes the map to `path` (versioned binary file with a checksum).

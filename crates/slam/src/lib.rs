@@ -45,5 +45,5 @@ pub use local_mapping::MappingReport;
 pub use loop_closing::{LoopClosure, LoopStats};
 pub use mono_init::InitStatus;
 pub use place_recognition::PlaceRecognition;
-pub use system::{SlamSystem, TrackResult};
+pub use system::{load_map_file, SlamSystem, TrackResult};
 pub use tracking::TrackingState;

@@ -748,7 +748,7 @@ impl SlamSystem {
     /// [`SlamError::MapFile`] for a missing, truncated or corrupt file, another format version,
     /// or a map built with another ORB pyramid than this system's; the system is unchanged.
     pub fn load_map(&mut self, path: &std::path::Path) -> Result<(), SlamError> {
-        let mut map = Map::load_from_path(path).map_err(|e| map_file_error(path, e))?;
+        let mut map = load_map_file(path)?;
         let ours = self.ctx.rig();
         if let Some(reason) = map.rig().and_then(|theirs| theirs.mismatch(&ours)) {
             return Err(SlamError::MapFile {
@@ -840,6 +840,12 @@ impl SlamSystem {
             .collect()
     }
 
+    /// The map's keyframes, points and tracks with every keypoint in raw image pixels
+    /// ([`Map::sparse_model`] for this system's camera): what a COLMAP model needs.
+    pub fn sparse_model(&self) -> ferroslam_map::SparseModel {
+        self.map.sparse_model(|uv| self.ctx.camera.raw_pixel(uv))
+    }
+
     /// World positions of every live map point, metres.
     pub fn map_points(&self) -> Vec<Vector3<f64>> {
         self.map
@@ -858,6 +864,14 @@ impl SlamSystem {
             .filter_map(|m| self.map.map_point(m).map(|p| p.color()))
             .collect()
     }
+}
+
+/// The map saved at `path`, as it is: for reading it without a system (exports).
+///
+/// # Errors
+/// [`SlamError::MapFile`] for a missing, truncated or corrupt file or another format version.
+pub fn load_map_file(path: &std::path::Path) -> Result<Map, SlamError> {
+    Map::load_from_path(path).map_err(|e| map_file_error(path, e))
 }
 
 fn map_file_error(path: &std::path::Path, e: ferroslam_map::MapError) -> SlamError {
