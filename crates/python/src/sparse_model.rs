@@ -88,6 +88,7 @@ pub fn load_sparse_model<'py>(
             distortion(&rig),
             rig.width,
             rig.height,
+            0.0, // the readout does not move pixels: raw_pixel is the lens alone
         )?;
         Ok((rig.clone(), map.sparse_model(|uv| camera.raw_pixel(uv))))
     })??;
