@@ -91,7 +91,8 @@ class SlamError(RuntimeError):
 
 @final
 class TrackResult:
-    """Result of tracking one frame (returned by ``SlamSystem.track_*``, immutable)."""
+    """Result of tracking one frame (returned by ``SlamSystem.track`` and ``track_*``,
+    immutable)."""
 
     @property
     def state(self) -> _State:
@@ -109,7 +110,15 @@ class TrackResult:
         """Map points tracked as inliers."""
     @property
     def tracking_ms(self) -> float:
-        """Tracking wall time, milliseconds."""
+        """Tracking wall time, milliseconds (after the front end)."""
+    @property
+    def extraction_ms(self) -> float:
+        """The front end's wall time inside ``track`` (extraction, masks, sampling),
+        milliseconds; 0 for the features-level ``track_*``."""
+    @property
+    def keypoints(self) -> NDArray[np.float32]:
+        """The first camera's raw keypoints as ``track`` extracted them, (N, 5) float32
+        ``[x, y, octave, angle_deg, response]``; (0, 5) for the features-level ``track_*``."""
     @property
     def mapping_ms(self) -> float:
         """Local mapping wall time, milliseconds (0 unless a keyframe was inserted)."""
@@ -181,6 +190,45 @@ class SlamSystem:
                 stereo sensor with a fisheye camera.
             TypeError: option of the wrong type.
             NotImplementedError: an unknown sensor.
+        """
+    def track(
+        self,
+        timestamp: float,
+        images: NDArray[np.uint8] | Sequence[NDArray[np.uint8]],
+        *,
+        depth: NDArray[np.floating] | None = None,
+        colors: NDArray[np.uint8] | Sequence[NDArray[np.uint8] | None] | None = None,
+        masks: NDArray[Any] | Sequence[NDArray[Any] | None] | None = None,
+    ) -> TrackResult | None:
+        """Tracks one instant of the camera(s) from images, the door every frame goes
+        through (queues it in threaded mode and returns None): ORB extraction of every image
+        in parallel, the masks, depth and colour at the keypoints and stereo matching run in
+        the core without the GIL.
+
+        Args:
+            timestamp: seconds, finite, strictly after the previous accepted frame's.
+            images: one uint8 image, grey (H, W) or BGR (H, W, 3), or one per camera
+                (stereo: ``(left, right)``, rectified), each the camera's size.
+            depth: (H, W) float32/float64 metres registered to the first image (RGB-D only;
+                0, negative or NaN = none).
+            colors: the first image in colour when ``images`` is grey (map point colours);
+                per image, or one array for one camera.
+            masks: per image a (H, W) uint8/bool mask, 0 = no keypoint there (on top of
+                ``set_mask``'s static mask), or None.
+
+        Raises:
+            ValueError: the wrong number of images for the sensor, an image, colour image,
+                mask or depth of another size than the camera or of another dtype or rank,
+                depth for a sensor other than RGB-D (or none for RGB-D), a timestamp not
+                after the previous one; the system is unchanged.
+            TypeError: an argument that is not a numpy array.
+        """
+    def set_mask(self, camera: int, mask: NDArray[Any] | None) -> None:
+        """Sets camera ``camera``'s static mask ((H, W) uint8/bool, 0 = no keypoint there),
+        applied to every frame ``track`` measures; None removes it.
+
+        Raises:
+            ValueError: a camera the system does not have, a mask of another size or dtype.
         """
     def track_rgbd(
         self,

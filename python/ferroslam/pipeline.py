@@ -23,7 +23,7 @@ from .depth_scale import check_depth_scale
 from .keyframe_images import KeyframeImages
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .options import OPTIONS, pipeline_default, validate_options
-from .session import EXTRACTOR_KEYS, IMU_KEYS, Features, Session, load_vocabulary, make_extractor
+from .session import EXTRACTOR_KEYS, IMU_KEYS, Session, load_vocabulary, make_extractor
 from .trajectory import Trajectory
 from .vslam import FrameResult, MonoVSlam
 
@@ -46,12 +46,13 @@ class RunResult:
     ``keyframes`` and ``keyframe_ids``: the keyframe poses; ``map_points (M, 3)`` world
     points in metres and ``map_point_colors (M, 3)`` uint8 RGB, each the colour of the image
     pixel the point was first seen at (``SlamSystem.map_point_colors``); ``timings``:
-    per-frame milliseconds (``load_ms``, ``extraction_ms``, ``tracking_ms`` and
-    ``mapping_ms`` as reported by the core, with their parts
+    per-frame milliseconds (``load_ms``; ``extraction_ms`` (the core's front end:
+    extraction, masks, depth and colour sampling, stereo matching's extraction),
+    ``tracking_ms`` and ``mapping_ms`` as reported by the core, with their parts
     ``pose_optimisation_ms``, ``matching_ms`` = tracking minus pose optimisation (matching,
     local-map search, keyframe decision), ``local_ba_ms`` and ``loop_closing_ms`` (mapping
-    inside the call only), ``track_call_ms`` measured around the call, ``frame_ms`` =
-    extraction + depth sampling + tracking call);
+    inside the call only), ``track_call_ms`` measured around the one call into the core, ``frame_ms`` = the
+    track call and the Python around it);
     ``states``: tracking state per frame; ``segments``: map segment of each trajectory pose
     (a monocular run starts a new map after it stays lost); ``init_reasons``: per frame, why
     monocular initialisation waited (``None`` otherwise); ``loops``: the loops closed (see
@@ -243,9 +244,10 @@ class _RgbdFeed:
         return data[2]
 
     @staticmethod
-    def features(session: Session, data) -> Features:
+    def frame(data) -> dict:
+        """``Session.track``'s arguments for loaded ``data``."""
         gray, color, depth = data
-        return session.rgbd(gray, depth, color)
+        return {"images": gray, "depth_m": depth, "color": color}
 
 
 class _StereoFeed:
@@ -281,8 +283,9 @@ class _StereoFeed:
         return None
 
     @staticmethod
-    def features(session: Session, data) -> Features:
-        return session.stereo(*data)
+    def frame(data) -> dict:
+        """``Session.track``'s arguments for a loaded pair."""
+        return {"images": tuple(data)}
 
 
 class _MonoFeed:
@@ -309,8 +312,10 @@ class _MonoFeed:
         return None
 
     @staticmethod
-    def features(session: Session, data) -> Features:
-        return session.mono(*data)
+    def frame(data) -> dict:
+        """``Session.track``'s arguments for loaded ``data``."""
+        gray, color = data
+        return {"images": gray, "color": color}
 
 
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
@@ -579,27 +584,27 @@ def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progres
             t0 = time.perf_counter()
             data = feed.load(i)
             t1 = time.perf_counter()
-            features = feed.features(session, data)
-            t2 = time.perf_counter()
+            frame = feed.frame(data)
             if imu is not None:
                 imu_to = imu_batch_end(imu[0], float(seq.timestamps[i]), imu_period_s,
                                        float(config.get("imu_time_offset_s", 0.0)))
                 if imu_to > imu_from:
                     system.add_imu(*(a[imu_from:imu_to] for a in imu))
                 imu_from = imu_to
-            res = session.track(float(seq.timestamps[i]), features)
+            t2 = time.perf_counter()
+            res = session.track(float(seq.timestamps[i]), **frame)
             if res.is_keyframe:
                 _keep_keyframe(keyframe_images, system, float(seq.timestamps[i]),
                                feed.image(data), feed.depth(data))
             if on_frame is not None:
-                on_frame(res, image=feed.image(data), keypoints=features.keypoints,
+                on_frame(res, image=feed.image(data), keypoints=res.keypoints,
                          timestamp_s=float(seq.timestamps[i]), system=system)
         except Exception as err:  # noqa: BLE001 - raised again with the frames done
             failure = (i, err)
             break
         t3 = time.perf_counter()
         timings["load_ms"][i] = (t1 - t0) * 1e3
-        timings["extraction_ms"][i] = (t2 - t1) * 1e3
+        timings["extraction_ms"][i] = float(res.extraction_ms)
         timings["track_call_ms"][i] = (t3 - t2) * 1e3
         timings["frame_ms"][i] = (t3 - t1) * 1e3
         timings["tracking_ms"][i] = float(res.tracking_ms)

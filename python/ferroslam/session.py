@@ -1,5 +1,5 @@
-"""One SLAM session: the core system with its ORB extractor, vocabulary and IMU, and one
-frame's way in (ORB extraction, depth and colour at the keypoints, the track call).
+"""One SLAM session: the core system with its vocabulary and IMU, and one frame's way in
+(``SlamSystem.track``: the images in, the core's front end does the rest).
 
 :func:`ferroslam.pipeline.run_sequence` and the vSLAM objects (:mod:`ferroslam.vslam`) both
 drive a :class:`Session`; they differ only in where frames come from (a dataset read in
@@ -9,18 +9,17 @@ core (``ferroslam._core.default_options``): a session passes on only the options
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 
 from ._validate import rigid_transform
 from .calibration import ImuParams
 from .camera import Camera
-from .features import OrbExtractor, sample_colors, sample_depth
+from .features import OrbExtractor
 from .options import OPTIONS, validate_options
 
-__all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "Features", "Session", "load_vocabulary",
-           "make_extractor"]
+__all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "Session", "load_vocabulary", "make_extractor"]
 
 # Options of SlamSystem.set_imu (MATLAB NumPosesThreshold, AlignmentFraction).
 IMU_KEYS = tuple(o.name for o in OPTIONS if o.scope == "imu")
@@ -49,11 +48,6 @@ def load_vocabulary(spec):
     return Vocabulary.load(str(spec))
 
 
-def _size(image: np.ndarray) -> str:
-    shape = np.shape(image)
-    return f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else f"of shape {shape}"
-
-
 def _core_system(*args, **kwargs):
     try:
         from ._core import SlamSystem  # the native module is only needed to actually run
@@ -63,16 +57,6 @@ def _core_system(*args, **kwargs):
             "`maturin develop --release` in the repository root"
         ) from err
     return SlamSystem(*args, **kwargs)
-
-
-class Features(NamedTuple):
-    """One frame's input to the core: ``args`` of the ``track_*`` call after the timestamp
-    (keypoints, descriptors, depth or the right image's), the keypoints' RGB ``colors`` and
-    the tracked image's ``keypoints`` ``(N, 5)``."""
-
-    args: tuple
-    colors: np.ndarray
-    keypoints: np.ndarray
 
 
 class Session:
@@ -116,45 +100,28 @@ class Session:
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
             model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s, **options)
-        self.extractor = make_extractor(self.system.options)
         if inertial:
             self.system.set_imu(imu, T_b_c, **imu_options)
         if vocabulary is not None and vocabulary is not False and vocabulary != "":
             self.system.set_vocabulary(load_vocabulary(vocabulary))
         if mapping_thread:
             self.system.set_mapping_thread(True)
-        self._track = getattr(self.system, f"track_{sensor}")
 
-    def mono(self, image: np.ndarray, color: Optional[np.ndarray] = None) -> Features:
-        """A grey or BGR image's features; colours from ``color`` (the same frame in
-        colour) when given, else from ``image``."""
-        keypoints, descriptors = self.extractor.detect(image)
-        colors = sample_colors(image if color is None else color, keypoints)
-        return Features((keypoints, descriptors), colors, keypoints)
+    def track(self, timestamp_s: float, images: Any, *, depth_m: Optional[np.ndarray] = None,
+              color: Optional[np.ndarray] = None, mask: Any = None):
+        """Hands one frame's images to the core, the door every frame goes through: ORB
+        extraction, the masks, depth and colour at the keypoints and stereo matching happen
+        there, in one call without the GIL. Its ``TrackResult`` (``None`` when a threaded
+        system queued it).
 
-    def rgbd(self, image: np.ndarray, depth_m: np.ndarray,
-             color: Optional[np.ndarray] = None) -> Features:
-        """As :meth:`mono`, with the depth (metres) of ``depth_m`` at each keypoint.
-
-        Raises ``ValueError`` when ``depth_m`` is not the size of ``image``: its pixels
-        would be sampled at the wrong places."""
-        if np.shape(depth_m)[:2] != np.shape(image)[:2]:
-            raise ValueError(f"the depth image is {_size(depth_m)} but the colour image "
-                             f"{_size(image)} (width x height): they must be registered, "
-                             "of one size")
-        keypoints, descriptors = self.extractor.detect(image)
-        colors = sample_colors(image if color is None else color, keypoints)
-        return Features((keypoints, descriptors, sample_depth(depth_m, keypoints)), colors,
-                        keypoints)
-
-    def stereo(self, left: np.ndarray, right: np.ndarray) -> Features:
-        """A rectified pair's features, both images extracted at once; the left image's
-        colours."""
-        left_features, right_features = self.extractor.detect_pair(left, right)
-        return Features((*left_features, *right_features),
-                        sample_colors(left, left_features[0]), left_features[0])
-
-    def track(self, timestamp_s: float, features: Features):
-        """Hands a frame to the core: its ``TrackResult`` (``None`` when a threaded system
-        queued it)."""
-        return self._track(timestamp_s, *features.args, colors=features.colors)
+        Args:
+            images: the tracked image (grey or BGR uint8), or ``(left, right)`` for stereo.
+            depth_m: the registered depth image in metres (RGB-D).
+            color: the first image in colour, when ``images`` is grey (map point colours).
+            mask: this frame's mask, 0 = no keypoint (``(left, right)`` masks for stereo).
+        """
+        colors = color
+        if color is not None and isinstance(images, (tuple, list)):
+            colors = [color] + [None] * (len(images) - 1)  # colours are the first camera's
+        return self.system.track(timestamp_s, images, depth=depth_m, colors=colors,
+                                 masks=mask)

@@ -47,7 +47,7 @@ from .camera import Camera
 from .calibration import ImuParams
 from .keyframe_images import KeyframeImages
 from .options import check_option, validate_options
-from .session import IMU_KEYS, Features, Session
+from .session import IMU_KEYS, Session
 from .stereo import StereoRectifier
 
 __all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
@@ -251,9 +251,9 @@ class _VSlam:
                 timestamp = self._last_timestamp + 1.0 / self.frame_rate_hz
         return float(timestamp)
 
-    def _track(self, started_s: float, timestamp: Optional[float], features: Features,
+    def _track(self, started_s: float, timestamp: Optional[float], frame: dict,
                imu: Optional[Sequence[np.ndarray]] = None, pixels: Any = None) -> None:
-        """Hands a frame's features (with their colours) to the core; ``started_s``:
+        """Hands a frame (``Session.track``'s arguments) to the core; ``started_s``:
         ``time.perf_counter()`` at the ``add_frame`` call (for the latency); ``pixels``:
         ``(image, depth_m)`` kept if the frame becomes a keyframe."""
         if self._closed:
@@ -268,7 +268,7 @@ class _VSlam:
                              f"{self._last_timestamp} s")
         if imu is not None:
             self._system.add_imu(*self._imu_batch(imu, t))
-        result = self._session.track(t, features)  # None when queued (threaded)
+        result = self._session.track(t, **frame)  # None when queued (threaded)
         self._last_timestamp = t
         self._frames += 1
         self._in_flight.append((t, started_s, pixels))
@@ -533,6 +533,16 @@ class _VSlam:
                 f"keyframes={self._system.num_keyframes}, points={self._system.num_map_points})")
 
 
+def _pair(mask: Any) -> tuple[Any, Any]:
+    """A stereo frame's ``mask=``: ``(left, right)`` (either None), or one array for the left
+    image alone."""
+    if isinstance(mask, (tuple, list)):
+        if len(mask) != 2:
+            raise ValueError(f"a stereo mask is (left_mask, right_mask), got {len(mask)} masks")
+        return mask[0], mask[1]
+    return mask, None
+
+
 class MonoVSlam(_VSlam):
     """Monocular visual SLAM (MATLAB ``monovslam``): the map starts from two views and its
     scale is arbitrary. Keyword options as :class:`_VSlam`'s ``__init__``."""
@@ -540,16 +550,18 @@ class MonoVSlam(_VSlam):
     _sensor = "mono"
 
     def add_frame(self, image: np.ndarray, timestamp: Optional[float] = None,
-                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Optional[np.ndarray] = None) -> None:
         """Adds a grey ``(H, W)`` or BGR ``(H, W, 3)`` uint8 image (raw, distorted: the
         intrinsics' distortion is applied to the keypoints). ``timestamp`` in seconds defaults
         to the frame count divided by ``frame_rate_hz``. ``imu``: the IMU samples since the previous
         frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``: those up to this
         frame's time and, if there, the first one after it (at most one IMU period later: the
-        frame is then interpolated, not extrapolated)."""
+        frame is then interpolated, not extrapolated). ``mask``: this frame's ``(H, W)`` uint8 or
+        bool mask, 0 = no keypoint there (on top of the camera's static mask)."""
         started_s = time.perf_counter()
         self.intrinsics.check_image(image)
-        self._track(started_s, timestamp, self._session.mono(image), imu=imu)
+        self._track(started_s, timestamp, {"images": image, "mask": mask}, imu=imu)
 
     def track_source(self, source: Iterable[tuple[float, np.ndarray]], *,
                      drop_frames: Optional[bool] = None,
@@ -659,10 +671,12 @@ class StereoVSlam(_VSlam):
 
     def add_frame(self, left: np.ndarray, right: np.ndarray,
                   timestamp: Optional[float] = None,
-                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Any = None) -> None:
         """Adds a pair of uint8 images of equal size, grey or BGR (the map points take the
         left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`): rectified, or raw for
-        an object made by :meth:`from_raw`."""
+        an object made by :meth:`from_raw`. ``mask``: ``(left_mask, right_mask)`` for this
+        pair (either may be None), in the images' own pixels (raw for :meth:`from_raw`)."""
         self.intrinsics.check_image(left, "left image")
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
@@ -670,7 +684,11 @@ class StereoVSlam(_VSlam):
         started_s = time.perf_counter()
         if self.rectifier is not None:
             left, right = self.rectifier.rectify(left, right)
-        self._track(started_s, timestamp, self._session.stereo(left, right), imu=imu)
+            if mask is not None:
+                mask = self.rectifier.rectify_masks(*_pair(mask))
+        elif mask is not None:
+            mask = _pair(mask)
+        self._track(started_s, timestamp, {"images": (left, right), "mask": mask}, imu=imu)
 
 
 class RGBDVSlam(_VSlam):
@@ -689,7 +707,7 @@ class RGBDVSlam(_VSlam):
         if not (math.isfinite(depth_scale_factor) and depth_scale_factor > 0):
             raise ValueError(f"depth_scale_factor must be positive, got {depth_scale_factor!r}")
         self.depth_scale_factor = float(depth_scale_factor)
-        self._depth_warned = False
+        self._depth_checked = False
         given = {} if depth_range is None else {"depth_range": tuple(depth_range)}
         core = {**given, **options.pop("core_options", {})}
         super().__init__(intrinsics, core_options=core, **options)
@@ -699,9 +717,11 @@ class RGBDVSlam(_VSlam):
 
     def add_frame(self, color: np.ndarray, depth: np.ndarray,
                   timestamp: Optional[float] = None,
-                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Optional[np.ndarray] = None) -> None:
         """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
-        dtype; divided by ``depth_scale_factor``; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
+        dtype; divided by ``depth_scale_factor``; ``imu`` and ``mask`` as
+        :meth:`MonoVSlam.add_frame`)."""
         started_s = time.perf_counter()
         self.intrinsics.check_image(color, "color image")
         depth = np.asarray(depth)
@@ -711,9 +731,9 @@ class RGBDVSlam(_VSlam):
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
         depth_m = depth.astype(np.float64) / self.depth_scale_factor
-        features = self._session.rgbd(color, depth_m)
-        self._check_depth_scale(features.args[2])
-        self._track(started_s, timestamp, features, imu=imu, pixels=(color, depth_m))
+        self._check_depth_scale(depth_m)
+        self._track(started_s, timestamp, {"images": color, "depth_m": depth_m, "mask": mask},
+                    imu=imu, pixels=(color, depth_m))
 
     def dense_mesh(self, *, voxel_m: Optional[float] = None,
                    truncation_m: Optional[float] = None,
@@ -746,15 +766,17 @@ class RGBDVSlam(_VSlam):
             max_depth_m=pipeline_default(settings, "dense_max_depth_m"))
 
     def _check_depth_scale(self, depth_m: np.ndarray) -> None:
-        """Warns once when a frame has depth at its keypoints but none of it inside
-        ``depth_range``: raw millimetres with ``depth_scale_factor=1`` (or metres with 5000)
-        would otherwise never start a map, and nothing would say why."""
-        if self._depth_warned:
+        """Warns when the first frame with depth has none of it inside ``depth_range``: raw
+        millimetres with ``depth_scale_factor=1`` (or metres with 5000) would otherwise never
+        start a map, and nothing would say why. Every 4th pixel of every 4th row is enough."""
+        if self._depth_checked:
             return
-        measured = depth_m[depth_m > 0]
+        sample = depth_m[::4, ::4]
+        measured = sample[np.isfinite(sample) & (sample > 0)]
+        if measured.size:
+            self._depth_checked = True  # checked once: the scale of a stream does not change
         low, high = self.depth_range
         if measured.size and not np.any((measured >= low) & (measured <= high)):
-            self._depth_warned = True
             warnings.warn(
                 f"no depth of this frame falls inside depth_range {self.depth_range} m (median "
                 f"{float(np.median(measured)):.4g} m after dividing by depth_scale_factor="

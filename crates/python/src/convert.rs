@@ -9,6 +9,15 @@ use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMe
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 
+/// Keypoints as a `(N, 5)` float32 array `[x, y, octave, angle_deg, response]`.
+pub fn keypoint_array<'py>(py: Python<'py>, keypoints: &[Keypoint]) -> Bound<'py, PyArray2<f32>> {
+    let rows = Array2::from_shape_fn((keypoints.len(), 5), |(i, c)| {
+        let k = &keypoints[i];
+        [k.x, k.y, f32::from(k.octave), k.angle_deg, k.response][c]
+    });
+    PyArray2::from_owned_array(py, rows)
+}
+
 /// `obj` as a read-only numpy array of element `T` and rank `D`.
 ///
 /// A `TypeError` names the argument, what was `expected` and what was passed: numpy's own

@@ -12,6 +12,7 @@ mod errors;
 mod extractor;
 mod inertial;
 mod pool;
+mod rig_frame;
 mod sparse_model;
 mod stereo;
 mod system;

@@ -16,6 +16,8 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::camera::camera_model_of;
+use crate::rig_frame;
+use ferroslam_features::OwnedGrayImage;
 use crate::config;
 use crate::convert;
 use crate::errors::to_py;
@@ -63,6 +65,19 @@ impl PyTrackResult {
             let m = convert::pose_matrix(&T);
             PyArray2::from_owned_array(py, Array2::from_shape_fn((4, 4), |(r, c)| m[r][c]))
         })
+    }
+
+    /// Wall time of the front end inside `track` (extraction, masks, sampling), milliseconds.
+    #[getter]
+    fn extraction_ms(&self) -> f64 {
+        self.inner.extraction_ms
+    }
+
+    /// The first camera's raw keypoints as `track` extracted them, (N, 5) float32
+    /// [x, y, octave, angle_deg, response]; empty (0, 5) when the features were given.
+    #[getter]
+    fn keypoints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        convert::keypoint_array(py, &self.inner.keypoints)
     }
 
     /// Whether this frame became a keyframe.
@@ -237,6 +252,56 @@ impl PySlamSystem {
             config,
             pid: std::process::id(),
         })
+    }
+
+    /// Tracks one instant of the camera(s) from images: the door every frame goes through
+    /// (queues it in threaded mode and returns None). ORB extraction, masks, depth and colour
+    /// sampling and stereo matching run in the core without the GIL.
+    ///
+    /// images: one uint8 image, grey (H, W) or BGR (H, W, 3), or a sequence of them, one per
+    /// camera (stereo: left, right); depth: (H, W) float32/float64 metres registered to the
+    /// first image (RGB-D only); colors: the same view(s) in colour for the map points'
+    /// colours, when the images are grey; masks: per image a (H, W) uint8/bool mask, 0 = no
+    /// keypoint there (combined with `set_mask`'s static mask), or None.
+    #[pyo3(signature = (timestamp, images, *, depth = None, colors = None, masks = None))]
+    fn track(
+        &self,
+        py: Python<'_>,
+        timestamp: f64,
+        images: &Bound<'_, PyAny>,
+        depth: Option<&Bound<'_, PyAny>>,
+        colors: Option<&Bound<'_, PyAny>>,
+        masks: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Option<PyTrackResult>> {
+        let arrays = rig_frame::FrameArrays::parse(timestamp, images, depth, colors, masks)?;
+        let frame = arrays.frame();
+        let mut engine = self.engine()?;
+        match &mut **engine {
+            Engine::Inline { system, failure } => {
+                inline(py, system, failure, |system| system.track(&frame))
+                    .map(|inner| Some(PyTrackResult { inner }))
+            }
+            Engine::Background { slam, guard } => {
+                let frame = OwnedFrame::Images(rig_frame::owned(frame));
+                frame.check(guard).map_err(to_py)?;
+                pool::detach(py, || slam.submit(frame))?.map_err(to_py)?;
+                Ok(None)
+            }
+        }
+    }
+
+    /// Sets camera `camera`'s static mask: (H, W) uint8/bool, 0 = no keypoint there, applied
+    /// to every frame `track` measures; None removes it.
+    #[pyo3(signature = (camera, mask))]
+    fn set_mask(&self, py: Python<'_>, camera: usize, mask: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let mask = match mask.filter(|m| !m.is_none()) {
+            None => None,
+            Some(m) => {
+                let (w, h, pixels) = rig_frame::mask_pixels(m)?;
+                Some(OwnedGrayImage::new(w, h, pixels).map_err(|e| PyValueError::new_err(e.to_string()))?)
+            }
+        };
+        self.engine()?.run(py, move |system| system.set_mask(camera, mask))?.map_err(to_py)
     }
 
     /// Tracks one RGB-D frame (queues it in threaded mode and returns None).

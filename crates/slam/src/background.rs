@@ -19,6 +19,7 @@ use ferroslam_map::Rgb;
 
 use crate::error::SlamError;
 use crate::frame::{MonoInput, RgbdInput, StereoInput};
+use crate::front_end::OwnedRigFrame;
 use crate::input_guard::InputGuard;
 use crate::system::{SlamSystem, TrackResult};
 
@@ -66,11 +67,16 @@ pub enum OwnedFrame {
         /// Colours of the left keypoints, if known.
         colors: Option<Vec<Rgb>>,
     },
+    /// Images, measured by the tracking thread's front end ([`SlamSystem::track`]).
+    Images(OwnedRigFrame),
 }
 
 impl OwnedFrame {
     /// Checks the frame against `guard` (accepting its timestamp when it passes).
     pub fn check(&self, guard: &mut InputGuard) -> Result<(), SlamError> {
+        if let OwnedFrame::Images(frame) = self {
+            return guard.accept_frame(frame);
+        }
         self.with_input(|input| match input {
             Input::Mono(i) => guard.accept_mono(i),
             Input::Rgbd(i) => guard.accept_rgbd(i),
@@ -80,6 +86,9 @@ impl OwnedFrame {
 
     /// Tracks the frame with `system` (the matching `track_*` call).
     pub fn track(&self, system: &mut SlamSystem) -> Result<TrackResult, SlamError> {
+        if let OwnedFrame::Images(frame) = self {
+            return system.track(frame);
+        }
         self.with_input(|input| match input {
             Input::Mono(i) => system.track_mono(i),
             Input::Rgbd(i) => system.track_rgbd(i),
@@ -139,6 +148,10 @@ impl OwnedFrame {
                     colors: colors.as_deref(),
                 }))
             }
+            // `check` and `track` take images to the front end before asking for features.
+            OwnedFrame::Images(_) => Err(SlamError::InvalidInput(
+                "a frame of images has no features before the front end measures it".into(),
+            )),
         }
     }
 }

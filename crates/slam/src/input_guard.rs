@@ -7,6 +7,8 @@ use crate::config::Sensor;
 use crate::context::InputShape;
 use crate::error::SlamError;
 use crate::frame::{MonoInput, RgbdInput, StereoInput};
+use crate::front_end::RigFrame;
+use ferroslam_features::OwnedGrayImage;
 
 /// Input rules of one system and the last accepted timestamp.
 #[derive(Clone, Debug)]
@@ -48,6 +50,35 @@ impl InputGuard {
         }
         input.validate(&self.shape)?;
         self.advance(input.timestamp)
+    }
+
+    /// Checks a frame of images (the sensor's number of cameras, their sizes, depth where the
+    /// sensor has it) and, if it passes, accepts its timestamp.
+    pub fn accept_frame<D: AsRef<[u8]>, F: AsRef<[f32]>>(
+        &mut self,
+        frame: &RigFrame<D, F>,
+    ) -> Result<(), SlamError> {
+        frame.validate(self.sensor, &self.shape)?;
+        self.advance(frame.timestamp)
+    }
+
+    /// Checks a static mask for camera `camera`: a camera of the rig, the camera's size.
+    pub fn check_mask(&self, camera: usize, mask: Option<&OwnedGrayImage>) -> Result<(), SlamError> {
+        let cameras = if self.sensor == Sensor::Stereo { 2 } else { 1 };
+        if camera >= cameras {
+            return Err(SlamError::InvalidInput(format!(
+                "mask for camera {camera}, but a {} system has {cameras} camera(s)",
+                self.sensor.name()
+            )));
+        }
+        let size = (self.shape.width as usize, self.shape.height as usize);
+        match mask.map(|m| (m.view().width(), m.view().height())) {
+            Some(got) if got != size => Err(SlamError::InvalidInput(format!(
+                "the mask is {}x{} but the camera is {}x{} (width x height)",
+                got.0, got.1, size.0, size.1
+            ))),
+            _ => Ok(()),
+        }
     }
 
     /// Checks a monocular frame and, if it passes, accepts its timestamp.

@@ -13,6 +13,7 @@ mod config;
 mod context;
 mod error;
 mod frame;
+mod front_end;
 mod frustum;
 mod imu_prediction;
 mod inertial;
@@ -27,6 +28,7 @@ mod mono_init;
 mod place_recognition;
 mod point_fusion;
 mod system;
+mod track_result;
 mod tracking;
 mod trajectory;
 
@@ -37,6 +39,9 @@ pub use config::{
 };
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
+pub use front_end::{
+    CameraImage, DepthImage, Image, OwnedRigFrame, RigFrame, RigFrameView,
+};
 pub use inertial::{
     AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig, Preintegrated,
 };

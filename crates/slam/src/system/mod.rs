@@ -12,7 +12,8 @@ use nalgebra::{Isometry3, Vector3};
 use crate::config::{Sensor, SlamConfig};
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::frame::Frame;
+use crate::front_end::FrontEnd;
 use crate::imu_prediction::ImuPredictor;
 use crate::inertial::{
     rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig, Preintegrated,
@@ -26,36 +27,11 @@ use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializ
 use crate::place_recognition::PlaceRecognition;
 use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
+pub use crate::track_result::TrackResult;
+
+mod door;
 use ferroslam_vocabulary::Vocabulary;
 use std::sync::Arc;
-
-/// Outcome of tracking one frame.
-#[derive(Clone, Debug)]
-pub struct TrackResult {
-    /// Tracking state after this frame.
-    pub state: TrackingState,
-    /// Camera pose in the world when tracked.
-    pub T_w_c: Option<Isometry3<f64>>,
-    /// Whether this frame became a keyframe.
-    pub is_keyframe: bool,
-    /// Map points matched as inliers in this frame.
-    pub num_tracked: usize,
-    /// Wall time of tracking, milliseconds.
-    pub tracking_ms: f64,
-    /// Wall time of local mapping triggered by this frame, milliseconds.
-    pub mapping_ms: f64,
-    /// Of `tracking_ms`, the time spent in motion-only BA, milliseconds.
-    pub pose_optimisation_ms: f64,
-    /// Of `mapping_ms`, loop detection, verification and correction (inline mapping only;
-    /// the mapping thread's is its own), milliseconds.
-    pub loop_closing_ms: f64,
-    /// What local mapping did, when a keyframe was inserted.
-    pub mapping: Option<MappingReport>,
-    /// Monocular only: why this frame did not start the map (`None` once initialised).
-    pub init_status: Option<InitStatus>,
-    /// The loop this frame's keyframe closed, if any.
-    pub loop_closure: Option<LoopClosure>,
-}
 
 /// The SLAM system: tracking and local mapping run inline, in call order (deterministic).
 ///
@@ -86,6 +62,8 @@ pub struct SlamSystem {
     loop_stats: LoopStats,
     frames_seen: usize,
     guard: InputGuard,
+    /// ORB extraction, masks and sampling of [`Self::track`]'s images.
+    front_end: FrontEnd,
     resets: usize,
     /// IMU samples, keyframe preintegrations and the camera-IMU alignment, once set.
     inertial: Option<Inertial>,
@@ -118,7 +96,10 @@ impl SlamSystem {
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
         let mut map = Map::new(pyramid);
         map.set_rig(ctx.rig());
+        let orb = ferroslam_features::OrbExtractor::new(extractor.orb())
+            .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
         Ok(Self {
+            front_end: FrontEnd::new(orb),
             ctx,
             map,
             tracker: Tracker::default(),
@@ -138,43 +119,6 @@ impl SlamSystem {
             inertial: None,
             predictor: ImuPredictor::default(),
         })
-    }
-
-    /// Tracks one RGB-D frame; keypoints are raw (distorted) pixels with sensor depth.
-    ///
-    /// # Errors
-    /// `InvalidInput` for mismatched lengths, non-finite values, octaves beyond the pyramid or
-    /// a timestamp not after the previous one; the system state is unchanged then.
-    pub fn track_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<TrackResult, SlamError> {
-        let start = Instant::now();
-        self.guard.accept_rgbd(input)?;
-        let frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx)?;
-        self.track_frame(frame, start)
-    }
-
-    /// Tracks one rectified stereo pair: the left keypoints are matched into the right image
-    /// (depth from disparity, `bf` of the configuration) and the left frame is tracked.
-    ///
-    /// # Errors
-    /// `InvalidInput` as [`Self::track_rgbd`], for pyramids that miss levels or differ in size
-    /// between the images, and when the camera has distortion (stereo input must be rectified).
-    pub fn track_stereo(&mut self, input: &StereoInput<'_>) -> Result<TrackResult, SlamError> {
-        let start = Instant::now();
-        self.guard.accept_stereo(input)?;
-        let frame = Frame::from_stereo(self.frames_seen, input, self.map.pyramid(), &self.ctx)?;
-        self.track_frame(frame, start)
-    }
-
-    /// Tracks one monocular frame; keypoints are raw (distorted) pixels. Until the map exists
-    /// each frame is offered to two-view initialisation (`init_status` says why it waits).
-    ///
-    /// # Errors
-    /// `InvalidInput` as [`Self::track_rgbd`].
-    pub fn track_mono(&mut self, input: &MonoInput<'_>) -> Result<TrackResult, SlamError> {
-        let start = Instant::now();
-        self.guard.accept_mono(input)?;
-        let frame = Frame::from_mono(self.frames_seen, input, &self.ctx)?;
-        self.track_frame(frame, start)
     }
 
     /// A fresh guard with this system's input rules (for a background submitter).
@@ -213,6 +157,8 @@ impl SlamSystem {
                 mapping: None,
                 init_status,
                 loop_closure: None,
+                keypoints: Vec::new(),
+                extraction_ms: 0.0,
             });
         }
         let mut tracked =
@@ -252,6 +198,8 @@ impl SlamSystem {
             mapping: None,
             init_status: None,
             loop_closure: None,
+            keypoints: Vec::new(),
+            extraction_ms: 0.0,
         };
         if !tracked && predicted.is_some() {
             // Carried by the IMU: the frame has its pose, nothing else changes.

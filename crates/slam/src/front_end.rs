@@ -1,0 +1,425 @@
+//! The front end: one instant of the rig's cameras in as images ([`RigFrame`]), the frame's
+//! measured features out ([`Measured`]): ORB extraction of every camera in parallel, static
+//! and per-frame masks, depth and colour sampled at the keypoints, stereo matching on the
+//! extraction's own pyramids. It runs inside the one tracking call, so no pyramid or keypoint
+//! list crosses into the caller and back, and the images are checked once.
+//!
+//! Images are generic in their storage (`D`: borrowed slices for a synchronous call, owned
+//! vectors for a frame queued to the tracking thread), so one set of checks and one
+//! measurement serve both.
+
+use std::borrow::Cow;
+
+use ferroslam_features::{
+    Descriptor, Features, GrayImage, Keypoint, OrbExtractor, OwnedGrayImage, ScalePyramid,
+    StereoView,
+};
+use ferroslam_map::Rgb;
+use rayon::prelude::*;
+
+use crate::config::Sensor;
+use crate::context::{Context, InputShape};
+use crate::error::SlamError;
+use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+
+/// An 8-bit image as OpenCV holds it: rows of grey, BGR or BGRA pixels, no padding.
+#[derive(Clone, Debug)]
+pub struct Image<D> {
+    /// Width, pixels.
+    pub width: usize,
+    /// Height, pixels.
+    pub height: usize,
+    /// 1 (grey), 3 (BGR) or 4 (BGRA).
+    pub channels: usize,
+    /// `height * width * channels` bytes, row-major.
+    pub data: D,
+}
+
+/// A depth image registered to its camera's image: metres per pixel, row-major; 0, negative
+/// or NaN means no measurement.
+#[derive(Clone, Debug)]
+pub struct DepthImage<F> {
+    /// Width, pixels.
+    pub width: usize,
+    /// Height, pixels.
+    pub height: usize,
+    /// `height * width` depths, metres.
+    pub data: F,
+}
+
+/// One camera's image at one instant.
+#[derive(Clone, Debug)]
+pub struct CameraImage<D, F> {
+    /// The image tracked: grey, or BGR(A) converted to grey as OpenCV converts it.
+    pub image: Image<D>,
+    /// The same view in colour, when `image` is grey: the map points' colours come from it
+    /// (else from `image`, grey images giving grey colours).
+    pub color: Option<Image<D>>,
+    /// Registered depth (RGB-D cameras).
+    pub depth_m: Option<DepthImage<F>>,
+    /// This frame's mask, one byte per pixel: 0 = no keypoint there (combined with the
+    /// camera's static mask).
+    pub mask: Option<Image<D>>,
+}
+
+/// One instant of the rig: the time and every camera's image, in the rig's camera order.
+#[derive(Clone, Debug)]
+pub struct RigFrame<D, F> {
+    /// Capture time, seconds.
+    pub timestamp: f64,
+    /// One image per camera.
+    pub cameras: Vec<CameraImage<D, F>>,
+}
+
+/// A frame borrowing the caller's pixels (a synchronous call).
+pub type RigFrameView<'a> = RigFrame<&'a [u8], &'a [f32]>;
+/// A frame owning its pixels (queued to the tracking thread).
+pub type OwnedRigFrame = RigFrame<Vec<u8>, Vec<f32>>;
+
+/// The cameras a sensor's frame holds: their count and which carry depth.
+fn expected_cameras(sensor: Sensor) -> (usize, &'static str) {
+    match sensor {
+        Sensor::Monocular => (1, "one image"),
+        Sensor::Rgbd => (1, "one colour image with its depth"),
+        Sensor::Stereo => (2, "two images (left, right)"),
+    }
+}
+
+impl<D: AsRef<[u8]>> Image<D> {
+    fn check(&self, what: &str, channels: &[usize], size: (usize, usize)) -> Result<(), SlamError> {
+        if !channels.contains(&self.channels) {
+            return Err(invalid(format!(
+                "{what} has {} channels: it must be grey (H, W) or BGR (H, W, 3)",
+                self.channels
+            )));
+        }
+        if (self.width, self.height) != size {
+            return Err(invalid(format!(
+                "{what} is {}x{} but the camera is {}x{} (width x height)",
+                self.width, self.height, size.0, size.1
+            )));
+        }
+        let len = self.data.as_ref().len();
+        if Some(len) != self.width.checked_mul(self.height * self.channels) {
+            return Err(invalid(format!(
+                "{what}: {len} bytes do not hold {}x{}x{} pixels",
+                self.width, self.height, self.channels
+            )));
+        }
+        Ok(())
+    }
+
+    /// The grey image: borrowed when grey, else OpenCV's `COLOR_BGR2GRAY` (BT.601 in 14-bit
+    /// fixed point, rounded), so keypoints equal those of a grey image read by OpenCV.
+    fn gray(&self) -> Cow<'_, [u8]> {
+        let data = self.data.as_ref();
+        if self.channels == 1 {
+            return Cow::Borrowed(data);
+        }
+        const B2Y: u32 = 1868;
+        const G2Y: u32 = 9617;
+        const R2Y: u32 = 4899;
+        Cow::Owned(
+            data.chunks_exact(self.channels)
+                .map(|p| {
+                    let sum = u32::from(p[0]) * B2Y + u32::from(p[1]) * G2Y + u32::from(p[2]) * R2Y;
+                    ((sum + (1 << 13)) >> 14) as u8
+                })
+                .collect(),
+        )
+    }
+
+    /// RGB at pixel `(x, y)` (inside the image).
+    fn rgb(&self, (x, y): (usize, usize)) -> Rgb {
+        let i = (y * self.width + x) * self.channels;
+        let p = &self.data.as_ref()[i..i + self.channels];
+        if self.channels == 1 {
+            [p[0]; 3]
+        } else {
+            [p[2], p[1], p[0]]
+        }
+    }
+}
+
+/// The pixel a keypoint falls on: its raw position rounded half to even (as numpy's `rint`),
+/// `None` outside the image.
+fn pixel_of(k: &Keypoint, width: usize, height: usize) -> Option<(usize, usize)> {
+    let (u, v) = (
+        f64::from(k.x).round_ties_even(),
+        f64::from(k.y).round_ties_even(),
+    );
+    let inside = u >= 0.0 && v >= 0.0 && u < width as f64 && v < height as f64;
+    inside.then_some((u as usize, v as usize))
+}
+
+impl<D: AsRef<[u8]>, F: AsRef<[f32]>> RigFrame<D, F> {
+    /// Checks the frame against a `sensor` system whose cameras have `shape`: the number of
+    /// cameras, every image's size and channels, depth exactly where the sensor has it.
+    pub fn validate(&self, sensor: Sensor, shape: &InputShape) -> Result<(), SlamError> {
+        if !self.timestamp.is_finite() {
+            return Err(invalid("timestamp is not finite".into()));
+        }
+        let (n, what) = expected_cameras(sensor);
+        if self.cameras.len() != n {
+            return Err(invalid(format!(
+                "a {} frame has {what}, got {} image(s)",
+                sensor.name(),
+                self.cameras.len()
+            )));
+        }
+        let size = (shape.width as usize, shape.height as usize);
+        for (i, camera) in self.cameras.iter().enumerate() {
+            let name = |part: &str| match n {
+                1 => part.to_string(),
+                _ => format!("camera {i} {part}"),
+            };
+            camera.image.check(&name("image"), &[1, 3, 4], size)?;
+            if let Some(color) = &camera.color {
+                color.check(&name("colour image"), &[1, 3, 4], size)?;
+            }
+            if let Some(mask) = &camera.mask {
+                mask.check(&name("mask"), &[1], size)?;
+            }
+            let wants_depth = sensor == Sensor::Rgbd;
+            match (&camera.depth_m, wants_depth) {
+                (Some(depth), true) => {
+                    let len = depth.data.as_ref().len();
+                    if (depth.width, depth.height) != size || len != size.0 * size.1 {
+                        return Err(invalid(format!(
+                            "the depth image is {}x{} but the camera is {}x{} (width x \
+                             height): depth must be registered to the colour image",
+                            depth.width, depth.height, size.0, size.1
+                        )));
+                    }
+                }
+                (None, true) => return Err(invalid("an RGB-D frame needs its depth image".into())),
+                (Some(_), false) => {
+                    return Err(invalid(format!(
+                        "a depth image was given to a {} system: only RGB-D systems use depth",
+                        sensor.name()
+                    )))
+                }
+                (None, false) => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The features of one camera's image with what was sampled at them.
+struct CameraFeatures {
+    features: Features,
+    colors: Vec<Rgb>,
+    depth_m: Option<Vec<f32>>,
+}
+
+/// The front end's result for one frame: every camera's features.
+pub struct Measured {
+    timestamp: f64,
+    cameras: Vec<CameraFeatures>,
+}
+
+impl Measured {
+    /// The frame tracking works on (the one place the sensors part ways): depth from the
+    /// sensor (RGB-D), from matching the pair (stereo), or none yet (monocular).
+    pub fn frame(
+        &self,
+        index: usize,
+        sensor: Sensor,
+        pyramid: &ScalePyramid,
+        ctx: &Context,
+    ) -> Result<Frame, SlamError> {
+        let first = &self.cameras[0];
+        let (keypoints, descriptors) = (&first.features.keypoints, &first.features.descriptors);
+        let colors = Some(first.colors.as_slice());
+        match sensor {
+            Sensor::Monocular => Frame::from_mono(
+                index,
+                &MonoInput {
+                    timestamp: self.timestamp,
+                    keypoints,
+                    descriptors,
+                    colors,
+                },
+                ctx,
+            ),
+            Sensor::Rgbd => Frame::from_rgbd(
+                index,
+                &RgbdInput {
+                    timestamp: self.timestamp,
+                    keypoints,
+                    descriptors,
+                    depth_m: first.depth_m.as_deref().unwrap_or_default(),
+                    colors,
+                },
+                ctx,
+            ),
+            Sensor::Stereo => {
+                let right = &self.cameras[1].features;
+                let (left_levels, right_levels) = (first.features.pyramid.views(), right.pyramid.views());
+                let input = StereoInput {
+                    timestamp: self.timestamp,
+                    left: stereo_view(keypoints, descriptors, &left_levels),
+                    right: stereo_view(&right.keypoints, &right.descriptors, &right_levels),
+                    colors,
+                };
+                Frame::from_stereo(index, &input, pyramid, ctx)
+            }
+        }
+    }
+
+    /// The first camera's raw keypoints (what the caller is shown).
+    pub fn into_keypoints(self) -> Vec<Keypoint> {
+        self.cameras
+            .into_iter()
+            .next()
+            .map(|c| c.features.keypoints)
+            .unwrap_or_default()
+    }
+}
+
+fn stereo_view<'a>(
+    keypoints: &'a [Keypoint],
+    descriptors: &'a [Descriptor],
+    levels: &'a [GrayImage<'a>],
+) -> StereoView<'a> {
+    StereoView {
+        keypoints,
+        descriptors,
+        levels,
+    }
+}
+
+/// The ORB extractor and the cameras' static masks.
+#[derive(Clone, Debug)]
+pub struct FrontEnd {
+    extractor: OrbExtractor,
+    /// Per camera, the static mask (0 = no keypoint), if any.
+    masks: Vec<Option<OwnedGrayImage>>,
+}
+
+impl FrontEnd {
+    /// A front end with `extractor` and no masks.
+    pub fn new(extractor: OrbExtractor) -> Self {
+        Self {
+            extractor,
+            masks: Vec::new(),
+        }
+    }
+
+    /// Sets camera `camera`'s static mask (`None` removes it); its size is checked by the
+    /// caller against the camera's.
+    pub fn set_mask(&mut self, camera: usize, mask: Option<OwnedGrayImage>) {
+        if self.masks.len() <= camera {
+            self.masks.resize(camera + 1, None);
+        }
+        self.masks[camera] = mask;
+    }
+
+    /// Camera `camera`'s static mask.
+    pub fn mask(&self, camera: usize) -> Option<&OwnedGrayImage> {
+        self.masks.get(camera).and_then(Option::as_ref)
+    }
+
+    /// Measures a frame already checked by [`RigFrame::validate`]: all cameras in parallel.
+    pub fn measure<D, F>(&self, frame: &RigFrame<D, F>) -> Result<Measured, SlamError>
+    where
+        D: AsRef<[u8]> + Sync,
+        F: AsRef<[f32]> + Sync,
+    {
+        let cameras = frame
+            .cameras
+            .par_iter()
+            .enumerate()
+            .map(|(i, camera)| self.measure_camera(i, camera))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Measured {
+            timestamp: frame.timestamp,
+            cameras,
+        })
+    }
+
+    fn measure_camera<D: AsRef<[u8]>, F: AsRef<[f32]>>(
+        &self,
+        index: usize,
+        camera: &CameraImage<D, F>,
+    ) -> Result<CameraFeatures, SlamError> {
+        let image = &camera.image;
+        let (w, h) = (image.width, image.height);
+        let gray = image.gray();
+        let gray = GrayImage::new(w, h, &gray).map_err(|e| invalid(e.to_string()))?;
+        let mask = combined_mask(self.mask(index), camera.mask.as_ref());
+        let features = self
+            .extractor
+            .extract(&gray)
+            .map_err(|e| invalid(e.to_string()))?;
+        let features = match mask.as_deref() {
+            Some(mask) => masked(features, mask, w, h),
+            None => features,
+        };
+        let pixels: Vec<Option<(usize, usize)>> = features
+            .keypoints
+            .iter()
+            .map(|k| pixel_of(k, w, h))
+            .collect();
+        let source = camera.color.as_ref().unwrap_or(image);
+        let colors = pixels
+            .iter()
+            .map(|p| p.map_or([0; 3], |p| source.rgb(p)))
+            .collect();
+        let depth_m = camera.depth_m.as_ref().map(|depth| {
+            let data = depth.data.as_ref();
+            pixels
+                .iter()
+                .map(|p| {
+                    let d = p.map_or(0.0, |(x, y)| data[y * depth.width + x]);
+                    if d.is_finite() && d > 0.0 {
+                        d
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        });
+        Ok(CameraFeatures {
+            features,
+            colors,
+            depth_m,
+        })
+    }
+}
+
+/// The pixels both masks allow (each 0 = no keypoint), `None` when neither is given.
+fn combined_mask<'a, D: AsRef<[u8]>>(
+    fixed: Option<&'a OwnedGrayImage>,
+    frame: Option<&'a Image<D>>,
+) -> Option<Cow<'a, [u8]>> {
+    match (fixed.map(|m| m.view().pixels()), frame.map(|m| m.data.as_ref())) {
+        (Some(a), Some(b)) => Some(Cow::Owned(
+            a.iter().zip(b).map(|(&a, &b)| u8::from(a != 0 && b != 0)).collect(),
+        )),
+        (Some(a), None) => Some(Cow::Borrowed(a)),
+        (None, Some(b)) => Some(Cow::Borrowed(b)),
+        (None, None) => None,
+    }
+}
+
+/// `features` without the keypoints on masked pixels.
+fn masked(features: Features, mask: &[u8], width: usize, height: usize) -> Features {
+    let keep = |k: &Keypoint| pixel_of(k, width, height).is_some_and(|(x, y)| mask[y * width + x] != 0);
+    let (keypoints, descriptors) = features
+        .keypoints
+        .into_iter()
+        .zip(features.descriptors)
+        .filter(|(k, _)| keep(k))
+        .unzip();
+    Features {
+        keypoints,
+        descriptors,
+        pyramid: features.pyramid,
+    }
+}
+
+fn invalid(message: String) -> SlamError {
+    SlamError::InvalidInput(message)
+}
