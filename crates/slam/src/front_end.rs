@@ -109,21 +109,22 @@ impl<D: AsRef<[u8]>> Image<D> {
         Ok(())
     }
 
-    /// The grey image: borrowed when grey, else OpenCV's `COLOR_BGR2GRAY` (BT.601 in 14-bit
-    /// fixed point, rounded), so keypoints equal those of a grey image read by OpenCV.
+    /// The grey image: borrowed when grey, else OpenCV's `COLOR_BGR2GRAY` (BT.601 weights in
+    /// 15-bit fixed point, rounded: equal to OpenCV 5's for all 2^24 colours), so keypoints
+    /// equal those of the image converted by OpenCV.
     fn gray(&self) -> Cow<'_, [u8]> {
         let data = self.data.as_ref();
         if self.channels == 1 {
             return Cow::Borrowed(data);
         }
-        const B2Y: u32 = 1868;
-        const G2Y: u32 = 9617;
-        const R2Y: u32 = 4899;
+        const B2Y: u32 = 3735;
+        const G2Y: u32 = 19235;
+        const R2Y: u32 = 9798;
         Cow::Owned(
             data.chunks_exact(self.channels)
                 .map(|p| {
                     let sum = u32::from(p[0]) * B2Y + u32::from(p[1]) * G2Y + u32::from(p[2]) * R2Y;
-                    ((sum + (1 << 13)) >> 14) as u8
+                    ((sum + (1 << 14)) >> 15) as u8
                 })
                 .collect(),
         )
@@ -422,4 +423,29 @@ fn masked(features: Features, mask: &[u8], width: usize, height: usize) -> Featu
 
 fn invalid(message: String) -> SlamError {
     SlamError::InvalidInput(message)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bgr_to_grey_is_opencvs() {
+        // cv2.cvtColor(..., COLOR_BGR2GRAY) of these BGR pixels; a 14-bit rounding (OpenCV's
+        // older tables) misses each by one grey level.
+        let cases = [
+            ([230, 0, 21], 32),
+            ([240, 159, 93], 148),
+            ([83, 225, 137], 183),
+            ([226, 113, 95], 120),
+            ([108, 248, 186], 214),
+            ([62, 30, 180], 78),
+            ([255, 255, 255], 255),
+            ([0, 0, 0], 0),
+        ];
+        let data: Vec<u8> = cases.iter().flat_map(|(bgr, _)| *bgr).collect();
+        let image = Image { width: cases.len(), height: 1, channels: 3, data: data.as_slice() };
+        let expected: Vec<u8> = cases.iter().map(|&(_, g)| g).collect();
+        assert_eq!(image.gray().as_ref(), expected.as_slice());
+    }
 }
