@@ -25,9 +25,9 @@ DEFAULT_DATA = Path(os.environ.get("FERROSLAM_DATA", REPO.parent / "shared" / "d
 DEFAULT_OUT = REPO / "docs" / "images" / "tum_rpy_mesh.png"
 # A readable picture within the README's size budget (< 300 KB as a 256-colour PNG).
 WIDTH_PX, HEIGHT_PX = 900, 640
-FOCAL_PX = 520.0
+FOCAL_PX = 480.0
 # Behind and above the first camera, so the whole desk the rpy motion swept is in view.
-EYE_OFFSET_C_M = np.array([0.0, -0.35, -0.9])
+EYE_OFFSET_C_M = np.array([0.3, -0.6, -1.2])
 # Meshes of a few 10^5 triangles take seconds to draw; decimated beyond that.
 MAX_TRIANGLES = 300_000
 
@@ -80,7 +80,7 @@ def render(vertices: np.ndarray, triangles: np.ndarray, colors: np.ndarray, path
     view = corners.mean(axis=1)
     view /= np.linalg.norm(view, axis=1, keepdims=True)
     lambert = np.abs((normals * view).sum(axis=1))
-    shade = colors[faces].mean(axis=1) * (0.35 + 0.65 * lambert)[:, None]
+    shade = colors[faces].mean(axis=1) * (0.6 + 0.4 * lambert)[:, None]
 
     order = np.argsort(-corners[:, :, 2].mean(axis=1))  # far first
     dpi = 100
