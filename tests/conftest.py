@@ -58,17 +58,11 @@ def kitti_mono() -> Path:
 @pytest.fixture(scope="session")
 def tum_rpy_dense_run(tum_rpy):
     """One RGB-D run over the 300 frames of TUM fr1/rpy with dense fusion, shared by the
-    COLMAP and dense tests (a run takes tens of seconds on CI's two cores).
-
-    As a global shutter (readout 0): COLMAP has no rolling-shutter camera, and the model of
-    a rolling-shutter run (keypoints seen from their rows' poses) reprojects through the
-    keyframes' reference poses at 3.0 px (measured; 1.41 px as a global shutter). Exporting
-    keypoints compensated to the reference pose is still to be built."""
-    import dataclasses
-
-    from ferroslam.datasets import TumSequence, open_sequence
+    COLMAP and dense tests (a run takes tens of seconds on CI's two cores). The dataset's
+    camera, fr1's 15 ms rolling-shutter readout included: the COLMAP export moves keypoints
+    to the keyframes' reference poses (``ferroslam_map::sparse_model``)."""
+    from ferroslam.datasets import open_sequence
     from ferroslam.pipeline import run_sequence
 
-    camera = dataclasses.replace(TumSequence(tum_rpy).camera, rolling_shutter_readout_s=0.0)
-    seq = open_sequence(tum_rpy, camera=camera)
+    seq = open_sequence(tum_rpy)
     return seq, run_sequence(seq, {"dense": True}, sensor="rgbd", progress=False)

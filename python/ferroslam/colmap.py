@@ -11,6 +11,10 @@ points only, so a multi-camera rig will only add cameras.
 Images are the raw (distorted) frames as tracked, and the camera is written in the COLMAP
 model of the same lens (``OPENCV`` / ``FULL_OPENCV`` / ``PINHOLE``, ``OPENCV_FISHEYE``;
 see :func:`ferroslam.export.write_colmap_model`); the 2-D points are in those raw pixels.
+COLMAP has no rolling-shutter camera: a rolling-shutter run's keypoints are written where
+the camera would have seen them from the keyframe's pose (its reference time), each moved by
+its row's motion (``ferroslam_map::sparse_model``), so points reproject through the written
+poses as closely as through the rows' poses the core adjusted them with.
 Trainers that take only ``PINHOLE`` cameras (the original 3DGS) want ``colmap
 image_undistorter`` run on the folder first.
 """
@@ -44,7 +48,7 @@ class SparseModel:
     ``keyframe_ids (K,)``, ``timestamps (K,)`` seconds, ``T_w_c (K, 4, 4)``;
     ``keypoint_offsets (K + 1,)``: keyframe ``k``'s keypoints are rows
     ``offsets[k]:offsets[k + 1]`` of ``keypoints_px (N, 2)`` (raw image pixels, OpenCV's
-    centre of the top-left pixel at (0, 0)) and ``point_index (N,)`` (row of
+    centre of the top-left pixel at (0, 0), as seen from ``T_w_c``) and ``point_index (N,)`` (row of
     ``points_xyz (M, 3)`` the keypoint observes, -1 for none); ``point_colors (M, 3)`` uint8.
     """
 

@@ -3,25 +3,48 @@
 //!
 //! Such tools keep every keypoint of an image, the ones without a 3-D point too, in the
 //! pixels of the image file they are given: the raw (distorted) image. The map keeps its
-//! keypoints in the core's pixels (undistorted for a pinhole camera), so the caller passes
-//! the camera's way back (`CameraModel::raw_pixel` of `ferroslam_geometry`). A keyframe of a
-//! multi-camera rig will add one image per camera here; points and tracks do not change.
+//! keypoints in the core's pixels (undistorted for a pinhole camera), so the export moves
+//! them back through the camera ([`CameraModel::raw_pixel`]). A keyframe of a multi-camera
+//! rig will add one image per camera here; points and tracks do not change.
+//!
+//! # Rolling shutter
+//! Such tools model a global shutter: one pose per image. A rolling-shutter keyframe saw
+//! keypoint `i` from the pose of its row, `D(dt_i) * T_c_w` (`dt_i` its row's time offset,
+//! `D` the motion at the keyframe's velocity, [`ferroslam_geometry::rolling_shutter`]), so
+//! its keypoints are written where the camera would have seen them at the keyframe's
+//! reference time, and the keyframe's pose `T_c_w` is the image's:
+//! - a keypoint observing map point `p_w` is moved by `pi(T_c_w p_w) - pi(D T_c_w p_w)`.
+//!   The exported keypoint's residual through the reference pose is then the core's own
+//!   rolling-shutter residual `pi(D T_c_w p_w) - keypoint` (local BA's): the measurement's
+//!   noise is kept, only the row's motion is taken out, and a tool's BA refines the same
+//!   error the core minimised.
+//! - a keypoint without a point has no depth to move it by: its ray is rotated back by
+//!   `D`'s rotation alone. Over half a readout (7.5 ms for TUM fr1) a hand-held camera turns
+//!   by up to ~0.01 rad (~6 px at 517 px focal length), but moves by about a millimetre,
+//!   well under a pixel at a metre or more.
+//!
+//! A global shutter (every offset 0) leaves keypoints exactly where they were detected.
 
-use nalgebra::{Isometry3, Vector2, Vector3};
+// Frame-named variables (`T_c_w`, `D`) follow the workspace's pose convention.
+#![allow(non_snake_case)]
 
-use crate::{KeyFrameId, Map, MapPointId, Rgb};
+use ferroslam_geometry::camera::CameraModel;
+use ferroslam_geometry::rolling_shutter::motion_over;
+use nalgebra::{Isometry3, Point3, Vector2, Vector3};
+
+use crate::{KeyFrame, KeyFrameId, Map, MapPointId, Rgb};
 
 /// One keyframe's image: its pose and every keypoint with the point it observes.
 #[derive(Clone, Debug)]
-#[allow(non_snake_case)]
 pub struct SparseImage {
     /// The keyframe.
     pub id: KeyFrameId,
     /// Timestamp of the source frame, seconds.
     pub timestamp_s: f64,
-    /// Camera-to-world pose (`p_w = T_w_c * p_c`, metres).
+    /// Camera-to-world pose at the frame's reference time (`p_w = T_w_c * p_c`, metres).
     pub T_w_c: Isometry3<f64>,
-    /// Every keypoint in raw image pixels (centre of the top-left pixel at (0, 0)).
+    /// Every keypoint in raw image pixels (centre of the top-left pixel at (0, 0)), as seen
+    /// from `T_w_c` (rolling-shutter compensated, see the module docs).
     pub keypoints_raw_px: Vec<Vector2<f64>>,
     /// Per keypoint, the index in [`SparseModel::points`] of the point it observes.
     pub point_index: Vec<Option<usize>>,
@@ -49,9 +72,9 @@ pub struct SparseModel {
 }
 
 impl Map {
-    /// The map as images, points and tracks; `raw_px` moves a keypoint from the map's
-    /// pixels to the raw image's (the camera of every keyframe).
-    pub fn sparse_model(&self, raw_px: impl Fn(&Vector2<f64>) -> Vector2<f64>) -> SparseModel {
+    /// The map as images, points and tracks, keypoints in the raw pixels of `camera` (the
+    /// camera of every keyframe) at each keyframe's reference time.
+    pub fn sparse_model(&self, camera: &CameraModel) -> SparseModel {
         let points: Vec<SparsePoint> = self
             .map_point_ids()
             .into_iter()
@@ -69,18 +92,23 @@ impl Map {
             .into_iter()
             .filter_map(|id| self.keyframe(id))
             .map(|kf| {
-                let keypoints = &kf.features().keypoints;
+                let point_index: Vec<Option<usize>> = (0..kf.features().len())
+                    .map(|i| kf.map_point(i).and_then(|m| index_of.get(&m).copied()))
+                    .collect();
+                let keypoints_raw_px = point_index
+                    .iter()
+                    .enumerate()
+                    .map(|(i, point)| {
+                        let p_w = point.map(|j| &points[j].position);
+                        camera.raw_pixel(&at_reference_time(kf, i, p_w, camera))
+                    })
+                    .collect();
                 SparseImage {
                     id: kf.id(),
                     timestamp_s: kf.timestamp(),
                     T_w_c: kf.T_w_c(),
-                    keypoints_raw_px: keypoints
-                        .iter()
-                        .map(|k| raw_px(&Vector2::new(f64::from(k.x), f64::from(k.y))))
-                        .collect(),
-                    point_index: (0..keypoints.len())
-                        .map(|i| kf.map_point(i).and_then(|m| index_of.get(&m).copied()))
-                        .collect(),
+                    keypoints_raw_px,
+                    point_index,
                 }
             })
             .collect();
@@ -88,31 +116,114 @@ impl Map {
     }
 }
 
+/// Keypoint `i` of `kf` (core pixels) where `camera` would have seen it from the keyframe's
+/// reference pose (see the module docs; `p_w` the point it observes, if any). Unchanged for
+/// a keypoint read at the reference time, and where a projection fails (a point or ray
+/// turned behind a pinhole): no better place is known.
+fn at_reference_time(
+    kf: &KeyFrame,
+    i: usize,
+    p_w: Option<&Vector3<f64>>,
+    camera: &CameraModel,
+) -> Vector2<f64> {
+    let features = kf.features();
+    let kp = &features.keypoints[i];
+    let uv = Vector2::new(f64::from(kp.x), f64::from(kp.y));
+    let dt = features.time_offset_s(i);
+    if dt == 0.0 {
+        return uv;
+    }
+    let D = motion_over(&features.xi_dot, dt);
+    let moved = match p_w {
+        Some(p_w) => {
+            let p_c = kf.T_c_w() * Point3::from(*p_w);
+            let at_reference = camera.project(&p_c.coords);
+            let at_row = camera.project(&(D * p_c).coords);
+            at_reference.zip(at_row).map(|(r, s)| uv + (r - s))
+        }
+        None => camera
+            .unproject(&uv)
+            .and_then(|ray_row| camera.project(&(D.rotation.inverse() * ray_row))),
+    };
+    moved.unwrap_or(uv)
+}
+
 #[cfg(test)]
 mod tests {
-    use nalgebra::Vector2;
+    use approx::assert_relative_eq;
+    use ferroslam_geometry::camera::{test_cameras, CameraModel};
+    use ferroslam_geometry::rolling_shutter::motion_over;
+    use nalgebra::{Isometry3, Point3, Vector2, Vector6};
 
     use crate::test_support::{map_with_keyframes, observe_all};
+    use crate::{KeyFrameId, Map};
+
+    fn tum_fr1() -> CameraModel {
+        CameraModel::from(test_cameras()[0].1)
+    }
+
+    fn core_px(map: &Map, kf: KeyFrameId, i: usize) -> Vector2<f64> {
+        let k = &map.keyframe(kf).unwrap().features().keypoints[i];
+        Vector2::new(f64::from(k.x), f64::from(k.y))
+    }
 
     #[test]
     fn every_keypoint_is_listed_with_its_point_in_raw_pixels() {
         let (mut map, kfs) = map_with_keyframes(3, 4);
         let shared = observe_all(&mut map, &kfs, 2);
-        let shift = Vector2::new(0.5, -0.25);
-        let model = map.sparse_model(|uv| uv + shift);
+        let camera = tum_fr1();
+        let model = map.sparse_model(&camera);
         assert_eq!(model.points.len(), 1);
         assert_eq!(model.points[0].id, shared);
         assert_eq!(model.images.len(), 3);
         for (image, &kf) in model.images.iter().zip(&kfs) {
             assert_eq!(image.id, kf);
             assert_eq!(image.point_index, vec![None, None, Some(0), None]);
-            let keyframe = map.keyframe(kf).unwrap();
-            assert_eq!(image.T_w_c, keyframe.T_w_c());
-            let keypoints = &keyframe.features().keypoints;
-            assert_eq!(image.keypoints_raw_px.len(), keypoints.len());
-            for (raw, k) in image.keypoints_raw_px.iter().zip(keypoints) {
-                assert_eq!(*raw, Vector2::new(f64::from(k.x), f64::from(k.y)) + shift);
+            assert_eq!(image.T_w_c, map.keyframe(kf).unwrap().T_w_c());
+            assert_eq!(image.keypoints_raw_px.len(), 4);
+            for (i, raw) in image.keypoints_raw_px.iter().enumerate() {
+                // A global shutter: the detected keypoint, distorted back.
+                assert_eq!(*raw, camera.raw_pixel(&core_px(&map, kf, i)));
             }
         }
+    }
+
+    /// Keyframe 1 read as a rolling shutter turning at 1.5 rad/s (fr1/rpy's peaks): its
+    /// keypoint 2 is where its row saw the point at (0, 0, 5), keypoint 0 a ray with no point.
+    #[test]
+    fn rolling_shutter_keypoints_are_moved_to_the_reference_pose() {
+        let (mut map, kfs) = map_with_keyframes(1, 4);
+        let camera = tum_fr1();
+        let p_w = Point3::new(0.0, 0.0, 5.0);
+        let T_c_w = Isometry3::translation(-1.0, 0.0, 0.0);
+        let xi_dot = Vector6::new(0.05, 0.0, 0.02, 0.3, 1.5, -0.2);
+        let dt = [-0.007, 0.0, 0.006, 0.0];
+        let D = motion_over(&xi_dot, dt[2]);
+        let seen = camera.project(&(D * T_c_w * p_w).coords).unwrap();
+        let mut features = map.keyframe(kfs[0]).unwrap().features().clone();
+        features.keypoints[2].x = seen.x as f32;
+        features.keypoints[2].y = seen.y as f32;
+        features.xi_dot = xi_dot;
+        let features = features.with_time_offsets(dt.to_vec()).unwrap();
+        let kf1 = map.insert_keyframe(1.0, 1, T_c_w, features);
+        let kfs = [kfs[0], kf1];
+        observe_all(&mut map, &kfs, 2);
+
+        let image = &map.sparse_model(&camera).images[1];
+        let core = |i: usize| camera.core_pixel(&image.keypoints_raw_px[i]);
+        // Moved by the row's motion: the residual through the reference pose is the
+        // detected keypoint's (f32 rounding) through its row's pose.
+        let at_reference = camera.project(&(T_c_w * p_w).coords).unwrap();
+        let residual_row = core_px(&map, kfs[1], 2) - seen;
+        assert_relative_eq!(core(2) - at_reference, residual_row, epsilon = 1e-6);
+        assert!((core(2) - core_px(&map, kfs[1], 2)).norm() > 2.0);
+        // Without a point: the ray rotated back by the row's rotation.
+        let ray = camera.unproject(&core_px(&map, kfs[1], 0)).unwrap();
+        let D0 = motion_over(&xi_dot, dt[0]);
+        let expected = camera.project(&(D0.rotation.inverse() * ray)).unwrap();
+        assert_relative_eq!(core(0), expected, epsilon = 1e-6);
+        assert!((core(0) - core_px(&map, kfs[1], 0)).norm() > 2.0);
+        // Keypoints on the reference row are not moved.
+        assert_relative_eq!(core(1), core_px(&map, kfs[1], 1), epsilon = 1e-9);
     }
 }

@@ -18,7 +18,8 @@ use crate::pool;
 
 /// The model as a dict of arrays: `keyframe_ids (K,) uint32`, `timestamps (K,) float64`,
 /// `T_w_c (K, 4, 4)`, `keypoint_offsets (K + 1,) int64` (image `k`'s keypoints are rows
-/// `offsets[k]:offsets[k + 1]`), `keypoints_px (N, 2) float64` (raw image pixels),
+/// `offsets[k]:offsets[k + 1]`), `keypoints_px (N, 2) float64` (raw image pixels, as seen
+/// from `T_w_c`: rolling-shutter compensated, `ferroslam_map::sparse_model`),
 /// `point_index (N,) int64` (row of `points_xyz`, -1 for none), `points_xyz (M, 3)`,
 /// `point_colors (M, 3) uint8` (128 grey without colour).
 pub fn model_dict<'py>(py: Python<'py>, model: SparseModel) -> PyResult<Bound<'py, PyDict>> {
@@ -88,9 +89,11 @@ pub fn load_sparse_model<'py>(
             distortion(&rig),
             rig.width,
             rig.height,
-            0.0, // the readout does not move pixels: raw_pixel is the lens alone
+            // Row times are the keyframes' own, stored in the file (version 6 on): the
+            // camera's readout is not needed to move keypoints to their reference poses.
+            0.0,
         )?;
-        Ok((rig.clone(), map.sparse_model(|uv| camera.raw_pixel(uv))))
+        Ok((rig.clone(), map.sparse_model(&camera)))
     })??;
     let camera = PyDict::new(py);
     let [fx, fy, cx, cy] = rig.intrinsics;

@@ -791,7 +791,7 @@ impl SlamSystem {
     /// The map's keyframes, points and tracks with every keypoint in raw image pixels
     /// ([`Map::sparse_model`] for this system's camera): what a COLMAP model needs.
     pub fn sparse_model(&self) -> ferroslam_map::SparseModel {
-        self.map.sparse_model(|uv| self.ctx.camera.raw_pixel(uv))
+        self.map.sparse_model(&self.ctx.camera)
     }
 
     /// World positions of every live map point, metres.

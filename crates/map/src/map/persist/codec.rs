@@ -11,10 +11,10 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use ferroslam_features::{ImageBounds, Keypoint, KeypointGrid};
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use super::super::CulledKeyFrame;
-use super::{CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION};
+use super::{CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION, ROLLING_SHUTTER_SINCE};
 use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
 /// Appends encoded values to a byte buffer.
@@ -300,6 +300,21 @@ impl Codec for Vector3<f64> {
     }
 }
 
+/// A velocity `[v; w]`: six f64.
+impl Codec for Vector6<f64> {
+    const MIN_SIZE: usize = 48;
+    fn encode(&self, e: &mut Encoder) {
+        self.iter().for_each(|v| e.put(v));
+    }
+    fn decode(d: &mut Decoder) -> Result<Self, MapError> {
+        let mut out = Vector6::zeros();
+        for v in out.iter_mut() {
+            *v = d.get()?;
+        }
+        Ok(out)
+    }
+}
+
 /// Translation (x, y, z) then the unit quaternion (i, j, k, w), all f64, stored bit-exact.
 impl Codec for Isometry3<f64> {
     const MIN_SIZE: usize = 56;
@@ -355,7 +370,8 @@ impl Codec for ImageBounds {
     }
 }
 
-/// keypoints, descriptors, depth, u_right, grid bounds, colours (version 4 on). The grid
+/// keypoints, descriptors, depth, u_right, grid bounds, colours (version 4 on), row time
+/// offsets and readout velocity (version 6 on). The grid
 /// itself is rebuilt from the keypoints and bounds (deterministic). Lengths are kept as
 /// saved, even if inconsistent.
 impl Codec for FrameFeatures {
@@ -368,12 +384,20 @@ impl Codec for FrameFeatures {
         e.put(&self.u_right);
         e.put(&self.grid.bounds());
         e.put(&self.colors);
+        e.put(&self.time_offsets_s);
+        e.put(&self.xi_dot);
     }
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let keypoints: Vec<Keypoint> = d.get()?;
         let (descriptors, depth, u_right) = (d.get()?, d.get()?, d.get()?);
         let grid = KeypointGrid::new(&keypoints, d.get()?);
         let colors = if d.has(COLORS_SINCE) { d.get()? } else { None };
+        // Older files kept no row times: their keyframes read as a global shutter's.
+        let (time_offsets_s, xi_dot) = if d.has(ROLLING_SHUTTER_SINCE) {
+            (d.get()?, d.get()?)
+        } else {
+            (Vec::new(), Vector6::zeros())
+        };
         Ok(FrameFeatures {
             keypoints,
             descriptors,
@@ -381,10 +405,8 @@ impl Codec for FrameFeatures {
             u_right,
             colors,
             grid,
-            // Map files keep no row times: a loaded map's keyframes are adjusted as seen
-            // by a global shutter.
-            time_offsets_s: Vec::new(),
-            xi_dot: nalgebra::Vector6::zeros(),
+            time_offsets_s,
+            xi_dot,
         })
     }
 }

@@ -1,6 +1,6 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 5, all numbers little-endian)
+//! # Format (version 6, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
@@ -21,10 +21,14 @@
 //! ```
 //! Encodings (`codec.rs`): `Vec<T>` = count u64 + items; `Option<T>` = tag u8 (0/1) + value;
 //! `usize` = u64; a pose = translation xyz + quaternion ijkw (f64, bit-exact); a keypoint =
-//! x, y f32, octave u8, angle f32, response f32; a colour = r, g, b u8; sets/maps = sorted
-//! unique `Vec`s.
+//! x, y f32, octave u8, angle f32, response f32; a colour = r, g, b u8; a velocity = v xyz,
+//! w xyz f64; sets/maps = sorted unique `Vec`s.
 //!
 //! # Versions
+//! - 6: keyframe features end with their rolling-shutter row times (`Vec<f64>`, seconds,
+//!   empty for a global shutter) and the velocity of their pose over the readout, so that a
+//!   loaded map is adjusted and exported (`Map::sparse_model`) as the running system did.
+//!   Files of versions 3 to 5 load as global-shutter keyframes (no row times, velocity 0).
 //! - 5: the camera record names the camera model (`"pinhole"`, `"kannala_brandt"`). Files of
 //!   versions 3 and 4 load as pinhole cameras.
 //! - 4: keyframe features end with their keypoint colours (`Option<Vec<colour>>`), map
@@ -87,13 +91,15 @@ pub const MAGIC_TEXT: &str = "FSLAMMAP";
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
 /// The map-file format version this build writes (and the newest it reads); see the module
 /// docs for what each version added.
-pub const FORMAT_VERSION: u32 = 5;
+pub const FORMAT_VERSION: u32 = 6;
 /// The oldest map-file format version this build reads.
 pub const OLDEST_READABLE_VERSION: u32 = 3;
 /// The version that added keypoint and map-point colours.
 const COLORS_SINCE: u32 = 4;
 /// The version that added the camera model to the sensor and camera record.
 const CAMERA_MODEL_SINCE: u32 = 5;
+/// The version that added the keyframes' rolling-shutter row times and velocity.
+const ROLLING_SHUTTER_SINCE: u32 = 6;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;

@@ -50,6 +50,18 @@ pub(super) fn check_plausible(map: &Map) -> Result<(), MapError> {
                 ));
             }
         }
+        if let Some(i) = features.time_offsets_s.iter().position(|t| !t.is_finite()) {
+            return refuse(format!(
+                "keyframe {id}: row time offset of keypoint {i} is {} (s)",
+                features.time_offsets_s[i]
+            ));
+        }
+        if !features.xi_dot.iter().all(|v| v.is_finite()) {
+            return refuse(format!(
+                "keyframe {id}: readout velocity {:?} not finite",
+                features.xi_dot.as_slice()
+            ));
+        }
         let ImageBounds {
             min_x,
             max_x,

@@ -23,10 +23,17 @@ const SAMPLE_MAP_V4_RIG: &[u8] = include_bytes!(concat!(
 ));
 
 /// Five keyframes with coloured keypoints, mono and stereo points, connections, refreshed
-/// point summaries and counters, a moved pose, a fused point, a culled keyframe and a point
-/// without observations (nor colour).
+/// point summaries and counters, a moved pose, a fused point, a culled keyframe, a point
+/// without observations (nor colour) and one keyframe read by a rolling shutter.
 fn sample_map() -> (Map, Vec<KeyFrameId>) {
-    sample_map_from(map_with_colored_keyframes(5, 60))
+    let (mut map, kfs) = sample_map_from(map_with_colored_keyframes(5, 60));
+    let kf = map.keyframes.get_mut(&kfs[1]).unwrap();
+    let features = std::sync::Arc::make_mut(&mut kf.features);
+    features.time_offsets_s = (0..features.len())
+        .map(|i| 1e-4 * i as f64 - 3e-3)
+        .collect();
+    features.xi_dot = nalgebra::Vector6::new(0.1, -0.2, 0.05, 0.9, -1.4, 0.3);
+    (map, kfs)
 }
 
 /// [`sample_map`] without colours.
@@ -102,6 +109,8 @@ fn assert_same(a: &Map, b: &Map) {
         assert_eq!(f.depth, g.depth);
         assert_eq!(f.u_right, g.u_right);
         assert_eq!(f.colors, g.colors);
+        assert_eq!(f.time_offsets_s, g.time_offsets_s);
+        assert_eq!(f.xi_dot, g.xi_dot);
         assert_eq!(f.grid.bounds(), g.grid.bounds());
         let near = |h: &crate::FrameFeatures| {
             h.grid
@@ -144,6 +153,10 @@ fn round_trip_restores_every_observable() {
         colored > 0 && colored < map.num_map_points(),
         "{colored} coloured points"
     );
+    let rolling = map
+        .keyframes()
+        .filter(|k| !k.features().time_offsets_s.is_empty());
+    assert_eq!(rolling.count(), 1);
     let bytes = to_bytes(&map);
     let mut loaded = load(&bytes).unwrap();
     loaded.check_consistency().unwrap();
@@ -177,12 +190,17 @@ fn round_trip_restores_every_observable() {
 }
 
 #[test]
-fn version_3_files_load_as_maps_without_colours() {
+fn version_3_files_load_as_maps_without_colours_nor_row_times() {
     assert_eq!(SAMPLE_MAP_V3[8..12], 3u32.to_le_bytes());
     let loaded = load(SAMPLE_MAP_V3).unwrap();
     assert_same(&uncolored_sample_map().0, &loaded);
     assert!(loaded.map_points().all(|p| p.color().is_none()));
     assert!(loaded.keyframes().all(|k| k.features().colors.is_none()));
+    // A global shutter's keyframes (as the version 3 to 5 files held).
+    assert!(loaded
+        .keyframes()
+        .all(|k| k.features().time_offsets_s.is_empty()
+            && k.features().xi_dot == nalgebra::Vector6::zeros()));
     // Saved again, it is a current-version file of the same map.
     let bytes = to_bytes(&loaded);
     assert_eq!(bytes[8..12], FORMAT_VERSION.to_le_bytes());
@@ -383,7 +401,7 @@ fn wrong_magic_and_version_are_named() {
     );
     let message = format!("version {} is not supported", FORMAT_VERSION + 1);
     assert!(err.to_string().contains(&message), "{err}");
-    assert!(err.to_string().contains("reads versions 3 to 5"), "{err}");
+    assert!(err.to_string().contains("reads versions 3 to 6"), "{err}");
     // A version 2 file (before the sensor and camera record) is refused, not misread.
     bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
     let err = load(&bytes).unwrap_err();
@@ -580,6 +598,19 @@ fn non_finite_keypoints_and_depths_are_refused() {
         what.starts_with("keyframe KF0: depth of keypoint 3"),
         "{what}"
     );
+    let what = load_edited(|map, kfs, _| {
+        let kf = map.keyframes.get_mut(&kfs[0]).unwrap();
+        std::sync::Arc::make_mut(&mut kf.features).time_offsets_s = vec![f64::NAN; 60];
+    });
+    assert!(
+        what.starts_with("keyframe KF0: row time offset of keypoint 0 is NaN"),
+        "{what}"
+    );
+    let what = load_edited(|map, kfs, _| {
+        let kf = map.keyframes.get_mut(&kfs[1]).unwrap();
+        std::sync::Arc::make_mut(&mut kf.features).xi_dot[4] = f64::INFINITY;
+    });
+    assert!(what.starts_with("keyframe KF1: readout velocity"), "{what}");
 }
 
 mod fuzz {
