@@ -16,7 +16,7 @@ import numpy as np
 from ._validate import rigid_transform
 from .calibration import ImuParams
 from .camera import Camera
-from .features import OrbExtractor, sample_colors, sample_depth
+from .features import OrbExtractor, frame_mask, sample_colors, sample_depth
 from .options import OPTIONS, validate_options
 
 __all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "Features", "Session", "load_vocabulary",
@@ -117,6 +117,7 @@ class Session:
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
             model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s, **options)
         self.extractor = make_extractor(self.system.options)
+        self.mask = c.mask  # the camera's static keypoint mask, None for none
         if inertial:
             self.system.set_imu(imu, T_b_c, **imu_options)
         if vocabulary is not None and vocabulary is not False and vocabulary != "":
@@ -125,15 +126,18 @@ class Session:
             self.system.set_mapping_thread(True)
         self._track = getattr(self.system, f"track_{sensor}")
 
-    def mono(self, image: np.ndarray, color: Optional[np.ndarray] = None) -> Features:
+    def mono(self, image: np.ndarray, color: Optional[np.ndarray] = None,
+             mask: Optional[np.ndarray] = None) -> Features:
         """A grey or BGR image's features; colours from ``color`` (the same frame in
-        colour) when given, else from ``image``."""
-        keypoints, descriptors = self.extractor.detect(image)
+        colour) when given, else from ``image``; none where the camera's static mask or the
+        frame's ``mask`` is 0 (:func:`~ferroslam.features.frame_mask`)."""
+        keypoints, descriptors = self.extractor.detect(
+            image, frame_mask(self.mask, mask, np.shape(image)[:2]))
         colors = sample_colors(image if color is None else color, keypoints)
         return Features((keypoints, descriptors), colors, keypoints)
 
     def rgbd(self, image: np.ndarray, depth_m: np.ndarray,
-             color: Optional[np.ndarray] = None) -> Features:
+             color: Optional[np.ndarray] = None, mask: Optional[np.ndarray] = None) -> Features:
         """As :meth:`mono`, with the depth (metres) of ``depth_m`` at each keypoint.
 
         Raises ``ValueError`` when ``depth_m`` is not the size of ``image``: its pixels
@@ -142,15 +146,21 @@ class Session:
             raise ValueError(f"the depth image is {_size(depth_m)} but the colour image "
                              f"{_size(image)} (width x height): they must be registered, "
                              "of one size")
-        keypoints, descriptors = self.extractor.detect(image)
+        keypoints, descriptors = self.extractor.detect(
+            image, frame_mask(self.mask, mask, np.shape(image)[:2]))
         colors = sample_colors(image if color is None else color, keypoints)
         return Features((keypoints, descriptors, sample_depth(depth_m, keypoints)), colors,
                         keypoints)
 
-    def stereo(self, left: np.ndarray, right: np.ndarray) -> Features:
+    def stereo(self, left: np.ndarray, right: np.ndarray,
+               masks: tuple[Optional[np.ndarray], Optional[np.ndarray]] = (None, None)
+               ) -> Features:
         """A rectified pair's features, both images extracted at once; the left image's
-        colours."""
-        left_features, right_features = self.extractor.detect_pair(left, right)
+        colours. The camera's static mask applies to both images, ``masks`` (left, right)
+        to one each, as :meth:`mono`'s ``mask``."""
+        left_features, right_features = self.extractor.detect_pair(
+            left, right, frame_mask(self.mask, masks[0], np.shape(left)[:2], "left mask"),
+            frame_mask(self.mask, masks[1], np.shape(right)[:2], "right mask"))
         return Features((*left_features, *right_features),
                         sample_colors(left, left_features[0]), left_features[0])
 

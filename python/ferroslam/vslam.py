@@ -44,6 +44,7 @@ from typing import Any, Callable, Iterable, Optional, Sequence, TextIO, Union
 import numpy as np
 
 from .camera import Camera
+from .features import check_mask
 from .calibration import ImuParams
 from .keyframe_images import KeyframeImages
 from .options import check_option, validate_options
@@ -540,16 +541,19 @@ class MonoVSlam(_VSlam):
     _sensor = "mono"
 
     def add_frame(self, image: np.ndarray, timestamp: Optional[float] = None,
-                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Optional[np.ndarray] = None) -> None:
         """Adds a grey ``(H, W)`` or BGR ``(H, W, 3)`` uint8 image (raw, distorted: the
         intrinsics' distortion is applied to the keypoints). ``timestamp`` in seconds defaults
         to the frame count divided by ``frame_rate_hz``. ``imu``: the IMU samples since the previous
         frame, ``(timestamps (M,), gyro (M, 3) rad/s, accel (M, 3) m/s^2)``: those up to this
         frame's time and, if there, the first one after it (at most one IMU period later: the
-        frame is then interpolated, not extrapolated)."""
+        frame is then interpolated, not extrapolated). ``mask``: this frame's keypoint mask,
+        ``(H, W)`` uint8 or bool, 0 where no feature may be (with the camera's static
+        ``mask``: features only where both are open)."""
         started_s = time.perf_counter()
         self.intrinsics.check_image(image)
-        self._track(started_s, timestamp, self._session.mono(image), imu=imu)
+        self._track(started_s, timestamp, self._session.mono(image, mask=mask), imu=imu)
 
     def track_source(self, source: Iterable[tuple[float, np.ndarray]], *,
                      drop_frames: Optional[bool] = None,
@@ -647,6 +651,9 @@ class StereoVSlam(_VSlam):
             if not isinstance(camera, Camera):
                 raise TypeError(f"{name} must be a ferroslam.Camera, got "
                                 f"{type(camera).__name__}")
+            if camera.mask is not None:
+                raise ValueError(f"{name} has a static mask, which from_raw does not rectify "
+                                 "yet: pass it to add_frame(..., mask=(left, right))")
         rectifier = StereoRectifier(left_camera, right_camera, T_left_right)
         T_b_left = options.get("camera_to_imu_transform")
         if T_b_left is not None:
@@ -659,18 +666,42 @@ class StereoVSlam(_VSlam):
 
     def add_frame(self, left: np.ndarray, right: np.ndarray,
                   timestamp: Optional[float] = None,
-                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Any = None) -> None:
         """Adds a pair of uint8 images of equal size, grey or BGR (the map points take the
         left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`): rectified, or raw for
-        an object made by :meth:`from_raw`."""
+        an object made by :meth:`from_raw`. ``mask``: as :meth:`MonoVSlam.add_frame`'s, one
+        array for both images or a ``(left_mask, right_mask)`` pair (either may be None);
+        raw masks of a :meth:`from_raw` pair are rectified with the images (a pixel stays
+        open where its whole neighbourhood is)."""
+        masks = tuple(mask) if isinstance(mask, (tuple, list)) else (mask, mask)
+        if len(masks) != 2:
+            raise ValueError(f"mask must be one (H, W) array or a (left, right) pair, got "
+                             f"{len(masks)} masks")
         self.intrinsics.check_image(left, "left image")
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
         started_s = time.perf_counter()
         if self.rectifier is not None:
+            masks = self._rectify_masks(masks, np.shape(left)[:2])
             left, right = self.rectifier.rectify(left, right)
-        self._track(started_s, timestamp, self._session.stereo(left, right), imu=imu)
+        self._track(started_s, timestamp, self._session.stereo(left, right, masks), imu=imu)
+
+    def _rectify_masks(self, masks: tuple, shape: tuple[int, int]) -> tuple:
+        """Raw per-frame masks (of raw images of ``shape``) in the rectified images: open only
+        where the bilinear remap saw open pixels alone; rectified pixels outside the raw
+        image stay closed."""
+        assert self.rectifier is not None
+        checked = [None if m is None else check_mask(m, shape, name) > 0
+                   for m, name in zip(masks, ("left mask", "right mask"))]
+        if all(m is None for m in checked):
+            return masks
+        open_255 = [np.full(shape, 255, np.uint8) if m is None else m.astype(np.uint8) * 255
+                    for m in checked]
+        rectified = self.rectifier.rectify(*open_255)
+        return tuple(None if m is None else (r == 255).astype(np.uint8)
+                     for m, r in zip(checked, rectified))
 
 
 class RGBDVSlam(_VSlam):
@@ -699,9 +730,11 @@ class RGBDVSlam(_VSlam):
 
     def add_frame(self, color: np.ndarray, depth: np.ndarray,
                   timestamp: Optional[float] = None,
-                  imu: Optional[Sequence[np.ndarray]] = None) -> None:
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Optional[np.ndarray] = None) -> None:
         """Adds a colour (BGR or grey, uint8) image and its registered depth image (any real
-        dtype; divided by ``depth_scale_factor``; ``imu`` as :meth:`MonoVSlam.add_frame`)."""
+        dtype; divided by ``depth_scale_factor``; ``imu`` and ``mask`` as
+        :meth:`MonoVSlam.add_frame`)."""
         started_s = time.perf_counter()
         self.intrinsics.check_image(color, "color image")
         depth = np.asarray(depth)
@@ -711,7 +744,7 @@ class RGBDVSlam(_VSlam):
             raise ValueError(f"color and depth images differ in size: {np.shape(color)} vs "
                              f"{depth.shape}")
         depth_m = depth.astype(np.float64) / self.depth_scale_factor
-        features = self._session.rgbd(color, depth_m)
+        features = self._session.rgbd(color, depth_m, mask=mask)
         self._check_depth_scale(features.args[2])
         self._track(started_s, timestamp, features, imu=imu, pixels=(color, depth_m))
 
