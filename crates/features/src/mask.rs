@@ -27,9 +27,8 @@ impl<'a> LevelMask<'a> {
     /// position lies on a non-zero mask pixel. Positions beyond the mask (a coarse level's
     /// last pixel can round one past level 0's) take the nearest edge pixel.
     pub fn allows(&self, x: u32, y: u32) -> bool {
-        let at = |v: u32, len: usize| {
-            ((v as f32 * self.scale).round_ties_even() as usize).min(len - 1)
-        };
+        let at =
+            |v: u32, len: usize| ((v as f32 * self.scale).round_ties_even() as usize).min(len - 1);
         let (w, h) = (self.mask.width(), self.mask.height());
         self.mask.pixels()[at(y, h) * w + at(x, w)] != 0
     }
@@ -74,7 +73,9 @@ pub fn image_circle_mask(
 ) -> Result<OwnedGrayImage, FeaturesError> {
     let bad = |what: String| Err(FeaturesError::InvalidMask(what));
     if width == 0 || height == 0 {
-        return bad(format!("the image circle mask needs a size, got {width}x{height}"));
+        return bad(format!(
+            "the image circle mask needs a size, got {width}x{height}"
+        ));
     }
     if !(centre_x_px.is_finite() && centre_y_px.is_finite()) {
         return bad(format!(
@@ -82,15 +83,22 @@ pub fn image_circle_mask(
         ));
     }
     if !(radius_px.is_finite() && radius_px > 0.0) {
-        return bad(format!("the image circle's radius must be finite and > 0, got {radius_px} px"));
+        return bad(format!(
+            "the image circle's radius must be finite and > 0, got {radius_px} px"
+        ));
     }
     if !(margin_px.is_finite() && margin_px >= 0.0) {
-        return bad(format!("the image circle's margin must be finite and >= 0, got {margin_px} px"));
+        return bad(format!(
+            "the image circle's margin must be finite and >= 0, got {margin_px} px"
+        ));
     }
     let open_r = (radius_px - margin_px).max(0.0);
     let pixels = (0..width * height)
         .map(|i| {
-            let (dx, dy) = ((i % width) as f64 - centre_x_px, (i / width) as f64 - centre_y_px);
+            let (dx, dy) = (
+                (i % width) as f64 - centre_x_px,
+                (i / width) as f64 - centre_y_px,
+            );
             if dx * dx + dy * dy <= open_r * open_r {
                 255
             } else {

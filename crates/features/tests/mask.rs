@@ -31,7 +31,10 @@ fn extractor() -> OrbExtractor {
 
 /// The mask pixel a keypoint lies on (its position rounded half to even, as numpy's `rint`).
 fn mask_at(mask: &[u8], k: &Keypoint) -> u8 {
-    let (x, y) = (k.x.round_ties_even() as usize, k.y.round_ties_even() as usize);
+    let (x, y) = (
+        k.x.round_ties_even() as usize,
+        k.y.round_ties_even() as usize,
+    );
     mask[y.min(H - 1) * W + x.min(W - 1)]
 }
 
@@ -40,7 +43,11 @@ fn an_all_open_mask_gives_exactly_the_unmasked_features() {
     let data = textured();
     let image = GrayImage::new(W, H, &data).unwrap();
     let unmasked = extractor().extract(&image, None).unwrap();
-    assert!(unmasked.keypoints.len() > 300, "{}", unmasked.keypoints.len());
+    assert!(
+        unmasked.keypoints.len() > 300,
+        "{}",
+        unmasked.keypoints.len()
+    );
     for open in [1u8, 255] {
         let ones = vec![open; W * H];
         let mask = GrayImage::new(W, H, &ones).unwrap();
@@ -80,10 +87,15 @@ fn stereo_masks_apply_to_their_own_image() {
         .unwrap();
     assert_eq!(left, e.extract(&image, Some(&circle.view())).unwrap());
     assert_eq!(right, e.extract(&image, None).unwrap());
-    assert!(left.keypoints.iter().all(|k| mask_at(circle.view().pixels(), k) == 255));
+    assert!(left
+        .keypoints
+        .iter()
+        .all(|k| mask_at(circle.view().pixels(), k) == 255));
     let small = vec![255u8; 10 * 10];
     let small = GrayImage::new(10, 10, &small).unwrap();
-    let err = e.extract_stereo(&image, &image, None, Some(&small)).unwrap_err();
+    let err = e
+        .extract_stereo(&image, &image, None, Some(&small))
+        .unwrap_err();
     assert_eq!(
         err,
         FeaturesError::MaskSizeMismatch {

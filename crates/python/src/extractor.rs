@@ -64,14 +64,21 @@ fn mask_pixels(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<Pi
     };
     let to_pixels = |shape: &[usize], pixels: Vec<u8>| Some((shape[1], shape[0], pixels));
     if let Ok(mask) = obj.extract::<PyReadonlyArray2<'_, u8>>() {
-        return Ok(to_pixels(mask.shape(), mask.as_array().iter().copied().collect()));
+        return Ok(to_pixels(
+            mask.shape(),
+            mask.as_array().iter().copied().collect(),
+        ));
     }
     if let Ok(mask) = obj.extract::<PyReadonlyArray2<'_, bool>>() {
         let pixels = mask.as_array().iter().map(|&open| u8::from(open)).collect();
         return Ok(to_pixels(mask.shape(), pixels));
     }
     let got = match obj.cast::<PyUntypedArray>() {
-        Ok(a) => format!("{} array of shape {}", a.dtype(), convert::shape_tuple(a.shape())),
+        Ok(a) => format!(
+            "{} array of shape {}",
+            a.dtype(),
+            convert::shape_tuple(a.shape())
+        ),
         Err(_) => obj
             .get_type()
             .name()
@@ -263,8 +270,15 @@ impl PyOrbExtractor {
         radius_px: f64,
         margin_px: f64,
     ) -> PyResult<Bound<'py, PyArray2<u8>>> {
-        let mask = image_circle_mask(width, height, centre_x_px, centre_y_px, radius_px, margin_px)
-            .map_err(features_to_py)?;
+        let mask = image_circle_mask(
+            width,
+            height,
+            centre_x_px,
+            centre_y_px,
+            radius_px,
+            margin_px,
+        )
+        .map_err(features_to_py)?;
         let pixels = Array2::from_shape_vec((height, width), mask.into_pixels())
             .unwrap_or_else(|_| unreachable!("a mask holds width x height pixels"));
         Ok(PyArray2::from_owned_array(py, pixels))
