@@ -120,6 +120,10 @@ class TrackResult:
         """The first camera's raw keypoints as ``track`` extracted them, (N, 5) float32
         ``[x, y, octave, angle_deg, response]``; (0, 5) for the features-level ``track_*``."""
     @property
+    def camera_keypoints(self) -> list[NDArray[np.float32]]:
+        """Every camera's raw keypoints as ``track`` extracted them (stereo: left, right),
+        each (N, 5) float32 as ``keypoints``; empty for the features-level ``track_*``."""
+    @property
     def mapping_ms(self) -> float:
         """Local mapping wall time, milliseconds (0 unless a keyframe was inserted)."""
     @property
@@ -592,6 +596,7 @@ def unproject_pixels(camera: _CameraLike, pixels: NDArray[np.float64]) -> NDArra
     """
 
 _Features = tuple[NDArray[np.float32], NDArray[np.uint8], list[NDArray[np.uint8]]]
+_Mask = Union[NDArray[np.uint8], NDArray[np.bool_]]
 
 @final
 class OrbExtractor:
@@ -645,24 +650,48 @@ class OrbExtractor:
     def level_budgets(self) -> list[int]:
         """Keypoints wanted per pyramid level, finest first (a geometric series summing to
         ``n_features``)."""
-    def extract(self, image: NDArray[np.uint8]) -> _Features:
+    def extract(
+        self, image: NDArray[np.uint8], mask: Optional[_Mask] = None
+    ) -> _Features:
         """``(keypoints, descriptors, pyramid)`` of an ``(H, W)`` uint8 grey image:
         keypoints ``(N, 5)`` float32 ``[x, y, octave, angle_deg, response]`` in raw level-0
         pixels, grouped by octave (``angle_deg`` in [0, 360), ``response`` the FAST score);
         descriptors ``(N, 32)`` uint8; the pyramid's levels, finest (a copy of the image)
         first, ``(round(H / s^l), round(W / s^l))`` uint8.
 
-        Raises:
-            TypeError: ``image`` is not a 2-D uint8 array.
-            ValueError: empty image; a pyramid level would have no pixels.
-        """
-    def extract_stereo(
-        self, left: NDArray[np.uint8], right: NDArray[np.uint8]
-    ) -> tuple[_Features, _Features]:
-        """``extract`` of both images of a stereo pair in one call, in parallel.
+        ``mask``: ``(H, W)`` uint8 or bool, 0 (False) where no keypoint may be; each level's
+        corners on closed pixels are dropped before the even spread, so the level's budget
+        goes to the open part. A mask with no zero gives exactly the unmasked result.
 
         Raises:
-            TypeError / ValueError: as ``extract``, for either image (the message names it).
+            TypeError: ``image`` is not a 2-D uint8 array.
+            ValueError: empty image; a pyramid level would have no pixels; ``mask`` not a
+                2-D uint8 or bool array, or not the image's size (both sizes named).
+        """
+    def extract_stereo(
+        self,
+        left: NDArray[np.uint8],
+        right: NDArray[np.uint8],
+        left_mask: Optional[_Mask] = None,
+        right_mask: Optional[_Mask] = None,
+    ) -> tuple[_Features, _Features]:
+        """``extract`` of both images of a stereo pair in one call, in parallel, each with
+        its own optional mask.
+
+        Raises:
+            TypeError / ValueError: as ``extract``, for either image or mask (the message
+                names it).
+        """
+    @staticmethod
+    def image_circle_mask(
+        width: int, height: int, centre_x_px: float, centre_y_px: float, radius_px: float,
+        margin_px: float,
+    ) -> NDArray[np.uint8]:
+        """A ``(height, width)`` uint8 mask: 255 where pixel ``(x, y)`` lies within
+        ``radius_px - margin_px`` of the image circle's centre, 0 elsewhere.
+
+        Raises:
+            ValueError: an empty size, a non-finite centre, a radius <= 0 or a margin < 0.
         """
     def pyramid(self, image: NDArray[np.uint8]) -> list[NDArray[np.uint8]]:
         """The image pyramid ``extract`` builds, alone.

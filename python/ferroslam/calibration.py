@@ -22,6 +22,9 @@ Rolling shutter: a camera's readout (seconds from its first row to its last, row
 ``rolling_shutter_readout_s`` and ORB-SLAM-style settings' ``Camera.rollingShutterReadout`` /
 ``Camera1.rollingShutterReadout`` (seconds; our key, as ORB-SLAM models no rolling shutter).
 
+Masks: a flat ``camera.yaml`` may name a static keypoint mask, ``mask: FILE`` (an image read
+grey, relative to the calibration file; 0 = no features there, see ``Camera.mask``).
+
 Kannala-Brandt (fisheye) cameras come out as ``Camera(model="kannala_brandt")`` with the four
 coefficients of OpenCV's ``cv2.fisheye``, which all these formats share.
 
@@ -102,7 +105,8 @@ class ImuParams:
         return cls(**imu)
 
 
-__all__ = ["Calibration", "ImuParams", "load_calibration", "load_imu_params", "read_camera_yaml"]
+__all__ = ["Calibration", "ImuParams", "load_calibration", "load_imu_params", "load_mask",
+           "read_camera_yaml"]
 
 # Largest deviation of R R^T from I, and of the last row from (0 0 0 1), in a rigid transform:
 # leaves room for matrices stored as float32 (dt: f) or printed with ~7 digits.
@@ -126,6 +130,8 @@ _FLAT_PREFIXES = ("Camera.", "Camera1.", "")
 # ``Camera.``, ``Camera1.``; our key, ORB-SLAM has none), and Kalibr's per-row delay (seconds
 # per row, times the image height).
 _FLAT_READOUT_KEY = "rolling_shutter_readout_s"
+# A flat camera.yaml's static mask image, relative to the file.
+_FLAT_MASK_KEY = "mask"
 _ORBSLAM_READOUT_KEY = "rollingShutterReadout"
 _KALIBR_LINE_DELAY_KEY = "line_delay"
 
@@ -431,8 +437,36 @@ def _read_orbslam_legacy(fields: _Fields) -> Calibration:
              if "model" in fields else _orbslam_model(fields))
     size = fields.integer(prefix + "width", 640), fields.integer(prefix + "height", 480)
     camera = _prefixed_camera(fields, prefix, *size, model)
+    if prefix == "" and _FLAT_MASK_KEY in fields:
+        camera = _with_mask_file(fields, camera)
     T_b_c = fields.pose("Tbc") if "Tbc" in fields else None
     return Calibration([camera], [T_b_c], _imu_params(fields))
+
+
+def load_mask(path: Union[str, Path]) -> np.ndarray:
+    """A keypoint mask image (any format OpenCV reads, converted to grey): ``(H, W)`` uint8,
+    0 = no features there.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: a file OpenCV cannot read as an image.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"mask image {path} does not exist")
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise ValueError(f"mask image {path} is not an image OpenCV can read")
+    return mask
+
+
+def _with_mask_file(fields: _Fields, camera: Camera) -> Camera:
+    """``camera`` with the mask image a flat file names (``mask: FILE``, relative to it)."""
+    path = fields.path.parent / fields.text(_FLAT_MASK_KEY)
+    try:
+        return camera.with_mask(load_mask(path))
+    except ValueError as error:
+        raise ValueError(f"{fields.path}: {_FLAT_MASK_KEY} {path}: {error}") from None
 
 
 def _read_kalibr_camchain(fields: _Fields) -> Calibration:

@@ -3,9 +3,11 @@ distortion, and Kannala-Brandt fisheye (OpenCV ``cv2.fisheye``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 import numpy.typing
@@ -42,9 +44,16 @@ class Camera:
     (flat ``camera.yaml``) or ``Camera.rollingShutterReadout`` (ORB-SLAM-style settings); see
     :mod:`ferroslam.calibration`.
 
+    ``mask``: an optional static keypoint mask, ``(height, width)`` uint8 or bool, 0 where
+    no feature may be extracted in any image of this camera (a robot's body, a logo, the
+    dark ring outside a fisheye's image circle: :meth:`with_image_circle_mask`); stored as
+    a read-only uint8 array. A flat ``camera.yaml`` names one as ``mask: FILE`` (an image,
+    relative to the calibration file), ``ferroslam run --mask FILE`` sets it.
+
     Raises ``TypeError`` naming the field for a value that is not a real number (a string, a
     bool) or a size that is not an integer, ``ValueError`` for non-positive focal lengths or
-    image size, non-finite values, a negative readout, an unknown model or bad ``dist``.
+    image size, non-finite values, a negative readout, an unknown model, bad ``dist`` or a
+    mask that is not 2-D uint8 / bool of the camera's size.
     """
 
     fx: float
@@ -56,6 +65,7 @@ class Camera:
     height: int = 480
     model: str = "pinhole"
     rolling_shutter_readout_s: float = 0.0
+    mask: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     @classmethod
     def kannala_brandt(cls, fx: float, fy: float, cx: float, cy: float, k, width: int,
@@ -97,7 +107,65 @@ class Camera:
         if dist.shape != (len(names),) or not np.all(np.isfinite(dist)):
             raise ValueError(f"dist must be {what}, finite, got {self.dist!r}")
         object.__setattr__(self, "dist", dist)
+        if self.mask is not None:
+            from .features import check_mask
+
+            mask = check_mask(self.mask, (self.height, self.width), "the camera's mask").copy()
+            mask.flags.writeable = False
+            object.__setattr__(self, "mask", mask)
         self._check_plausible()
+
+    def with_mask(self, mask: Optional[np.ndarray]) -> "Camera":
+        """This camera with the static keypoint ``mask`` (``None``: none), replacing its own."""
+        return dataclasses.replace(self, mask=mask)
+
+    def with_image_circle_mask(self, radius_px: Optional[float] = None, margin_px: float = 8.0,
+                               *, field_of_view_deg: Optional[float] = None) -> "Camera":
+        """This camera with its static mask closed outside a fisheye's image circle, centred
+        on the principal point ``(cx, cy)`` (combined with a mask it already has).
+
+        Without it, the hard edge of the dark ring around the circle is a ring of corners
+        that stay put in the image while the camera moves: tracking takes them for points at
+        infinity and a monocular map breaks up.
+
+        Args:
+            radius_px: the circle's radius in pixels. ``None``: from ``field_of_view_deg``
+                when given, else the largest circle around the principal point inside the
+                image.
+            margin_px: pixels inside the circle's edge that stay closed too, >= 0: FAST fires
+                on the edge, and a corner within 3 px (times its pyramid level's scale) of it
+                still sees it. The default 8 keeps the finest 5 levels' corners off it.
+            field_of_view_deg: the lens's full field of view in degrees: the radius is the
+                smaller distance from ``(cx, cy)`` of a ray ``field_of_view_deg / 2`` off the
+                axis, horizontally and vertically (through :meth:`project`).
+
+        Raises:
+            ValueError: both ``radius_px`` and ``field_of_view_deg`` given, a field of view
+                the lens does not project, or a radius / margin out of range (the core names
+                it).
+        """
+        from ._core import OrbExtractor
+
+        if radius_px is not None and field_of_view_deg is not None:
+            raise ValueError("give radius_px or field_of_view_deg, not both")
+        if field_of_view_deg is not None:
+            half = math.radians(float(field_of_view_deg)) / 2
+            rays = [[math.sin(half), 0.0, math.cos(half)], [0.0, math.sin(half), math.cos(half)]]
+            pixels = self.project(np.array(rays))
+            if not np.all(np.isfinite(pixels)):
+                raise ValueError(f"field_of_view_deg = {field_of_view_deg}: the "
+                                 f"{self.model} lens does not project rays "
+                                 f"{math.degrees(half):g} degrees off its axis")
+            radius_px = float(min(pixels[0, 0] - self.cx, pixels[1, 1] - self.cy))
+        elif radius_px is None:
+            # Pixel centres are at integer coordinates: the image's edges at -0.5, size - 0.5.
+            radius_px = min(self.cx + 0.5, self.cy + 0.5, self.width - 0.5 - self.cx,
+                            self.height - 0.5 - self.cy)
+        circle = OrbExtractor.image_circle_mask(self.width, self.height, self.cx, self.cy,
+                                                float(radius_px), float(margin_px))
+        from .features import frame_mask
+
+        return self.with_mask(frame_mask(self.mask, circle, (self.height, self.width)))
 
     def _check_plausible(self) -> None:
         """The core's plausibility checks (principal point inside the ``width x height``

@@ -259,6 +259,10 @@ def _add_input_options(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--topics", type=_topic_list, metavar="T1,T2,...",
                         help="ROS bag: the topics to read, left before right (default: found "
                              "by type and name)")
+    source.add_argument("--mask", type=Path, metavar="FILE",
+                        help="static keypoint mask: a grey image of the tracked images' size "
+                             "(rectified, for a stereo dataset), 0 = no features there; "
+                             "replaces the calibration's own")
     source.add_argument("--imu", type=Path, metavar="FILE",
                         help="ROS bag: the IMU noise model (Kalibr imu.yaml, EuRoC "
                              "sensor.yaml, ORB-SLAM3 settings), for -inertial sensors")
@@ -364,6 +368,17 @@ def _load_config(path: Optional[Path]) -> dict:
 
 
 def _open_input(args: argparse.Namespace):
+    """:func:`_open_data`, with ``--mask`` the tracked camera's static keypoint mask."""
+    data, notes = _open_data(args)
+    if args.mask is not None:
+        from .calibration import load_mask
+
+        data.camera = data.camera.with_mask(load_mask(args.mask))
+        notes.append(f"static mask from {args.mask}")
+    return data, notes
+
+
+def _open_data(args: argparse.Namespace):
     """The dataset sequence, bag, or video / image folder / camera source ``args.path``
     names, and the notes on it for the summary; ``--camera`` is a source's calibration and
     replaces a dataset folder's or a bag's own."""

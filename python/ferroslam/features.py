@@ -22,6 +22,12 @@ in 256 on average). Colour images are converted to grey with OpenCV first.
 
 Keypoints are in RAW (distorted) level-0 pixel coordinates; undistortion is up to the
 consumer (the Rust core receives the distortion coefficients).
+
+Masks: every call takes an optional keypoint mask, a ``(H, W)`` uint8 or bool array of the
+image's size, 0 (False) where no keypoint may be. The core drops each level's corners on
+zero pixels (at their level-0 position) before the even spread, so the level's budget goes
+to the open part of the image. :func:`frame_mask` combines a camera's static mask with a
+frame's own (``Camera.mask``, ``add_frame(..., mask=)``).
 """
 
 from __future__ import annotations
@@ -34,7 +40,8 @@ import numpy as np
 
 from ferroslam import _core
 
-__all__ = ["OrbExtractor", "level_budgets", "sample_colors", "sample_depth"]
+__all__ = ["OrbExtractor", "check_mask", "frame_mask", "level_budgets", "sample_colors",
+           "sample_depth"]
 
 _Features = tuple[np.ndarray, np.ndarray, list[np.ndarray]]
 
@@ -67,6 +74,40 @@ def _validate_gray(image: np.ndarray) -> np.ndarray:
     elif image.ndim != 2:
         raise ValueError(f"image must be (H, W) or (H, W, 3) BGR, got shape {image.shape}")
     return image
+
+
+def check_mask(mask: object, shape: tuple[int, int], name: str = "mask") -> np.ndarray:
+    """``mask`` as a C-contiguous ``(H, W)`` uint8 array (bool: True -> 1), checked against
+    the image ``shape`` ``(H, W)``; 0 = no keypoint there.
+
+    Raises:
+        ValueError: not a numpy array, not 2-D, not uint8 or bool, or not ``shape``; the
+            message names ``name``.
+    """
+    if not isinstance(mask, np.ndarray):
+        raise ValueError(f"{name} must be a numpy array (H, W) uint8 or bool, got "
+                         f"{type(mask).__name__}")
+    if mask.ndim != 2:
+        raise ValueError(f"{name} must be 2-D (H, W), got shape {mask.shape}")
+    if mask.dtype not in (np.uint8, np.bool_):
+        raise ValueError(f"{name} must be uint8 or bool (0 = no keypoint there), got "
+                         f"{mask.dtype}")
+    if mask.shape != tuple(shape[:2]):
+        raise ValueError(f"{name} is {mask.shape[1]}x{mask.shape[0]} (width x height) but "
+                         f"the image is {shape[1]}x{shape[0]}")
+    return np.ascontiguousarray(mask, dtype=np.uint8)
+
+
+def frame_mask(static: Optional[np.ndarray], per_frame: object,
+               shape: tuple[int, int], name: str = "mask") -> Optional[np.ndarray]:
+    """The keypoint mask of one image: open (non-zero) where both the camera's ``static``
+    mask and the frame's ``per_frame`` mask are open (either may be ``None``; ``None`` when
+    both are). ``shape`` is the image's ``(H, W)``; ``per_frame`` is checked as
+    :func:`check_mask` checks it, naming ``name``."""
+    if per_frame is None:
+        return static
+    mask = check_mask(per_frame, shape, name)
+    return mask if static is None else np.minimum(static, mask)
 
 
 def _integer(name: str, value: object) -> int:
@@ -132,11 +173,13 @@ class OrbExtractor:
         """
         return self._core.pyramid(_validate_gray(gray))
 
-    def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def detect(self, gray: np.ndarray, mask: Optional[np.ndarray] = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """Detect and describe ORB features.
 
         Args:
             gray: ``(H, W)`` uint8 image (``(H, W, 3)`` BGR is converted).
+            mask: ``(H, W)`` uint8 or bool, 0 where no keypoint may be (module doc).
 
         Returns:
             ``keypoints (N, 5)`` float32 ``[x, y, octave, angle_deg, response]`` with
@@ -146,27 +189,35 @@ class OrbExtractor:
 
         Raises:
             ValueError: wrong dtype or shape, empty image, NaN values, an image too small
-                for the pyramid.
+                for the pyramid; a mask not 2-D uint8 / bool of the image's size.
         """
-        keypoints, descriptors, _ = self.detect_with_pyramid(gray)
+        keypoints, descriptors, _ = self.detect_with_pyramid(gray, mask)
         return keypoints, descriptors
 
-    def detect_with_pyramid(self, gray: np.ndarray) -> _Features:
+    def detect_with_pyramid(self, gray: np.ndarray,
+                            mask: Optional[np.ndarray] = None) -> _Features:
         """As :meth:`detect`, also returning the pyramid the corners were found on.
 
         Stereo matching refines disparities on these levels (ORB-SLAM correlates patches on
         the keypoint's level).
         """
-        return self._core.extract(_validate_gray(gray))
+        gray = _validate_gray(gray)
+        return self._core.extract(gray, None if mask is None else check_mask(mask, gray.shape))
 
-    def detect_pair(self, left: np.ndarray, right: np.ndarray) -> tuple[_Features, _Features]:
+    def detect_pair(self, left: np.ndarray, right: np.ndarray,
+                    left_mask: Optional[np.ndarray] = None,
+                    right_mask: Optional[np.ndarray] = None) -> tuple[_Features, _Features]:
         """:meth:`detect_with_pyramid` on both images of a stereo pair, in parallel in one call
-        to the core.
+        to the core, each with its own optional mask.
 
         Raises:
-            ValueError: as :meth:`detect`, for either image.
+            ValueError: as :meth:`detect`, for either image or mask.
         """
-        return self._core.extract_stereo(_validate_gray(left), _validate_gray(right))
+        left, right = _validate_gray(left), _validate_gray(right)
+        masks = [None if m is None else check_mask(m, image.shape, name)
+                 for m, image, name in ((left_mask, left, "left_mask"),
+                                        (right_mask, right, "right_mask"))]
+        return self._core.extract_stereo(left, right, *masks)
 
 
 def _pixels_at(keypoints: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray,

@@ -100,6 +100,9 @@ class Session:
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
             model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s, **options)
+        if c.mask is not None:  # the camera's static mask, on both images of a pair
+            for camera_index in range(2 if sensor == "stereo" else 1):
+                self.system.set_mask(camera_index, c.mask)
         if inertial:
             self.system.set_imu(imu, T_b_c, **imu_options)
         if vocabulary is not None and vocabulary is not False and vocabulary != "":
@@ -118,7 +121,8 @@ class Session:
             images: the tracked image (grey or BGR uint8), or ``(left, right)`` for stereo.
             depth_m: the registered depth image in metres (RGB-D).
             color: the first image in colour, when ``images`` is grey (map point colours).
-            mask: this frame's mask, 0 = no keypoint (``(left, right)`` masks for stereo).
+            mask: this frame's mask, 0 = no keypoint, on top of the camera's static mask
+                (stereo: ``(left, right)``, either None).
         """
         colors = color
         if color is not None and isinstance(images, (tuple, list)):

@@ -16,8 +16,6 @@ spans ``2 atan(w / 2 fx)`` (for fx 285 at 848 px, 112 degrees).
 
 from __future__ import annotations
 
-from typing import Optional
-
 import cv2
 import numpy as np
 
@@ -161,8 +159,7 @@ class StereoRectifier:
         T[:3, :3] = self.R1.T
         return T
 
-    def _remap(self, image: np.ndarray, side: int,
-               interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    def _remap(self, image: np.ndarray, side: int) -> np.ndarray:
         size = (self.camera.height, self.camera.width)
         if image.shape[:2] != size:
             raise ValueError(
@@ -170,7 +167,7 @@ class StereoRectifier:
                 f"{self.camera.width}x{self.camera.height}"
             )
         map1, map2 = self._maps[side]
-        return cv2.remap(image, map1, map2, interpolation)
+        return cv2.remap(image, map1, map2, cv2.INTER_LINEAR)
 
     def rectify_left(self, image: np.ndarray) -> np.ndarray:
         """Rectified left image (same size and dtype as the raw one)."""
@@ -179,14 +176,3 @@ class StereoRectifier:
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rectified ``(left, right)`` images; raises ``ValueError`` for a wrong image size."""
         return self._remap(left, 0), self._remap(right, 1)
-
-    def rectify_masks(self, left: Optional[np.ndarray],
-                      right: Optional[np.ndarray]) -> tuple[Optional[np.ndarray], ...]:
-        """Raw masks (0 = no keypoint) in the rectified images: nearest pixel, and pixels no
-        raw pixel maps to (outside the raw image) are masked, as they are black."""
-        def one(mask, side):
-            if mask is None:
-                return None
-            mask = np.asarray(mask).astype(np.uint8)
-            return self._remap(mask, side, cv2.INTER_NEAREST)
-        return one(left, 0), one(right, 1)

@@ -44,6 +44,7 @@ from typing import Any, Callable, Iterable, Optional, Sequence, TextIO, Union
 import numpy as np
 
 from .camera import Camera
+from .features import check_mask
 from .calibration import ImuParams
 from .keyframe_images import KeyframeImages
 from .options import check_option, validate_options
@@ -533,16 +534,6 @@ class _VSlam:
                 f"keyframes={self._system.num_keyframes}, points={self._system.num_map_points})")
 
 
-def _pair(mask: Any) -> tuple[Any, Any]:
-    """A stereo frame's ``mask=``: ``(left, right)`` (either None), or one array for the left
-    image alone."""
-    if isinstance(mask, (tuple, list)):
-        if len(mask) != 2:
-            raise ValueError(f"a stereo mask is (left_mask, right_mask), got {len(mask)} masks")
-        return mask[0], mask[1]
-    return mask, None
-
-
 class MonoVSlam(_VSlam):
     """Monocular visual SLAM (MATLAB ``monovslam``): the map starts from two views and its
     scale is arbitrary. Keyword options as :class:`_VSlam`'s ``__init__``."""
@@ -659,6 +650,9 @@ class StereoVSlam(_VSlam):
             if not isinstance(camera, Camera):
                 raise TypeError(f"{name} must be a ferroslam.Camera, got "
                                 f"{type(camera).__name__}")
+            if camera.mask is not None:
+                raise ValueError(f"{name} has a static mask, which from_raw does not rectify "
+                                 "yet: pass it to add_frame(..., mask=(left, right))")
         rectifier = StereoRectifier(left_camera, right_camera, T_left_right)
         T_b_left = options.get("camera_to_imu_transform")
         if T_b_left is not None:
@@ -675,20 +669,38 @@ class StereoVSlam(_VSlam):
                   mask: Any = None) -> None:
         """Adds a pair of uint8 images of equal size, grey or BGR (the map points take the
         left image's colours; ``imu`` as :meth:`MonoVSlam.add_frame`): rectified, or raw for
-        an object made by :meth:`from_raw`. ``mask``: ``(left_mask, right_mask)`` for this
-        pair (either may be None), in the images' own pixels (raw for :meth:`from_raw`)."""
+        an object made by :meth:`from_raw`. ``mask``: as :meth:`MonoVSlam.add_frame`'s, one
+        array for both images or a ``(left_mask, right_mask)`` pair (either may be None);
+        raw masks of a :meth:`from_raw` pair are rectified with the images (a pixel stays
+        open where its whole neighbourhood is)."""
+        masks = tuple(mask) if isinstance(mask, (tuple, list)) else (mask, mask)
+        if len(masks) != 2:
+            raise ValueError(f"mask must be one (H, W) array or a (left, right) pair, got "
+                             f"{len(masks)} masks")
         self.intrinsics.check_image(left, "left image")
         if np.shape(left)[:2] != np.shape(right)[:2]:
             raise ValueError(f"left and right images differ in size: {np.shape(left)} vs "
                              f"{np.shape(right)}")
         started_s = time.perf_counter()
         if self.rectifier is not None:
+            masks = self._rectify_masks(masks, np.shape(left)[:2])
             left, right = self.rectifier.rectify(left, right)
-            if mask is not None:
-                mask = self.rectifier.rectify_masks(*_pair(mask))
-        elif mask is not None:
-            mask = _pair(mask)
-        self._track(started_s, timestamp, {"images": (left, right), "mask": mask}, imu=imu)
+        self._track(started_s, timestamp, {"images": (left, right), "mask": masks}, imu=imu)
+
+    def _rectify_masks(self, masks: tuple, shape: tuple[int, int]) -> tuple:
+        """Raw per-frame masks (of raw images of ``shape``) in the rectified images: open only
+        where the bilinear remap saw open pixels alone; rectified pixels outside the raw
+        image stay closed."""
+        assert self.rectifier is not None
+        checked = [None if m is None else check_mask(m, shape, name) > 0
+                   for m, name in zip(masks, ("left mask", "right mask"))]
+        if all(m is None for m in checked):
+            return masks
+        open_255 = [np.full(shape, 255, np.uint8) if m is None else m.astype(np.uint8) * 255
+                    for m in checked]
+        rectified = self.rectifier.rectify(*open_255)
+        return tuple(None if m is None else (r == 255).astype(np.uint8)
+                     for m, r in zip(checked, rectified))
 
 
 class RGBDVSlam(_VSlam):

@@ -97,12 +97,12 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
         b.iter(|| black_box(fast_corners(&views[0], 20, 19)))
     });
     c.bench_function(&format!("{name}: detect_level level 0"), |b| {
-        b.iter(|| black_box(detect_level(&views[0], budgets[0], fast)))
+        b.iter(|| black_box(detect_level(&views[0], budgets[0], fast, None)))
     });
     c.bench_function(&format!("{name}: detect_pyramid 8 levels"), |b| {
-        b.iter(|| black_box(detect_pyramid(&views, &budgets, fast)))
+        b.iter(|| black_box(detect_pyramid(&views, &budgets, fast, &[])))
     });
-    let corners: Vec<(usize, usize, usize, f32)> = detect_pyramid(&views, &budgets, fast)
+    let corners: Vec<(usize, usize, usize, f32)> = detect_pyramid(&views, &budgets, fast, &[])
         .iter()
         .enumerate()
         .flat_map(|(l, level)| {
@@ -120,7 +120,7 @@ fn bench_image(c: &mut Criterion, name: &str, (w, h, base): (usize, usize, Vec<u
     });
     let extractor = OrbExtractor::new(config).expect("ORB-SLAM's settings");
     c.bench_function(&format!("{name}: OrbExtractor::extract"), |b| {
-        b.iter(|| black_box(extractor.extract(&image)))
+        b.iter(|| black_box(extractor.extract(&image, None)))
     });
 }
 

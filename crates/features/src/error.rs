@@ -49,4 +49,22 @@ pub enum FeaturesError {
         /// Its height, pixels.
         level_height: usize,
     },
+    /// A keypoint mask is not the size of its image.
+    #[error(
+        "the mask is {mask_width}x{mask_height} (width x height) but the image is \
+         {image_width}x{image_height}: give a mask of the image's size (0 = no keypoint there)"
+    )]
+    MaskSizeMismatch {
+        /// Mask width, pixels.
+        mask_width: usize,
+        /// Mask height, pixels.
+        mask_height: usize,
+        /// Image width, pixels.
+        image_width: usize,
+        /// Image height, pixels.
+        image_height: usize,
+    },
+    /// A mask cannot be built from the parameters given (the message names the parameter).
+    #[error("invalid mask: {0}")]
+    InvalidMask(String),
 }

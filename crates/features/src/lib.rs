@@ -21,6 +21,7 @@ pub mod extractor;
 pub mod grid;
 pub mod image;
 pub mod keypoint;
+pub mod mask;
 pub mod matcher;
 pub mod pyramid;
 pub mod stereo;
@@ -31,6 +32,7 @@ pub use extractor::{Features, ImagePyramid, OrbConfig, OrbExtractor};
 pub use grid::{ImageBounds, KeypointGrid};
 pub use image::{GrayImage, OwnedGrayImage};
 pub use keypoint::Keypoint;
+pub use mask::{check_mask_size, image_circle_mask, LevelMask};
 pub use matcher::{
     match_brute_force, search_by_projection, search_by_projection_with, search_for_triangulation,
     search_for_triangulation_rays, MatchOptions, ProjectionQuery, RotationHistogram,

@@ -60,7 +60,9 @@ pub fn features_to_py(err: FeaturesError) -> PyErr {
         FeaturesError::InvalidPyramid { .. }
         | FeaturesError::InvalidImage { .. }
         | FeaturesError::InvalidOrbConfig(_)
-        | FeaturesError::ImageTooSmall { .. } => PyValueError::new_err(err.to_string()),
+        | FeaturesError::ImageTooSmall { .. }
+        | FeaturesError::MaskSizeMismatch { .. }
+        | FeaturesError::InvalidMask(_) => PyValueError::new_err(err.to_string()),
     }
 }
 

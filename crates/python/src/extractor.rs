@@ -1,12 +1,15 @@
-//! `OrbExtractor`: the core's whole ORB extractor, one GIL-free call per image or stereo pair.
+//! `OrbExtractor`: the core's whole ORB extractor, one GIL-free call per image or stereo pair,
+//! each image with an optional keypoint mask.
 
 use crate::pool;
 use ferroslam_features::extractor::FastThresholds;
 use ferroslam_features::{
-    Features, FeaturesError, GrayImage, ImagePyramid, OrbConfig, OrbExtractor,
+    check_mask_size, image_circle_mask, Features, FeaturesError, GrayImage, ImagePyramid,
+    OrbConfig, OrbExtractor,
 };
 use numpy::ndarray::Array2;
-use numpy::PyArray2;
+use numpy::{PyArray2, PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::convert;
@@ -48,6 +51,62 @@ fn level_arrays(py: Python<'_>, pyramid: ImagePyramid) -> Vec<Bound<'_, PyArray2
             PyArray2::from_owned_array(py, pixels)
         })
         .collect()
+}
+
+/// An image as [`convert::gray_image`] gives it: `(width, height, pixels)`.
+type Pixels = (usize, usize, Vec<u8>);
+
+/// A keypoint mask given as a 2-D uint8 or bool array (0 / False: no keypoint there), as
+/// [`Pixels`]; `None` when none is given. Anything else is a `ValueError` naming `name`.
+fn mask_pixels(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<Pixels>> {
+    let Some(obj) = obj.filter(|o| !o.is_none()) else {
+        return Ok(None);
+    };
+    let to_pixels = |shape: &[usize], pixels: Vec<u8>| Some((shape[1], shape[0], pixels));
+    if let Ok(mask) = obj.extract::<PyReadonlyArray2<'_, u8>>() {
+        return Ok(to_pixels(
+            mask.shape(),
+            mask.as_array().iter().copied().collect(),
+        ));
+    }
+    if let Ok(mask) = obj.extract::<PyReadonlyArray2<'_, bool>>() {
+        let pixels = mask.as_array().iter().map(|&open| u8::from(open)).collect();
+        return Ok(to_pixels(mask.shape(), pixels));
+    }
+    let got = match obj.cast::<PyUntypedArray>() {
+        Ok(a) => format!(
+            "{} array of shape {}",
+            a.dtype(),
+            convert::shape_tuple(a.shape())
+        ),
+        Err(_) => obj
+            .get_type()
+            .name()
+            .map_or_else(|_| "another type".into(), |n| n.to_string()),
+    };
+    Err(PyValueError::new_err(format!(
+        "{name} must be a 2-D uint8 or bool array (0 = no keypoint there), got {got}"
+    )))
+}
+
+/// A `ValueError` naming `name` unless `mask` is the size of `image` (checked before the
+/// GIL-free call, so a stereo pair's message says which mask).
+fn check_mask(image: &Pixels, mask: &Option<Pixels>, name: &str) -> PyResult<()> {
+    let Some((mw, mh, mask)) = mask else {
+        return Ok(());
+    };
+    let (iw, ih, pixels) = image;
+    let image = GrayImage::new(*iw, *ih, pixels).map_err(features_to_py)?;
+    GrayImage::new(*mw, *mh, mask)
+        .and_then(|mask| check_mask_size(&image, &mask))
+        .map_err(|err| PyValueError::new_err(format!("{name}: {err}")))
+}
+
+/// A borrowed view of a checked mask.
+fn mask_view(mask: &Option<Pixels>) -> Result<Option<GrayImage<'_>>, FeaturesError> {
+    mask.as_ref()
+        .map(|(w, h, pixels)| GrayImage::new(*w, *h, pixels))
+        .transpose()
 }
 
 /// `features` as numpy arrays.
@@ -134,16 +193,22 @@ impl PyOrbExtractor {
     }
 
     /// `(keypoints (N, 5) float32 [x, y, octave, angle_deg, response] in raw level-0 pixels,
-    /// descriptors (N, 32) uint8, pyramid)` of a `(H, W)` uint8 grey image.
+    /// descriptors (N, 32) uint8, pyramid)` of a `(H, W)` uint8 grey image; with a `mask`
+    /// (`(H, W)` uint8 or bool), no keypoint where it is 0.
+    #[pyo3(signature = (image, mask = None))]
     fn extract<'py>(
         &self,
         py: Python<'py>,
         image: &Bound<'py, PyAny>,
+        mask: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<FeatureArrays<'py>> {
-        let (w, h, pixels) = convert::gray_image(image, "image")?;
+        let image = convert::gray_image(image, "image")?;
+        let mask = mask_pixels(mask, "mask")?;
+        check_mask(&image, &mask, "mask")?;
         let features = pool::detach(py, || {
-            let image = GrayImage::new(w, h, &pixels)?;
-            self.0.extract(&image)
+            let (w, h, pixels) = &image;
+            let image = GrayImage::new(*w, *h, pixels)?;
+            self.0.extract(&image, mask_view(&mask)?.as_ref())
         })?;
         Ok(arrays(py, features.map_err(features_to_py)?))
     }
@@ -164,22 +229,59 @@ impl PyOrbExtractor {
         Ok(level_arrays(py, pyramid.map_err(features_to_py)?))
     }
 
-    /// `extract` of both images of a stereo pair, in parallel, in one call.
+    /// `extract` of both images of a stereo pair, in parallel, in one call, each with its
+    /// own optional mask.
+    #[pyo3(signature = (left, right, left_mask = None, right_mask = None))]
     fn extract_stereo<'py>(
         &self,
         py: Python<'py>,
         left: &Bound<'py, PyAny>,
         right: &Bound<'py, PyAny>,
+        left_mask: Option<&Bound<'py, PyAny>>,
+        right_mask: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<(FeatureArrays<'py>, FeatureArrays<'py>)> {
-        let (lw, lh, left) = convert::gray_image(left, "left")?;
-        let (rw, rh, right) = convert::gray_image(right, "right")?;
+        let left = convert::gray_image(left, "left")?;
+        let right = convert::gray_image(right, "right")?;
+        let left_mask = mask_pixels(left_mask, "left_mask")?;
+        let right_mask = mask_pixels(right_mask, "right_mask")?;
+        check_mask(&left, &left_mask, "left_mask")?;
+        check_mask(&right, &right_mask, "right_mask")?;
         let features = pool::detach(py, || {
-            let left = GrayImage::new(lw, lh, &left)?;
-            let right = GrayImage::new(rw, rh, &right)?;
-            self.0.extract_stereo(&left, &right)
+            let ((lw, lh, left), (rw, rh, right)) = (&left, &right);
+            let left = GrayImage::new(*lw, *lh, left)?;
+            let right = GrayImage::new(*rw, *rh, right)?;
+            let (left_mask, right_mask) = (mask_view(&left_mask)?, mask_view(&right_mask)?);
+            self.0
+                .extract_stereo(&left, &right, left_mask.as_ref(), right_mask.as_ref())
         })?;
         let (left, right) = features.map_err(features_to_py)?;
         Ok((arrays(py, left), arrays(py, right)))
+    }
+
+    /// A `(height, width)` uint8 mask, 255 inside a fisheye's image circle (centre and radius
+    /// in pixels) `margin_px` inside its edge, 0 elsewhere (`ferroslam_features::image_circle_mask`).
+    #[staticmethod]
+    fn image_circle_mask<'py>(
+        py: Python<'py>,
+        width: usize,
+        height: usize,
+        centre_x_px: f64,
+        centre_y_px: f64,
+        radius_px: f64,
+        margin_px: f64,
+    ) -> PyResult<Bound<'py, PyArray2<u8>>> {
+        let mask = image_circle_mask(
+            width,
+            height,
+            centre_x_px,
+            centre_y_px,
+            radius_px,
+            margin_px,
+        )
+        .map_err(features_to_py)?;
+        let pixels = Array2::from_shape_vec((height, width), mask.into_pixels())
+            .unwrap_or_else(|_| unreachable!("a mask holds width x height pixels"));
+        Ok(PyArray2::from_owned_array(py, pixels))
     }
 
     fn __repr__(&self) -> String {

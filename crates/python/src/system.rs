@@ -77,7 +77,19 @@ impl PyTrackResult {
     /// [x, y, octave, angle_deg, response]; empty (0, 5) when the features were given.
     #[getter]
     fn keypoints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        convert::keypoint_array(py, &self.inner.keypoints)
+        let first = self.inner.keypoints.first().map_or(&[][..], Vec::as_slice);
+        convert::keypoint_array(py, first)
+    }
+
+    /// Every camera's raw keypoints as `track` extracted them (stereo: left, right), each
+    /// (N, 5) float32 as `keypoints`; empty when the features were given.
+    #[getter]
+    fn camera_keypoints<'py>(&self, py: Python<'py>) -> Vec<Bound<'py, PyArray2<f32>>> {
+        self.inner
+            .keypoints
+            .iter()
+            .map(|k| convert::keypoint_array(py, k))
+            .collect()
     }
 
     /// Whether this frame became a keyframe.

@@ -270,7 +270,7 @@ fn run() -> Result<(), Error> {
         let gray = read_gray(&seq.join(&rgb[i].1))?;
         let depth_m = read_depth_m(&seq.join(&depth[j].1))?;
         let start = Instant::now();
-        let features = extractor.extract(&gray.view())?;
+        let features = extractor.extract(&gray.view(), None)?;
         extract_ms.push(start.elapsed().as_secs_f64() * 1e3);
         let keypoint_depths: Vec<f32> = features
             .keypoints

@@ -269,13 +269,12 @@ impl Measured {
         }
     }
 
-    /// The first camera's raw keypoints (what the caller is shown).
-    pub fn into_keypoints(self) -> Vec<Keypoint> {
+    /// Every camera's raw keypoints (what the caller is shown).
+    pub fn into_keypoints(self) -> Vec<Vec<Keypoint>> {
         self.cameras
             .into_iter()
-            .next()
             .map(|c| c.features.keypoints)
-            .unwrap_or_default()
+            .collect()
     }
 }
 
@@ -350,14 +349,15 @@ impl FrontEnd {
         let gray = image.gray();
         let gray = GrayImage::new(w, h, &gray).map_err(|e| invalid(e.to_string()))?;
         let mask = combined_mask(self.mask(index), camera.mask.as_ref());
+        let mask = mask
+            .as_deref()
+            .map(|m| GrayImage::new(w, h, m))
+            .transpose()
+            .map_err(|e| invalid(e.to_string()))?;
         let features = self
             .extractor
-            .extract(&gray)
+            .extract(&gray, mask.as_ref())
             .map_err(|e| invalid(e.to_string()))?;
-        let features = match mask.as_deref() {
-            Some(mask) => masked(features, mask, w, h),
-            None => features,
-        };
         let pixels: Vec<Option<(usize, usize)>> = features
             .keypoints
             .iter()
@@ -402,22 +402,6 @@ fn combined_mask<'a, D: AsRef<[u8]>>(
         (Some(a), None) => Some(Cow::Borrowed(a)),
         (None, Some(b)) => Some(Cow::Borrowed(b)),
         (None, None) => None,
-    }
-}
-
-/// `features` without the keypoints on masked pixels.
-fn masked(features: Features, mask: &[u8], width: usize, height: usize) -> Features {
-    let keep = |k: &Keypoint| pixel_of(k, width, height).is_some_and(|(x, y)| mask[y * width + x] != 0);
-    let (keypoints, descriptors) = features
-        .keypoints
-        .into_iter()
-        .zip(features.descriptors)
-        .filter(|(k, _)| keep(k))
-        .unzip();
-    Features {
-        keypoints,
-        descriptors,
-        pyramid: features.pyramid,
     }
 }
 

@@ -36,7 +36,7 @@ pub struct TrackResult {
     pub init_status: Option<InitStatus>,
     /// The loop this frame's keyframe closed, if any.
     pub loop_closure: Option<LoopClosure>,
-    /// The first camera's raw keypoints, as the front end extracted them ([`crate::SlamSystem::track`];
-    /// empty when the caller gave the features).
-    pub keypoints: Vec<ferroslam_features::Keypoint>,
+    /// Every camera's raw keypoints, as the front end extracted them
+    /// ([`crate::SlamSystem::track`]; empty when the caller gave the features).
+    pub keypoints: Vec<Vec<ferroslam_features::Keypoint>>,
 }

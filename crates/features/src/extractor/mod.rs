@@ -29,6 +29,7 @@ pub use orb_extractor::{Features, OrbConfig, OrbExtractor};
 
 use rayon::prelude::*;
 
+use crate::mask::LevelMask;
 use crate::GrayImage;
 use orientation::CentroidPatch;
 
@@ -71,17 +72,22 @@ pub struct FastThresholds {
 }
 
 /// Up to `budget` spread, oriented corners of one pyramid level, at least [`EDGE_PX`] from
-/// its border. Levels too small to hold one give none.
+/// its border and, with a `mask`, where it [allows](LevelMask::allows) them (tested before
+/// the spread, so the budget goes to the open part). Levels too small to hold one give none.
 pub fn detect_level(
     level: &GrayImage<'_>,
     budget: usize,
     fast: FastThresholds,
+    mask: Option<&LevelMask<'_>>,
 ) -> Vec<OrientedCorner> {
     let (w, h) = (level.width(), level.height());
     if budget == 0 || w <= 2 * EDGE_PX + 1 || h <= 2 * EDGE_PX + 1 {
         return Vec::new();
     }
-    let corners = threshold_fallback::fallback_corners(level, fast, EDGE_PX, GRID_MARGIN_PX);
+    let mut corners = threshold_fallback::fallback_corners(level, fast, EDGE_PX, GRID_MARGIN_PX);
+    if let Some(mask) = mask {
+        corners.retain(|c| mask.allows(c.x, c.y));
+    }
     let extent = w.max(h) - 2 * GRID_MARGIN_PX;
     let patch = CentroidPatch::default();
     quadtree::spread(&corners, extent, GRID_MARGIN_PX, budget)
@@ -96,16 +102,20 @@ pub fn detect_level(
         .collect()
 }
 
-/// [`detect_level`] on every level of a pyramid (in parallel), `budgets[l]` for level `l`;
-/// levels without a budget get none.
+/// [`detect_level`] on every level of a pyramid (in parallel), `budgets[l]` and `masks[l]`
+/// for level `l` (no masks: `&[]`); levels without a budget get none.
 pub fn detect_pyramid(
     levels: &[GrayImage<'_>],
     budgets: &[usize],
     fast: FastThresholds,
+    masks: &[LevelMask<'_>],
 ) -> Vec<Vec<OrientedCorner>> {
     levels
         .par_iter()
         .enumerate()
-        .map(|(l, level)| detect_level(level, budgets.get(l).copied().unwrap_or(0), fast))
+        .map(|(l, level)| {
+            let budget = budgets.get(l).copied().unwrap_or(0);
+            detect_level(level, budget, fast, masks.get(l))
+        })
         .collect()
 }

@@ -1,5 +1,6 @@
-//! The extractor's entry point: one grey image in, ORB keypoints, descriptors and the pyramid
-//! out ([`OrbExtractor::extract`]); both images of a stereo pair at once
+//! The extractor's entry point: one grey image (and an optional keypoint mask, see
+//! [`crate::mask`]) in, ORB keypoints, descriptors and the pyramid out
+//! ([`OrbExtractor::extract`]); both images of a stereo pair at once
 //! ([`OrbExtractor::extract_stereo`]).
 
 use rayon::prelude::*;
@@ -8,6 +9,7 @@ use super::brief::BriefPattern;
 use super::image_pyramid::ImagePyramid;
 use super::smoothing::smooth_for_brief;
 use super::{detect_pyramid, FastThresholds, OrientedCorner};
+use crate::mask::{check_mask_size, LevelMask};
 use crate::{Descriptor, FeaturesError, GrayImage, Keypoint};
 
 /// Most pyramid levels an extractor builds.
@@ -154,22 +156,39 @@ impl OrbExtractor {
     }
 
     /// The features of a grey image (see [`Features`]); none on a textureless image or on
-    /// levels too small to hold a keypoint.
+    /// levels too small to hold a keypoint. With a `mask` (the image's size), no keypoint
+    /// lies on a zero mask pixel, and each level's budget goes to the open pixels (see
+    /// [`crate::mask`]); a mask with no zero pixel gives exactly the unmasked features.
     ///
     /// # Errors
+    /// [`FeaturesError::MaskSizeMismatch`] when `mask` is not the image's size;
     /// [`FeaturesError::ImageTooSmall`] when a pyramid level would have no pixels.
-    pub fn extract(&self, image: &GrayImage<'_>) -> Result<Features, FeaturesError> {
+    pub fn extract(
+        &self,
+        image: &GrayImage<'_>,
+        mask: Option<&GrayImage<'_>>,
+    ) -> Result<Features, FeaturesError> {
+        if let Some(mask) = mask {
+            check_mask_size(image, mask)?;
+        }
         // Called from outside rayon's pool, each parallel loop below would wake its threads
         // and wait for them; inside it (one entry per image) they just share the work.
-        rayon::scope(|_| self.extract_in_pool(image))
+        rayon::scope(|_| self.extract_in_pool(image, mask))
     }
 
-    /// [`OrbExtractor::extract`], on a thread of rayon's pool.
-    fn extract_in_pool(&self, image: &GrayImage<'_>) -> Result<Features, FeaturesError> {
+    /// [`OrbExtractor::extract`], on a thread of rayon's pool, `mask` of the image's size.
+    fn extract_in_pool(
+        &self,
+        image: &GrayImage<'_>,
+        mask: Option<&GrayImage<'_>>,
+    ) -> Result<Features, FeaturesError> {
         let pyramid = ImagePyramid::build(image, self.config.scale_factor, self.config.n_levels)?;
         let levels = pyramid.views();
+        let masks: Vec<LevelMask<'_>> = mask
+            .map(|m| self.scales.iter().map(|&s| LevelMask::new(*m, s)).collect())
+            .unwrap_or_default();
         let (per_level, smoothed) = rayon::join(
-            || detect_pyramid(&levels, &self.budgets, self.config.fast),
+            || detect_pyramid(&levels, &self.budgets, self.config.fast, &masks),
             || levels.par_iter().map(smooth_for_brief).collect::<Vec<_>>(),
         );
         let smoothed: Vec<GrayImage<'_>> = smoothed.iter().map(|l| l.view()).collect();
@@ -205,7 +224,8 @@ impl OrbExtractor {
         })
     }
 
-    /// [`OrbExtractor::extract`] on both images of a stereo pair, in parallel.
+    /// [`OrbExtractor::extract`] on both images of a stereo pair, in parallel, each with its
+    /// own optional mask.
     ///
     /// # Errors
     /// As [`OrbExtractor::extract`], the left image's error first.
@@ -213,8 +233,13 @@ impl OrbExtractor {
         &self,
         left: &GrayImage<'_>,
         right: &GrayImage<'_>,
+        left_mask: Option<&GrayImage<'_>>,
+        right_mask: Option<&GrayImage<'_>>,
     ) -> Result<(Features, Features), FeaturesError> {
-        let (left, right) = rayon::join(|| self.extract(left), || self.extract(right));
+        let (left, right) = rayon::join(
+            || self.extract(left, left_mask),
+            || self.extract(right, right_mask),
+        );
         Ok((left?, right?))
     }
 }
@@ -312,7 +337,7 @@ mod tests {
         })
         .unwrap();
         let features = extractor
-            .extract(&GrayImage::new(w, h, &data).unwrap())
+            .extract(&GrayImage::new(w, h, &data).unwrap(), None)
             .unwrap();
         let n = features.keypoints.len();
         assert!(n > 200, "{n} keypoints");
@@ -344,16 +369,16 @@ mod tests {
             GrayImage::new(w, h, &b).unwrap(),
         );
         let extractor = OrbExtractor::new(OrbConfig::default()).unwrap();
-        let (left, right) = extractor.extract_stereo(&a, &b).unwrap();
-        assert_eq!(left, extractor.extract(&a).unwrap());
-        assert_eq!(right, extractor.extract(&b).unwrap());
+        let (left, right) = extractor.extract_stereo(&a, &b, None, None).unwrap();
+        assert_eq!(left, extractor.extract(&a, None).unwrap());
+        assert_eq!(right, extractor.extract(&b, None).unwrap());
         let blank = vec![128u8; w * h];
         let none = extractor
-            .extract(&GrayImage::new(w, h, &blank).unwrap())
+            .extract(&GrayImage::new(w, h, &blank).unwrap(), None)
             .unwrap();
         assert!(none.keypoints.is_empty() && none.descriptors.is_empty());
         // 1 / 1.2^4 < 0.5: level 4 has no pixel
-        let too_small = extractor.extract(&GrayImage::new(1, 1, &[0]).unwrap());
+        let too_small = extractor.extract(&GrayImage::new(1, 1, &[0]).unwrap(), None);
         assert!(matches!(
             too_small,
             Err(FeaturesError::ImageTooSmall { .. })
