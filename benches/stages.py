@@ -75,20 +75,20 @@ class KeyframeRecorder:
         self.system = SlamSystem(*args, **kwargs)
         self.is_keyframe: list[bool] = []
 
-    def _track(self, method: str, *args):
+    def _track(self, method: str, *args, **options):
         initialising = self.system.state == "not_initialized"
-        result = getattr(self.system, method)(*args)
+        result = getattr(self.system, method)(*args, **options)
         self.is_keyframe.append(result.is_keyframe and not initialising)
         return result
 
-    def track_rgbd(self, *args):
-        return self._track("track_rgbd", *args)
+    def track_rgbd(self, *args, **options):
+        return self._track("track_rgbd", *args, **options)
 
-    def track_stereo(self, *args):
-        return self._track("track_stereo", *args)
+    def track_stereo(self, *args, **options):
+        return self._track("track_stereo", *args, **options)
 
-    def track_mono(self, *args):
-        return self._track("track_mono", *args)
+    def track_mono(self, *args, **options):
+        return self._track("track_mono", *args, **options)
 
     def __getattr__(self, name):
         return getattr(self.system, name)

@@ -175,6 +175,33 @@ pub struct PointAtOffset {
     pub d_p_c_d_p_w: Matrix3<f64>,
 }
 
+/// `p_c(dt)` of [`point_at_offset`] alone (the same arithmetic), for a residual that needs no
+/// Jacobian.
+pub fn position_at_offset(
+    T_c_w: &Isometry3<f64>,
+    xi_dot: &Vector6<f64>,
+    dt: f64,
+    p_w: &Point3<f64>,
+) -> Vector3<f64> {
+    rotation_at_offset(T_c_w, xi_dot, dt, p_w).3
+}
+
+/// `(T_c_w * p_w, R(dt), R(dt) * T_c_w * p_w, p_c(dt))`: the motion's rotation over `dt` and
+/// the point before and after it.
+fn rotation_at_offset(
+    T_c_w: &Isometry3<f64>,
+    xi_dot: &Vector6<f64>,
+    dt: f64,
+    p_w: &Point3<f64>,
+) -> (Vector3<f64>, Matrix3<f64>, Vector3<f64>, Vector3<f64>) {
+    let p_c0 = (T_c_w * p_w).coords;
+    let w = xi_dot.fixed_rows::<3>(3).into_owned();
+    let R_d = so3::exp(&(dt * w)).to_rotation_matrix().into_inner();
+    let rotated = R_d * p_c0;
+    let p_c = rotated + dt * xi_dot.fixed_rows::<3>(0).into_owned();
+    (p_c0, R_d, rotated, p_c)
+}
+
 /// `p_w` seen at offset `dt` from the pose `T_c_w` moving at `xi_dot` (see the module doc),
 /// with its Jacobians.
 pub fn point_at_offset(
@@ -183,11 +210,8 @@ pub fn point_at_offset(
     dt: f64,
     p_w: &Point3<f64>,
 ) -> PointAtOffset {
-    let p_c0 = (T_c_w * p_w).coords;
+    let (p_c0, R_d, rotated, p_c) = rotation_at_offset(T_c_w, xi_dot, dt, p_w);
     let w = xi_dot.fixed_rows::<3>(3).into_owned();
-    let R_d = so3::exp(&(dt * w)).to_rotation_matrix().into_inner();
-    let rotated = R_d * p_c0;
-    let p_c = rotated + dt * xi_dot.fixed_rows::<3>(0).into_owned();
 
     let mut d_p_c0_d_pose = Matrix3x6::zeros();
     d_p_c0_d_pose

@@ -126,9 +126,92 @@ pub(crate) fn dense_damped_step<const N: usize>(
     Ok((dx, predicted))
 }
 
+/// Adds one observation's weighted normal equations to `(h, g)`: `w J^T J` to the lower
+/// triangle of `h` (diagonal included) and `w J^T e` to `g`, over the first `rows` rows of
+/// `j` and `e` (the others must be zero, as a monocular observation's right row).
+///
+/// Each entry is the one `w * j.transpose() * j` (and `* e`) gives, bit for bit, at about
+/// half the products of the full matrix and with no temporary matrix. The upper triangle of
+/// `h` is left alone: [`mirror_lower_triangle`] fills it once all observations are added.
+pub(crate) fn add_normal_equations<const R: usize, const N: usize>(
+    h: &mut SMatrix<f64, N, N>,
+    g: &mut SVector<f64, N>,
+    w: f64,
+    j: &SMatrix<f64, R, N>,
+    e: &SVector<f64, R>,
+    rows: usize,
+) {
+    debug_assert!((1..=R).contains(&rows));
+    let wj = w * j;
+    for c in 0..N {
+        for r in c..N {
+            let mut s = wj[(0, r)] * j[(0, c)];
+            for k in 1..rows {
+                s += wj[(k, r)] * j[(k, c)];
+            }
+            h[(r, c)] += s;
+        }
+        let mut s = wj[(0, c)] * e[0];
+        for k in 1..rows {
+            s += wj[(k, c)] * e[k];
+        }
+        g[c] += s;
+    }
+}
+
+/// Copies the lower triangle of `h` onto its upper one, once [`add_normal_equations`] has
+/// filled the lower: a symmetric matrix for every reader (the Cholesky factor reads only the
+/// lower triangle).
+pub(crate) fn mirror_lower_triangle<const N: usize>(h: &mut SMatrix<f64, N, N>) {
+    h.fill_upper_triangle_with_lower_triangle();
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn normal_equations_equal_the_matrix_products_bit_for_bit() {
+        use rand::{Rng, SeedableRng};
+        let seed = 11;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut value =
+            || -> f64 { rng.random_range(-1e3..1e3) * 10f64.powi(rng.random_range(-6..3)) };
+        for trial in 0..200 {
+            let rows = 2 + trial % 2;
+            let mut j = SMatrix::<f64, 3, 12>::from_fn(|_, _| value());
+            let mut e = SVector::<f64, 3>::from_fn(|_, _| value());
+            if rows == 2 {
+                j.row_mut(2).fill(0.0);
+                e[2] = 0.0;
+            }
+            let w = value().abs();
+            let (h0, g0) = (
+                SMatrix::<f64, 12, 12>::from_fn(|r, c| (r * 12 + c) as f64 * 0.37),
+                SVector::<f64, 12>::from_fn(|r, _| r as f64 * 1.9),
+            );
+            let (mut h, mut g) = (h0, g0);
+            add_normal_equations(&mut h, &mut g, w, &j, &e, rows);
+            mirror_lower_triangle(&mut h);
+            let want_h = h0 + w * j.transpose() * j;
+            let want_g = g0 + w * j.transpose() * e;
+            for c in 0..12 {
+                assert_eq!(
+                    g[c].to_bits(),
+                    want_g[c].to_bits(),
+                    "seed {seed}, trial {trial}, g[{c}]"
+                );
+                for r in c..12 {
+                    assert_eq!(
+                        h[(r, c)].to_bits(),
+                        want_h[(r, c)].to_bits(),
+                        "seed {seed}, trial {trial}, h[({r}, {c})]"
+                    );
+                    assert_eq!(h[(c, r)].to_bits(), h[(r, c)].to_bits());
+                }
+            }
+        }
+    }
 
     #[test]
     fn rejections_grow_lambda_and_acceptance_shrinks_it() {

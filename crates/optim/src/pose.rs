@@ -3,7 +3,9 @@
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::lm::{damping_diagonal, dense_damped_step, Damping};
+use crate::lm::{
+    add_normal_equations, damping_diagonal, dense_damped_step, mirror_lower_triangle, Damping,
+};
 use crate::residual;
 use crate::robust::{chi2_threshold, cost_and_weight};
 use ferroslam_geometry::se3;
@@ -72,11 +74,12 @@ pub fn optimize_pose(
 ) -> Result<PoseEstimate, OptimError> {
     validate(T_c_w, obs, k, outlier)?;
     let mut pose = *T_c_w;
+    // Like ORB-SLAM, every round restarts from the initial guess so that a round spoiled by
+    // outliers does not bias the next; which points it projects is decided once.
+    let projects_at_start: Vec<bool> = obs.iter().map(|o| chi2_of(k, T_c_w, o).is_some()).collect();
     for round in 0..ROUNDS {
-        // Like ORB-SLAM, every round restarts from the initial guess so that a round spoiled
-        // by outliers does not bias the next.
         let active: Vec<usize> = (0..obs.len())
-            .filter(|&i| !outlier[i] && chi2_of(k, T_c_w, &obs[i]).is_some())
+            .filter(|&i| !outlier[i] && projects_at_start[i])
             .collect();
         pose = refine(T_c_w, obs, &active, k, round < ROBUST_ROUNDS);
         for (flag, o) in outlier.iter_mut().zip(obs) {
@@ -166,10 +169,10 @@ pub(crate) fn evaluate(
         let chi2 = o.inv_sigma2 * e.norm_squared();
         let (rho, weight) = cost_and_weight(chi2, o.u_right.is_some(), robust);
         at.cost += rho;
-        let w = o.inv_sigma2 * weight;
-        at.h += w * j.transpose() * j;
-        at.g += w * j.transpose() * e;
+        let rows = if o.u_right.is_some() { 3 } else { 2 };
+        add_normal_equations(&mut at.h, &mut at.g, o.inv_sigma2 * weight, &j, &e, rows);
     }
+    mirror_lower_triangle(&mut at.h);
     at
 }
 

@@ -13,12 +13,15 @@
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
-use crate::lm::{damping_diagonal, dense_damped_step, Damping};
+use crate::lm::{
+    add_normal_equations, damping_diagonal, dense_damped_step, mirror_lower_triangle, Damping,
+};
 use crate::pose::{self, PoseObservation, ITERATIONS_PER_ROUND, ROBUST_ROUNDS, ROUNDS};
 use crate::residual;
 use crate::robust::{chi2_threshold, cost_and_weight};
-use ferroslam_geometry::{rolling_shutter::point_at_offset, se3};
-use nalgebra::{Isometry3, Matrix6, Point3, SMatrix, SVector, Vector3, Vector6};
+use ferroslam_geometry::rolling_shutter::{point_at_offset, position_at_offset};
+use ferroslam_geometry::se3;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SMatrix, SVector, Vector3, Vector6};
 
 type Matrix12 = SMatrix<f64, 12, 12>;
 type Vector12 = SVector<f64, 12>;
@@ -95,10 +98,13 @@ pub fn optimize_pose_and_velocity(
     };
     let start = (*T_c_w, prior.xi_dot);
     let mut state = start;
+    // Every round restarts from the initial guess, as in optimize_pose.
+    let projects_at_start: Vec<bool> = (0..obs.len())
+        .map(|i| problem.chi2(&start, i).is_some())
+        .collect();
     for round in 0..ROUNDS {
-        // Every round restarts from the initial guess, as in optimize_pose.
         let active: Vec<usize> = (0..obs.len())
-            .filter(|&i| !outlier[i] && problem.chi2(&start, i).is_some())
+            .filter(|&i| !outlier[i] && projects_at_start[i])
             .collect();
         state = problem.refine(start, &active, round < ROBUST_ROUNDS)?;
         for (i, flag) in outlier.iter_mut().enumerate() {
@@ -168,15 +174,7 @@ impl Problem<'_> {
     fn linearize(&self, state: &State, i: usize) -> Option<(Vector3<f64>, SMatrix<f64, 3, 12>)> {
         let o = &self.obs[i];
         let at = point_at_offset(&state.0, &state.1, self.dt[i], &Point3::from(o.p_w));
-        let (pred, mut d_pred_d_p_c) = residual::predict(self.k, &at.p_c)?;
-        let e = Vector3::new(
-            o.uv.x - pred.x,
-            o.uv.y - pred.y,
-            o.u_right.map_or(0.0, |ur| ur - pred.z),
-        );
-        if !e.iter().all(|v| v.is_finite()) {
-            return None;
-        }
+        let (e, mut d_pred_d_p_c) = self.error_at(i, &at.p_c)?;
         if o.u_right.is_none() {
             d_pred_d_p_c.row_mut(2).fill(0.0);
         }
@@ -188,9 +186,26 @@ impl Problem<'_> {
         Some((e, j))
     }
 
+    /// Residual of observation `i` seen at `p_c`, and the prediction's Jacobian; `None` where
+    /// it does not project or the residual is not finite.
+    fn error_at(&self, i: usize, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+        let o = &self.obs[i];
+        let (pred, d_pred_d_p_c) = residual::predict(self.k, p_c)?;
+        let e = Vector3::new(
+            o.uv.x - pred.x,
+            o.uv.y - pred.y,
+            o.u_right.map_or(0.0, |ur| ur - pred.z),
+        );
+        e.iter().all(|v| v.is_finite()).then_some((e, d_pred_d_p_c))
+    }
+
+    /// `inv_sigma2 * |e|^2` of observation `i`, without the Jacobians [`Problem::linearize`]
+    /// computes (the classification of every observation each round).
     fn chi2(&self, state: &State, i: usize) -> Option<f64> {
-        let (e, _) = self.linearize(state, i)?;
-        Some(self.obs[i].inv_sigma2 * e.norm_squared())
+        let o = &self.obs[i];
+        let p_c = position_at_offset(&state.0, &state.1, self.dt[i], &Point3::from(o.p_w));
+        let (e, _) = self.error_at(i, &p_c)?;
+        Some(o.inv_sigma2 * e.norm_squared())
     }
 
     fn evaluate(&self, state: &State, active: &[usize], robust: bool) -> Evaluation {
@@ -208,10 +223,10 @@ impl Problem<'_> {
             let (rho, weight) =
                 cost_and_weight(o.inv_sigma2 * e.norm_squared(), o.u_right.is_some(), robust);
             at.cost += rho;
-            let w = o.inv_sigma2 * weight;
-            at.h += w * j.transpose() * j;
-            at.g += w * j.transpose() * e;
+            let rows = if o.u_right.is_some() { 3 } else { 2 };
+            add_normal_equations(&mut at.h, &mut at.g, o.inv_sigma2 * weight, &j, &e, rows);
         }
+        mirror_lower_triangle(&mut at.h);
         // The prior's residual r = xi_dot - prior, d r / d xi_dot = I.
         let r = state.1 - self.prior.xi_dot;
         let lambda = &self.prior.information;

@@ -150,7 +150,9 @@ fn corners_in_window(
 /// Writes the score of every corner of row `y`, columns `x0..x1`, into `out` (`out[x - x0]`;
 /// non-corners are left at 0) and returns their columns, increasing.
 ///
-/// Compiled for AVX2 too, chosen at run time: the vectors are twice as wide as SSE2's.
+/// Compiled for AVX-512 (BW, VL) and AVX2 too, the widest the CPU has chosen at run time:
+/// AVX2's vectors are twice as wide as SSE2's, and AVX-512 adds compares into mask registers
+/// and three-input logic for the flags and arcs of the segment test.
 fn score_row(
     image: &GrayImage<'_>,
     y: usize,
@@ -160,10 +162,31 @@ fn score_row(
     out: &mut [u8],
 ) -> Vec<usize> {
     #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512bw")
+        && std::arch::is_x86_feature_detected!("avx512vl")
+    {
+        // SAFETY: the CPU has AVX-512 F, BW and VL (BW implies F), checked just above.
+        return unsafe { score_row_avx512(image, y, x0, x1, t, out) };
+    }
+    #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
         return unsafe { score_row_avx2(image, y, x0, x1, t, out) };
     }
+    score_row_portable(image, y, x0, x1, t, out)
+}
+
+/// [`score_row_portable`] compiled with AVX-512 BW and VL (see [`score_row`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl")]
+fn score_row_avx512(
+    image: &GrayImage<'_>,
+    y: usize,
+    x0: usize,
+    x1: usize,
+    t: u8,
+    out: &mut [u8],
+) -> Vec<usize> {
     score_row_portable(image, y, x0, x1, t, out)
 }
 
@@ -182,7 +205,7 @@ fn score_row_avx2(
 }
 
 /// [`score_row`] for the target's baseline instructions (SSE2 on x86_64), and inlined into
-/// [`score_row_avx2`].
+/// [`score_row_avx2`] and [`score_row_avx512`].
 #[inline(always)]
 fn score_row_portable(
     image: &GrayImage<'_>,
@@ -266,7 +289,7 @@ fn ring<'r, const N: usize>(rows: &[&'r [u8]; 7], x: usize, k: usize) -> &'r [u8
 /// Whether any of the `N` pixels of the middle row from column `x` may be a corner at
 /// threshold `t`: an arc of 9 holds two neighbouring compass pixels (0-4, 4-8, 8-12 or 12-0)
 /// beyond the threshold on the same side, which rejects most blocks after 4 of the 16 loads.
-#[inline(always)] // into score_row_avx2
+#[inline(always)] // into score_row_avx2 and score_row_avx512
 fn compass_candidate<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> bool {
     let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
     // Plain loops rather than `<[u8; N]>::map`, which the compiler may leave a call in this
@@ -294,7 +317,7 @@ fn compass_candidate<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> bool
 /// becomes a flag, 1 when brighter than the centre by more than `t` and 2 when darker, and
 /// an arc of 9 whose flags share a bit is a corner: one byte per lane for both polarities,
 /// and `&` rather than `min` (60-65 % of the cost of [`arc_contrast`] on a TUM frame).
-#[inline(always)] // into score_row_avx2
+#[inline(always)] // into score_row_avx2 and score_row_avx512
 fn segment_test<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> [u8; N] {
     let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
     let (mut bright, mut dark) = ([0u8; N], [0u8; N]);
@@ -318,7 +341,7 @@ fn segment_test<const N: usize>(rows: &[&[u8]; 7], x: usize, t: u8) -> [u8; N] {
 ///
 /// Per polarity, the saturated differences `d_k`, then minima over windows of 2, 4, 8 and 9
 /// contiguous circle pixels (indices mod 16), all lane-wise so they vectorise.
-#[inline(always)] // into score_row_avx2
+#[inline(always)] // into score_row_avx2 and score_row_avx512
 fn arc_contrast<const N: usize>(rows: &[&[u8]; 7], x: usize) -> [u8; N] {
     let center: &[u8; N] = rows[3][x..x + N].try_into().expect("N pixels");
     let mut brighter = [[0u8; N]; 16];
@@ -486,7 +509,8 @@ mod tests {
 
     type RowScorer = fn(&GrayImage<'_>, usize, usize, usize, u8, &mut [u8]) -> Vec<usize>;
 
-    /// The row scorers this CPU runs: the baseline one always, the AVX2 one where it has AVX2.
+    /// The row scorers this CPU runs: the baseline one always, the AVX2 and AVX-512 ones where
+    /// it has those.
     fn row_scorers() -> Vec<(&'static str, RowScorer)> {
         let mut paths: Vec<(&'static str, RowScorer)> =
             vec![("portable", |img, y, x0, x1, t, out| {
@@ -497,6 +521,15 @@ mod tests {
             // SAFETY: the CPU has AVX2, checked just above.
             paths.push(("avx2", |img, y, x0, x1, t, out| unsafe {
                 score_row_avx2(img, y, x0, x1, t, out)
+            }));
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+        {
+            // SAFETY: the CPU has AVX-512 F, BW and VL, checked just above.
+            paths.push(("avx512", |img, y, x0, x1, t, out| unsafe {
+                score_row_avx512(img, y, x0, x1, t, out)
             }));
         }
         paths
@@ -635,3 +668,4 @@ mod tests {
         }
     }
 }
+
