@@ -69,6 +69,30 @@ SAME_PLACE_M = 0.10
 SAME_VIEW_DEG = 30.0
 
 
+def test_fr1_rpy_with_its_readout_re_finds_the_desk_instead_of_closing_a_loop(tum_rpy):
+    """With fr1's 15 ms readout modelled (the loader's default camera) the map drifts so little
+    that tracking re-finds the earlier keyframes' points when the camera turns back: the
+    keyframes of every revisit are already covisible, so no loop is left to close (candidates
+    must be unconnected to the keyframe, as in ORB-SLAM). Measured (2026-12-02, inline,
+    default options): 43 keyframes, 33 checked, 30 with candidates, 24 verified, each a view
+    33-109 deg off the current one (bag-of-words matches 3-14 of the 20 the Sim(3) needs, a
+    stage with no projection) and refused; every keyframe pair within 10 cm and 20 deg by
+    the ground truth is covisible. ATE 1.13 cm, against 2.14 cm for the global-shutter run
+    with its loop (below)."""
+    seq = TumSequence(tum_rpy)
+    assert seq.camera.rolling_shutter_readout_s == 0.015
+    with_loops = run_sequence(seq, {}, progress=False)
+    without = run_sequence(TumSequence(tum_rpy), {"loop_closure": False}, progress=False)
+    stats = with_loops.loop_stats
+    assert stats["keyframes_checked"] >= len(with_loops.keyframe_ids) - 10, stats
+    assert stats["with_candidates"] >= 20, stats
+    # Every candidate verified views another part of the desk: closing one would be false.
+    assert with_loops.loops == [] and stats["rejected"] == stats["verified"] >= 10, stats
+    np.testing.assert_array_equal(with_loops.trajectory.poses, without.trajectory.poses)
+    # The issue's target is 1.6 cm (measured 1.13 cm).
+    assert with_loops.ate_frames.rmse < 0.016
+
+
 def test_loops_on_fr1_rpy_join_views_of_the_same_place(tum_rpy):
     """fr1/rpy turns in place, so it comes back to views it mapped a second or more before,
     when those keyframes have left the local map. Measured (inline, default options): one
@@ -78,9 +102,8 @@ def test_loops_on_fr1_rpy_join_views_of_the_same_place(tum_rpy):
     candidates, 52 of 53 verified candidates were refused. (With ORB-SLAM's INTER_LINEAR
     pyramid: keyframe 19 against 6, 1.06 s, 311 matches, 2.4 cm and 10 deg; 5.56 -> 2.49
     cm.)"""
-    # As a global shutter: with fr1's 15 ms readout modelled (the loader's default) these
-    # frames close no loop, every verified candidate refused (24 of 24, 2026-12-02): loop
-    # verification still projects keyframe observations from the reference row's pose.
+    # As a global shutter: the only real revisit of our data left unconnected by tracking.
+    # With fr1's readout modelled the map holds on to the desk and no loop is needed (above).
     camera = dataclasses.replace(TumSequence(tum_rpy).camera, rolling_shutter_readout_s=0.0)
     with_loops = run_sequence(TumSequence(tum_rpy, camera=camera), {}, progress=False)
     without = run_sequence(TumSequence(tum_rpy, camera=camera), {"loop_closure": False},

@@ -9,6 +9,7 @@ use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_vocabulary::FeatureVector;
 use nalgebra::{Point3, Vector3};
 
+use super::row_projection::seen_from_row;
 use crate::context::Context;
 
 /// For each keypoint of `kf1` carrying a map point, the map point of `kf2` whose keypoint
@@ -66,7 +67,8 @@ pub(super) fn match_by_bow(
 /// Completes `matches` (indexed by `kf1`'s keypoints, map points of `kf2`) with matches
 /// found by projecting each keyframe's unmatched map points into the other through
 /// `S_12` (camera-2 to camera-1 similarity) within `th` pixels times the predicted level's
-/// scale; a pair is added only when both directions agree. Returns the number added.
+/// scale (each projection from the row it lands on, [`seen_from_row`]); a pair is added
+/// only when both directions agree. Returns the number added.
 pub(super) fn match_by_sim3(
     map: &Map,
     ctx: &Context,
@@ -99,7 +101,8 @@ pub(super) fn match_by_sim3(
             let p = map.map_point(m).unwrap();
             let p_from = (from.T_c_w() * Point3::from(p.position())).coords;
             let p_to: Vector3<f64> = S_to_from.transform_point(&p_from);
-            let Some(uv) = ctx.camera.project(&p_to) else {
+            let p_row = seen_from_row(&ctx.camera, &to.features().xi_dot, &p_to);
+            let Some(uv) = ctx.camera.project(&p_row) else {
                 continue;
             };
             let b = &ctx.bounds;

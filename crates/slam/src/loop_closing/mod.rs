@@ -10,11 +10,14 @@
 //! neighbourhood, fusion of duplicated points, new loop links) and [`essential_graph`]
 //! (Sim(3) pose-graph optimisation over the spanning tree, loop edges and strong covisibility
 //! edges).
+//! Through a rolling shutter, [`row_projection`] makes each keyframe observation's projection
+//! from its row's pose.
 
 mod correction;
 mod detection;
 mod essential_graph;
 mod keyframe_matching;
+mod row_projection;
 mod verification;
 
 use ferroslam_map::{KeyFrameId, Map};

@@ -1,7 +1,10 @@
 //! Geometric verification of a loop candidate (ORB-SLAM `LoopClosing::ComputeSim3`):
 //! bag-of-words matches, Sim(3) RANSAC (scale fixed to 1 with depth sensors), Sim(3)-guided
 //! matching, Sim(3) refinement, then the loop's map points projected into the current
-//! keyframe; accepted with at least `loop_closure_threshold` matched points.
+//! keyframe; accepted with at least `loop_closure_threshold` matched points. Through a
+//! rolling shutter, each keypoint is compared with its row's projection ([`row_projection`]).
+//!
+//! [`row_projection`]: super::row_projection
 
 use std::collections::HashSet;
 
@@ -11,12 +14,12 @@ use ferroslam_geometry::sim3::Sim3;
 use ferroslam_geometry::sim3_ransac::{sim3_ransac, Sim3Correspondence, Sim3RansacParams};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::sim3_align::{optimize_sim3, Sim3Match};
-use nalgebra::{Isometry3, Point3, Translation3, Vector2};
+use nalgebra::{Isometry3, Point3, Translation3};
 use rand_chacha::ChaCha8Rng;
 
 use super::keyframe_matching::{match_by_bow, match_by_sim3};
+use super::row_projection::{keypoint_at_reference_line, visible_from_row};
 use crate::context::Context;
-use crate::frustum::visible_point;
 use crate::place_recognition::PlaceRecognition;
 
 /// chi2 threshold of a reprojection at 2 degrees of freedom, 99 % (RANSAC inliers).
@@ -63,7 +66,7 @@ pub(crate) fn verify_loop(
         return None;
     }
     let fix_scale = ctx.config.sensor.has_depth();
-    let (_, pairs) = correspondences(map, current, candidate, &matches);
+    let (_, pairs) = correspondences(map, ctx, current, candidate, &matches);
     let params = Sim3RansacParams {
         probability: config.sim3_ransac_probability,
         min_inliers: config.min_stage_matches,
@@ -91,7 +94,7 @@ pub(crate) fn verify_loop(
         config.guided_radius_px,
         &mut matches,
     );
-    let (ids, pairs) = correspondences(map, current, candidate, &matches);
+    let (ids, pairs) = correspondences(map, ctx, current, candidate, &matches);
     let refined = optimize_sim3(
         &ransac.S_12,
         &pairs,
@@ -123,10 +126,9 @@ pub(crate) fn verify_loop(
     let center = T_cw.inverse().translation.vector;
     let mut queries = Vec::new();
     let mut sources = Vec::new();
+    let xi_dot = k1.features().xi_dot;
     for &m in loop_points.iter().filter(|m| !already.contains(m)) {
-        let rules = &ctx.config.visibility;
-        let Some(vis) = visible_point(map, m, &T_cw, &center, &ctx.camera, &ctx.bounds, rules)
-        else {
+        let Some(vis) = visible_from_row(map, m, &T_cw, &center, &xi_dot, ctx) else {
             continue;
         };
         queries.push(ProjectionQuery {
@@ -171,10 +173,11 @@ pub(crate) fn verify_loop(
 }
 
 /// The matches whose two map points both exist, as `(keypoint of kf1, map point of kf2)` and
-/// as Sim(3) correspondences (points in each keyframe's camera frame, keypoint pixels and
-/// octave weights).
+/// as Sim(3) correspondences (points in each keyframe's reference camera frame, keypoint
+/// pixels moved to the reference line and octave weights).
 fn correspondences(
     map: &Map,
+    ctx: &Context,
     kf1: KeyFrameId,
     kf2: KeyFrameId,
     matches: &[Option<MapPointId>],
@@ -195,12 +198,14 @@ fn correspondences(
             continue;
         };
         let (kp1, kp2) = (&k1.features().keypoints[i1], &k2.features().keypoints[i2]);
+        let p1 = (k1.T_c_w() * Point3::from(p1.position())).coords;
+        let p2 = (k2.T_c_w() * Point3::from(p2.position())).coords;
         ids.push((i1, m2));
         out.push(Sim3Match {
-            p1: (k1.T_c_w() * Point3::from(p1.position())).coords,
-            p2: (k2.T_c_w() * Point3::from(p2.position())).coords,
-            uv1: Vector2::new(kp1.x as f64, kp1.y as f64),
-            uv2: Vector2::new(kp2.x as f64, kp2.y as f64),
+            p1,
+            p2,
+            uv1: keypoint_at_reference_line(&ctx.camera, k1.features(), i1, &p1),
+            uv2: keypoint_at_reference_line(&ctx.camera, k2.features(), i2, &p2),
             inv_sigma2_1: inv_sigma2[kp1.octave as usize],
             inv_sigma2_2: inv_sigma2[kp2.octave as usize],
         });

@@ -1,0 +1,69 @@
+//! Loop closing's projections through a rolling shutter: a keyframe saw each keypoint from
+//! its row's pose, `D(dt) * T_c_w` with the keyframe's velocity over the row's time offset
+//! ([`readout_motion`], as local BA sees it), not from its reference pose `T_c_w`. Over
+//! fr1's 15 ms readout at its 1-1.5 rad/s that is up to 6 px at the top and bottom rows,
+//! twice the 3 px of the Sim(3) inlier test.
+//!
+//! Measured keypoints are moved to where the reference pose sees them, for the Sim(3)
+//! solvers that know one pose per keyframe; predicted projections (guided searches) are
+//! made from the pose of the row they land on. With a global shutter every function returns
+//! its reference-pose input unchanged, so the arithmetic is that of a global shutter.
+
+// Frame-named variables (`T_c_w`, `D`) follow the crate's pose convention.
+#![allow(non_snake_case)]
+
+use ferroslam_geometry::camera::CameraModel;
+use ferroslam_geometry::rolling_shutter::{pixel_at_reference_line, predicted_readout_motion};
+use ferroslam_map::{FrameFeatures, Map, MapPointId};
+use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
+
+use crate::context::Context;
+use crate::frame::readout_motion;
+use crate::frustum::{visible_point, VisiblePoint};
+
+/// Keypoint `i` of `features` (core pixels) where the keyframe's reference pose sees the
+/// point it observed, `p_c` being that point's estimate in the reference camera frame
+/// ([`pixel_at_reference_line`]); the keypoint itself for a global shutter or the
+/// reference line.
+pub(super) fn keypoint_at_reference_line(
+    camera: &CameraModel,
+    features: &FrameFeatures,
+    i: usize,
+    p_c: &Vector3<f64>,
+) -> Vector2<f64> {
+    let kp = &features.keypoints[i];
+    let uv = Vector2::new(kp.x as f64, kp.y as f64);
+    readout_motion(features, i)
+        .and_then(|D| pixel_at_reference_line(camera, &uv, p_c, &D))
+        .unwrap_or(uv)
+}
+
+/// The point `p_c` (a keyframe's reference camera frame, metres) in the camera frame of the
+/// row it projects to, the keyframe moving at `xi_dot` (`FrameFeatures::xi_dot`); `p_c`
+/// itself for a global shutter.
+pub(super) fn seen_from_row(
+    camera: &CameraModel,
+    xi_dot: &Vector6<f64>,
+    p_c: &Vector3<f64>,
+) -> Vector3<f64> {
+    predicted_readout_motion(camera, xi_dot, p_c).map_or(*p_c, |D| (D * Point3::from(*p_c)).coords)
+}
+
+/// [`visible_point`] of map point `m` from the row of a camera at `T_c_w` (centre
+/// `center_w`) moving at `xi_dot` on which the point lands: pixel and camera-frame point
+/// from the row's pose, distance and viewing angle from the centre (the readout moves it
+/// millimetres).
+pub(super) fn visible_from_row(
+    map: &Map,
+    m: MapPointId,
+    T_c_w: &Isometry3<f64>,
+    center_w: &Vector3<f64>,
+    xi_dot: &Vector6<f64>,
+    ctx: &Context,
+) -> Option<VisiblePoint> {
+    let p_c = T_c_w * Point3::from(map.map_point(m)?.position());
+    let T_row =
+        predicted_readout_motion(&ctx.camera, xi_dot, &p_c.coords).map_or(*T_c_w, |D| D * T_c_w);
+    let rules = &ctx.config.visibility;
+    visible_point(map, m, &T_row, center_w, &ctx.camera, &ctx.bounds, rules)
+}
