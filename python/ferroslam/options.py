@@ -35,7 +35,7 @@ import numpy as np
 from ._files import MAX_CONFIG_BYTES, check_nesting, read_bounded_text
 from .dense import DEFAULT_MAX_DEPTH_M, DEFAULT_TRUNCATION_M, DEFAULT_VOXEL_M
 
-__all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "OPTIONS", "Option", "check_option",
+__all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "OPTIONS", "Option", "check_option", "core_default",
            "load_option_file", "pipeline_default", "validate_options"]
 
 SENSORS = ("mono", "stereo", "rgbd")
@@ -126,24 +126,35 @@ def _core_options() -> tuple[Option, ...]:
 
 OPTIONS: tuple[Option, ...] = _core_options() + (
     # -- run_sequence / --config / SPEC --------------------------------------------------
-    Option("vocabulary", "vocabulary", "pipeline"),
-    Option("mapping_thread", "flag", "pipeline"),
-    # TSDF fusion of the RGB-D keyframes into mesh.ply (ferroslam.dense; run --dense).
-    Option("dense", "flag", "pipeline", sensors=("rgbd",), default=False),
+    Option("vocabulary", "vocabulary", "pipeline", default="default",
+           doc="Bag of words for relocalisation and loops: \"default\" (shipped), a file, "
+               "a Vocabulary or None"),
+    Option("mapping_thread", "flag", "pipeline", default=False,
+           doc="Local mapping and loop closing in their own thread"),
+    Option("dense", "flag", "pipeline", sensors=("rgbd",), default=False,
+           doc="TSDF fusion of the RGB-D keyframes into mesh.ply (ferroslam.dense; run "
+               "--dense)"),
     Option("dense_voxel_m", "float", "pipeline", "metres", 0, None, open_low=True,
-           sensors=("rgbd",), default=DEFAULT_VOXEL_M),
+           sensors=("rgbd",), default=DEFAULT_VOXEL_M, doc="Voxel size of the fusion"),
     Option("dense_truncation_m", "float", "pipeline", "metres", 0, None, open_low=True,
-           sensors=("rgbd",), default=DEFAULT_TRUNCATION_M),
+           sensors=("rgbd",), default=DEFAULT_TRUNCATION_M,
+           doc="Truncation distance of the signed distance field, above dense_voxel_m"),
     Option("dense_max_depth_m", "float", "pipeline", "metres", 0, None, open_low=True,
-           sensors=("rgbd",), default=DEFAULT_MAX_DEPTH_M),
+           sensors=("rgbd",), default=DEFAULT_MAX_DEPTH_M,
+           doc="Depths beyond this are left out of the fusion"),
     # -- the input (ferroslam run flags, open_sequence / open_bag keywords) ---------------
     Option("depth_scale", "float", "source", "depth pixel values per metre", 0, None,
-           open_low=True, sensors=("rgbd",)),
+           open_low=True, sensors=("rgbd",),
+           doc="Depth image value of one metre (TUM 5000); default the layout's"),
     Option("pair_tolerance_s", "float", "source", "s", 0, 1, open_low=True,
-           sensors=("stereo", "rgbd")),
+           sensors=("stereo", "rgbd"),
+           doc="Largest time between the two images of a pair (colour and depth, left and "
+               "right)"),
     # -- vSLAM objects -------------------------------------------------------------------
-    Option("threaded", "flag", "object"),
-    Option("localization_only", "flag", "attribute"),
+    Option("threaded", "flag", "object",
+           doc="Track in a background thread (add_frame returns at once)"),
+    Option("localization_only", "flag", "attribute",
+           doc="Track against the map without changing it"),
 )
 
 _BY_NAME = {o.name: o for o in OPTIONS}
@@ -220,6 +231,12 @@ def validate_options(options: Optional[dict], sensor: str, inertial: bool = Fals
         out[option.name] = _check_value(option, key, value)
     _check_together(out)
     return out
+
+
+def core_default(name: str, sensor: str) -> Any:
+    """The core's default of option ``name`` for camera sensor ``sensor`` (images 640 px
+    wide; the core's table)."""
+    return _BY_NAME[name].defaults[sensor]
 
 
 def pipeline_default(options: dict, name: str) -> Any:

@@ -46,7 +46,7 @@ import numpy as np
 from .camera import Camera
 from .calibration import ImuParams
 from .keyframe_images import KeyframeImages
-from .options import check_option, validate_options
+from .options import check_option, core_default, validate_options
 from .session import IMU_KEYS, Features, Session
 from .stereo import StereoRectifier
 
@@ -206,7 +206,8 @@ class _VSlam:
         imu_options = {k: options.pop(k) for k in IMU_KEYS if k in options}
         self.imu = None if imu is None else ImuParams.of(imu)
         self._imu_period_s = 0.0 if imu is None else 1.0 / self.imu.rate_hz
-        self._imu_time_offset_s = imu_options.get("imu_time_offset_s", 0.0)
+        self._imu_time_offset_s = imu_options.get(
+            "imu_time_offset_s", core_default("imu_time_offset_s", self._sensor))
         self._session = Session(
             intrinsics, self._sensor, options, vocabulary=vocabulary, imu=self.imu,
             T_b_c=camera_to_imu_transform, imu_options=imu_options)

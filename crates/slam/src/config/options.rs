@@ -244,7 +244,7 @@ pub fn user_options() -> Vec<UserOption> {
             "points",
             count(1.0),
             "(lower, upper): tracking fails below lower inliers; below upper the frame may \
-             become a keyframe (MATLAB TrackFeatureRange)",
+             become a keyframe",
         ),
         option(
             "skip_max_frames",
@@ -334,7 +334,7 @@ pub fn user_options() -> Vec<UserOption> {
             Int,
             "points",
             count(loop_matches),
-            "Matched map points a verified loop needs (MATLAB LoopClosureThreshold)",
+            "Matched map points a verified loop needs",
         ),
         imu(
             "num_poses_threshold",
@@ -342,8 +342,7 @@ pub fn user_options() -> Vec<UserOption> {
             Int,
             "keyframes",
             count(MIN_ALIGNED_KEYFRAMES as f64),
-            "Keyframes created before the camera-IMU alignment is tried (MATLAB \
-             NumPosesThreshold)",
+            "Keyframes created before the camera-IMU alignment is tried",
         ),
         imu(
             "alignment_fraction",
@@ -354,8 +353,7 @@ pub fn user_options() -> Vec<UserOption> {
                 open_low: true,
                 ..OptionRange::closed(0.0, 1.0)
             },
-            "Fraction of the keyframes, the newest, the alignment uses (MATLAB \
-             AlignmentFraction)",
+            "Fraction of the keyframes, the newest, the alignment uses",
         ),
         imu(
             "gravity_magnitude",
