@@ -42,7 +42,7 @@ use ferroslam_imu::{check_stream, check_units, BiasWalkFactor, ImuError, Inertia
 use ferroslam_map::{KeyFrameId, Map, MapError};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
-use crate::config::InertialTuning;
+use crate::config::{InertialTuning, GRAVITY_RANGE_M_S2, MAX_IMU_TIME_OFFSET_S};
 use crate::error::SlamError;
 use crate::local_inertial_ba::InertialWindow;
 
@@ -51,14 +51,6 @@ pub use ferroslam_imu::{Bias, ImuMeasurement as ImuSample, ImuParams, Preintegra
 /// Fewest keyframes an alignment runs on: the gyro bias needs two rotations between
 /// keyframes and the gravity direction, scale and velocities a third position.
 pub const MIN_ALIGNED_KEYFRAMES: usize = 3;
-/// Admitted magnitudes of gravity, m/s^2: 9.780 (equator) to 9.832 (poles), 0.03 less at
-/// 9 km, so every place on Earth, while gravity given in other units (1.0 in g, 32.2 in
-/// ft/s^2) is refused: it would make every IMU-predicted pose wrong.
-pub const GRAVITY_RANGE_M_S2: (f64, f64) = (9.7, 9.9);
-/// Largest camera-IMU clock offset admitted, seconds. Calibrated offsets are milliseconds
-/// (Kalibr); one of more than a second means two unrelated clocks (boot time against epoch),
-/// which a constant shift would only hide: every frame's IMU batch would be empty or wrong.
-pub const MAX_IMU_TIME_OFFSET_S: f64 = 1.0;
 /// Slack of `ceil(alignment_fraction * n)` so that a fraction that is `k / n` up to
 /// rounding (0.28 of 25 computes as 7.000000000000001) aligns `k` keyframes, not `k + 1`.
 const WINDOW_ROUNDING_SLACK: f64 = 1e-9;

@@ -21,7 +21,10 @@ pub use backend::{InertialTuning, LoopClosingConfig, MappingConfig, PlaceRecogni
 pub use frontend::{
     DepthConfig, ExtractorConfig, InitializationConfig, TrackingConfig, VisibilityConfig,
 };
-pub use options::{user_options, OptionKind, OptionRange, OptionScope, UserOption};
+pub use options::{
+    user_options, OptionKind, OptionRange, OptionScope, UserOption, GRAVITY_RANGE_M_S2,
+    MAX_IMU_TIME_OFFSET_S,
+};
 
 /// The camera setup a system tracks; decides which `track_*` call it accepts and the
 /// sensor-specific rules of ORB-SLAM (keyframe ratio, triangulation, culling).

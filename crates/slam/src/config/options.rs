@@ -14,8 +14,16 @@
 //! [`InertialConfig::validate`]: crate::InertialConfig::validate
 
 use super::{LoopClosingConfig, Sensor};
-use crate::inertial::{GRAVITY_RANGE_M_S2, MAX_IMU_TIME_OFFSET_S, MIN_ALIGNED_KEYFRAMES};
+use crate::inertial::MIN_ALIGNED_KEYFRAMES;
 
+/// Admitted magnitudes of gravity, m/s^2: 9.780 (equator) to 9.832 (poles), 0.03 less at
+/// 9 km, so every place on Earth, while gravity given in other units (1.0 in g, 32.2 in
+/// ft/s^2) is refused: it would make every IMU-predicted pose wrong.
+pub const GRAVITY_RANGE_M_S2: (f64, f64) = (9.7, 9.9);
+/// Largest camera-IMU clock offset admitted, seconds. Calibrated offsets are milliseconds
+/// (Kalibr); one of more than a second means two unrelated clocks (boot time against epoch),
+/// which a constant shift would only hide: every frame's IMU batch would be empty or wrong.
+pub const MAX_IMU_TIME_OFFSET_S: f64 = 1.0;
 /// Largest value of the fields counted in `u32` by the bindings (budgets, frame counts).
 const U32_MAX: f64 = u32::MAX as f64;
 /// Largest seed (`u64`).
@@ -201,8 +209,8 @@ pub fn user_options() -> Vec<UserOption> {
             Int,
             "keypoints",
             count(1.0),
-            "ORB keypoints per image (ORB-SLAM nFeatures); by default 1000 per 640 px of \
-             image width, rounded to a hundred, within 500..=2000",
+            "ORB keypoints per image (ORB-SLAM nFeatures); the default follows the image \
+             width (ExtractorConfig::for_width)",
         ),
         option(
             "ini_fast",
