@@ -21,8 +21,8 @@ else:
 
 __all__ = [
     "KeyframeDatabase", "OrbExtractor", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
-    "__version__", "default_options", "load_sparse_model", "match_stereo", "project_points",
-    "unproject_pixels",
+    "__version__", "default_options", "load_sparse_model", "match_stereo", "option_table",
+    "project_points", "unproject_pixels",
 ]
 
 __version__: str
@@ -41,50 +41,48 @@ class _SlamOptions(TypedDict, total=False):
 
     Omitted options take the defaults of the sensor and image width
     (:func:`default_options`, the presets ``SlamConfig::for_camera`` in
-    ``crates/slam/src/config/``).
+    ``crates/slam/src/config/``); :func:`option_table` gives each option's type, range, unit
+    and defaults (``docs/options.md`` is generated from it), so they are not repeated here.
     """
 
     n_features: int
-    """ORB keypoints per image, >= 1 (ORB-SLAM ``nFeatures``); default 1000 per 640 px of
-    image width, rounded to a hundred, within 500..=2000. The extractor's option: the core
-    holds it so that every front end reads one default."""
+    """ORB keypoints per image (ORB-SLAM ``nFeatures``); the default follows the image width.
+    The extractor's option: the core holds it so that every front end reads one default."""
     ini_fast: int
-    """FAST threshold tried first in every extractor cell (default: the extractor's,
+    """FAST threshold tried first in every extractor cell (the extractor's default,
     ``OrbExtractor().ini_fast``)."""
     min_fast: int
-    """FAST threshold of cells where ``ini_fast`` finds nothing, 0 < min_fast <= ini_fast <
-    255 (default: the extractor's)."""
+    """FAST threshold of cells where ``ini_fast`` finds nothing, at most ``ini_fast`` (the
+    extractor's default)."""
     scale_factor: float
-    """Scale between ORB pyramid levels, > 1 (default: the extractor's)."""
+    """Scale between ORB pyramid levels (the extractor's default)."""
     n_levels: int
-    """ORB pyramid levels, 1..=32; keypoint octaves must be below it (default: the
-    extractor's)."""
+    """ORB pyramid levels; keypoint octaves must be below it (the extractor's default)."""
     track_feature_range: Sequence[int]
-    """(lower, upper), 0 < lower < upper (MATLAB ``TrackFeatureRange``): tracking fails
+    """(lower, upper), lower below upper (MATLAB ``TrackFeatureRange``): tracking fails
     with fewer than ``lower`` inliers; fewer than ``upper`` makes the frame a keyframe
     (monocular: only below 0.9 of the reference keyframe's points too, as in MATLAB's
     monocular example; ORB-SLAM's keyframe rules apply too)."""
     skip_max_frames: int
-    """Frames after which a keyframe is inserted regardless of tracking quality, >= 1."""
+    """Frames after which a keyframe is inserted regardless of tracking quality."""
     bf: float
-    """RGB-D only: fx * baseline of the virtual right camera, pixels * metres, > 0."""
+    """RGB-D only: fx * baseline of the virtual right camera, pixels * metres."""
     baseline: float
-    """Stereo only (required): baseline of the rectified pair in metres, > 0; bf = fx * it."""
+    """Stereo only (required): baseline of the rectified pair in metres; bf = fx * it."""
     depth_threshold: float
-    """Close-point threshold in baselines, > 0."""
+    """Close-point threshold in baselines."""
     depth_range: Sequence[float]
-    """(min, max) valid depth in metres, 0 <= min < max (max may be inf); default (0.1, 8)
-    for RGB-D, (0, inf) for stereo."""
+    """(min, max) valid depth in metres (max may be inf); the default depends on the
+    sensor."""
     seed: int
-    """Seed of every random choice (RANSAC), >= 0."""
+    """Seed of every random choice (RANSAC)."""
     deterministic: bool
     """With the mapping thread, wait for each keyframe's mapping before the next frame so
-    that poses and map equal the inline run's (default False: tracking runs ahead)."""
+    that poses and map equal the inline run's (off: tracking runs ahead)."""
     loop_closure: bool
-    """Detect and close loops once a vocabulary is set (default True)."""
+    """Detect and close loops once a vocabulary is set."""
     loop_closure_threshold: int
-    """Matched map points a verified loop needs, >= 20 (MATLAB ``LoopClosureThreshold``;
-    default 40, ORB-SLAM's)."""
+    """Matched map points a verified loop needs (MATLAB ``LoopClosureThreshold``)."""
 
 class SlamError(RuntimeError):
     """Base class of ferroslam errors that are not plain bad input (internal failures)."""
@@ -537,6 +535,21 @@ def default_options(sensor: _Sensor, width: int) -> dict[str, Any]:
     Raises:
         ValueError: width not positive.
         NotImplementedError: unknown sensor.
+    """
+
+def option_table(width: int = 640) -> list[dict[str, Any]]:
+    """The core's declaration of every user-facing option, in order, one dict each:
+    ``name``, ``scope`` (``"core"``: ``SlamSystem`` keywords; ``"imu"``: ``set_imu``
+    keywords), ``field`` (the configuration field it sets, ``section.field``; None for
+    ``baseline``), ``kind`` (``"int"``, ``"float"``, ``"flag"``, ``"int_pair"``,
+    ``"float_pair"``), ``unit``, the range (``low``, ``high``: None for no bound;
+    ``open_low``, ``open_high``, ``infinite_high``), ``sensors`` (tuple of sensor names),
+    ``doc`` (one line) and ``defaults`` (sensor name -> default for images ``width`` px
+    wide; None: none, the option must be given). ``ferroslam.options`` and
+    ``docs/options.md`` are built from it.
+
+    Raises:
+        ValueError: width not positive.
     """
 
 def match_stereo(

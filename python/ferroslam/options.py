@@ -4,15 +4,20 @@ Each option is declared once (:data:`OPTIONS`) with its type, range, unit, the s
 applies to and whether it needs an IMU. The same declaration serves the Python keywords of
 ``Session``, the vSLAM objects and ``run_sequence``, the ``--config`` keys of ``ferroslam
 run`` and the ``options`` of a batch SPEC; MATLAB-style keyword names (``max_num_points``,
-``num_levels``) are aliases of the core names. Defaults are not declared here: the core's
-(``ferroslam._core.default_options``) apply to every option left out.
+``num_levels``) are aliases of the core names.
 
-``scope`` says who takes an option: ``"core"`` (``SlamSystem`` keywords; the core's table),
-``"imu"`` (``SlamSystem.set_imu`` keywords: inertial sensors only), ``"pipeline"``
-(``run_sequence`` / ``--config`` / SPEC only), ``"source"`` (how the input is read: ``ferroslam
-run`` flags, ``open_sequence`` / ``open_bag`` keywords), ``"object"`` (keywords of the vSLAM objects)
-and ``"attribute"`` (attributes of the vSLAM objects, checked with :func:`check_option`). The core-scope declarations match the core's table one to one (a test checks
-it), so that they can later be generated from it.
+The options the core takes (scopes ``"core"``, ``SlamSystem`` keywords, and ``"imu"``,
+``SlamSystem.set_imu`` keywords: inertial sensors only) are not declared here: they are read
+at import from the core's table (``ferroslam._core.option_table()``, built from the core's
+configuration in ``crates/slam/src/config/options.rs``) with their types, ranges, units,
+sensors, docs and defaults; this module adds only what is Python's, the MATLAB aliases. The
+other scopes are Python's own: ``"pipeline"`` (``run_sequence`` / ``--config`` / SPEC only),
+``"source"`` (how the input is read: ``ferroslam run`` flags, ``open_sequence`` /
+``open_bag`` keywords), ``"object"`` (keywords of the vSLAM objects) and ``"attribute"``
+(attributes of the vSLAM objects, checked with :func:`check_option`). Options left out take
+the core's defaults (``ferroslam._core.default_options``) or, for the pipeline's, the
+declared ``default``. ``docs/options.md`` is generated from :data:`OPTIONS`
+(``scripts/options_doc.py``).
 """
 
 from __future__ import annotations
@@ -30,15 +35,12 @@ import numpy as np
 from ._files import MAX_CONFIG_BYTES, check_nesting, read_bounded_text
 from .dense import DEFAULT_MAX_DEPTH_M, DEFAULT_TRUNCATION_M, DEFAULT_VOXEL_M
 
-__all__ = ["OPTIONS", "Option", "check_option", "load_option_file", "pipeline_default",
-           "validate_options"]
+__all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "OPTIONS", "Option", "check_option", "core_default",
+           "load_option_file", "pipeline_default", "validate_options"]
 
 SENSORS = ("mono", "stereo", "rgbd")
 _INERTIAL = "-inertial"
 _ALL = SENSORS
-_DEPTH = ("stereo", "rgbd")
-_U32_MAX = 2**32 - 1
-_U64_MAX = 2**64 - 1
 
 
 @dataclass(frozen=True)
@@ -63,8 +65,14 @@ class Option:
     matlab: str = ""
     infinite_high: bool = False  # a float (or a pair's upper value) may be +inf
     # The default of an option the core does not take (scope "pipeline"); core options
-    # take the core's (``default_options``).
+    # take the core's (``defaults``, per sensor).
     default: Any = None
+    doc: str = ""
+    # The configuration field a core option sets (``section.field``; ``imu.field``).
+    field: Optional[str] = None
+    # A core option's default per camera sensor for images 640 px wide (the core's
+    # ``option_table``); ``None`` where it has none (``baseline``).
+    defaults: Optional[dict[str, Any]] = None
 
     def range_text(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
@@ -82,70 +90,78 @@ def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(x)
 
 
-# Gravity on Earth's surface is 9.780 m/s^2 (equator) to 9.832 (poles), 0.03 less at 9 km:
-# 9.7..9.9 admits every place on Earth and refuses gravity in other units (1.0 in g, 32.2 in
-# ft/s^2), which would make every IMU-predicted pose wrong.
-_GRAVITY_RANGE_M_S2 = (9.7, 9.9)
-# Calibrated camera-IMU time offsets are milliseconds (Kalibr); one of more than a second
-# means two unrelated clocks (e.g. boot time against epoch), which a constant shift would
-# only hide: every frame's IMU batch would be empty or wrong.
-_MAX_IMU_TIME_OFFSET_S = 1.0
+# What only Python adds to the core's options: MATLAB-style keyword aliases and the names of
+# MATLAB's properties (for the vSLAM objects' docs).
+_MATLAB = {
+    "n_features": (("max_num_points",), "MaxNumPoints"),
+    "scale_factor": ((), "ScaleFactor"),
+    "n_levels": (("num_levels",), "NumLevels"),
+    "track_feature_range": ((), "TrackFeatureRange"),
+    "skip_max_frames": ((), "SkipMaxFrames"),
+    "loop_closure_threshold": ((), "LoopClosureThreshold"),
+    "num_poses_threshold": ((), "NumPosesThreshold"),
+    "alignment_fraction": ((), "AlignmentFraction"),
+}
 
-OPTIONS: tuple[Option, ...] = (
-    # -- core (SlamSystem keywords) -----------------------------------------------------
-    Option("n_features", "int", "core", "keypoints", 1, _U32_MAX,
-           aliases=("max_num_points",), matlab="MaxNumPoints"),
-    Option("ini_fast", "int", "core", "", 1, 254),
-    Option("min_fast", "int", "core", "", 1, 254),
-    Option("scale_factor", "float", "core", "", 1, None, open_low=True, matlab="ScaleFactor"),
-    Option("n_levels", "int", "core", "levels", 1, 32, aliases=("num_levels",),
-           matlab="NumLevels"),
-    Option("track_feature_range", "int_pair", "core", "points", 1, _U32_MAX,
-           matlab="TrackFeatureRange"),
-    Option("skip_max_frames", "int", "core", "frames", 1, _U32_MAX, matlab="SkipMaxFrames"),
-    Option("bf", "float", "core", "pixels * metres", 0, None, open_low=True,
-           sensors=("rgbd",)),
-    Option("baseline", "float", "core", "metres", 0, None, open_low=True,
-           sensors=("stereo",)),
-    Option("depth_threshold", "float", "core", "baselines", 0, None, open_low=True,
-           sensors=_DEPTH),
-    Option("depth_range", "float_pair", "core", "metres", 0, None, sensors=_DEPTH,
-           infinite_high=True),
-    Option("seed", "int", "core", "", 0, _U64_MAX),
-    Option("deterministic", "flag", "core"),
-    Option("loop_closure", "flag", "core"),
-    Option("loop_closure_threshold", "int", "core", "points", 20, _U32_MAX,
-           matlab="LoopClosureThreshold"),
-    # -- set_imu keywords (MATLAB NumPosesThreshold, AlignmentFraction) ------------------
-    Option("num_poses_threshold", "int", "imu", "keyframes", 3, _U32_MAX, inertial=True,
-           matlab="NumPosesThreshold"),
-    Option("alignment_fraction", "float", "imu", "", 0, 1, open_low=True, inertial=True,
-           matlab="AlignmentFraction"),
-    Option("gravity_magnitude", "float", "imu", "m/s^2", *_GRAVITY_RANGE_M_S2, inertial=True),
-    Option("imu_time_offset_s", "float", "imu", "s", -_MAX_IMU_TIME_OFFSET_S,
-           _MAX_IMU_TIME_OFFSET_S, inertial=True),
+
+def _core_options() -> tuple[Option, ...]:
+    """The core's options (``_core.option_table()``) as :class:`Option` s; none without the
+    native module (then only the Python scopes are checked)."""
+    try:
+        from ._core import option_table
+    except ImportError:
+        return ()
+    options = []
+    for entry in option_table():
+        aliases, matlab = _MATLAB.get(entry["name"], ((), ""))
+        options.append(Option(
+            entry["name"], entry["kind"], entry["scope"], entry["unit"], entry["low"],
+            entry["high"], entry["open_low"], entry["open_high"], tuple(entry["sensors"]),
+            inertial=entry["scope"] == "imu", aliases=aliases, matlab=matlab,
+            infinite_high=entry["infinite_high"], doc=entry["doc"], field=entry["field"],
+            defaults={k: tuple(v) if isinstance(v, list) else v
+                      for k, v in entry["defaults"].items()}))
+    return tuple(options)
+
+
+OPTIONS: tuple[Option, ...] = _core_options() + (
     # -- run_sequence / --config / SPEC --------------------------------------------------
-    Option("vocabulary", "vocabulary", "pipeline"),
-    Option("mapping_thread", "flag", "pipeline"),
-    # TSDF fusion of the RGB-D keyframes into mesh.ply (ferroslam.dense; run --dense).
-    Option("dense", "flag", "pipeline", sensors=("rgbd",), default=False),
+    Option("vocabulary", "vocabulary", "pipeline", default="default",
+           doc="Bag of words for relocalisation and loops: \"default\" (shipped), a file, "
+               "a Vocabulary or None"),
+    Option("mapping_thread", "flag", "pipeline", default=False,
+           doc="Local mapping and loop closing in their own thread"),
+    Option("dense", "flag", "pipeline", sensors=("rgbd",), default=False,
+           doc="TSDF fusion of the RGB-D keyframes into mesh.ply (ferroslam.dense; run "
+               "--dense)"),
     Option("dense_voxel_m", "float", "pipeline", "metres", 0, None, open_low=True,
-           sensors=("rgbd",), default=DEFAULT_VOXEL_M),
+           sensors=("rgbd",), default=DEFAULT_VOXEL_M, doc="Voxel size of the fusion"),
     Option("dense_truncation_m", "float", "pipeline", "metres", 0, None, open_low=True,
-           sensors=("rgbd",), default=DEFAULT_TRUNCATION_M),
+           sensors=("rgbd",), default=DEFAULT_TRUNCATION_M,
+           doc="Truncation distance of the signed distance field, above dense_voxel_m"),
     Option("dense_max_depth_m", "float", "pipeline", "metres", 0, None, open_low=True,
-           sensors=("rgbd",), default=DEFAULT_MAX_DEPTH_M),
+           sensors=("rgbd",), default=DEFAULT_MAX_DEPTH_M,
+           doc="Depths beyond this are left out of the fusion"),
     # -- the input (ferroslam run flags, open_sequence / open_bag keywords) ---------------
     Option("depth_scale", "float", "source", "depth pixel values per metre", 0, None,
-           open_low=True, sensors=("rgbd",)),
+           open_low=True, sensors=("rgbd",),
+           doc="Depth image value of one metre (TUM 5000); default the layout's"),
     Option("pair_tolerance_s", "float", "source", "s", 0, 1, open_low=True,
-           sensors=("stereo", "rgbd")),
+           sensors=("stereo", "rgbd"),
+           doc="Largest time between the two images of a pair (colour and depth, left and "
+               "right)"),
     # -- vSLAM objects -------------------------------------------------------------------
-    Option("threaded", "flag", "object"),
-    Option("localization_only", "flag", "attribute"),
+    Option("threaded", "flag", "object",
+           doc="Track in a background thread (add_frame returns at once)"),
+    Option("localization_only", "flag", "attribute",
+           doc="Track against the map without changing it"),
 )
 
 _BY_NAME = {o.name: o for o in OPTIONS}
+# The set_imu keywords, and the options of the ORB extractor (``OrbExtractor`` keywords), in
+# the core's order: the key lists of ``session.py`` and ``pipeline.py``.
+IMU_KEYS = tuple(o.name for o in OPTIONS if o.scope == "imu")
+EXTRACTOR_KEYS = tuple(o.name for o in OPTIONS if (o.field or "").startswith("extractor."))
 _BY_ALIAS = {a: o for o in OPTIONS for a in o.aliases}
 # Who takes which scopes, for messages.
 _SCOPE_USERS = {
@@ -215,6 +231,12 @@ def validate_options(options: Optional[dict], sensor: str, inertial: bool = Fals
         out[option.name] = _check_value(option, key, value)
     _check_together(out)
     return out
+
+
+def core_default(name: str, sensor: str) -> Any:
+    """The core's default of option ``name`` for camera sensor ``sensor`` (images 640 px
+    wide; the core's table)."""
+    return _BY_NAME[name].defaults[sensor]
 
 
 def pipeline_default(options: dict, name: str) -> Any:

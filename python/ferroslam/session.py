@@ -17,16 +17,9 @@ from ._validate import rigid_transform
 from .calibration import ImuParams
 from .camera import Camera
 from .features import OrbExtractor
-from .options import OPTIONS, validate_options
+from .options import EXTRACTOR_KEYS, IMU_KEYS, validate_options
 
 __all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "Session", "load_vocabulary", "make_extractor"]
-
-# Options of SlamSystem.set_imu (MATLAB NumPosesThreshold, AlignmentFraction).
-IMU_KEYS = tuple(o.name for o in OPTIONS if o.scope == "imu")
-# The extractor's options among the core's (SlamSystem.options holds them all, defaults
-# included: the ORB budget follows the image width).
-EXTRACTOR_KEYS = ("n_features", "scale_factor", "n_levels", "ini_fast", "min_fast")
-
 
 def make_extractor(options: dict) -> OrbExtractor:
     """ORB extractor from the extractor keys of a configuration (``SlamSystem.options``;

@@ -47,7 +47,7 @@ from .camera import Camera
 from .features import check_mask
 from .calibration import ImuParams
 from .keyframe_images import KeyframeImages
-from .options import check_option, validate_options
+from .options import check_option, core_default, validate_options
 from .session import IMU_KEYS, Session
 from .stereo import StereoRectifier
 
@@ -140,10 +140,10 @@ class _VSlam:
     each frame inside ``add_frame``.
 
     Keyword options (MATLAB property names in brackets; left out, the core's defaults for the
-    sensor and image width, ``ferroslam._core.default_options``, apply): ``scale_factor``
-    (ScaleFactor), ``num_levels`` (NumLevels), ``max_num_points`` (MaxNumPoints: 1000 ORB
-    features at 640 px wide, 1200 at 752, 1900 at 1241), ``track_feature_range``
-    (TrackFeatureRange; MATLAB's (30, 100) by default, (30, 250) for RGB-D, where keyframes
+    sensor and image width, ``ferroslam._core.default_options``, apply; each default and
+    range is in ``docs/options.md``): ``scale_factor`` (ScaleFactor), ``num_levels``
+    (NumLevels), ``max_num_points`` (MaxNumPoints: the budget follows the image width),
+    ``track_feature_range`` (TrackFeatureRange; wider for RGB-D than MATLAB's, where keyframes
     made at 100 tracked points left poses centimetres off), ``skip_max_frames``
     (SkipMaxFrames), ``loop_closure_threshold`` (LoopClosureThreshold: matched points a loop
     needs; ``loop_closure=False`` turns loop closing off), ``vocabulary`` (the bag of words
@@ -172,12 +172,12 @@ class _VSlam:
         track_feature_range: Optional[Sequence[int]] = None,
         skip_max_frames: Optional[int] = None,
         loop_closure_threshold: Optional[int] = None,
-        loop_closure: bool = True,
+        loop_closure: Optional[bool] = None,
         frame_rate_hz: float = 30.0,
         threaded: bool = True,
         vocabulary: Any = "default",
         verbose: int = 0,
-        seed: int = 0,
+        seed: Optional[int] = None,
         imu: Any = None,
         camera_to_imu_transform: Optional[np.ndarray] = None,
         num_poses_threshold: Optional[int] = None,
@@ -199,15 +199,17 @@ class _VSlam:
                  "track_feature_range": track_feature_range,
                  "num_poses_threshold": num_poses_threshold,
                  "alignment_fraction": alignment_fraction,
-                 "imu_time_offset_s": imu_time_offset_s}
+                 "imu_time_offset_s": imu_time_offset_s, "loop_closure": loop_closure,
+                 "seed": seed}
         options = validate_options(
-            {"threaded": threaded, "loop_closure": loop_closure, "seed": seed,
+            {"threaded": threaded,
              **{k: v for k, v in given.items() if v is not None}, **(core_options or {})},
             self._sensor, imu is not None, scopes=("core", "imu", "object"))
         imu_options = {k: options.pop(k) for k in IMU_KEYS if k in options}
         self.imu = None if imu is None else ImuParams.of(imu)
         self._imu_period_s = 0.0 if imu is None else 1.0 / self.imu.rate_hz
-        self._imu_time_offset_s = imu_options.get("imu_time_offset_s", 0.0)
+        self._imu_time_offset_s = imu_options.get(
+            "imu_time_offset_s", core_default("imu_time_offset_s", self._sensor))
         self._session = Session(
             intrinsics, self._sensor, options, vocabulary=vocabulary, imu=self.imu,
             T_b_c=camera_to_imu_transform, imu_options=imu_options)

@@ -92,6 +92,11 @@ pub enum AlignmentError {
     Imu(#[from] ImuError),
 }
 
+/// Magnitude of gravity the alignment enforces by default, m/s^2: the value ORB-SLAM3 and the
+/// EuRoC tools use, within 0.03 of its value anywhere on Earth's surface (9.780 at the
+/// equator, 9.832 at the poles).
+pub const GRAVITY_M_S2: f64 = 9.81;
+
 /// Settings of [`align`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AlignmentConfig {
@@ -124,7 +129,7 @@ pub struct AlignmentConfig {
 impl Default for AlignmentConfig {
     fn default() -> Self {
         Self {
-            gravity_magnitude: 9.81,
+            gravity_magnitude: GRAVITY_M_S2,
             min_keyframes: 5,
             gyro_iterations: 5,
             gravity_iterations: 4,

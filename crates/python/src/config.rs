@@ -1,5 +1,7 @@
-//! `SlamSystem` keyword options <-> the core's `SlamConfig`, and `default_options`: the
-//! defaults the CLI, `run_sequence` and the vSLAM objects read.
+//! `SlamSystem` keyword options <-> the core's `SlamConfig`, `default_options`: the
+//! defaults the CLI, `run_sequence` and the vSLAM objects read, and `option_table`: the
+//! core's declaration of every option ([`ferroslam_slam::user_options`]) with its defaults,
+//! which `ferroslam.options` and `docs/options.md` are built from.
 //!
 //! The options are flat keywords (`n_features`, `skip_max_frames`, ...), each the field of
 //! one section of the configuration. One table, [`OPTIONS`], says for each option which
@@ -8,11 +10,15 @@
 //! `TypeError` naming the option and the type expected; a value out of range is the core's
 //! `ValueError` from `SlamConfig::validate`, naming `section.field`.
 
-use ferroslam_slam::{Sensor, SlamConfig};
+use ferroslam_slam::{
+    user_options, ImuParams, InertialConfig, OptionKind, OptionScope, Sensor, SlamConfig,
+    UserOption,
+};
+use nalgebra::Isometry3;
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::exceptions::{PyNotImplementedError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList, PyTuple};
 use pyo3::IntoPyObjectExt;
 
 /// Sensors the core can track.
@@ -70,7 +76,8 @@ macro_rules! field {
 }
 
 /// Every keyword option of `SlamSystem`, in the order of [`options_dict`] and of the
-/// unknown-option error.
+/// unknown-option error: the core-scope options of [`user_options`], in its order (a test
+/// of the package checks it).
 const OPTIONS: &[Opt] = &[
     field!("n_features", extractor.n_features, int),
     field!("ini_fast", extractor.ini_fast, int),
@@ -249,11 +256,98 @@ pub fn default_options<'py>(
     sensor: &str,
     width: i64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let width = u32::try_from(width)
-        .ok()
-        .filter(|&w| w > 0)
-        .ok_or_else(|| {
-            PyValueError::new_err(format!("width = {width}: image width must be positive"))
-        })?;
+    let width = positive_width(width)?;
     options_dict(py, &SlamConfig::for_camera(self::sensor(sensor)?, width))
+}
+
+/// An IMU option's default: [`InertialConfig::new`]'s, the one place they are written.
+fn imu_default(py: Python<'_>, name: &str) -> PyResult<Py<PyAny>> {
+    let imu = InertialConfig::new(ImuParams::euroc(), Isometry3::identity());
+    match name {
+        "num_poses_threshold" => imu.num_poses_threshold.into_py_any(py),
+        "alignment_fraction" => imu.alignment_fraction.into_py_any(py),
+        "gravity_magnitude" => imu.gravity_magnitude.into_py_any(py),
+        "imu_time_offset_s" => imu.imu_time_offset_s.into_py_any(py),
+        other => Err(PyNotImplementedError::new_err(format!(
+            "IMU option {other} has no default in the binding"
+        ))),
+    }
+}
+
+/// One option of [`user_options`] as a dict, its default per sensor for images `width` px
+/// wide (`None` where it has none: `baseline`).
+fn option_entry<'py>(
+    py: Python<'py>,
+    option: &UserOption,
+    width: u32,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("name", option.name)?;
+    d.set_item("scope", option.scope.name())?;
+    d.set_item("field", option.field)?;
+    d.set_item("kind", option.kind.name())?;
+    d.set_item("unit", option.unit)?;
+    let r = &option.range;
+    if matches!(option.kind, OptionKind::Int | OptionKind::IntPair) {
+        // Integer bounds as Python ints, exact: `u64::MAX as f64` rounds up to 2^64, and
+        // the cast back saturates to `u64::MAX`, the seed's largest value.
+        d.set_item("low", r.low.map(|l| l as i64))?;
+        d.set_item("high", r.high.map(|h| h as u64))?;
+    } else {
+        d.set_item("low", r.low)?;
+        d.set_item("high", r.high)?;
+    }
+    d.set_item("open_low", r.open_low)?;
+    d.set_item("open_high", r.open_high)?;
+    d.set_item("infinite_high", r.infinite_high)?;
+    let sensors: Vec<&str> = option.sensors.iter().map(|s| s.name()).collect();
+    d.set_item("sensors", PyTuple::new(py, sensors)?)?;
+    d.set_item("doc", option.doc)?;
+    let defaults = PyDict::new(py);
+    for sensor in SENSORS {
+        let value = match option.scope {
+            OptionScope::Imu => imu_default(py, option.name)?,
+            OptionScope::Core => {
+                let config = SlamConfig::for_camera(sensor, width);
+                match OPTIONS.iter().find(|o| o.name == option.name) {
+                    Some(Opt {
+                        write: Some(write), ..
+                    }) => write(&config, py)?,
+                    Some(_) => py.None(),
+                    None => {
+                        return Err(PyNotImplementedError::new_err(format!(
+                            "option {} of the core's table is not parsed by the binding",
+                            option.name
+                        )))
+                    }
+                }
+            }
+        };
+        defaults.set_item(sensor.name(), value)?;
+    }
+    d.set_item("defaults", defaults)?;
+    Ok(d)
+}
+
+/// The core's declaration of every user-facing option, in order, as a list of dicts: `name`,
+/// `scope` (`"core"`: `SlamSystem` keywords; `"imu"`: `set_imu` keywords), `field` (the
+/// configuration field it sets, `section.field`), `kind`, `unit`, the range (`low`, `high`,
+/// `open_low`, `open_high`, `infinite_high`), `sensors`, `doc` and `defaults` (sensor name
+/// -> default for images `width` px wide; `None`: none, the option must be given).
+#[pyfunction]
+#[pyo3(signature = (width = 640))]
+pub fn option_table<'py>(py: Python<'py>, width: i64) -> PyResult<Bound<'py, PyList>> {
+    let width = positive_width(width)?;
+    let entries = user_options()
+        .iter()
+        .map(|option| option_entry(py, option, width))
+        .collect::<PyResult<Vec<_>>>()?;
+    PyList::new(py, entries)
+}
+
+/// `width` as a positive `u32`.
+fn positive_width(width: i64) -> PyResult<u32> {
+    u32::try_from(width).ok().filter(|&w| w > 0).ok_or_else(|| {
+        PyValueError::new_err(format!("width = {width}: image width must be positive"))
+    })
 }

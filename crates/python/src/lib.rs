@@ -26,6 +26,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<system::PySlamSystem>()?;
     m.add_class::<system::PyTrackResult>()?;
     m.add_function(wrap_pyfunction!(config::default_options, m)?)?;
+    m.add_function(wrap_pyfunction!(config::option_table, m)?)?;
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;
     m.add_function(wrap_pyfunction!(camera::project_points, m)?)?;
     m.add_function(wrap_pyfunction!(camera::unproject_pixels, m)?)?;

@@ -28,6 +28,11 @@ use nalgebra::{Isometry3, Translation3};
 use crate::config::InertialTuning;
 use crate::inertial::Inertial;
 
+/// Shortest tracked baseline an anchor's velocity is measured over, as a share of
+/// `velocity_baseline_s`: right after a start or a relocalisation fewer frames are recorded,
+/// and over a shorter stretch the pose noise divided by it would dominate the velocity.
+const MIN_BASELINE_SHARE: f64 = 0.5;
+
 /// The IMU's prediction for a frame: its pose and the inertial constraint from the anchor.
 #[allow(non_snake_case)]
 #[derive(Clone, Debug)]
@@ -77,9 +82,9 @@ impl ImuPredictor {
     }
 
     /// The IMU's prediction for a frame at `timestamp` that vision could not localise;
-    /// `None` before the alignment, without a tracked baseline of at least half
-    /// `velocity_baseline_s`, beyond `imu_only_max_s` or without IMU samples up to
-    /// `timestamp`.
+    /// `None` before the alignment, without a tracked baseline of at least
+    /// [`MIN_BASELINE_SHARE`] of `velocity_baseline_s`, beyond `imu_only_max_s` or without
+    /// IMU samples up to `timestamp`.
     #[allow(non_snake_case)]
     pub(crate) fn predict(&mut self, timestamp: f64, inertial: &Inertial) -> Option<ImuPrediction> {
         let gravity_w = inertial.gravity_w()?;
@@ -90,7 +95,7 @@ impl ImuPredictor {
                 let &(t_k, T_w_bk) = self.tracked.front()?;
                 let &(t_j, T_w_bj) = self.tracked.back()?;
                 let dt = t_j - t_k;
-                if dt < 0.5 * tuning.velocity_baseline_s {
+                if dt < MIN_BASELINE_SHARE * tuning.velocity_baseline_s {
                     return None;
                 }
                 let delta = inertial.preintegrate(t_k, t_j)?.delta();

@@ -37,16 +37,23 @@
 
 use std::collections::BTreeMap;
 
-use ferroslam_imu::alignment::{align, AlignmentConfig};
+use ferroslam_imu::alignment::{align, AlignmentConfig, GRAVITY_M_S2};
 use ferroslam_imu::{check_stream, check_units, BiasWalkFactor, ImuError, InertialFactor};
 use ferroslam_map::{KeyFrameId, Map, MapError};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
-use crate::config::InertialTuning;
+use crate::config::{InertialTuning, GRAVITY_RANGE_M_S2, MAX_IMU_TIME_OFFSET_S};
 use crate::error::SlamError;
 use crate::local_inertial_ba::InertialWindow;
 
 pub use ferroslam_imu::{Bias, ImuMeasurement as ImuSample, ImuParams, Preintegrated};
+
+/// Fewest keyframes an alignment runs on: the gyro bias needs two rotations between
+/// keyframes and the gravity direction, scale and velocities a third position.
+pub const MIN_ALIGNED_KEYFRAMES: usize = 3;
+/// Slack of `ceil(alignment_fraction * n)` so that a fraction that is `k / n` up to
+/// rounding (0.28 of 25 computes as 7.000000000000001) aligns `k` keyframes, not `k + 1`.
+const WINDOW_ROUNDING_SLACK: f64 = 1e-9;
 
 /// IMU setup of a visual-inertial system.
 #[derive(Clone, Debug, PartialEq)]
@@ -71,14 +78,16 @@ pub struct InertialConfig {
 }
 
 impl InertialConfig {
-    /// The defaults: 20 keyframes, 0.9 of them, |g| = 9.81 m/s^2, clocks in step.
+    /// The defaults, the only place they are written (the bindings, `set_imu` and the docs
+    /// read them from here): 20 keyframes (MATLAB's `NumPosesThreshold`), the newest 0.9 of
+    /// them (`AlignmentFraction`), |g| = [`GRAVITY_M_S2`], clocks in step.
     pub fn new(params: ImuParams, T_b_c: Isometry3<f64>) -> Self {
         Self {
             params,
             T_b_c,
             num_poses_threshold: 20,
             alignment_fraction: 0.9,
-            gravity_magnitude: 9.81,
+            gravity_magnitude: GRAVITY_M_S2,
             imu_time_offset_s: 0.0,
         }
     }
@@ -95,9 +104,9 @@ impl InertialConfig {
         {
             return bad("imu: T_b_c must be finite".into());
         }
-        if self.num_poses_threshold < 3 {
+        if self.num_poses_threshold < MIN_ALIGNED_KEYFRAMES {
             return bad(format!(
-                "imu: num_poses_threshold = {} must be at least 3",
+                "imu: num_poses_threshold = {} must be at least {MIN_ALIGNED_KEYFRAMES}",
                 self.num_poses_threshold
             ));
         }
@@ -107,22 +116,24 @@ impl InertialConfig {
                 self.alignment_fraction
             ));
         }
-        if self.window(self.num_poses_threshold) < 3 {
+        if self.window(self.num_poses_threshold) < MIN_ALIGNED_KEYFRAMES {
             return bad(format!(
                 "imu: alignment_fraction {} of num_poses_threshold {} keyframes leaves fewer \
-                 than 3 to align",
+                 than {MIN_ALIGNED_KEYFRAMES} to align",
                 self.alignment_fraction, self.num_poses_threshold
             ));
         }
-        if !(self.gravity_magnitude.is_finite() && self.gravity_magnitude > 0.0) {
+        let (g_min, g_max) = GRAVITY_RANGE_M_S2;
+        if !(g_min..=g_max).contains(&self.gravity_magnitude) {
             return bad(format!(
-                "imu: gravity_magnitude = {} must be positive",
+                "imu: gravity_magnitude = {} must be in [{g_min}, {g_max}] m/s^2",
                 self.gravity_magnitude
             ));
         }
-        if !self.imu_time_offset_s.is_finite() {
+        if !(self.imu_time_offset_s.abs() <= MAX_IMU_TIME_OFFSET_S) {
             return bad(format!(
-                "imu: imu_time_offset_s = {} must be a finite number of seconds",
+                "imu: imu_time_offset_s = {} must be in [-{MAX_IMU_TIME_OFFSET_S}, \
+                 {MAX_IMU_TIME_OFFSET_S}] s",
                 self.imu_time_offset_s
             ));
         }
@@ -131,7 +142,7 @@ impl InertialConfig {
 
     /// Keyframes aligned out of `n`: `ceil(alignment_fraction * n)`.
     fn window(&self, n: usize) -> usize {
-        ((self.alignment_fraction * n as f64 - 1e-9).ceil() as usize).min(n)
+        ((self.alignment_fraction * n as f64 - WINDOW_ROUNDING_SLACK).ceil() as usize).min(n)
     }
 }
 
@@ -605,7 +616,7 @@ impl Inertial {
         }
         let config = AlignmentConfig {
             gravity_magnitude: self.config.gravity_magnitude,
-            min_keyframes: 3,
+            min_keyframes: MIN_ALIGNED_KEYFRAMES,
             // `align` estimates it only once the window rotates enough to tell it from
             // gravity (on EuRoC, at the refinements rather than the first alignment).
             estimate_accel_bias: true,

@@ -34,8 +34,9 @@ mod trajectory;
 
 pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{
-    DepthConfig, ExtractorConfig, InertialTuning, InitializationConfig, LoopClosingConfig,
-    MappingConfig, PlaceRecognitionConfig, Sensor, SlamConfig, TrackingConfig, VisibilityConfig,
+    user_options, DepthConfig, ExtractorConfig, InertialTuning, InitializationConfig,
+    LoopClosingConfig, MappingConfig, OptionKind, OptionRange, OptionScope, PlaceRecognitionConfig,
+    Sensor, SlamConfig, TrackingConfig, UserOption, VisibilityConfig,
 };
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};

@@ -5,9 +5,12 @@ use super::solve::{bundle_adjust_masked, BaOptions, BaReport};
 use super::symbolic::SymbolicBa;
 use crate::error::OptimError;
 
-/// Iterations of the first, robust (Huber) stage.
+/// Iterations of the first, robust (Huber) stage: ORB-SLAM's 5, enough for the kernel to
+/// tell outliers apart before they are dropped (not an option: every recorded result of the
+/// real-data matrix rests on this schedule).
 pub const LOCAL_BA_ROBUST_ITERATIONS: usize = 5;
-/// Iterations of the second stage, plain least squares over the inliers of the first.
+/// Iterations of the second stage, plain least squares over the inliers of the first:
+/// ORB-SLAM's 10, cut short by [`LOCAL_BA_FUNCTION_TOLERANCE`] once the cost settles.
 pub const LOCAL_BA_PLAIN_ITERATIONS: usize = 10;
 
 /// Relative cost decrease below which a stage stops early (g2o stops once no iteration

@@ -10,14 +10,20 @@
 //! Named presets: [`SlamConfig::for_sensor`] per [`Sensor`] (the values that depend on the
 //! sensor are the preset's), [`SlamConfig::for_camera`] with the extractor sized to the
 //! image. [`SlamConfig::validate`] checks every field, naming it `section.field`.
+//! [`user_options`] declares the fields a front end may set by name, with their ranges.
 
 mod backend;
 mod frontend;
+mod options;
 mod validate;
 
 pub use backend::{InertialTuning, LoopClosingConfig, MappingConfig, PlaceRecognitionConfig};
 pub use frontend::{
     DepthConfig, ExtractorConfig, InitializationConfig, TrackingConfig, VisibilityConfig,
+};
+pub use options::{
+    user_options, OptionKind, OptionRange, OptionScope, UserOption, GRAVITY_RANGE_M_S2,
+    MAX_IMU_TIME_OFFSET_S,
 };
 
 /// The camera setup a system tracks; decides which `track_*` call it accepts and the
