@@ -171,12 +171,12 @@ def test_add_frame_none_is_a_type_error():
 
 
 def test_session_refuses_depth_of_another_size():
-    # The pipeline and the CLI extract through Session.rgbd: the check is there, not only in
-    # RGBDVSlam.add_frame.
+    # The pipeline and the CLI track through Session.track: the core's door checks it, not
+    # only RGBDVSlam.add_frame.
     s = Session(CAMERA, "rgbd", vocabulary=None)
-    with pytest.raises(ValueError, match=r"the depth image is 320x240 but the colour image "
+    with pytest.raises(ValueError, match=r"the depth image is 320x240 but the camera is "
                                          r"640x480 \(width x height\)"):
-        s.rgbd(np.zeros((480, 640), np.uint8), np.zeros((240, 320), np.float32))
+        s.track(1.0, np.zeros((480, 640), np.uint8), depth_m=np.zeros((240, 320), np.float32))
     assert session.IMU_KEYS == ("num_poses_threshold", "alignment_fraction",
                                 "gravity_magnitude", "imu_time_offset_s")
 

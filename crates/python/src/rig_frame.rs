@@ -64,7 +64,11 @@ fn image_array<'py>(
         _ => false,
     };
     if !shape_ok {
-        let wanted = if mask { "(H, W)" } else { "(H, W) grey or (H, W, 3) BGR" };
+        let wanted = if mask {
+            "(H, W)"
+        } else {
+            "(H, W) grey or (H, W, 3) BGR"
+        };
         return Err(PyValueError::new_err(format!(
             "{name} must be {wanted}, got shape {}",
             shape_tuple(&shape)
@@ -134,8 +138,14 @@ fn per_camera<'py>(
         .iter()
         .enumerate()
         .map(|(i, o)| {
-            let label = if cameras == 1 { name.to_string() } else { format!("{name}[{i}]") };
-            (!o.is_none()).then(|| image_array(o, &label, mask)).transpose()
+            let label = if cameras == 1 {
+                name.to_string()
+            } else {
+                format!("{name}[{i}]")
+            };
+            (!o.is_none())
+                .then(|| image_array(o, &label, mask))
+                .transpose()
         })
         .collect()
 }
@@ -173,7 +183,11 @@ impl<'py> FrameArrays<'py> {
             .iter()
             .enumerate()
             .map(|(i, o)| {
-                let label = if n == 1 { "image".to_string() } else { format!("images[{i}]") };
+                let label = if n == 1 {
+                    "image".to_string()
+                } else {
+                    format!("images[{i}]")
+                };
                 image_array(o, &label, false)
             })
             .collect::<PyResult<Vec<_>>>()?;
@@ -181,7 +195,10 @@ impl<'py> FrameArrays<'py> {
             timestamp,
             colors: per_camera(colors, n, "colors", false)?,
             masks: per_camera(masks, n, "masks", true)?,
-            depth: depth.filter(|d| !d.is_none()).map(depth_array).transpose()?,
+            depth: depth
+                .filter(|d| !d.is_none())
+                .map(depth_array)
+                .transpose()?,
             images,
         })
     }

@@ -16,13 +16,13 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::camera::camera_model_of;
-use crate::rig_frame;
-use ferroslam_features::OwnedGrayImage;
 use crate::config;
 use crate::convert;
 use crate::errors::to_py;
 use crate::inertial;
+use crate::rig_frame;
 use crate::vocabulary::PyVocabulary;
+use ferroslam_features::OwnedGrayImage;
 
 fn state_name(state: TrackingState) -> &'static str {
     match state {
@@ -305,15 +305,25 @@ impl PySlamSystem {
     /// Sets camera `camera`'s static mask: (H, W) uint8/bool, 0 = no keypoint there, applied
     /// to every frame `track` measures; None removes it.
     #[pyo3(signature = (camera, mask))]
-    fn set_mask(&self, py: Python<'_>, camera: usize, mask: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+    fn set_mask(
+        &self,
+        py: Python<'_>,
+        camera: usize,
+        mask: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<()> {
         let mask = match mask.filter(|m| !m.is_none()) {
             None => None,
             Some(m) => {
                 let (w, h, pixels) = rig_frame::mask_pixels(m)?;
-                Some(OwnedGrayImage::new(w, h, pixels).map_err(|e| PyValueError::new_err(e.to_string()))?)
+                Some(
+                    OwnedGrayImage::new(w, h, pixels)
+                        .map_err(|e| PyValueError::new_err(e.to_string()))?,
+                )
             }
         };
-        self.engine()?.run(py, move |system| system.set_mask(camera, mask))?.map_err(to_py)
+        self.engine()?
+            .run(py, move |system| system.set_mask(camera, mask))?
+            .map_err(to_py)
     }
 
     /// Tracks one RGB-D frame (queues it in threaded mode and returns None).

@@ -257,7 +257,8 @@ impl Measured {
             ),
             Sensor::Stereo => {
                 let right = &self.cameras[1].features;
-                let (left_levels, right_levels) = (first.features.pyramid.views(), right.pyramid.views());
+                let (left_levels, right_levels) =
+                    (first.features.pyramid.views(), right.pyramid.views());
                 let input = StereoInput {
                     timestamp: self.timestamp,
                     left: stereo_view(keypoints, descriptors, &left_levels),
@@ -395,9 +396,15 @@ fn combined_mask<'a, D: AsRef<[u8]>>(
     fixed: Option<&'a OwnedGrayImage>,
     frame: Option<&'a Image<D>>,
 ) -> Option<Cow<'a, [u8]>> {
-    match (fixed.map(|m| m.view().pixels()), frame.map(|m| m.data.as_ref())) {
+    match (
+        fixed.map(|m| m.view().pixels()),
+        frame.map(|m| m.data.as_ref()),
+    ) {
         (Some(a), Some(b)) => Some(Cow::Owned(
-            a.iter().zip(b).map(|(&a, &b)| u8::from(a != 0 && b != 0)).collect(),
+            a.iter()
+                .zip(b)
+                .map(|(&a, &b)| u8::from(a != 0 && b != 0))
+                .collect(),
         )),
         (Some(a), None) => Some(Cow::Borrowed(a)),
         (None, Some(b)) => Some(Cow::Borrowed(b)),
@@ -428,7 +435,12 @@ mod tests {
             ([0, 0, 0], 0),
         ];
         let data: Vec<u8> = cases.iter().flat_map(|(bgr, _)| *bgr).collect();
-        let image = Image { width: cases.len(), height: 1, channels: 3, data: data.as_slice() };
+        let image = Image {
+            width: cases.len(),
+            height: 1,
+            channels: 3,
+            data: data.as_slice(),
+        };
         let expected: Vec<u8> = cases.iter().map(|&(_, g)| g).collect();
         assert_eq!(image.gray().as_ref(), expected.as_slice());
     }

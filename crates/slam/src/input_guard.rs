@@ -63,7 +63,11 @@ impl InputGuard {
     }
 
     /// Checks a static mask for camera `camera`: a camera of the rig, the camera's size.
-    pub fn check_mask(&self, camera: usize, mask: Option<&OwnedGrayImage>) -> Result<(), SlamError> {
+    pub fn check_mask(
+        &self,
+        camera: usize,
+        mask: Option<&OwnedGrayImage>,
+    ) -> Result<(), SlamError> {
         let cameras = if self.sensor == Sensor::Stereo { 2 } else { 1 };
         if camera >= cameras {
             return Err(SlamError::InvalidInput(format!(

@@ -25,9 +25,9 @@ use crate::loop_closing::{LoopClosure, LoopStats};
 use crate::mapping::{KeyFrameWork, Mapped, Mapping};
 use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
+pub use crate::track_result::TrackResult;
 use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
-pub use crate::track_result::TrackResult;
 
 mod door;
 use ferroslam_vocabulary::Vocabulary;
