@@ -6,7 +6,7 @@ the pipeline, writers, metrics and CLI can be tested without the native module.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -25,6 +25,8 @@ class FakeTrackResult:
     pose_optimisation_ms: float = 0.0
     local_ba_ms: float = 0.0
     loop_closing_ms: float = 0.0
+    extraction_ms: float = 0.5  # the core reports its front end
+    keypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 5), np.float32))
 
 
 class FakeSlamSystem:
@@ -54,11 +56,11 @@ class FakeSlamSystem:
     def options(self) -> dict:
         return {**self.EXTRACTOR_DEFAULTS, **self.config}
 
-    def track_rgbd(self, timestamp, keypoints, descriptors, depth_m, *, colors=None):
-        assert keypoints.dtype == np.float32 and keypoints.shape[1] == 5
-        assert descriptors.dtype == np.uint8 and descriptors.shape == (len(keypoints), 32)
-        assert depth_m.dtype == np.float32 and depth_m.shape == (len(keypoints),)
-        assert colors is None or (colors.dtype == np.uint8 and colors.shape == (len(keypoints), 3))
+    def track(self, timestamp, images, *, depth=None, colors=None, masks=None):
+        assert images.dtype == np.uint8 and images.ndim in (2, 3)
+        assert depth is not None and depth.shape == images.shape[:2]
+        assert colors is None or (colors.dtype == np.uint8 and colors.shape[:2] == images.shape[:2])
+        depth_m = depth[::16, ::16]  # "tracked": the depth pixels of a coarse grid
         self.calls.append(timestamp)
         if len(self.calls) == 1:
             return FakeTrackResult("not_initialized", None, False, 0, 1.0, 0.0)
