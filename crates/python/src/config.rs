@@ -182,13 +182,15 @@ fn pair<'py, T: FromPyObjectOwned<'py> + Copy>(
 /// Reads the keyword options over the defaults of `sensor` for a camera `width_px` wide
 /// ([`SlamConfig::for_camera`]); unknown names are an error, not ignored.
 ///
-/// A stereo system needs `baseline` (metres) and derives `bf = fx * baseline` from it; an
-/// RGB-D system takes the virtual baseline as `bf` directly (ORB-SLAM's setting).
+/// A stereo system needs `baseline` (metres) and derives `bf = fx * baseline` from it, unless
+/// it is an `unrectified_pair`, whose baseline is that of its extrinsics (and which then takes
+/// neither); an RGB-D system takes the virtual baseline as `bf` directly (ORB-SLAM's setting).
 pub fn parse(
     sensor: Sensor,
     fx: f64,
     width_px: u32,
     options: Option<&Bound<'_, PyDict>>,
+    unrectified_pair: bool,
 ) -> PyResult<SlamConfig> {
     let mut parsed = Parsed {
         config: SlamConfig::for_camera(sensor, width_px),
@@ -211,6 +213,14 @@ pub fn parse(
         bf_given,
     } = parsed;
     match (sensor, baseline) {
+        (Sensor::Stereo, baseline) if unrectified_pair => {
+            if baseline.is_some() || bf_given {
+                return Err(PyValueError::new_err(
+                    "an unrectified stereo pair takes its baseline from T_left_right: pass \
+                     neither baseline nor bf",
+                ));
+            }
+        }
         (Sensor::Stereo, Some(b)) if b.is_finite() && b > 0.0 && !bf_given => {
             config.depth.bf = fx * b
         }

@@ -48,7 +48,7 @@ fn imu_params(params: &Bound<'_, PyAny>) -> PyResult<ImuParams> {
 }
 
 /// A rigid `(4, 4)` float64 transform (rotation orthonormal to 1e-6, last row 0 0 0 1).
-fn rigid_transform(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Isometry3<f64>> {
+pub(crate) fn rigid_transform(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Isometry3<f64>> {
     let arr: PyReadonlyArray2<'_, f64> = convert::array(obj, name, "a (4, 4) float64 array")?;
     if arr.shape() != [4, 4] {
         return Err(PyValueError::new_err(format!(

@@ -15,7 +15,7 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::camera::camera_model_of;
+use crate::camera::{self, camera_model_of};
 use crate::config;
 use crate::convert;
 use crate::errors::to_py;
@@ -212,7 +212,7 @@ impl Drop for PySlamSystem {
 #[pymethods]
 impl PySlamSystem {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", model = "pinhole", rolling_shutter_readout_s = 0.0, threaded = false, **options))]
+    #[pyo3(signature = (fx, fy, cx, cy, dist, width, height, *, sensor = "rgbd", model = "pinhole", rolling_shutter_readout_s = 0.0, threaded = false, right_camera = None, T_left_right = None, **options))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         fx: f64,
@@ -226,6 +226,8 @@ impl PySlamSystem {
         model: &str,
         rolling_shutter_readout_s: f64,
         threaded: bool,
+        right_camera: Option<&Bound<'_, PyAny>>,
+        T_left_right: Option<&Bound<'_, PyAny>>,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let sensor = config::sensor(sensor)?;
@@ -237,7 +239,7 @@ impl PySlamSystem {
             })
         };
         let (width, height) = (size("width", width)?, size("height", height)?);
-        let camera = camera_model_of(
+        let left = camera_model_of(
             model,
             [fx, fy, cx, cy],
             &dist,
@@ -245,8 +247,27 @@ impl PySlamSystem {
             height,
             rolling_shutter_readout_s,
         )?;
-        let config = config::parse(sensor, fx, width, options)?;
-        let system = SlamSystem::new(camera, config.clone()).map_err(to_py)?;
+        // An unrectified pair: the second camera and where it is, or neither.
+        let pair = (
+            right_camera.filter(|c| !c.is_none()),
+            T_left_right.filter(|t| !t.is_none()),
+        );
+        let config = config::parse(sensor, fx, width, options, pair.0.is_some())?;
+        let system = match pair {
+            (None, None) => SlamSystem::new(left, config.clone()),
+            (Some(right), Some(pose)) => SlamSystem::with_unrectified_pair(
+                left,
+                camera::camera_model(right)?,
+                inertial::rigid_transform(pose, "T_left_right")?,
+                config.clone(),
+            ),
+            _ => {
+                return Err(PyValueError::new_err(
+                    "an unrectified stereo pair needs both right_camera and T_left_right",
+                ))
+            }
+        }
+        .map_err(to_py)?;
         let engine = if threaded {
             let guard = system.input_guard();
             Engine::Background {

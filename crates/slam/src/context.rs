@@ -8,6 +8,7 @@ use nalgebra::Vector3;
 use ferroslam_map::Rig;
 
 use crate::config::SlamConfig;
+use crate::stereo_pair::UnrectifiedPair;
 
 /// The Kannala-Brandt model's name in map files and the bindings.
 pub const KANNALA_BRANDT: &str = "kannala_brandt";
@@ -28,6 +29,9 @@ pub struct Context {
     pub close_depth_m: f64,
     /// Stereo baseline, metres (bf / fx).
     pub baseline_m: f64,
+    /// The second camera of an unrectified stereo pair (stereo depth from matching on
+    /// rays), `None` for rectified stereo and the other sensors.
+    pub pair: Option<UnrectifiedPair>,
 }
 
 impl Context {
@@ -51,6 +55,7 @@ impl Context {
             config,
             close_depth_m,
             baseline_m,
+            pair: None,
         }
     }
 

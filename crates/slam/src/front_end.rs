@@ -257,6 +257,22 @@ impl Measured {
             ),
             Sensor::Stereo => {
                 let right = &self.cameras[1].features;
+                if let Some(pair) = &ctx.pair {
+                    let depth_m = pair.depths(
+                        &ctx.camera,
+                        (keypoints, descriptors),
+                        (&right.keypoints, &right.descriptors),
+                        &pyramid.sigma2,
+                    );
+                    let input = RgbdInput {
+                        timestamp: self.timestamp,
+                        keypoints,
+                        descriptors,
+                        depth_m: &depth_m,
+                        colors,
+                    };
+                    return Frame::from_rgbd(index, &input, ctx);
+                }
                 let (left_levels, right_levels) =
                     (first.features.pyramid.views(), right.pyramid.views());
                 let input = StereoInput {

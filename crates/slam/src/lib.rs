@@ -27,6 +27,7 @@ mod mapping;
 mod mono_init;
 mod place_recognition;
 mod point_fusion;
+mod stereo_pair;
 mod system;
 mod track_result;
 mod tracking;

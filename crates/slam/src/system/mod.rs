@@ -25,6 +25,7 @@ use crate::loop_closing::{LoopClosure, LoopStats};
 use crate::mapping::{KeyFrameWork, Mapped, Mapping};
 use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
+use crate::stereo_pair::UnrectifiedPair;
 pub use crate::track_result::TrackResult;
 use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
@@ -79,17 +80,56 @@ impl SlamSystem {
     /// hold, and a stereo sensor with a camera other than the pinhole (stereo matching runs
     /// along the rows of rectified images).
     pub fn new(camera: impl Into<CameraModel>, config: SlamConfig) -> Result<Self, SlamError> {
-        let camera = camera.into();
+        Self::build(camera.into(), None, config)
+    }
+
+    /// Creates a stereo system on an UNRECTIFIED pair: `left` is tracked (poses are its
+    /// `T_w_c`), `right` is the second camera with its own model and distortion, at
+    /// `T_left_right` (`p_left = T_left_right p_right`, metres). Each frame's left keypoints
+    /// get depth by matching into the right image along epipolar curves
+    /// ([`UnrectifiedPair::depths`]); the virtual right camera of that depth has the pair's
+    /// baseline (`config.depth.bf` is set to `fx * baseline`).
+    ///
+    /// # Errors
+    /// `InvalidConfig` as [`Self::new`], for a sensor other than stereo, cameras of
+    /// different image sizes or a zero baseline.
+    #[allow(non_snake_case)]
+    pub fn with_unrectified_pair(
+        left: impl Into<CameraModel>,
+        right: impl Into<CameraModel>,
+        T_left_right: Isometry3<f64>,
+        mut config: SlamConfig,
+    ) -> Result<Self, SlamError> {
+        let left = left.into();
+        if config.sensor != Sensor::Stereo {
+            return Err(SlamError::InvalidConfig(format!(
+                "a stereo pair is for a stereo system, not a {} one",
+                config.sensor.name()
+            )));
+        }
+        let pair = UnrectifiedPair::new(&left, right.into(), T_left_right)?;
+        config.depth.bf = left.fx() * pair.baseline_m();
+        Self::build(left, Some(pair), config)
+    }
+
+    fn build(
+        camera: CameraModel,
+        pair: Option<UnrectifiedPair>,
+        config: SlamConfig,
+    ) -> Result<Self, SlamError> {
         config.validate()?;
         let (width, height) = camera.size();
         config.extractor.check_pyramid(width, height)?;
-        if config.sensor == Sensor::Stereo && camera.as_pinhole().is_none() {
+        if config.sensor == Sensor::Stereo && pair.is_none() && camera.as_pinhole().is_none() {
             return Err(SlamError::InvalidConfig(
-                "stereo needs rectified pinhole images (matching runs along image rows), but                  the camera is a fisheye: rectify the pair first, e.g. with                  StereoVSlam.from_raw(left_camera, right_camera, T_left_right)"
+                "stereo needs rectified pinhole images (matching runs along image rows), but \
+                 the camera is a fisheye: pass the pair unrectified with its second camera and \
+                 T_left_right, or rectify it first (StereoVSlam.from_raw)"
                     .into(),
             ));
         }
-        let ctx = Context::new(camera, config);
+        let mut ctx = Context::new(camera, config);
+        ctx.pair = pair;
         let guard = InputGuard::new(ctx.config.sensor, ctx.input_shape(), ctx.is_distorted());
         let extractor = &ctx.config.extractor;
         let pyramid = ScalePyramid::new(extractor.scale_factor, extractor.n_levels)
