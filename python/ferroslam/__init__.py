@@ -12,6 +12,7 @@ from importlib import metadata as _metadata
 from . import datasets, io, metrics, sources
 from .calibration import Calibration, load_calibration
 from .camera import Camera
+from .rig import Rig
 from .trajectory import Trajectory
 
 try:
@@ -33,6 +34,8 @@ __all__ = [
     "FrameResult",
     "MonoVSlam",
     "RGBDVSlam",
+    "Rig",
+    "RigVSlam",
     "StereoVSlam",
     "TrackingStatus",
     "SlamError",
@@ -47,7 +50,7 @@ __all__ = [
 ]
 
 
-_VSLAM = ("FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus")
+_VSLAM = ("FrameResult", "MonoVSlam", "RGBDVSlam", "RigVSlam", "StereoVSlam", "TrackingStatus")
 
 
 def __getattr__(name: str):

@@ -24,13 +24,15 @@ from .keyframe_images import KeyframeImages
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
 from .options import OPTIONS, pipeline_default, validate_options
 from .session import EXTRACTOR_KEYS, IMU_KEYS, Session, load_vocabulary, make_extractor
+from .rig import rig_images
 from .trajectory import Trajectory
 from .vslam import FrameResult, MonoVSlam
 
 __all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_extractor",
            "run_sequence", "run_source"]
 
-SENSORS = ("mono", "stereo", "rgbd", "mono-inertial", "stereo-inertial", "rgbd-inertial")
+SENSORS = ("mono", "stereo", "rgbd", "rig", "mono-inertial", "stereo-inertial", "rgbd-inertial",
+           "rig-inertial")
 _INERTIAL = "-inertial"
 # Pipeline options that are not SlamSystem keywords.
 _PIPELINE_ONLY = tuple(o.name for o in OPTIONS if o.scope == "pipeline") + IMU_KEYS
@@ -215,6 +217,9 @@ class _RgbdFeed:
     depth scale (``depth_factor``) has it checked on the first frame, before any tracking:
     a wrong one would scale the whole map silently."""
 
+    core_sensor = "rgbd"
+    pair = None
+
     def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
             raise ValueError(
@@ -252,6 +257,9 @@ class _RgbdFeed:
 
 class _StereoFeed:
     """Loads a rectified pair (both images are extracted at once)."""
+
+    core_sensor = "stereo"
+    pair = None
 
     def __init__(self, seq) -> None:
         if not getattr(seq, "is_stereo", False):
@@ -291,6 +299,9 @@ class _StereoFeed:
 class _MonoFeed:
     """Loads one grey image per frame (and its colour version where the sequence has one)."""
 
+    core_sensor = "mono"
+    pair = None
+
     def __init__(self, seq) -> None:
         self.seq = seq
 
@@ -318,7 +329,50 @@ class _MonoFeed:
         return {"images": gray, "color": color}
 
 
-_FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
+class _RigFeed:
+    """Loads every camera's RAW image of an instant of the sequence's rig (``seq.rig``,
+    ``seq.load_rig(i)``); the core tracks the rig as :meth:`Rig.tracked_sensor` says (a
+    stereo rig: matched along epipolar curves, no rectification)."""
+
+    def __init__(self, seq) -> None:
+        rig = getattr(seq, "rig", None)
+        if rig is None or not hasattr(seq, "load_rig"):
+            raise ValueError(
+                f"{getattr(seq, 'name', seq)} has no camera rig: sensor 'rig' tracks the "
+                "cameras of a EuRoC folder (cam0, cam1 with their sensor.yaml) as they are"
+            )
+        if getattr(seq, "is_rectified", False):
+            # Its camera, body pose and ground truth are the rectified camera's, not cam0's.
+            raise ValueError(
+                f"{getattr(seq, 'name', seq)} was opened rectified: sensor 'rig' tracks the "
+                "raw images (open_sequence(path, rectify=False), or sensor='rig' there)"
+            )
+        self.seq, self.rig = seq, rig
+        self.core_sensor = rig.tracked_sensor()
+        self.pair = (rig.cameras[1], rig.T_left_right) if self.core_sensor == "stereo" else None
+
+    def system_options(self) -> dict:
+        return {}
+
+    def load(self, i: int):
+        return rig_images(self.rig, self.seq.load_rig(i))
+
+    @staticmethod
+    def image(data) -> np.ndarray:
+        """Camera 0's image (for ``on_frame``)."""
+        return data[0]
+
+    @staticmethod
+    def depth(data) -> None:
+        return None
+
+    @staticmethod
+    def frame(data) -> dict:
+        """``Session.track``'s arguments for a loaded instant."""
+        return {"images": data[0] if len(data) == 1 else tuple(data)}
+
+
+_FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed, "rig": _RigFeed}
 
 
 def _longest_segment(result: RunResult) -> Trajectory:
@@ -407,7 +461,8 @@ def run_sequence(
     imu = _imu_stream(seq, sensor) if camera != sensor else None
     if isinstance(config, dict) and "sensor" in config:
         raise ValueError("pass the sensor as run_sequence(sensor=...), not in config")
-    config = validate_options(config, sensor)
+    feed = _FEEDS[camera](seq)
+    config = validate_options(config, feed.core_sensor + sensor[len(camera):])
     n = len(seq)
     if n == 0:  # a dataset says why when it is opened; any other sequence, here
         raise ValueError(f"{getattr(seq, 'name', seq)}: the sequence has no frames to track")
@@ -416,14 +471,14 @@ def run_sequence(
             raise ValueError(f"max_frames must be a positive integer, got {max_frames}")
         n = min(n, int(max_frames))
     core_config = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY}
-    feed = _FEEDS[camera](seq)
     session = Session(
-        seq.camera, camera, {**feed.system_options(), **core_config},
+        seq.camera, feed.core_sensor, {**feed.system_options(), **core_config},
         vocabulary=config.get("vocabulary", "default"),
         imu=seq.imu_params() if imu is not None else None,
         T_b_c=seq.T_b_c if imu is not None else None,
         imu_options={k: config[k] for k in IMU_KEYS if k in config},
-        mapping_thread=config.get("mapping_thread", False), system_factory=system_factory)
+        mapping_thread=config.get("mapping_thread", False), system_factory=system_factory,
+        pair=feed.pair)
     return _run(seq, session, feed, n, sensor, config, progress, realtime, imu, on_frame)
 
 

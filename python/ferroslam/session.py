@@ -66,6 +66,9 @@ class Session:
             options (:data:`IMU_KEYS`).
         mapping_thread: local mapping and loop closing in a thread of their own.
         system_factory: replaces ``ferroslam._core.SlamSystem`` (tests, instrumentation).
+        pair: ``(right_camera, T_left_right)`` of an UNRECTIFIED stereo pair (``sensor``
+            ``"stereo"``, ``camera`` the raw left one): the core matches the raw images along
+            epipolar curves; its baseline is that of ``T_left_right``.
 
     Raises:
         ValueError, TypeError: bad options, naming them (from the core).
@@ -75,7 +78,8 @@ class Session:
                  vocabulary: Any = "default", imu: Any = None,
                  T_b_c: Optional[np.ndarray] = None, imu_options: Optional[dict] = None,
                  mapping_thread: bool = False,
-                 system_factory: Optional[Callable[..., Any]] = None) -> None:
+                 system_factory: Optional[Callable[..., Any]] = None,
+                 pair: Optional[tuple[Camera, np.ndarray]] = None) -> None:
         c = camera
         self.sensor = sensor
         inertial = imu is not None
@@ -90,10 +94,17 @@ class Session:
         elif T_b_c is not None:
             raise ValueError("camera_to_imu_transform given without imu=: it would be "
                              "ignored; pass the IMU noise parameters too, or leave it out")
+        # An unrectified pair's second camera and its pose in the first, for the core.
+        paired = {} if pair is None else {"right_camera": pair[0], "T_left_right": pair[1]}
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
-            model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s, **options)
-        if c.mask is not None:  # the camera's static mask, on both images of a pair
+            model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s,
+            **paired, **options)
+        if pair is not None:  # each camera's own static mask
+            for camera_index, masked in enumerate((c, pair[0])):
+                if masked.mask is not None:
+                    self.system.set_mask(camera_index, masked.mask)
+        elif c.mask is not None:  # the camera's static mask, on both images of a pair
             for camera_index in range(2 if sensor == "stereo" else 1):
                 self.system.set_mask(camera_index, c.mask)
         if inertial:

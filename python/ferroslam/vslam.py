@@ -48,10 +48,11 @@ from .features import check_mask
 from .calibration import ImuParams
 from .keyframe_images import KeyframeImages
 from .options import check_option, core_default, validate_options
+from .rig import Rig, rig_images
 from .session import IMU_KEYS, Session
 from .stereo import StereoRectifier
 
-__all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "StereoVSlam", "TrackingStatus"]
+__all__ = ["FrameResult", "MonoVSlam", "RGBDVSlam", "RigVSlam", "StereoVSlam", "TrackingStatus"]
 
 # Live feeding: a new frame is taken from the source once at most this many added frames are
 # still unprocessed, so the next frame's features are extracted while the core tracks the
@@ -161,6 +162,8 @@ class _VSlam:
     """
 
     _sensor = ""
+    # An unrectified pair's (right camera, T_left_right), for the core (RigVSlam).
+    _pair: Optional[tuple[Camera, np.ndarray]] = None
 
     def __init__(
         self,
@@ -212,7 +215,7 @@ class _VSlam:
             "imu_time_offset_s", core_default("imu_time_offset_s", self._sensor))
         self._session = Session(
             intrinsics, self._sensor, options, vocabulary=vocabulary, imu=self.imu,
-            T_b_c=camera_to_imu_transform, imu_options=imu_options)
+            T_b_c=camera_to_imu_transform, imu_options=imu_options, pair=self._pair)
         self._system = self._session.system
         options = self._system.options
         self.scale_factor: float = options["scale_factor"]
@@ -591,6 +594,58 @@ class MonoVSlam(_VSlam):
                 self.add_frame(image, timestamp_s)
         finally:
             self._dropped += reader.close()
+
+
+class RigVSlam(_VSlam):
+    """Visual SLAM on a camera rig (:class:`ferroslam.rig.Rig`): one frame per instant, one
+    image per camera, through the core's one door. A rig of one camera is tracked as
+    :class:`MonoVSlam`; a stereo rig (cameras 0 and 1, ``stereo=True``) from its RAW images:
+    the core matches camera 0's keypoints into camera 1 along epipolar curves (each camera
+    with its own model and distortion, no rectification) and the scale is metric from the
+    rig's extrinsics. Poses are camera 0's ``T_w_c``. With ``imu=``, camera 0's pose in the
+    IMU frame defaults to ``rig.T_body_cam[0]`` (the body frame is the IMU's).
+
+    Keyword options as :class:`_VSlam`'s ``__init__`` (a stereo rig takes its baseline from
+    its extrinsics).
+
+    Raises:
+        TypeError: ``rig`` is not a :class:`~ferroslam.rig.Rig`.
+        ValueError: a rig the core does not track yet (more cameras, two cameras that are
+            not a pair), naming it; options as the other objects.
+    """
+
+    def __init__(self, rig: Rig, **options: Any) -> None:
+        if not isinstance(rig, Rig):
+            raise TypeError(f"rig must be a ferroslam.rig.Rig, got {type(rig).__name__}")
+        self._sensor = rig.tracked_sensor()
+        self.rig = rig
+        if self._sensor == "stereo":
+            self._pair = (rig.cameras[1], rig.T_left_right)
+        if options.get("imu") is not None and options.get("camera_to_imu_transform") is None:
+            options["camera_to_imu_transform"] = rig.camera_to_imu()
+        super().__init__(rig.cameras[0], **options)
+
+    def add_frame(self, images: Union[Sequence[np.ndarray], np.ndarray],
+                  timestamp: Optional[float] = None,
+                  imu: Optional[Sequence[np.ndarray]] = None, *,
+                  mask: Union[None, np.ndarray, Sequence[Optional[np.ndarray]]] = None) -> None:
+        """Adds one instant of the rig: one raw grey or BGR uint8 image per camera, in the
+        rig's order (a single array for a rig of one camera). ``timestamp`` and ``imu`` as
+        :meth:`MonoVSlam.add_frame`; ``mask``: this frame's mask per camera (a sequence with
+        ``None`` where a camera has none; a single array for a rig of one camera), 0 = no
+        keypoint there, on top of each camera's static mask."""
+        started_s = time.perf_counter()
+        frame = rig_images(self.rig, images)
+        if isinstance(mask, np.ndarray) and len(frame) > 1:
+            raise ValueError(f"mask: a rig of {len(frame)} cameras takes one mask per camera "
+                             "(a sequence, None where a camera has none), not one array")
+        if mask is not None and not isinstance(mask, np.ndarray):
+            mask = list(mask)
+            if len(mask) != len(frame):
+                raise ValueError(f"mask: got {len(mask)} mask(s) for a rig of {len(frame)} "
+                                 "camera(s): pass one per camera (None where none)")
+        images_arg = frame[0] if len(frame) == 1 else tuple(frame)
+        self._track(started_s, timestamp, {"images": images_arg, "mask": mask}, imu=imu)
 
 
 class StereoVSlam(_VSlam):

@@ -103,7 +103,8 @@ def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str =
     ``sensor`` (``"mono"``, ``"mono-inertial"``) only what it reads is needed: no depth list
     (TUM), no right images (KITTI, EuRoC). ``rectify=False`` opens a EuRoC stereo sequence
     raw (``load_stereo`` gives raw pairs, the rig is ``left_camera``, ``right_camera``,
-    ``T_left_right``: feed it to ``StereoVSlam.from_raw``).
+    ``T_left_right``: feed it to ``StereoVSlam.from_raw``). A rig ``sensor`` (``"rig"``,
+    ``"rig-inertial"``) opens a EuRoC folder raw, its cameras as ``seq.rig``.
 
     ``calibration`` (``ferroslam.load_calibration(FILE)``; command line ``--camera FILE``)
     replaces the layout's own: TUM takes its first camera and its depth factor, EuRoC its
@@ -139,6 +140,12 @@ def open_sequence(path: Union[str, Path], format: str = "auto", *, sensor: str =
         kwargs["depth_factor"] = depth_factor
     if sensor.startswith("mono"):
         kwargs.setdefault("with_depth" if format == "tum" else "stereo", False)
+    if sensor.startswith("rig"):
+        if format != "euroc":
+            raise ValueError(f"{path}: sensor 'rig' tracks the cameras of a EuRoC folder "
+                             f"(cam0, cam1 with their sensor.yaml) as they are; {format} has "
+                             "no camera rig")
+        rectify = False  # a rig is tracked from its raw images
     if format == "euroc":
         kwargs["rectify"] = rectify
     elif not rectify:

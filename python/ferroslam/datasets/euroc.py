@@ -27,6 +27,7 @@ import numpy as np
 from .._validate import read_text
 from ..calibration import Calibration, ImuParams
 from ..camera import Camera
+from ..rig import Rig
 from ..io import read_asl_floats, read_asl_rows, seconds_from_ns
 from ..stereo import StereoRectifier
 from ..transforms import poses_from_tum
@@ -336,6 +337,25 @@ class EurocSequence:
         left = self._read(frame.left_path, self.raw_cameras[0])
         right = self._read(frame.right_path, cam1)
         return (left, right) if self.rectifier is None else self.rectifier.rectify(left, right)
+
+    @property
+    def rig(self) -> Optional[Rig]:
+        """The RAW cameras as a :class:`~ferroslam.rig.Rig`: cam0 and cam1 with their
+        distortion, at ``T_b_cam0`` / ``T_b_cam1`` in the body frame, a stereo pair;
+        ``None`` with ``stereo=False``."""
+        if not self.is_stereo or self.raw_cameras[1] is None:
+            return None
+        T_b_cam1 = self.T_b_cam0 @ self.T_left_right  # the pair's own relative pose
+        return Rig(self.raw_cameras, (self.T_b_cam0, T_b_cam1), stereo=True)
+
+    def load_rig(self, i: int) -> list[np.ndarray]:
+        """The RAW images of frame ``i``, one per rig camera (cam0, cam1), ``(H, W)`` uint8,
+        whether or not the sequence rectifies its pairs."""
+        frame = self.frames[i]
+        if not self.is_stereo or frame.right_path is None or self.raw_cameras[1] is None:
+            raise ValueError(f"{self.path} was opened with stereo=False")
+        return [self._read(frame.left_path, self.raw_cameras[0]),
+                self._read(frame.right_path, self.raw_cameras[1])]
 
     @property
     def groundtruth_path(self) -> Path:

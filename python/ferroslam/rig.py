@@ -1,0 +1,146 @@
+"""A camera rig: the cameras of one instant, where each sits on the body, and which two of
+them form a stereo pair.
+
+The core tracks a rig as one frame per instant through one call (``SlamSystem.track``):
+
+* one camera: monocular;
+* one camera with registered depth: RGB-D (:class:`~ferroslam.RGBDVSlam`);
+* a declared pair, cameras 0 and 1, raw: each frame's camera-0 keypoints are matched into
+  camera 1 along epipolar curves on unit rays (any model, any relative pose, no
+  rectification) and triangulated.
+
+Rigs of more cameras, and two cameras that are not matched at every frame, are described
+here but not tracked yet: :class:`~ferroslam.RigVSlam` says so when given one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ._validate import rigid_transform
+from .calibration import Calibration
+from .camera import Camera
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Cameras rigidly mounted on one body.
+
+    Attributes:
+        cameras: the raw cameras (model, intrinsics, distortion, size, optional static
+            mask), in the order their images are passed; ``cameras[0]`` is the tracked one
+            (trajectories are its ``T_w_c``).
+        T_body_cam: per camera, its ``(4, 4)`` pose in the body frame (``p_body = T_body_cam
+            @ p_cam``, metres). With an IMU the body frame is the IMU's (EuRoC's ``T_BS``,
+            Kalibr's ``inv(T_cam_imu)``).
+        stereo: cameras 0 and 1 are a stereo pair, matched at every frame (metric depth).
+    """
+
+    cameras: tuple[Camera, ...]
+    T_body_cam: tuple[np.ndarray, ...] = field(default=())
+    stereo: bool = False
+
+    def __post_init__(self) -> None:
+        cameras = tuple(self.cameras)
+        if not cameras:
+            raise ValueError("a rig needs at least one camera")
+        for k, camera in enumerate(cameras):
+            if not isinstance(camera, Camera):
+                raise TypeError(f"rig camera {k} must be a ferroslam.Camera, got "
+                                f"{type(camera).__name__}")
+        poses = tuple(self.T_body_cam) or tuple(np.eye(4) for _ in cameras)
+        if len(poses) != len(cameras):
+            raise ValueError(f"a rig of {len(cameras)} camera(s) needs one T_body_cam each, "
+                             f"got {len(poses)}")
+        poses = tuple(rigid_transform(T, f"T_body_cam[{k}]") for k, T in enumerate(poses))
+        if self.stereo and len(cameras) < 2:
+            raise ValueError("a stereo rig needs two cameras")
+        object.__setattr__(self, "cameras", cameras)
+        object.__setattr__(self, "T_body_cam", poses)
+        object.__setattr__(self, "stereo", bool(self.stereo))
+
+    @classmethod
+    def from_calibration(cls, calibration: Calibration, *, stereo: Optional[bool] = None
+                         ) -> "Rig":
+        """The rig of a calibration file (:func:`ferroslam.load_calibration`: Kalibr
+        camchain ``cam0..camN``, ORB-SLAM3 ``Camera1``/``Camera2`` with ``Stereo.T_c1_c2``):
+        body = the IMU where the file relates the cameras to one, else camera 0.
+        ``stereo`` defaults to whether the file relates cameras 0 and 1."""
+        cameras = tuple(calibration.cameras)
+        T_imu_cam = list(calibration.camera_to_imu)
+        if all(T is not None for T in T_imu_cam[: len(cameras)]) and len(T_imu_cam) >= len(
+                cameras):
+            poses = tuple(np.asarray(T, dtype=np.float64) for T in T_imu_cam[: len(cameras)])
+        elif len(cameras) == 1:
+            poses = (np.eye(4),)
+        elif len(cameras) == 2 and calibration.T_left_right is not None:
+            poses = (np.eye(4), np.asarray(calibration.T_left_right, dtype=np.float64))
+        else:
+            raise ValueError(f"the calibration has {len(cameras)} cameras but does not give "
+                             "each one's pose (camera-IMU transforms or T_left_right)")
+        if stereo is None:
+            stereo = len(cameras) >= 2 and calibration.T_left_right is not None
+        rig = cls(cameras, poses, stereo)
+        if rig.stereo and calibration.T_left_right is not None:
+            # The file's own relative pose, not the product of two rounded ones.
+            T_body_right = rig.T_body_cam[0] @ np.asarray(calibration.T_left_right)
+            poses = (rig.T_body_cam[0], T_body_right, *rig.T_body_cam[2:])
+            rig = cls(cameras, poses, stereo)
+        return rig
+
+    @property
+    def T_left_right(self) -> np.ndarray:
+        """``(4, 4)`` pose of camera 1 in camera 0 (``p_0 = T_left_right @ p_1``)."""
+        if len(self.cameras) < 2:
+            raise ValueError("a rig of one camera has no T_left_right")
+        return np.linalg.inv(self.T_body_cam[0]) @ self.T_body_cam[1]
+
+    def tracked_sensor(self, *, depth: bool = False) -> str:
+        """The core sensor this rig is tracked as (``"mono"``, ``"rgbd"``, ``"stereo"``).
+
+        Raises:
+            ValueError: a rig the core does not track yet, naming what it would need.
+        """
+        n = len(self.cameras)
+        if depth:
+            if n != 1:
+                raise ValueError(f"depth is tracked for a rig of one camera, this one has {n}")
+            return "rgbd"
+        if n == 1:
+            return "mono"
+        if n == 2 and self.stereo:
+            return "stereo"
+        what = ("two cameras that are not a stereo pair" if n == 2
+                else f"{n} cameras")
+        raise ValueError(f"this rig has {what}: the core tracks one camera, one camera with "
+                         "depth, or a stereo pair (cameras 0 and 1, stereo=True) so far")
+
+    def camera_to_imu(self, T_body_imu: Optional[np.ndarray] = None) -> np.ndarray:
+        """Camera 0's pose in the IMU frame, ``inv(T_body_imu) @ T_body_cam[0]`` (the body
+        frame is the IMU's when ``T_body_imu`` is left out)."""
+        T = self.T_body_cam[0]
+        if T_body_imu is None:
+            return T.copy()
+        return np.linalg.inv(rigid_transform(T_body_imu, "T_body_imu")) @ T
+
+    def __repr__(self) -> str:
+        models = ", ".join(f"{c.model} {c.width}x{c.height}" for c in self.cameras)
+        return f"Rig({len(self.cameras)} camera(s): {models}; stereo={self.stereo})"
+
+
+def rig_images(rig: Rig, images: Sequence[np.ndarray] | np.ndarray) -> list[np.ndarray]:
+    """One image per camera of ``rig``, as given (one array for a one-camera rig)."""
+    if isinstance(images, np.ndarray) and len(rig.cameras) == 1:
+        images = [images]
+    if isinstance(images, np.ndarray) or not isinstance(images, (list, tuple)):
+        raise ValueError(f"images must be a sequence of {len(rig.cameras)} image(s), one per "
+                         f"rig camera, got {type(images).__name__}")
+    if len(images) != len(rig.cameras):
+        raise ValueError(f"got {len(images)} image(s) for a rig of {len(rig.cameras)} "
+                         "camera(s): pass one per camera, in the rig's order")
+    for k, (camera, image) in enumerate(zip(rig.cameras, images)):
+        camera.check_image(image, f"camera {k} image")
+    return list(images)
