@@ -163,6 +163,8 @@ class SlamSystem:
         model: _CameraModel = "pinhole",
         rolling_shutter_readout_s: float = 0.0,
         threaded: bool = False,
+        right_camera: Optional[Any] = None,
+        T_left_right: Optional[NDArray[np.float64]] = None,
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
         """Creates a system for a pinhole + radial-tangential or a Kannala-Brandt camera.
@@ -173,10 +175,11 @@ class SlamSystem:
                 coefficients ``k1 k2 k3 k4``.
             width, height: image size in pixels (> 0).
             sensor: ``"mono"``, ``"rgbd"`` or ``"stereo"`` (rectified pair: ``dist`` must be
-                zeros and ``baseline`` is required); others raise ``NotImplementedError``.
+                zeros and ``baseline`` is required; or an unrectified pair with
+                ``right_camera`` and ``T_left_right``); others raise ``NotImplementedError``.
             model: ``"pinhole"`` or ``"kannala_brandt"`` (a fisheye, tracked on unit rays so
-                that fields of view beyond 180 degrees work; not with ``sensor="stereo"``,
-                which needs rectified pinhole images: see ``StereoVSlam.from_raw``).
+                that fields of view beyond 180 degrees work; with ``sensor="stereo"`` only as
+                an unrectified pair).
             rolling_shutter_readout_s: seconds the sensor reads its rows over, top first
                 (>= 0, finite; 0 = global shutter, today's arithmetic): each keypoint is seen
                 from the pose at its row's time, the frame's velocity estimated with its pose
@@ -185,11 +188,20 @@ class SlamSystem:
                 (8 frames; ``track_*`` block when it is full): ``track_*`` check the input,
                 queue the frame and return None; ``take_results`` gives the results in order.
                 Frames are processed in call order, so results equal the synchronous mode's.
+            right_camera: with ``T_left_right``, the second camera of an UNRECTIFIED stereo
+                pair (a ``ferroslam.Camera``, raw, any model, the first camera's image size):
+                the left keypoints are matched into the raw right image along epipolar curves
+                on unit rays and triangulated; the baseline is ``T_left_right``'s (pass no
+                ``baseline`` or ``bf``).
+            T_left_right: ``(4, 4)`` float64 pose of the right camera in the left one
+                (``p_left = T_left_right @ p_right``, metres).
             options: see ``_SlamOptions``.
 
         Raises:
             ValueError: invalid camera, camera model or option value, unknown option name, a
-                stereo sensor with a fisheye camera.
+                stereo sensor with a rectified fisheye camera; only one of ``right_camera`` and
+                ``T_left_right``; a pair of different image sizes or no baseline; ``baseline``
+                or ``bf`` with a pair.
             TypeError: option of the wrong type.
             NotImplementedError: an unknown sensor.
         """

@@ -634,6 +634,9 @@ def open_bag(path: Union[str, Path], *, sensor: str, topics: Optional[list[str]]
         raise FileNotFoundError(f"ROS bag not found: {path}")
     if sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
+    if sensor.startswith("rig"):
+        raise ValueError(f"{path}: sensor 'rig' reads EuRoC folders so far; track a bag's "
+                         "camera pair as 'stereo'")
     if pair_tolerance_s is not None:
         check_option("pair_tolerance_s", pair_tolerance_s)
     if depth_scale is not None:

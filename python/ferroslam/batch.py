@@ -219,8 +219,10 @@ def _expand_entry(entry: Any, where: str, base_dir: Path, source: str, defaults:
 def _validate_run_options(options: dict, sensor: str, where: str, source: str) -> None:
     """The run's options through the one option schema (as ``run_sequence`` would check
     them), so that a bad value fails the SPEC before any run starts, naming the entry."""
+    # The rigs a SPEC can name (EuRoC folders) are tracked as stereo pairs; run_sequence
+    # checks again with the rig's own sensor.
     try:
-        validate_options(options, sensor)
+        validate_options(options, sensor.replace("rig", "stereo", 1))
     except (TypeError, ValueError) as err:
         raise type(err)(f"{source}: {where}: {err}") from None
 
