@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import require_data
-from ferroslam import Camera, Rig, RigVSlam, _core
+from ferroslam import Camera, Rig, RigVSlam, StereoVSlam, _core
 from ferroslam.calibration import Calibration
 from ferroslam.datasets import open_sequence
 from ferroslam.metrics import ate
@@ -170,3 +170,25 @@ def test_rig_sensor_is_for_euroc_folders():
     rectified = open_sequence(require_data(*MH_01))
     with pytest.raises(ValueError, match="was opened rectified: sensor 'rig' tracks the raw"):
         run_sequence(rectified, sensor="rig", progress=False)
+
+
+def test_map_files_record_the_pair(mh01_rig, tmp_path):
+    """A map made with a pair loads only into a system with that pair (format 7): another
+    baseline would scale it wrongly."""
+    seq = mh01_rig
+    path = tmp_path / "rig.fsmap"
+    with RigVSlam(seq.rig, threaded=False) as vslam:
+        for i in range(15):
+            vslam.add_frame(seq.load_rig(i), timestamp=float(seq.timestamps[i]))
+        vslam.save_map(path)
+    with RigVSlam(seq.rig, threaded=False) as same:
+        same.load_map(path)
+    wider = seq.rig.T_body_cam[1] @ _at(0.01)
+    other = Rig(seq.rig.cameras, (seq.rig.T_body_cam[0], wider), stereo=True)
+    with RigVSlam(other, threaded=False) as vslam:
+        with pytest.raises(ValueError, match="the map was built with the second camera pinhole"):
+            vslam.load_map(path)
+    rectified = open_sequence(require_data(*MH_01))
+    with StereoVSlam(rectified.camera, rectified.baseline_m, threaded=False) as vslam:
+        with pytest.raises(ValueError, match="the map was built with"):
+            vslam.load_map(path)

@@ -372,7 +372,7 @@ class _RigFeed:
         return {"images": data[0] if len(data) == 1 else tuple(data)}
 
 
-_FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed, "rig": _RigFeed}
+_FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
 
 
 def _longest_segment(result: RunResult) -> Trajectory:
@@ -461,8 +461,11 @@ def run_sequence(
     imu = _imu_stream(seq, sensor) if camera != sensor else None
     if isinstance(config, dict) and "sensor" in config:
         raise ValueError("pass the sensor as run_sequence(sensor=...), not in config")
-    feed = _FEEDS[camera](seq)
-    config = validate_options(config, feed.core_sensor + sensor[len(camera):])
+    # The options are checked before any frame is read (the RGB-D feed reads one); a rig's
+    # feed reads none and tells the sensor the rig is tracked as.
+    rig_feed = _RigFeed(seq) if camera == "rig" else None
+    core_sensor = camera if rig_feed is None else rig_feed.core_sensor
+    config = validate_options(config, core_sensor + sensor[len(camera):])
     n = len(seq)
     if n == 0:  # a dataset says why when it is opened; any other sequence, here
         raise ValueError(f"{getattr(seq, 'name', seq)}: the sequence has no frames to track")
@@ -471,6 +474,7 @@ def run_sequence(
             raise ValueError(f"max_frames must be a positive integer, got {max_frames}")
         n = min(n, int(max_frames))
     core_config = {k: v for k, v in config.items() if k not in _PIPELINE_ONLY}
+    feed = rig_feed or _FEEDS[camera](seq)
     session = Session(
         seq.camera, feed.core_sensor, {**feed.system_options(), **core_config},
         vocabulary=config.get("vocabulary", "default"),

@@ -5,7 +5,7 @@ use ferroslam_geometry::camera::CameraModel;
 use ferroslam_optim::Intrinsics;
 use nalgebra::Vector3;
 
-use ferroslam_map::Rig;
+use ferroslam_map::{PairCamera, Rig};
 
 use crate::config::SlamConfig;
 use crate::stereo_pair::UnrectifiedPair;
@@ -61,19 +61,17 @@ impl Context {
 
     /// The sensor and camera, as map files record them.
     pub fn rig(&self) -> Rig {
-        let (model, intrinsics, distortion) = match &self.camera {
-            CameraModel::Pinhole(c) => {
-                let d = &c.distortion;
-                let distortion = [d.k1, d.k2, d.p1, d.p2, d.k3];
-                (Rig::PINHOLE, [c.fx, c.fy, c.cx, c.cy], distortion)
-            }
-            CameraModel::KannalaBrandt(c) => {
-                let [k1, k2, k3, k4] = c.k;
-                let distortion = [k1, k2, k3, k4, 0.0];
-                (KANNALA_BRANDT, [c.fx, c.fy, c.cx, c.cy], distortion)
-            }
-        };
+        let (model, intrinsics, distortion) = camera_record(&self.camera);
         let (width, height) = self.camera.size();
+        let pair = self.pair.as_ref().map(|pair| {
+            let (model, intrinsics, distortion) = camera_record(&pair.right);
+            PairCamera {
+                model: model.to_owned(),
+                intrinsics,
+                distortion,
+                T_left_right: pair.T_left_right,
+            }
+        });
         Rig {
             sensor: self.config.sensor.name().to_owned(),
             model: model.to_owned(),
@@ -81,6 +79,7 @@ impl Context {
             distortion,
             width,
             height,
+            pair,
         }
     }
 
@@ -115,6 +114,25 @@ impl Context {
             n_levels: self.config.extractor.n_levels,
             width: self.camera.size().0,
             height: self.camera.size().1,
+        }
+    }
+}
+
+/// A camera's model name, `fx fy cx cy` and distortion as map files record them.
+fn camera_record(camera: &CameraModel) -> (&'static str, [f64; 4], [f64; 5]) {
+    match camera {
+        CameraModel::Pinhole(c) => {
+            let d = &c.distortion;
+            let distortion = [d.k1, d.k2, d.p1, d.p2, d.k3];
+            (Rig::PINHOLE, [c.fx, c.fy, c.cx, c.cy], distortion)
+        }
+        CameraModel::KannalaBrandt(c) => {
+            let [k1, k2, k3, k4] = c.k;
+            (
+                KANNALA_BRANDT,
+                [c.fx, c.fy, c.cx, c.cy],
+                [k1, k2, k3, k4, 0.0],
+            )
         }
     }
 }

@@ -25,12 +25,12 @@ const NN_RATIO: f32 = 0.8;
 
 /// The second camera of an unrectified pair and where it is.
 #[derive(Clone, Debug)]
+#[allow(non_snake_case)]
 pub struct UnrectifiedPair {
     /// The right camera, raw (its own model and distortion).
     pub right: CameraModel,
     /// Pose of the right camera in the left (tracked) camera: `p_left = T_left_right p_right`,
     /// metres.
-    #[allow(non_snake_case)]
     pub T_left_right: Isometry3<f64>,
 }
 

@@ -14,8 +14,10 @@ use ferroslam_features::{ImageBounds, Keypoint, KeypointGrid};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use super::super::CulledKeyFrame;
-use super::{CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION, ROLLING_SHUTTER_SINCE};
-use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
+use super::{
+    CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION, PAIR_CAMERA_SINCE, ROLLING_SHUTTER_SINCE,
+};
+use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, PairCamera, Rig};
 
 /// Appends encoded values to a byte buffer.
 #[derive(Default)]
@@ -511,8 +513,41 @@ impl Codec for CulledKeyFrame {
     }
 }
 
+/// Model name (bytes, UTF-8), intrinsics, distortion, pose in the first camera.
+impl Codec for PairCamera {
+    const MIN_SIZE: usize = 8 + 9 * 8 + 7 * 8;
+    fn encode(&self, e: &mut Encoder) {
+        e.put(&self.model.as_bytes().to_vec());
+        self.intrinsics
+            .iter()
+            .chain(&self.distortion)
+            .for_each(|v| e.put(v));
+        e.put(&self.T_left_right);
+    }
+    fn decode(d: &mut Decoder) -> Result<Self, MapError> {
+        let model = String::from_utf8(d.get::<Vec<u8>>()?)
+            .map_err(|_| corrupt(format!("{}: pair camera model is not UTF-8", d.context)))?;
+        let values = camera_values(d)?;
+        Ok(PairCamera {
+            model,
+            intrinsics: [values[0], values[1], values[2], values[3]],
+            distortion: [values[4], values[5], values[6], values[7], values[8]],
+            T_left_right: d.get()?,
+        })
+    }
+}
+
+/// The 9 camera numbers of a record: `fx fy cx cy` and 5 distortion coefficients.
+fn camera_values(d: &mut Decoder) -> Result<[f64; 9], MapError> {
+    let mut values = [0.0; 9];
+    for v in &mut values {
+        *v = d.get()?;
+    }
+    Ok(values)
+}
+
 /// Sensor name (bytes, UTF-8), camera model name (version 5 on), intrinsics, distortion,
-/// image size.
+/// image size, the unrectified pair's second camera (version 7 on).
 impl Codec for Rig {
     /// Version 3's: the smallest of every version read.
     const MIN_SIZE: usize = 8 + 9 * 8 + 2 * 4;
@@ -525,6 +560,7 @@ impl Codec for Rig {
             .for_each(|v| e.put(v));
         e.put(&self.width);
         e.put(&self.height);
+        e.put(&self.pair);
     }
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let sensor = String::from_utf8(d.get::<Vec<u8>>()?)
@@ -535,10 +571,7 @@ impl Codec for Rig {
         } else {
             Rig::PINHOLE.to_owned()
         };
-        let mut values = [0.0; 9];
-        for v in &mut values {
-            *v = d.get()?;
-        }
+        let values = camera_values(d)?;
         Ok(Rig {
             sensor,
             model,
@@ -546,6 +579,11 @@ impl Codec for Rig {
             distortion: [values[4], values[5], values[6], values[7], values[8]],
             width: d.get()?,
             height: d.get()?,
+            pair: if d.has(PAIR_CAMERA_SINCE) {
+                d.get()?
+            } else {
+                None
+            },
         })
     }
 }

@@ -1,6 +1,6 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 6, all numbers little-endian)
+//! # Format (version 7, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
@@ -10,7 +10,9 @@
 //!                 tag [u8; 4] | body length u64 | body
 //!                 "RIG_" Option<sensor name Vec<u8>, camera model name Vec<u8> (version
 //!                        5 on), fx fy cx cy f64, 5 distortion coefficients f64, width u32,
-//!                        height u32> (version 3 on; see `Rig`)
+//!                        height u32, Option<pair camera> (version 7 on)> (version 3 on;
+//!                        see `Rig`; a pair camera = model name Vec<u8>, fx fy cx cy f64,
+//!                        5 distortion coefficients f64, pose T_left_right)
 //!                 "PYRM" scale factor f64, number of levels u64
 //!                 "IDS_" next keyframe id u32, next map point id u32, origin Option<u32>
 //!                 "KEYF" keyframes by increasing id (Vec<KeyFrame>)
@@ -25,6 +27,9 @@
 //! w xyz f64; sets/maps = sorted unique `Vec`s.
 //!
 //! # Versions
+//! - 7: the sensor and camera record ends with the second camera of an unrectified stereo
+//!   pair (`Option`), so that a map made with one pair loads only into a system with the
+//!   same pair. Files of versions 3 to 6 load with none.
 //! - 6: keyframe features end with their rolling-shutter row times (`Vec<f64>`, seconds,
 //!   empty for a global shutter) and the velocity of their pose over the readout, so that a
 //!   loaded map is adjusted and exported (`Map::sparse_model`) as the running system did.
@@ -91,7 +96,7 @@ pub const MAGIC_TEXT: &str = "FSLAMMAP";
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
 /// The map-file format version this build writes (and the newest it reads); see the module
 /// docs for what each version added.
-pub const FORMAT_VERSION: u32 = 6;
+pub const FORMAT_VERSION: u32 = 7;
 /// The oldest map-file format version this build reads.
 pub const OLDEST_READABLE_VERSION: u32 = 3;
 /// The version that added keypoint and map-point colours.
@@ -100,6 +105,8 @@ const COLORS_SINCE: u32 = 4;
 const CAMERA_MODEL_SINCE: u32 = 5;
 /// The version that added the keyframes' rolling-shutter row times and velocity.
 const ROLLING_SHUTTER_SINCE: u32 = 6;
+/// The version that added the unrectified stereo pair's second camera to the record.
+const PAIR_CAMERA_SINCE: u32 = 7;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;

@@ -342,10 +342,24 @@ fn the_rig_round_trips_and_survives_clear() {
         distortion: [0.1, -0.2, 0.0, 0.001, 0.0],
         width: 640,
         height: 480,
+        pair: None,
     };
     map.set_rig(rig.clone());
     let loaded = load(&to_bytes(&map)).unwrap();
     assert_eq!(loaded.rig(), Some(&rig));
+    let paired = crate::Rig {
+        sensor: "stereo".into(),
+        pair: Some(crate::PairCamera {
+            model: "kannala_brandt".into(),
+            intrinsics: [284.0, 285.3, 417.2, 400.4],
+            distortion: [-0.002, 0.039, -0.038, 0.007, 0.0],
+            T_left_right: nalgebra::Isometry3::translation(0.064, 0.001, 0.0),
+        }),
+        ..rig.clone()
+    };
+    map.set_rig(paired.clone());
+    assert_eq!(load(&to_bytes(&map)).unwrap().rig(), Some(&paired));
+    map.set_rig(rig.clone());
     assert_eq!(load(&to_bytes(&sample_map().0)).unwrap().rig(), None);
     map.clear();
     assert_eq!(map.rig(), Some(&rig));
@@ -363,6 +377,7 @@ fn a_version_4_camera_record_loads_as_a_pinhole() {
             distortion: [0.2624, -0.9531, -0.0054, 0.0026, 1.1633],
             width: 640,
             height: 480,
+            pair: None,
         }
     );
 }
@@ -377,6 +392,7 @@ fn a_fisheye_rig_records_its_model() {
         distortion: [0.0034, 0.0007, -0.002, 0.0002, 0.0],
         width: 512,
         height: 512,
+        pair: None,
     };
     map.set_rig(rig.clone());
     let bytes = to_bytes(&map);
@@ -401,7 +417,7 @@ fn wrong_magic_and_version_are_named() {
     );
     let message = format!("version {} is not supported", FORMAT_VERSION + 1);
     assert!(err.to_string().contains(&message), "{err}");
-    assert!(err.to_string().contains("reads versions 3 to 6"), "{err}");
+    assert!(err.to_string().contains("reads versions 3 to 7"), "{err}");
     // A version 2 file (before the sensor and camera record) is refused, not misread.
     bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
     let err = load(&bytes).unwrap_err();
