@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from ferroslam.options import core_default
 from ferroslam.transforms import quat_to_matrix
 
 
@@ -34,8 +35,9 @@ class FakeSlamSystem:
     KNOWN = {"n_features", "ini_fast", "min_fast", "scale_factor", "n_levels",
              "track_feature_range", "skip_max_frames", "bf", "baseline", "depth_threshold",
              "depth_range", "seed", "deterministic", "loop_closure", "loop_closure_threshold"}
-    EXTRACTOR_DEFAULTS = {"n_features": 1000, "ini_fast": 20, "min_fast": 7,
-                          "scale_factor": 1.2, "n_levels": 8}
+    # The extractor's defaults, read from the core's option table (never restated).
+    EXTRACTOR_DEFAULTS = {name: core_default(name, "rgbd") for name in
+                          ("n_features", "ini_fast", "min_fast", "scale_factor", "n_levels")}
 
     def __init__(self, fx, fy, cx, cy, dist, width, height, sensor="rgbd", *, groundtruth,
                  model="pinhole", rolling_shutter_readout_s=0.0, **config):

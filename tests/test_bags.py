@@ -26,7 +26,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer as Ros2Writer  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from conftest import require_data  # noqa: E402
-from ferroslam import cli  # noqa: E402
+from ferroslam import _core, cli  # noqa: E402
 from ferroslam.calibration import load_calibration  # noqa: E402
 from ferroslam.datasets import EurocSequence, TumSequence  # noqa: E402
 from ferroslam.datasets.images import read_gray  # noqa: E402
@@ -381,6 +381,32 @@ def test_t265_bag_parses_to_fisheye_pairs_and_one_united_imu(tmp_path):
     period = np.median(np.diff(t))
     assert imu_batch_end(t, float(bag.timestamps[0]), period) == 0
     assert imu_batch_end(t, float(bag.timestamps[1]), period) > 0
+
+
+def test_t265_raw_fisheye_pair_tracks_as_a_rig(tmp_path):
+    """The T265's two raw fisheye images (Kannala-Brandt, about 170 degrees) matched in the
+    core along epipolar curves, no rectification: a metric map from the first pair and every
+    frame tracked. Measured 2026-12-02: 435 initial points, against 661 from the rectified
+    pair (which crops the image circle to a pinhole view with its own keypoints); 3/3."""
+    bag_file = require_data("rosbag", "t265_locoffice", "trimmed_locoffice.bag")
+    bag = open_bag(bag_file, sensor="stereo", camera=t265_camchain(tmp_path / "c.yaml"))
+    rig = bag.rig
+    assert rig.stereo and [c.model for c in rig.cameras] == ["kannala_brandt"] * 2
+    assert np.linalg.norm(rig.T_left_right[:3, 3]) == pytest.approx(0.064)
+    left, right = rig.cameras
+    raw = _core.SlamSystem(left.fx, left.fy, left.cx, left.cy, left.dist, left.width,
+                           left.height, sensor="stereo", model=left.model, right_camera=right,
+                           T_left_right=rig.T_left_right)
+    c = bag.camera
+    rectified = _core.SlamSystem(c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height,
+                                 sensor="stereo", baseline=bag.baseline_m)
+    for i in range(len(bag)):
+        assert raw.track(float(bag.timestamps[i]), bag.load_rig(i)).state == "ok"
+        if i == 0:
+            rectified.track(float(bag.timestamps[i]), bag.load_stereo(i))
+            points = (raw.num_map_points, rectified.num_map_points)
+    print(f"T265 raw pair: {points[0]} initial points, rectified {points[1]}")
+    assert points[0] >= 0.5 * points[1] and points[0] >= 300
 
 
 def test_cli_says_what_the_t265_bag_lacks(tmp_path, capsys):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import require_data
-from ferroslam import Calibration, Camera, load_calibration
+from ferroslam import Calibration, Camera, Rig, load_calibration
 from ferroslam.calibration import load_imu_params
 from ferroslam.calibration import read_camera_yaml
 from ferroslam.datasets import EurocSequence
@@ -498,3 +498,18 @@ def test_kalibr_bad_line_delay_is_named(tmp_path):
                                    "  line_delay: -1.0e-05\n  rostopic: /cam0/image_raw", 1)
     with pytest.raises(ValueError, match="cam0.line_delay"):
         load_calibration(_write(tmp_path, text, "camchain.yaml"))
+
+
+@pytest.mark.parametrize("text, name", [(ORBSLAM3_STEREO_INERTIAL, "calib.yaml"),
+                                        (KALIBR_CAMCHAIN, "camchain-imucam.yaml")])
+def test_two_camera_files_load_as_the_euroc_rig(tmp_path, euroc, text, name):
+    """ORB-SLAM3 Camera1/Camera2 + Stereo.T_c1_c2 and a Kalibr camchain give the rig the
+    EuRoC folder's sensor.yaml files give (body = IMU), a stereo pair."""
+    rig = Rig.from_calibration(load_calibration(_write(tmp_path, text, name)))
+    raw = EurocSequence(euroc.mav0, rectify=False)
+    assert rig.stereo and rig.tracked_sensor() == "stereo" and len(rig.cameras) == 2
+    for got, want in zip(rig.T_body_cam, raw.rig.T_body_cam):
+        np.testing.assert_allclose(got, want, atol=1e-8)
+    np.testing.assert_allclose(rig.T_left_right, raw.rig.T_left_right, atol=1e-8)
+    for got, want in zip(rig.cameras, raw.rig.cameras):
+        np.testing.assert_allclose(got.K, want.K, rtol=1e-6)

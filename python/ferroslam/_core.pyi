@@ -459,12 +459,13 @@ class SlamSystem:
         params: Any,
         T_b_c: NDArray[np.float64],
         *,
-        num_poses_threshold: int = 20,
-        alignment_fraction: float = 0.9,
-        gravity_magnitude: float = 9.81,
-        imu_time_offset_s: float = 0.0,
+        num_poses_threshold: Optional[int] = None,
+        alignment_fraction: Optional[float] = None,
+        gravity_magnitude: Optional[float] = None,
+        imu_time_offset_s: Optional[float] = None,
     ) -> None:
-        """Sets the IMU; from now on the camera-IMU alignment runs once the map has had
+        """Sets the IMU (options left out take the core's defaults, ``default_options``:
+        20, 0.9, 9.81 m/s^2, 0 s); from now on the camera-IMU alignment runs once the map has had
         ``num_poses_threshold`` keyframes (MATLAB NumPosesThreshold; culled ones count), on
         the newest ``alignment_fraction`` of them (AlignmentFraction). A monocular map is then
         rescaled to metres in place; the world is not rotated (gravity is reported).

@@ -46,6 +46,7 @@ from .camera import Camera
 from .datasets.tum import associate_greedy
 from .io import seconds_from_ns
 from .options import check_option
+from .rig import Rig
 from .stereo import StereoRectifier
 
 __all__ = ["BagSequence", "BagTopics", "RGBD_TOLERANCE_S", "STEREO_TOLERANCE_S", "is_bag",
@@ -462,6 +463,7 @@ class BagSequence:
                                  "cameras (Kalibr: cam1.T_cn_cnm1; ORB-SLAM3: Stereo.T_c1_c2)")
             self.rectifier = StereoRectifier(calibration.cameras[0], calibration.cameras[1],
                                              calibration.T_left_right)
+            self._T_left_right = np.asarray(calibration.T_left_right, dtype=np.float64)
             self.camera, self.baseline_m = self.rectifier.camera, self.rectifier.baseline_m
             T_cam0_c = self.rectifier.T_left_rect
         self._T_cam0_c = T_cam0_c
@@ -539,12 +541,25 @@ class BagSequence:
         gray, color = self._decode(self._images(i)[0], self.topics.images[0], True)
         return gray, color
 
+    @property
+    def rig(self) -> Optional[Rig]:
+        """A stereo bag's RAW cameras as a :class:`~ferroslam.rig.Rig` (body = the left
+        camera; the calibration's relative pose), a stereo pair; ``None`` otherwise."""
+        if not self.is_stereo:
+            return None
+        return Rig(self.raw_cameras, (np.eye(4), self._T_left_right), stereo=True)
+
+    def load_rig(self, i: int) -> list[np.ndarray]:
+        """Frame ``i``'s RAW images, one per rig camera (left, right), ``(H, W)`` uint8."""
+        if not self.is_stereo:
+            raise ValueError(f"{self.path} was opened for sensor {self.sensor!r}, not stereo")
+        return [self._decode(m, t, False)[0] for m, t in zip(self._images(i), self.topics.images)]
+
     def load_stereo(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Frame ``i``'s rectified ``(left, right)`` pair, ``(H, W)`` uint8 each."""
         if self.rectifier is None:
             raise ValueError(f"{self.path} was opened for sensor {self.sensor!r}, not stereo")
-        left, right = (self._decode(m, t, False)[0]
-                       for m, t in zip(self._images(i), self.topics.images))
+        left, right = self.load_rig(i)
         return self.rectifier.rectify(left, right)
 
     def load_depth(self, i: int) -> np.ndarray:

@@ -39,7 +39,6 @@ _FRAME_GAP = 1.5
 # gaps of more than 10 periods, shorter ones are interpolated over.
 _IMU_GAP = 3.0
 _IMU_RATE_TOLERANCE = 0.05  # measured vs declared rate, relative
-_GRAVITY_M_S2 = 9.81
 _GRAVITY_TOLERANCE_M_S2 = 0.3  # |g| varies by 0.05 over the Earth; the rest, bias and scale
 _REST_WINDOW_S = 1.0  # the quietest window of this length is taken as "at rest"
 # Measured white noise beyond this multiple of the declared density: the estimator would
@@ -286,8 +285,8 @@ def _imu_units(seq: Any, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> 
 def check_imu(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, params: Any,
               frame_timestamps: np.ndarray) -> list[Check]:
     """``imu rate`` (against ``params.rate_hz``; gaps), ``imu coverage`` (of the frames),
-    ``gravity`` (|mean accel| in the quietest second, against 9.81 m/s^2) and ``imu noise``
-    (white noise from sample-to-sample differences against the declared densities).
+    ``gravity`` (|mean accel| in the quietest second, against the core's
+    ``gravity_magnitude``) and ``imu noise`` (white noise from sample-to-sample differences against the declared densities).
     ``t`` increasing seconds, ``gyro`` rad/s, ``accel`` m/s^2, ``params`` an ``ImuParams``."""
     dt = np.diff(t)
     period = float(np.median(dt))
@@ -318,12 +317,15 @@ def check_imu(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, params: Any,
         blocks = accel[:n_windows * window].reshape(n_windows, window, 3)
         quiet = int(np.argmin(blocks.std(axis=1).sum(axis=1)))
         g = float(np.linalg.norm(blocks[quiet].mean(axis=0)))
-        gravity_ok = abs(g - _GRAVITY_M_S2) <= _GRAVITY_TOLERANCE_M_S2
+        from .options import core_default  # the core's |g|, the one the alignment uses
+
+        gravity_m_s2 = core_default("gravity_magnitude", "mono")
+        gravity_ok = abs(g - gravity_m_s2) <= _GRAVITY_TOLERANCE_M_S2
         checks.append(Check(
             "gravity", OK if gravity_ok else WARNING,
             f"|accel| {g:.2f} m/s^2 in the quietest {_REST_WINDOW_S:g} s ("
             f"{t[quiet * window] - t[0]:.1f} s in)" + ("" if gravity_ok else
-                                            f", not {_GRAVITY_M_S2} m/s^2: check the "
+                                            f", not {gravity_m_s2} m/s^2: check the "
                                             "accelerometer's scale, or that it was at rest"),
             {"gravity_m_s2": g, "at_s": float(t[quiet * window])}))
     # Differences of consecutive samples: smooth motion cancels, white noise of std s gives

@@ -329,7 +329,7 @@ class _MonoFeed:
         return {"images": gray, "color": color}
 
 
-class _RigFeed:
+class _RigFeed(_StereoFeed):
     """Loads every camera's RAW image of an instant of the sequence's rig (``seq.rig``,
     ``seq.load_rig(i)``); the core tracks the rig as :meth:`Rig.tracked_sensor` says (a
     stereo rig: matched along epipolar curves, no rectification)."""
@@ -356,15 +356,6 @@ class _RigFeed:
 
     def load(self, i: int):
         return rig_images(self.rig, self.seq.load_rig(i))
-
-    @staticmethod
-    def image(data) -> np.ndarray:
-        """Camera 0's image (for ``on_frame``)."""
-        return data[0]
-
-    @staticmethod
-    def depth(data) -> None:
-        return None
 
     @staticmethod
     def frame(data) -> dict:

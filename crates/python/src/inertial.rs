@@ -78,16 +78,18 @@ pub(crate) fn rigid_transform(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Is
 pub fn inertial_config(
     params: &Bound<'_, PyAny>,
     T_b_c: &Bound<'_, PyAny>,
-    num_poses_threshold: usize,
-    alignment_fraction: f64,
-    gravity_magnitude: f64,
-    imu_time_offset_s: f64,
+    num_poses_threshold: Option<usize>,
+    alignment_fraction: Option<f64>,
+    gravity_magnitude: Option<f64>,
+    imu_time_offset_s: Option<f64>,
 ) -> PyResult<InertialConfig> {
     let mut config = InertialConfig::new(imu_params(params)?, rigid_transform(T_b_c, "T_b_c")?);
-    config.num_poses_threshold = num_poses_threshold;
-    config.alignment_fraction = alignment_fraction;
-    config.gravity_magnitude = gravity_magnitude;
-    config.imu_time_offset_s = imu_time_offset_s;
+    // Only the options given replace the core's defaults.
+    let c = &mut config;
+    c.num_poses_threshold = num_poses_threshold.unwrap_or(c.num_poses_threshold);
+    c.alignment_fraction = alignment_fraction.unwrap_or(c.alignment_fraction);
+    c.gravity_magnitude = gravity_magnitude.unwrap_or(c.gravity_magnitude);
+    c.imu_time_offset_s = imu_time_offset_s.unwrap_or(c.imu_time_offset_s);
     Ok(config)
 }
 

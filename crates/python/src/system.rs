@@ -717,17 +717,18 @@ impl PySlamSystem {
     /// Sets the IMU: noise model `params` (an ImuParams or a dict), `T_b_c` (4, 4) camera
     /// pose in the body frame, the alignment knobs (MATLAB NumPosesThreshold,
     /// AlignmentFraction) and the IMU clock's offset (`t_imu = t_cam + imu_time_offset_s`).
-    #[pyo3(signature = (params, T_b_c, *, num_poses_threshold = 20, alignment_fraction = 0.9, gravity_magnitude = 9.81, imu_time_offset_s = 0.0))]
+    /// Options left out (None) take the core's defaults (`InertialConfig::new`).
+    #[pyo3(signature = (params, T_b_c, *, num_poses_threshold = None, alignment_fraction = None, gravity_magnitude = None, imu_time_offset_s = None))]
     #[allow(clippy::too_many_arguments)]
     fn set_imu(
         &self,
         py: Python<'_>,
         params: &Bound<'_, PyAny>,
         T_b_c: &Bound<'_, PyAny>,
-        num_poses_threshold: usize,
-        alignment_fraction: f64,
-        gravity_magnitude: f64,
-        imu_time_offset_s: f64,
+        num_poses_threshold: Option<usize>,
+        alignment_fraction: Option<f64>,
+        gravity_magnitude: Option<f64>,
+        imu_time_offset_s: Option<f64>,
     ) -> PyResult<()> {
         let config = inertial::inertial_config(
             params,
