@@ -464,8 +464,8 @@ class SlamSystem:
         gravity_magnitude: Optional[float] = None,
         imu_time_offset_s: Optional[float] = None,
     ) -> None:
-        """Sets the IMU (options left out take the core's defaults, ``default_options``:
-        20, 0.9, 9.81 m/s^2, 0 s); from now on the camera-IMU alignment runs once the map has had
+        """Sets the IMU (options left out take the core's defaults, ``default_options``);
+        from now on the camera-IMU alignment runs once the map has had
         ``num_poses_threshold`` keyframes (MATLAB NumPosesThreshold; culled ones count), on
         the newest ``alignment_fraction`` of them (AlignmentFraction). A monocular map is then
         rescaled to metres in place; the world is not rotated (gravity is reported).

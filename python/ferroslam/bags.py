@@ -45,7 +45,7 @@ from .calibration import Calibration, ImuParams, load_calibration, load_imu_para
 from .camera import Camera
 from .datasets.tum import associate_greedy
 from .io import seconds_from_ns
-from .options import check_option
+from .options import RUN_SENSORS, check_option
 from .rig import Rig
 from .stereo import StereoRectifier
 
@@ -642,13 +642,11 @@ def open_bag(path: Union[str, Path], *, sensor: str, topics: Optional[list[str]]
             one, images without partners, an unsupported encoding, no calibration, no IMU
             for an inertial sensor.
     """
-    from .pipeline import SENSORS
-
     path = Path(path).expanduser()
     if not path.exists():
         raise FileNotFoundError(f"ROS bag not found: {path}")
-    if sensor not in SENSORS:
-        raise ValueError(f"unknown sensor {sensor!r}; expected one of {SENSORS}")
+    if sensor not in RUN_SENSORS:
+        raise ValueError(f"unknown sensor {sensor!r}; expected one of {RUN_SENSORS}")
     if sensor.startswith("rig"):
         raise ValueError(f"{path}: sensor 'rig' reads EuRoC folders so far; track a bag's "
                          "camera pair as 'stereo'")

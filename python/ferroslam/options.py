@@ -41,6 +41,9 @@ __all__ = ["EXTRACTOR_KEYS", "IMU_KEYS", "OPTIONS", "Option", "check_option", "c
 SENSORS = ("mono", "stereo", "rgbd")
 _INERTIAL = "-inertial"
 _ALL = SENSORS
+# What a run can be asked to track (run_sequence, the command line, bags, batch SPECs): the
+# core's sensors and a camera rig (tracked as one of them), each with or without an IMU.
+RUN_SENSORS = (*SENSORS, "rig", *(f"{s}{_INERTIAL}" for s in (*SENSORS, "rig")))
 
 
 @dataclass(frozen=True)

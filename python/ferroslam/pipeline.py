@@ -22,7 +22,7 @@ from .dense import DenseModel, fuse_tsdf
 from .depth_scale import check_depth_scale
 from .keyframe_images import KeyframeImages
 from .metrics import AteResult, PathLengthResult, RpeResult, ate, path_length, rpe
-from .options import OPTIONS, pipeline_default, validate_options
+from .options import OPTIONS, RUN_SENSORS, pipeline_default, validate_options
 from .session import EXTRACTOR_KEYS, IMU_KEYS, Session, load_vocabulary, make_extractor
 from .rig import rig_images
 from .trajectory import Trajectory
@@ -31,8 +31,7 @@ from .vslam import FrameResult, MonoVSlam
 __all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_extractor",
            "run_sequence", "run_source"]
 
-SENSORS = ("mono", "stereo", "rgbd", "rig", "mono-inertial", "stereo-inertial", "rgbd-inertial",
-           "rig-inertial")
+SENSORS = RUN_SENSORS
 _INERTIAL = "-inertial"
 # Pipeline options that are not SlamSystem keywords.
 _PIPELINE_ONLY = tuple(o.name for o in OPTIONS if o.scope == "pipeline") + IMU_KEYS
