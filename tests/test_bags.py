@@ -386,7 +386,7 @@ def test_t265_bag_parses_to_fisheye_pairs_and_one_united_imu(tmp_path):
 def test_t265_raw_fisheye_pair_tracks_as_a_rig(tmp_path):
     """The T265's two raw fisheye images (Kannala-Brandt, about 170 degrees) matched in the
     core along epipolar curves, no rectification: a metric map from the first pair and every
-    frame tracked. Measured 2026-12-02: 435 initial points, against 661 from the rectified
+    frame tracked. Measured 2026-12-02: 562 initial points, against 661 from the rectified
     pair (which crops the image circle to a pinhole view with its own keypoints); 3/3."""
     bag_file = require_data("rosbag", "t265_locoffice", "trimmed_locoffice.bag")
     bag = open_bag(bag_file, sensor="stereo", camera=t265_camchain(tmp_path / "c.yaml"))
@@ -406,7 +406,7 @@ def test_t265_raw_fisheye_pair_tracks_as_a_rig(tmp_path):
             rectified.track(float(bag.timestamps[i]), bag.load_stereo(i))
             points = (raw.num_map_points, rectified.num_map_points)
     print(f"T265 raw pair: {points[0]} initial points, rectified {points[1]}")
-    assert points[0] >= 0.5 * points[1] and points[0] >= 300
+    assert points[0] >= 0.7 * points[1] and points[0] >= 450
 
 
 def test_cli_says_what_the_t265_bag_lacks(tmp_path, capsys):

@@ -4,10 +4,11 @@
 //!
 //! The candidates are those of keyframe triangulation ([`search_for_triangulation_rays`]:
 //! the right keypoint's ray within the level's angular error of the epipolar plane, each
-//! right keypoint used once), with a nearest-neighbour ratio because a whole epipolar curve
-//! is searched rather than a row band; a match is kept when the triangulated point lies in
-//! front of both cameras, reprojects within the level's chi-square bound in both and is seen
-//! under at least one pixel of parallax (as the rectified matcher's least disparity).
+//! right keypoint used once), the closest descriptor winning with no ratio test, as in the
+//! rectified matcher (a ratio test only cost points, docs/benchmarks.md); a match is kept when the
+//! triangulated point lies in front of both cameras, reprojects within the level's
+//! chi-square bound in both and is seen under at least one pixel of parallax (as the
+//! rectified matcher's least disparity).
 
 use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
 use ferroslam_features::{search_for_triangulation_rays, Descriptor, Keypoint, MatchOptions};
@@ -17,11 +18,6 @@ use ferroslam_optim::robust::CHI2_MONO;
 use nalgebra::{Isometry3, Vector2, Vector3};
 
 use crate::error::SlamError;
-
-/// Nearest-neighbour ratio of the epipolar search: a curve across the image holds more
-/// look-alikes than a rectified row band (ORB-SLAM3's fisheye stereo uses 0.7 over the
-/// whole image).
-const NN_RATIO: f32 = 0.8;
 
 /// The second camera of an unrectified pair and where it is.
 #[derive(Clone, Debug)]
@@ -101,7 +97,7 @@ impl UnrectifiedPair {
         let essential = t.cross_matrix() * r;
         let opts = MatchOptions {
             max_distance: (TH_HIGH + TH_LOW) / 2,
-            nn_ratio: Some(NN_RATIO),
+            nn_ratio: None,
             check_orientation: false,
         };
         let rad_per_px = (1.0 / left_camera.fx(), 1.0 / self.right.fx());
