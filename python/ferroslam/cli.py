@@ -178,7 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
     algo = run.add_argument_group("algorithm")
     algo.add_argument("--sensor", choices=SENSORS, required=True,
                       help="camera setup: mono (any layout), rgbd (TUM, bags), stereo (KITTI, "
-                           "EuRoC, bags); -inertial adds the IMU (EuRoC, bags)")
+                           "EuRoC, bags), rig (EuRoC cam0 + cam1 raw, matched along epipolar "
+                           "curves, no rectification); -inertial adds the IMU (EuRoC, bags)")
     algo.add_argument("--config", type=Path,
                       help="JSON file of SlamSystem/extractor options, e.g. "
                            '{"n_features": 2000, "depth_threshold": 35}')

@@ -213,14 +213,13 @@ pub fn parse(
         bf_given,
     } = parsed;
     match (sensor, baseline) {
-        (Sensor::Stereo, baseline) if unrectified_pair => {
-            if baseline.is_some() || bf_given {
-                return Err(PyValueError::new_err(
-                    "an unrectified stereo pair takes its baseline from T_left_right: pass \
-                     neither baseline nor bf",
-                ));
-            }
+        (Sensor::Stereo, baseline) if unrectified_pair && (baseline.is_some() || bf_given) => {
+            return Err(PyValueError::new_err(
+                "an unrectified stereo pair takes its baseline from T_left_right: pass neither \
+                 baseline nor bf",
+            ))
         }
+        (Sensor::Stereo, _) if unrectified_pair => {}
         (Sensor::Stereo, Some(b)) if b.is_finite() && b > 0.0 && !bf_given => {
             config.depth.bf = fx * b
         }
