@@ -5,6 +5,7 @@ T265 recording parses to fisheye pairs and one united IMU stream."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import importlib.util
 import os
@@ -407,6 +408,12 @@ def test_t265_raw_fisheye_pair_tracks_as_a_rig(tmp_path):
             points = (raw.num_map_points, rectified.num_map_points)
     print(f"T265 raw pair: {points[0]} initial points, rectified {points[1]}")
     assert points[0] >= 0.7 * points[1] and points[0] >= 450
+    # The same pair from the command line: --sensor rig leaves the bag's images raw.
+    out = tmp_path / "out"
+    assert cli.main(["run", str(bag_file), "--sensor", "rig", "--camera",
+                     str(tmp_path / "c.yaml"), "--out", str(out), "--silent"]) == 0
+    summary = json.loads((out / "results.json").read_text())
+    assert summary["sensor"] == "rig" and summary["tracked_frames"] == 3
 
 
 def test_cli_says_what_the_t265_bag_lacks(tmp_path, capsys):

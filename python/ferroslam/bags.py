@@ -25,7 +25,8 @@ accelerometer's span are dropped (said in ``notes``).
 Frames are associated by stamp, one to one as TUM's ``associate.py`` does: stereo pairs within
 :data:`STEREO_TOLERANCE_S`, colour and depth within :data:`RGBD_TOLERANCE_S`. Stereo pairs are
 rectified from the calibration's extrinsics (a Kalibr camchain's ``T_cn_cnm1``) as EuRoC
-folders are (:class:`~ferroslam.stereo.StereoRectifier`).
+folders are (:class:`~ferroslam.stereo.StereoRectifier`); sensor ``rig`` leaves them raw, for
+the core to match along epipolar curves (``seq.rig``, ``load_rig``).
 
 Opening a bag reads it once for the stamps and the IMU; images are then read as they are
 asked for, in order, so memory holds a few frames, not the recording.
@@ -256,7 +257,7 @@ def _find_topics(types: dict[str, str], sensor: str, path: Path,
     if camera == "rgbd":
         depth = _pick([t for t in of_type(_IMAGE_TYPES) if "depth" in t.lower()], 1,
                       "depth image", path)[0]
-    images = _pick(images, 2 if camera == "stereo" else 1, "image", path)
+    images = _pick(images, 2 if camera in ("stereo", "rig") else 1, "image", path)
     infos = [t for t in sorted(types) if types[t] == _CAMERA_INFO]
     gyro = accel = None
     if sensor.endswith("-inertial"):
@@ -354,7 +355,8 @@ class BagSequence:
         path, name (the file or folder name without suffix), sensor, topics
         (:class:`BagTopics`), timestamps (``(N,)`` float64 s) and timestamps_ns (int64) of
         the frames (the left / colour image's header stamps), camera (the intrinsics of the
-        images returned: rectified for stereo), is_stereo, is_rectified, baseline_m (stereo),
+        images returned: rectified for stereo, raw for a rig), is_stereo (stereo and rig),
+        is_rectified, baseline_m (stereo, rig), rig and ``load_rig(i)`` (the raw pair),
         rectifier, depth_factor (RGB-D: pixel value per metre of the depth images),
         T_b_c (``(4, 4)``, with an IMU: pose of the returned camera in the body = IMU frame),
         notes (what a user should know: frames without IMU samples, dropped samples).
@@ -370,7 +372,9 @@ class BagSequence:
         self.name = path.stem if path.is_file() else path.name
         self.notes: list[str] = []
         camera_kind = sensor.removesuffix("-inertial")
-        self.is_stereo = self.is_rectified = camera_kind == "stereo"
+        # A rig is the stereo pair left raw (the core matches it along epipolar curves).
+        self.is_stereo = camera_kind in ("stereo", "rig")
+        self.is_rectified = camera_kind == "stereo"
         with _any_reader()([_reader_path(path)]) as reader:
             self.topics = _find_topics({c.topic: c.msgtype for c in reader.connections},
                                        sensor, path, topics)
@@ -461,11 +465,13 @@ class BagSequence:
             if calibration.T_left_right is None:
                 raise ValueError(f"{self.path}: the calibration does not relate its two "
                                  "cameras (Kalibr: cam1.T_cn_cnm1; ORB-SLAM3: Stereo.T_c1_c2)")
-            self.rectifier = StereoRectifier(calibration.cameras[0], calibration.cameras[1],
-                                             calibration.T_left_right)
             self._T_left_right = np.asarray(calibration.T_left_right, dtype=np.float64)
-            self.camera, self.baseline_m = self.rectifier.camera, self.rectifier.baseline_m
-            T_cam0_c = self.rectifier.T_left_rect
+            self.baseline_m = float(np.linalg.norm(self._T_left_right[:3, 3]))
+            if self.is_rectified:
+                self.rectifier = StereoRectifier(calibration.cameras[0], calibration.cameras[1],
+                                                 calibration.T_left_right)
+                self.camera, T_cam0_c = self.rectifier.camera, self.rectifier.T_left_rect
+                self.baseline_m = self.rectifier.baseline_m
         self._T_cam0_c = T_cam0_c
 
     def _depth_factor(self, depth_scale: Optional[float],
@@ -556,11 +562,10 @@ class BagSequence:
         return [self._decode(m, t, False)[0] for m, t in zip(self._images(i), self.topics.images)]
 
     def load_stereo(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """Frame ``i``'s rectified ``(left, right)`` pair, ``(H, W)`` uint8 each."""
-        if self.rectifier is None:
-            raise ValueError(f"{self.path} was opened for sensor {self.sensor!r}, not stereo")
+        """Frame ``i``'s rectified ``(left, right)`` pair, ``(H, W)`` uint8 each (raw for
+        sensor ``rig``)."""
         left, right = self.load_rig(i)
-        return self.rectifier.rectify(left, right)
+        return (left, right) if self.rectifier is None else self.rectifier.rectify(left, right)
 
     def load_depth(self, i: int) -> np.ndarray:
         """Frame ``i``'s depth, ``(H, W)`` float32 metres, 0 where there is none."""
@@ -647,9 +652,6 @@ def open_bag(path: Union[str, Path], *, sensor: str, topics: Optional[list[str]]
         raise FileNotFoundError(f"ROS bag not found: {path}")
     if sensor not in RUN_SENSORS:
         raise ValueError(f"unknown sensor {sensor!r}; expected one of {RUN_SENSORS}")
-    if sensor.startswith("rig"):
-        raise ValueError(f"{path}: sensor 'rig' reads EuRoC folders so far; track a bag's "
-                         "camera pair as 'stereo'")
     if pair_tolerance_s is not None:
         check_option("pair_tolerance_s", pair_tolerance_s)
     if depth_scale is not None:
