@@ -420,7 +420,7 @@ impl LocalMapper {
 }
 
 /// Essential matrix `E21 = [t21]x R21` with `r2^T E21 r1 = 0` for rays of two cameras.
-fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>) -> Matrix3<f64> {
+pub(crate) fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>) -> Matrix3<f64> {
     let T_21 = T_c2_w * T_c1_w.inverse();
     let t = T_21.translation.vector;
     let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);

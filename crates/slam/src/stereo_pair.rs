@@ -18,6 +18,7 @@ use ferroslam_optim::robust::CHI2_MONO;
 use nalgebra::{Isometry3, Vector2, Vector3};
 
 use crate::error::SlamError;
+use crate::local_mapping::essential_matrix;
 
 /// The second camera of an unrectified pair and where it is.
 #[derive(Clone, Debug)]
@@ -90,11 +91,7 @@ impl UnrectifiedPair {
         };
         let (rays_l, rays_r) = (rays(left_camera, left_kps), rays(&self.right, right_kps));
         let T_right_left = self.T_left_right.inverse();
-        let (r, t) = (
-            T_right_left.rotation.to_rotation_matrix().into_inner(),
-            T_right_left.translation.vector,
-        );
-        let essential = t.cross_matrix() * r;
+        let essential = essential_matrix(&Isometry3::identity(), &T_right_left);
         let opts = MatchOptions {
             max_distance: (TH_HIGH + TH_LOW) / 2,
             nn_ratio: None,
