@@ -64,6 +64,47 @@ pub enum MapError {
         /// Length of the offending array.
         got: usize,
     },
+    /// The rig's camera starts do not begin at keypoint 0 (or name no camera at all).
+    #[error(
+        "FrameFeatures: camera_starts {starts:?} must begin with 0 (camera 0 starts at the \
+         first keypoint)"
+    )]
+    CameraStartsNotAtZero {
+        /// The rejected starts.
+        starts: Vec<usize>,
+    },
+    /// A camera starts before the previous one: keypoints must be sorted by camera.
+    #[error(
+        "FrameFeatures: camera_starts {starts:?} decrease at camera {camera}: keypoints must \
+         be sorted by camera"
+    )]
+    CameraStartsDecreasing {
+        /// The rejected starts.
+        starts: Vec<usize>,
+        /// The first camera starting before its predecessor.
+        camera: usize,
+    },
+    /// A camera starts beyond the last keypoint.
+    #[error(
+        "FrameFeatures: camera_starts {starts:?}: camera {camera} starts beyond the {len} \
+         keypoints"
+    )]
+    CameraStartBeyondKeypoints {
+        /// The rejected starts.
+        starts: Vec<usize>,
+        /// The first camera starting beyond the keypoints.
+        camera: usize,
+        /// Number of keypoints.
+        len: usize,
+    },
+    /// Not one image bounds per camera.
+    #[error("FrameFeatures: {cameras} cameras but {bounds} image bounds (one per camera)")]
+    CameraBoundsMismatch {
+        /// Number of cameras (entries of `camera_starts`).
+        cameras: usize,
+        /// Number of bounds given.
+        bounds: usize,
+    },
     /// Reading or writing a map file failed (the `std::io::Error` kind and message).
     #[error("{message}")]
     MapFileIo {

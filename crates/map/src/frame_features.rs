@@ -1,16 +1,24 @@
 //! The per-keypoint arrays a keyframe is built from.
 
+use std::ops::Range;
+
 use ferroslam_features::{Descriptor, ImageBounds, Keypoint, KeypointGrid};
 use nalgebra::Vector6;
 
 use crate::MapError;
 
+pub(crate) mod cameras;
+
 /// An 8-bit colour: red, green, blue.
 pub type Rgb = [u8; 3];
 
 /// Keypoints of one frame with their descriptors, depths, virtual-right coordinates and
-/// (optionally) colours, plus the grid for radius search. Index `i` refers to the same
+/// (optionally) colours, plus the grids for radius search. Index `i` refers to the same
 /// feature in every array.
+///
+/// A frame of a multi-camera rig is one instant of all its cameras: their keypoints in one
+/// list, sorted by camera ([`FrameFeatures::with_cameras`]), each camera with its own image
+/// bounds and grid.
 ///
 /// Build it with [`FrameFeatures::new`] (and [`FrameFeatures::with_colors`]), which check
 /// the lengths; the fields are public for reading, and every accessor of this crate
@@ -29,8 +37,10 @@ pub struct FrameFeatures {
     /// Colour of the image at each keypoint, if the frame came with colours: a map point
     /// takes the colour of its first observation ([`crate::MapPoint::color`]).
     pub colors: Option<Vec<Rgb>>,
-    /// Grid over `keypoints` for [`KeypointGrid::features_in_area`].
-    pub grid: KeypointGrid,
+    /// First keypoint of each camera of the rig (`[0]` for one camera): camera k's keypoints are `camera_range(k)`.
+    pub camera_starts: Vec<usize>,
+    /// One grid per camera over that camera's keypoints, indexed LOCALLY (0 = the camera's first keypoint) — for `KeypointGrid::features_in_area`.
+    pub grids: Vec<KeypointGrid>,
     /// Rolling shutter: seconds from the frame's timestamp to the readout of each keypoint's
     /// row in its camera (from the raw pixel it was detected at); empty for a global shutter
     /// (every offset 0). Set by [`FrameFeatures::with_time_offsets`].
@@ -42,7 +52,7 @@ pub struct FrameFeatures {
 }
 
 impl FrameFeatures {
-    /// Bundles the arrays and builds the keypoint grid over `bounds`.
+    /// Bundles the arrays of one camera and builds the keypoint grid over `bounds`.
     ///
     /// `depth` and `u_right` may be empty (monocular frame): they are then filled with `-1`.
     ///
@@ -82,7 +92,8 @@ impl FrameFeatures {
             depth,
             u_right,
             colors: None,
-            grid,
+            camera_starts: vec![0],
+            grids: vec![grid],
             time_offsets_s: Vec::new(),
             xi_dot: Vector6::zeros(),
         })
@@ -105,6 +116,59 @@ impl FrameFeatures {
             time_offsets_s,
             ..self
         })
+    }
+
+    /// The same keypoints as the frame of a multi-camera rig: camera `k` sees the keypoints
+    /// `camera_starts[k]..camera_starts[k + 1]` (the last camera's end at [`Self::len`]) within
+    /// `bounds[k]` (px). The grids are rebuilt, one per camera over its keypoints.
+    ///
+    /// # Errors
+    /// [`MapError::CameraStartsNotAtZero`], [`MapError::CameraStartsDecreasing`],
+    /// [`MapError::CameraStartBeyondKeypoints`] for starts that cannot split the keypoints,
+    /// [`MapError::CameraBoundsMismatch`] unless there is one bounds per camera.
+    pub fn with_cameras(
+        self,
+        camera_starts: Vec<usize>,
+        bounds: &[ImageBounds],
+    ) -> Result<Self, MapError> {
+        cameras::check_camera_starts(&camera_starts, self.len())?;
+        if bounds.len() != camera_starts.len() {
+            return Err(MapError::CameraBoundsMismatch {
+                cameras: camera_starts.len(),
+                bounds: bounds.len(),
+            });
+        }
+        let grids = cameras::camera_grids(&self.keypoints, &camera_starts, bounds.iter().copied());
+        Ok(Self {
+            camera_starts,
+            grids,
+            ..self
+        })
+    }
+
+    /// Number of cameras of the rig that took the frame (1 for a single camera).
+    pub fn num_cameras(&self) -> usize {
+        self.camera_starts.len()
+    }
+
+    /// Keypoint indices of camera `k` (empty for `k` beyond the cameras).
+    pub fn camera_range(&self, k: usize) -> Range<usize> {
+        cameras::camera_range(&self.camera_starts, self.len(), k)
+    }
+
+    /// The camera that saw keypoint `i` (binary search of the starts); 0 for an
+    /// out-of-range `i`.
+    pub fn camera_of(&self, i: usize) -> usize {
+        cameras::camera_of(&self.camera_starts, self.len(), i)
+    }
+
+    /// Camera `k`'s grid, indexed locally: keypoint `j` of the grid is keypoint
+    /// `camera_range(k).start + j` of the frame.
+    ///
+    /// # Panics
+    /// If `k >= self.num_cameras()`.
+    pub fn grid(&self, k: usize) -> &KeypointGrid {
+        &self.grids[k]
     }
 
     /// Seconds from the frame's timestamp to the readout of keypoint `i`'s row; 0 for a
@@ -207,7 +271,7 @@ mod tests {
         assert!(f.has_depth(0) && f.is_stereo(0));
         assert!(!f.has_depth(1) && !f.is_stereo(1));
         assert_eq!(
-            f.grid
+            f.grid(0)
                 .features_in_area(&f.keypoints, 2.0, 10.0, 0.5, None, None),
             vec![1]
         );
@@ -253,5 +317,79 @@ mod tests {
         ));
         let f = f.with_colors(vec![[1, 2, 3], [4, 5, 6]]).unwrap();
         assert_eq!((f.color(1), f.color(2)), (Some([4, 5, 6]), None));
+    }
+
+    /// Keypoints at x = 0, 1, .. (px), y = 10.
+    fn row_of(n: usize) -> FrameFeatures {
+        let kps = (0..n).map(|i| keypoint(i as f32)).collect();
+        FrameFeatures::new(kps, vec![[0; 32]; n], vec![], vec![], BOUNDS).unwrap()
+    }
+
+    #[test]
+    fn one_camera_by_default() {
+        let f = row_of(4);
+        assert_eq!((f.num_cameras(), f.camera_range(0)), (1, 0..4));
+        assert_eq!((f.camera_of(3), f.camera_of(4)), (0, 0));
+        assert_eq!(f.grid(0).bounds(), BOUNDS);
+    }
+
+    #[test]
+    fn cameras_split_the_keypoints_with_local_grids() {
+        let small = ImageBounds {
+            max_x: 320.0,
+            max_y: 240.0,
+            ..BOUNDS
+        };
+        let f = row_of(7)
+            .with_cameras(vec![0, 2, 2, 5], &[BOUNDS, small, small, BOUNDS])
+            .unwrap();
+        assert_eq!(f.num_cameras(), 4);
+        let ranges: Vec<_> = (0..5).map(|k| f.camera_range(k)).collect();
+        assert_eq!(ranges, [0..2, 2..2, 2..5, 5..7, 7..7]);
+        let cameras: Vec<_> = (0..8).map(|i| f.camera_of(i)).collect();
+        assert_eq!(cameras, [0, 0, 2, 2, 2, 3, 3, 0]);
+        assert_eq!(f.grid(1).bounds(), small);
+        // Camera 2's keypoints are x = 2, 3, 4: x = 3 is its local keypoint 1.
+        let local = &f.keypoints[f.camera_range(2)];
+        assert_eq!(
+            f.grid(2)
+                .features_in_area(local, 3.0, 10.0, 0.5, None, None),
+            [1]
+        );
+        assert_eq!(
+            f.grid(3)
+                .features_in_area(&f.keypoints[5..], 6.0, 10.0, 0.5, None, None),
+            [1]
+        );
+    }
+
+    #[test]
+    fn bad_camera_starts_are_named() {
+        let err = |starts: Vec<usize>, n| row_of(5).with_cameras(starts, &vec![BOUNDS; n]);
+        let e = err(vec![1, 3], 2).unwrap_err();
+        assert_eq!(e, MapError::CameraStartsNotAtZero { starts: vec![1, 3] });
+        assert!(e.to_string().contains("[1, 3] must begin with 0"), "{e}");
+        assert!(matches!(
+            err(vec![], 0),
+            Err(MapError::CameraStartsNotAtZero { .. })
+        ));
+        let e = err(vec![0, 3, 2], 3).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "FrameFeatures: camera_starts [0, 3, 2] decrease at camera 2: keypoints must be \
+             sorted by camera"
+        );
+        let e = err(vec![0, 6], 2).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "FrameFeatures: camera_starts [0, 6]: camera 1 starts beyond the 5 keypoints"
+        );
+        // All keypoints in the first camera, none in the second: fine.
+        assert!(err(vec![0, 5], 2).is_ok());
+        let e = err(vec![0, 2], 3).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "FrameFeatures: 2 cameras but 3 image bounds (one per camera)"
+        );
     }
 }

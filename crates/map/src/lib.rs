@@ -75,5 +75,5 @@ pub use ids::{KeyFrameId, MapPointId};
 pub use keyframe::KeyFrame;
 pub use map::{Map, MapEdit, MapJournal, COVISIBILITY_THRESHOLD};
 pub use map_point::MapPoint;
-pub use rig::{PairCamera, Rig};
+pub use rig::{PairCamera, Rig, RigMember};
 pub use sparse_model::{SparseImage, SparseModel, SparsePoint};

@@ -26,6 +26,29 @@ pub struct Rig {
     /// The second camera of an unrectified stereo pair (map files of version 7 on; older
     /// files hold none): its depths made the map's metric points.
     pub pair: Option<PairCamera>,
+    /// Cameras after the first of a multi-camera rig (map files of version 8 on; older files hold none), in camera order: camera k = `cameras[k - 1]`.
+    pub cameras: Vec<RigMember>,
+}
+
+/// A further camera of a multi-camera rig (camera 1 on; the fields above the list are
+/// camera 0's): keyframe keypoints of camera `k` are pixels of this camera.
+#[derive(Clone, Debug, PartialEq)]
+#[allow(non_snake_case)]
+pub struct RigMember {
+    /// Camera model name, as [`Rig::model`].
+    pub model: String,
+    /// `fx, fy, cx, cy`, pixels.
+    pub intrinsics: [f64; 4],
+    /// Distortion, as [`Rig::distortion`].
+    pub distortion: [f64; 5],
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Pose of this camera in the first camera's frame (`p_c0 = T_c0_c p_c`), metres.
+    pub T_c0_c: Isometry3<f64>,
+    /// Whether the camera's keypoints come with depths (an RGB-D camera of the rig).
+    pub has_depth: bool,
 }
 
 /// The second camera of an unrectified stereo pair, as map files record it: of the first
@@ -47,6 +70,12 @@ impl Rig {
     /// The model name of the pinhole camera (and of every map file older than version 5).
     pub const PINHOLE: &'static str = "pinhole";
 
+    /// Number of observing cameras: the first and [`Rig::cameras`] (the unrectified
+    /// [`Rig::pair`] only gives the first camera depths: it observes nothing itself).
+    pub fn num_cameras(&self) -> usize {
+        1 + self.cameras.len()
+    }
+
     /// Why `self` (a map's) does not fit `system` (a system's), naming both sides; `None`
     /// when it does (intrinsics equal to 1e-6 relative).
     pub fn mismatch(&self, system: &Rig) -> Option<String> {
@@ -56,26 +85,11 @@ impl Rig {
                 self.sensor, system.sensor
             ));
         }
-        if self.model != system.model {
-            return Some(format!(
-                "the map was built with a {:?} camera model, this system's camera is {:?}",
-                self.model, system.model
-            ));
+        if let Some(m) = Lens::of_first(self).mismatch(&Lens::of_first(system)) {
+            return Some(m);
         }
-        if (self.width, self.height) != (system.width, system.height) {
-            return Some(format!(
-                "the map was built with {}x{} images, this system's camera is {}x{}",
-                self.width, self.height, system.width, system.height
-            ));
-        }
-        if !close(&self.intrinsics, &system.intrinsics)
-            || !close(&self.distortion, &system.distortion)
-        {
-            return Some(format!(
-                "the map was built with the camera fx, fy, cx, cy = {:?}, distortion {:?}; \
-                 this system's is {:?}, {:?}",
-                self.intrinsics, self.distortion, system.intrinsics, system.distortion
-            ));
+        if let Some(m) = self.cameras_mismatch(system) {
+            return Some(m);
         }
         match (&self.pair, &system.pair) {
             (None, None) => None,
@@ -90,6 +104,112 @@ impl Rig {
     }
 }
 
+impl Rig {
+    /// Why the further cameras of `self` (a map's) are not `system`'s, naming both sides and
+    /// the camera index; `None` when they are.
+    fn cameras_mismatch(&self, system: &Rig) -> Option<String> {
+        if self.num_cameras() != system.num_cameras() {
+            return Some(format!(
+                "the map was built with a rig of {} cameras, this system's has {}",
+                self.num_cameras(),
+                system.num_cameras()
+            ));
+        }
+        self.cameras
+            .iter()
+            .zip(&system.cameras)
+            .enumerate()
+            .find_map(|(i, (a, b))| a.mismatch(b).map(|m| format!("camera {}: {m}", i + 1)))
+    }
+}
+
+impl RigMember {
+    /// Why `self` (a map's camera) is not `system`'s, naming both sides; `None` when it is.
+    fn mismatch(&self, system: &RigMember) -> Option<String> {
+        if let Some(m) = Lens::of_member(self).mismatch(&Lens::of_member(system)) {
+            return Some(m);
+        }
+        if !close(&pose_values(&self.T_c0_c), &pose_values(&system.T_c0_c)) {
+            return Some(format!(
+                "the map was built with the camera at translation {:?} m, rotation {:?} \
+                 (quaternion ijkw) in the first; this system's is at {:?} m, {:?}",
+                self.T_c0_c.translation.vector.as_slice(),
+                self.T_c0_c.rotation.coords.as_slice(),
+                system.T_c0_c.translation.vector.as_slice(),
+                system.T_c0_c.rotation.coords.as_slice()
+            ));
+        }
+        (self.has_depth != system.has_depth).then(|| {
+            let with = |d: bool| if d { "with" } else { "without" };
+            format!(
+                "the map was built with the camera {} depth, this system's is {} depth",
+                with(self.has_depth),
+                with(system.has_depth)
+            )
+        })
+    }
+}
+
+/// What a camera's pixels depend on, of the first camera or a [`RigMember`]: compared
+/// alike for both.
+struct Lens<'a> {
+    model: &'a str,
+    size: (u32, u32),
+    intrinsics: &'a [f64; 4],
+    distortion: &'a [f64; 5],
+}
+
+impl<'a> Lens<'a> {
+    fn of_first(rig: &'a Rig) -> Self {
+        Lens {
+            model: &rig.model,
+            size: (rig.width, rig.height),
+            intrinsics: &rig.intrinsics,
+            distortion: &rig.distortion,
+        }
+    }
+
+    fn of_member(camera: &'a RigMember) -> Self {
+        Lens {
+            model: &camera.model,
+            size: (camera.width, camera.height),
+            intrinsics: &camera.intrinsics,
+            distortion: &camera.distortion,
+        }
+    }
+
+    /// Why `self` (a map's camera) is not `system`'s, naming both sides; `None` when it is
+    /// (intrinsics and distortion equal to 1e-6 relative).
+    fn mismatch(&self, system: &Lens) -> Option<String> {
+        if self.model != system.model {
+            return Some(format!(
+                "the map was built with a {:?} camera model, this system's camera is {:?}",
+                self.model, system.model
+            ));
+        }
+        if self.size != system.size {
+            return Some(format!(
+                "the map was built with {}x{} images, this system's camera is {}x{}",
+                self.size.0, self.size.1, system.size.0, system.size.1
+            ));
+        }
+        (!close(self.intrinsics, system.intrinsics) || !close(self.distortion, system.distortion))
+            .then(|| {
+                format!(
+                    "the map was built with the camera fx, fy, cx, cy = {:?}, distortion {:?}; \
+                     this system's is {:?}, {:?}",
+                    self.intrinsics, self.distortion, system.intrinsics, system.distortion
+                )
+            })
+    }
+}
+
+/// Translation xyz (m) and quaternion ijkw of a pose, for comparing poses with [`close`].
+fn pose_values(iso: &Isometry3<f64>) -> [f64; 7] {
+    let (t, q) = (iso.translation.vector, iso.rotation.coords);
+    [t.x, t.y, t.z, q.x, q.y, q.z, q.w]
+}
+
 /// Equal to 1e-6 relative (1e-6 absolute below 1).
 fn close(a: &[f64], b: &[f64]) -> bool {
     a.iter()
@@ -100,14 +220,13 @@ fn close(a: &[f64], b: &[f64]) -> bool {
 impl PairCamera {
     /// Why `self` (a map's second camera) is not `system`'s, naming both; `None` when it is.
     fn mismatch(&self, system: &PairCamera) -> Option<String> {
-        let pose = |iso: &Isometry3<f64>| {
-            let (t, q) = (iso.translation.vector, iso.rotation.coords);
-            [t.x, t.y, t.z, q.x, q.y, q.z, q.w]
-        };
         let same = self.model == system.model
             && close(&self.intrinsics, &system.intrinsics)
             && close(&self.distortion, &system.distortion)
-            && close(&pose(&self.T_left_right), &pose(&system.T_left_right));
+            && close(
+                &pose_values(&self.T_left_right),
+                &pose_values(&system.T_left_right),
+            );
         (!same).then(|| {
             format!(
                 "the map was built with the second camera {} {:?}, distortion {:?} at \
@@ -138,6 +257,7 @@ mod tests {
             width: 640,
             height: 480,
             pair: None,
+            cameras: Vec::new(),
         }
     }
 
@@ -181,5 +301,60 @@ mod tests {
         assert!(m.contains("0.11") && m.contains("0.2"), "{m}");
         let m = paired(0.11).mismatch(&rig("stereo")).unwrap();
         assert!(m.contains("this system has none"), "{m}");
+    }
+
+    #[test]
+    fn rig_cameras_mismatch_on_count_and_pose() {
+        let member = |x: f64| RigMember {
+            model: "kannala_brandt".into(),
+            intrinsics: [284.0, 285.3, 417.2, 400.4],
+            distortion: [-0.002, 0.039, -0.038, 0.007, 0.0],
+            width: 848,
+            height: 800,
+            T_c0_c: Isometry3::translation(x, 0.0, 0.0),
+            has_depth: false,
+        };
+        let rig_of = |cameras| Rig {
+            cameras,
+            ..rig("mono")
+        };
+        let three = rig_of(vec![member(0.064), member(-0.1)]);
+        assert_eq!(three.num_cameras(), 3);
+        assert_eq!(three.mismatch(&three.clone()), None);
+        let m = three.mismatch(&rig("mono")).unwrap();
+        assert_eq!(
+            m,
+            "the map was built with a rig of 3 cameras, this system's has 1"
+        );
+        let moved = rig_of(vec![member(0.064), member(-0.25)]);
+        let m = three.mismatch(&moved).unwrap();
+        assert!(
+            m.starts_with("camera 2: ") && m.contains("[-0.1, 0.0, 0.0]") && m.contains("[-0.25"),
+            "{m}"
+        );
+        let deep = rig_of(vec![
+            member(0.064),
+            RigMember {
+                has_depth: true,
+                ..member(-0.1)
+            },
+        ]);
+        let m = three.mismatch(&deep).unwrap();
+        assert!(
+            m.starts_with("camera 2: ") && m.contains("without depth"),
+            "{m}"
+        );
+        let wide = rig_of(vec![
+            RigMember {
+                width: 640,
+                ..member(0.064)
+            },
+            member(-0.1),
+        ]);
+        let m = three.mismatch(&wide).unwrap();
+        assert!(
+            m.starts_with("camera 1: ") && m.contains("848x800") && m.contains("640x800"),
+            "{m}"
+        );
     }
 }

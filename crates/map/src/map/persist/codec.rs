@@ -10,14 +10,18 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use ferroslam_features::{ImageBounds, Keypoint, KeypointGrid};
+use ferroslam_features::{ImageBounds, Keypoint};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use super::super::CulledKeyFrame;
 use super::{
-    CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION, PAIR_CAMERA_SINCE, ROLLING_SHUTTER_SINCE,
+    CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION, PAIR_CAMERA_SINCE, RIG_CAMERAS_SINCE,
+    ROLLING_SHUTTER_SINCE,
 };
-use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, PairCamera, Rig};
+use crate::frame_features::cameras::camera_grids;
+use crate::{
+    FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, PairCamera, Rig, RigMember,
+};
 
 /// Appends encoded values to a byte buffer.
 #[derive(Default)]
@@ -192,6 +196,21 @@ impl<T: Codec> Codec for Option<T> {
                 "{}: option tag {tag} (not 0/1)",
                 d.context
             ))),
+        }
+    }
+}
+
+/// One byte, 0 or 1.
+impl Codec for bool {
+    const MIN_SIZE: usize = 1;
+    fn encode(&self, e: &mut Encoder) {
+        e.put(&u8::from(*self));
+    }
+    fn decode(d: &mut Decoder) -> Result<Self, MapError> {
+        match d.get::<u8>()? {
+            0 => Ok(false),
+            1 => Ok(true),
+            b => Err(corrupt(format!("{}: boolean {b} (not 0/1)", d.context))),
         }
     }
 }
@@ -372,10 +391,11 @@ impl Codec for ImageBounds {
     }
 }
 
-/// keypoints, descriptors, depth, u_right, grid bounds, colours (version 4 on), row time
-/// offsets and readout velocity (version 6 on). The grid
-/// itself is rebuilt from the keypoints and bounds (deterministic). Lengths are kept as
-/// saved, even if inconsistent.
+/// keypoints, descriptors, depth, u_right, the cameras (version 8 on: `(first keypoint,
+/// grid bounds)` of each; before: the one camera's grid bounds), colours (version 4 on), row
+/// time offsets and readout velocity (version 6 on). The grids themselves are rebuilt from
+/// the keypoints and bounds (deterministic). Lengths and camera starts are kept as saved,
+/// even if inconsistent (the plausibility checks refuse them).
 impl Codec for FrameFeatures {
     /// Version 3's: the smallest of every version read.
     const MIN_SIZE: usize = 4 * 8 + ImageBounds::MIN_SIZE;
@@ -384,7 +404,8 @@ impl Codec for FrameFeatures {
         e.put(&self.descriptors);
         e.put(&self.depth);
         e.put(&self.u_right);
-        e.put(&self.grid.bounds());
+        let cameras = self.camera_starts.iter().zip(&self.grids);
+        e.put(&cameras.map(|(&s, g)| (s, g.bounds())).collect::<Vec<_>>());
         e.put(&self.colors);
         e.put(&self.time_offsets_s);
         e.put(&self.xi_dot);
@@ -392,7 +413,13 @@ impl Codec for FrameFeatures {
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let keypoints: Vec<Keypoint> = d.get()?;
         let (descriptors, depth, u_right) = (d.get()?, d.get()?, d.get()?);
-        let grid = KeypointGrid::new(&keypoints, d.get()?);
+        let cameras: Vec<(usize, ImageBounds)> = if d.has(RIG_CAMERAS_SINCE) {
+            d.get()?
+        } else {
+            vec![(0, d.get()?)]
+        };
+        let camera_starts: Vec<usize> = cameras.iter().map(|&(s, _)| s).collect();
+        let grids = camera_grids(&keypoints, &camera_starts, cameras.iter().map(|&(_, b)| b));
         let colors = if d.has(COLORS_SINCE) { d.get()? } else { None };
         // Older files kept no row times: their keyframes read as a global shutter's.
         let (time_offsets_s, xi_dot) = if d.has(ROLLING_SHUTTER_SINCE) {
@@ -406,7 +433,8 @@ impl Codec for FrameFeatures {
             depth,
             u_right,
             colors,
-            grid,
+            camera_starts,
+            grids,
             time_offsets_s,
             xi_dot,
         })
@@ -537,6 +565,37 @@ impl Codec for PairCamera {
     }
 }
 
+/// Model name (bytes, UTF-8), intrinsics, distortion, image size, pose in the first camera,
+/// whether it has depth.
+impl Codec for RigMember {
+    const MIN_SIZE: usize = 8 + 9 * 8 + 2 * 4 + 7 * 8 + 1;
+    fn encode(&self, e: &mut Encoder) {
+        e.put(&self.model.as_bytes().to_vec());
+        self.intrinsics
+            .iter()
+            .chain(&self.distortion)
+            .for_each(|v| e.put(v));
+        e.put(&self.width);
+        e.put(&self.height);
+        e.put(&self.T_c0_c);
+        e.put(&self.has_depth);
+    }
+    fn decode(d: &mut Decoder) -> Result<Self, MapError> {
+        let model = String::from_utf8(d.get::<Vec<u8>>()?)
+            .map_err(|_| corrupt(format!("{}: rig camera model is not UTF-8", d.context)))?;
+        let values = camera_values(d)?;
+        Ok(RigMember {
+            model,
+            intrinsics: [values[0], values[1], values[2], values[3]],
+            distortion: [values[4], values[5], values[6], values[7], values[8]],
+            width: d.get()?,
+            height: d.get()?,
+            T_c0_c: d.get()?,
+            has_depth: d.get()?,
+        })
+    }
+}
+
 /// The 9 camera numbers of a record: `fx fy cx cy` and 5 distortion coefficients.
 fn camera_values(d: &mut Decoder) -> Result<[f64; 9], MapError> {
     let mut values = [0.0; 9];
@@ -547,7 +606,8 @@ fn camera_values(d: &mut Decoder) -> Result<[f64; 9], MapError> {
 }
 
 /// Sensor name (bytes, UTF-8), camera model name (version 5 on), intrinsics, distortion,
-/// image size, the unrectified pair's second camera (version 7 on).
+/// image size, the unrectified pair's second camera (version 7 on), the rig's further
+/// cameras (version 8 on).
 impl Codec for Rig {
     /// Version 3's: the smallest of every version read.
     const MIN_SIZE: usize = 8 + 9 * 8 + 2 * 4;
@@ -561,6 +621,7 @@ impl Codec for Rig {
         e.put(&self.width);
         e.put(&self.height);
         e.put(&self.pair);
+        e.put(&self.cameras);
     }
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let sensor = String::from_utf8(d.get::<Vec<u8>>()?)
@@ -583,6 +644,11 @@ impl Codec for Rig {
                 d.get()?
             } else {
                 None
+            },
+            cameras: if d.has(RIG_CAMERAS_SINCE) {
+                d.get()?
+            } else {
+                Vec::new()
             },
         })
     }

@@ -1,6 +1,6 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 7, all numbers little-endian)
+//! # Format (version 8, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
@@ -10,9 +10,12 @@
 //!                 tag [u8; 4] | body length u64 | body
 //!                 "RIG_" Option<sensor name Vec<u8>, camera model name Vec<u8> (version
 //!                        5 on), fx fy cx cy f64, 5 distortion coefficients f64, width u32,
-//!                        height u32, Option<pair camera> (version 7 on)> (version 3 on;
-//!                        see `Rig`; a pair camera = model name Vec<u8>, fx fy cx cy f64,
-//!                        5 distortion coefficients f64, pose T_left_right)
+//!                        height u32, Option<pair camera> (version 7 on), Vec<rig camera>
+//!                        (version 8 on)> (version 3 on; see `Rig`; a pair camera = model
+//!                        name Vec<u8>, fx fy cx cy f64, 5 distortion coefficients f64, pose
+//!                        T_left_right; a rig camera = model name Vec<u8>, fx fy cx cy f64,
+//!                        5 distortion coefficients f64, width u32, height u32, pose T_c0_c,
+//!                        has depth u8 0/1)
 //!                 "PYRM" scale factor f64, number of levels u64
 //!                 "IDS_" next keyframe id u32, next map point id u32, origin Option<u32>
 //!                 "KEYF" keyframes by increasing id (Vec<KeyFrame>)
@@ -27,6 +30,10 @@
 //! w xyz f64; sets/maps = sorted unique `Vec`s.
 //!
 //! # Versions
+//! - 8: the record ends with the rig's further cameras (`Vec`, camera 1 on), and keyframe
+//!   features hold their cameras: in place of the one grid bounds, `Vec<(first keypoint
+//!   u64, grid bounds)>`, one per camera, so that the keyframes of a multi-camera rig load
+//!   with each camera's keypoints and grid. Files of versions 3 to 7 load as one camera.
 //! - 7: the sensor and camera record ends with the second camera of an unrectified stereo
 //!   pair (`Option`), so that a map made with one pair loads only into a system with the
 //!   same pair. Files of versions 3 to 6 load with none.
@@ -43,10 +50,10 @@
 //!   the current version.
 //! - 2 and older are refused: their sensor is unknown.
 //!
-//! Everything the map holds is stored verbatim: keyframe features (without the keypoint grid,
-//! which is rebuilt from the keypoints and the stored grid bounds), poses, map-point slots,
-//! covisibility edges with weights and each keyframe's selected neighbours, spanning-tree
-//! parent and children, every map-point field including counters, and the tombstones of
+//! Everything the map holds is stored verbatim: keyframe features (without the keypoint
+//! grids, which are rebuilt from the keypoints, the camera starts and the stored grid
+//! bounds), poses, map-point slots, covisibility edges with weights and each keyframe's
+//! selected neighbours, spanning-tree parent and children, every map-point field including counters, and the tombstones of
 //! culled keyframes and fused points. The pyramid is rebuilt from its scale factor and number
 //! of levels. Bad keyframes / points are not stored (they are not in the map); their
 //! tombstones are. A loaded map is therefore indistinguishable from the saved one, and
@@ -88,7 +95,7 @@ mod plausibility;
 mod tests;
 
 use codec::{check_increasing, corrupt, Decoder, Encoder};
-pub use plausibility::{MAX_COORDINATE_M, UNIT_QUATERNION_TOLERANCE};
+pub use plausibility::{KEYPOINT_BOUNDS_MARGIN, MAX_COORDINATE_M, UNIT_QUATERNION_TOLERANCE};
 
 /// The magic bytes starting every map file, as text.
 pub const MAGIC_TEXT: &str = "FSLAMMAP";
@@ -96,7 +103,7 @@ pub const MAGIC_TEXT: &str = "FSLAMMAP";
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
 /// The map-file format version this build writes (and the newest it reads); see the module
 /// docs for what each version added.
-pub const FORMAT_VERSION: u32 = 7;
+pub const FORMAT_VERSION: u32 = 8;
 /// The oldest map-file format version this build reads.
 pub const OLDEST_READABLE_VERSION: u32 = 3;
 /// The version that added keypoint and map-point colours.
@@ -107,6 +114,8 @@ const CAMERA_MODEL_SINCE: u32 = 5;
 const ROLLING_SHUTTER_SINCE: u32 = 6;
 /// The version that added the unrectified stereo pair's second camera to the record.
 const PAIR_CAMERA_SINCE: u32 = 7;
+/// The version that added the rig's further cameras and each keyframe's camera starts.
+const RIG_CAMERAS_SINCE: u32 = 8;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;

@@ -1,13 +1,15 @@
 //! Content checks of a decoded map file beyond its encoding: a file with a valid checksum
 //! can still hold values no map could have (written by another tool, or edited and
 //! resealed). Every number must be finite and within [`MAX_COORDINATE_M`], every rotation a
-//! unit quaternion (a rotation matrix orthonormal with determinant +1).
+//! unit quaternion (a rotation matrix orthonormal with determinant +1), every keyframe's
+//! cameras those of the map's rig, every keypoint near its camera's image.
 
 use ferroslam_features::ImageBounds;
 use nalgebra::{Isometry3, Vector3};
 
 use super::super::Map;
-use crate::MapError;
+use crate::frame_features::cameras::check_camera_starts;
+use crate::{FrameFeatures, MapError, Rig};
 
 /// Largest |coordinate| (m) of a pose translation or a map point: 1000 km, beyond any
 /// camera trajectory (KITTI's longest drive spans ~4 km) by orders of magnitude, yet far
@@ -17,6 +19,12 @@ pub const MAX_COORDINATE_M: f64 = 1e6;
 /// unit quaternions (rounding error ~1e-16 per operation); a quaternion off by 1e-6 gives
 /// a rotation matrix whose columns are off unit length by ~2e-6: no longer rigid.
 pub const UNIT_QUATERNION_TOLERANCE: f64 = 1e-6;
+/// How far (as a fraction of the bounds' width / height, on each side) a keypoint may lie
+/// outside its camera's image bounds. The bounds of a distorted pinhole are its undistorted
+/// corners (ORB-SLAM's `ComputeImageBounds`): with pincushion distortion the middles of the
+/// image edges undistort beyond them, so real keypoints do lie a little outside; a keypoint
+/// a quarter of an image away is not of that camera.
+pub const KEYPOINT_BOUNDS_MARGIN: f64 = 0.25;
 
 /// The first implausible value of `map`, named by its owner (keyframe / map point id) and
 /// field, as a [`MapError::CorruptMapFile`].
@@ -62,16 +70,8 @@ pub(super) fn check_plausible(map: &Map) -> Result<(), MapError> {
                 features.xi_dot.as_slice()
             ));
         }
-        let ImageBounds {
-            min_x,
-            max_x,
-            min_y,
-            max_y,
-        } = features.grid.bounds();
-        if ![min_x, max_x, min_y, max_y].iter().all(|v| v.is_finite()) {
-            return refuse(format!(
-                "keyframe {id}: image bounds x [{min_x}, {max_x}], y [{min_y}, {max_y}] not finite"
-            ));
+        if let Some(problem) = cameras_problem(features, map.rig.as_ref()) {
+            return refuse(format!("keyframe {id}: {problem}"));
         }
     }
     for (id, p) in map.map_points.iter() {
@@ -104,8 +104,73 @@ pub(super) fn check_plausible(map: &Map) -> Result<(), MapError> {
                 rig.intrinsics, rig.distortion
             ));
         }
+        for (k, camera) in (1..).zip(&rig.cameras) {
+            let values = camera.intrinsics.iter().chain(&camera.distortion);
+            if !values.clone().all(|v| v.is_finite()) {
+                return refuse(format!(
+                    "the camera record: camera {k}'s intrinsics {:?} / distortion {:?} not finite",
+                    camera.intrinsics, camera.distortion
+                ));
+            }
+            if let Some(problem) = pose_problem(&camera.T_c0_c) {
+                return refuse(format!(
+                    "the camera record: camera {k}'s pose T_c0_c {problem}"
+                ));
+            }
+        }
     }
     Ok(())
+}
+
+/// Why the keyframe's cameras cannot be: starts that do not split its keypoints, a count
+/// other than the rig's (when the map records one), bounds not finite, a keypoint beyond
+/// its camera's bounds ([`KEYPOINT_BOUNDS_MARGIN`]); `None` if they can.
+fn cameras_problem(features: &FrameFeatures, rig: Option<&Rig>) -> Option<String> {
+    if let Err(e) = check_camera_starts(&features.camera_starts, features.len()) {
+        return Some(e.to_string());
+    }
+    if let Some(rig) = rig.filter(|r| r.num_cameras() != features.num_cameras()) {
+        return Some(format!(
+            "{} cameras (camera_starts {:?}), but the map's rig has {}",
+            features.num_cameras(),
+            features.camera_starts,
+            rig.num_cameras()
+        ));
+    }
+    for (k, grid) in features.grids.iter().enumerate() {
+        let ImageBounds {
+            min_x,
+            max_x,
+            min_y,
+            max_y,
+        } = grid.bounds();
+        if ![min_x, max_x, min_y, max_y].iter().all(|v| v.is_finite()) {
+            return Some(format!(
+                "camera {k}'s image bounds x [{min_x}, {max_x}], y [{min_y}, {max_y}] not finite"
+            ));
+        }
+        let (dx, dy) = (
+            KEYPOINT_BOUNDS_MARGIN * (max_x - min_x).abs(),
+            KEYPOINT_BOUNDS_MARGIN * (max_y - min_y).abs(),
+        );
+        let range = features.camera_range(k);
+        let start = range.start;
+        let outside = features.keypoints[range].iter().position(|kp| {
+            let (x, y) = (f64::from(kp.x), f64::from(kp.y));
+            !(min_x - dx..=max_x + dx).contains(&x) || !(min_y - dy..=max_y + dy).contains(&y)
+        });
+        if let Some(j) = outside {
+            let kp = &features.keypoints[start + j];
+            return Some(format!(
+                "keypoint {} at ({}, {}) px is outside camera {k}'s image bounds x [{min_x}, \
+                 {max_x}], y [{min_y}, {max_y}] (by more than {KEYPOINT_BOUNDS_MARGIN} of them)",
+                start + j,
+                kp.x,
+                kp.y
+            ));
+        }
+    }
+    None
 }
 
 /// Why the pose is not a plausible rigid transform, or `None`.

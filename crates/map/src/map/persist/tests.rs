@@ -1,5 +1,7 @@
 //! Round trips, truncation, corruption, version and magic checks of map files.
 
+mod rig;
+
 use approx::assert_relative_eq;
 use nalgebra::{Isometry3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -111,12 +113,17 @@ fn assert_same(a: &Map, b: &Map) {
         assert_eq!(f.colors, g.colors);
         assert_eq!(f.time_offsets_s, g.time_offsets_s);
         assert_eq!(f.xi_dot, g.xi_dot);
-        assert_eq!(f.grid.bounds(), g.grid.bounds());
-        let near = |h: &crate::FrameFeatures| {
-            h.grid
-                .features_in_area(&h.keypoints, 20.0, 10.0, 8.0, None, None)
-        };
-        assert_eq!(near(f), near(g));
+        assert_eq!(f.camera_starts, g.camera_starts);
+        assert_eq!(f.grids.len(), g.grids.len());
+        for k in 0..f.num_cameras() {
+            assert_eq!(f.grid(k).bounds(), g.grid(k).bounds());
+            let near = |h: &crate::FrameFeatures| {
+                let local = &h.keypoints[h.camera_range(k)];
+                h.grid(k)
+                    .features_in_area(local, 20.0, 10.0, 8.0, None, None)
+            };
+            assert_eq!(near(f), near(g));
+        }
         assert_eq!(x.map_points(), y.map_points());
         assert_eq!(x.covisibles(), y.covisibles());
         assert_eq!(a.covisibles(x.id()), b.covisibles(y.id()));
@@ -196,6 +203,10 @@ fn version_3_files_load_as_maps_without_colours_nor_row_times() {
     assert_same(&uncolored_sample_map().0, &loaded);
     assert!(loaded.map_points().all(|p| p.color().is_none()));
     assert!(loaded.keyframes().all(|k| k.features().colors.is_none()));
+    // One camera per keyframe (as every file before version 8 held).
+    assert!(loaded
+        .keyframes()
+        .all(|k| k.features().camera_starts == [0] && k.features().grids.len() == 1));
     // A global shutter's keyframes (as the version 3 to 5 files held).
     assert!(loaded
         .keyframes()
@@ -343,6 +354,7 @@ fn the_rig_round_trips_and_survives_clear() {
         width: 640,
         height: 480,
         pair: None,
+        cameras: Vec::new(),
     };
     map.set_rig(rig.clone());
     let loaded = load(&to_bytes(&map)).unwrap();
@@ -378,6 +390,7 @@ fn a_version_4_camera_record_loads_as_a_pinhole() {
             width: 640,
             height: 480,
             pair: None,
+            cameras: Vec::new(),
         }
     );
 }
@@ -393,6 +406,7 @@ fn a_fisheye_rig_records_its_model() {
         width: 512,
         height: 512,
         pair: None,
+        cameras: Vec::new(),
     };
     map.set_rig(rig.clone());
     let bytes = to_bytes(&map);
@@ -417,7 +431,7 @@ fn wrong_magic_and_version_are_named() {
     );
     let message = format!("version {} is not supported", FORMAT_VERSION + 1);
     assert!(err.to_string().contains(&message), "{err}");
-    assert!(err.to_string().contains("reads versions 3 to 7"), "{err}");
+    assert!(err.to_string().contains("reads versions 3 to 8"), "{err}");
     // A version 2 file (before the sensor and camera record) is refused, not misread.
     bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
     let err = load(&bytes).unwrap_err();
@@ -522,7 +536,12 @@ fn load_edited(edit: impl FnOnce(&mut Map, &[KeyFrameId], MapPointId)) -> String
     let (mut map, kfs) = sample_map();
     let mp = *map.map_points.keys().next().unwrap();
     edit(&mut map, &kfs, mp);
-    match load(&to_bytes(&map)) {
+    refused(&map)
+}
+
+/// `map` saved (a valid checksum) and loaded: the error text of the refusal.
+fn refused(map: &Map) -> String {
+    match load(&to_bytes(map)) {
         Err(MapError::CorruptMapFile { what }) => what,
         other => panic!("expected a corrupt map file, got {other:?}"),
     }
