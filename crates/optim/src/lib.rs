@@ -42,6 +42,7 @@ pub mod pose_graph;
 pub mod pose_inertial;
 pub mod pose_rolling_shutter;
 pub mod residual;
+pub mod rig_camera;
 pub mod robust;
 pub mod sim3_align;
 
@@ -60,4 +61,5 @@ pub use pose_graph::{
     Se3PoseGraph, Sim3PoseGraph, SymbolicPoseGraph,
 };
 pub use pose_inertial::{optimize_pose_inertial, InertialLink, InertialPoseEstimate};
+pub use rig_camera::RigCamera;
 pub use sim3_align::{optimize_sim3, Sim3AlignResult, Sim3Match, SIM3_TH2_MONO};
