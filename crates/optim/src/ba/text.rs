@@ -220,10 +220,10 @@ fn write_intrinsics(s: &mut String, k: &Intrinsics) {
 #[allow(non_snake_case)]
 fn parse_cameras(lines: &mut Lines<'_>) -> Result<Vec<RigCamera>, OptimError> {
     let line = lines.next("the intrinsics")?;
-    if !line.text.starts_with(CAMERAS) {
+    if line.text.split_whitespace().next() != Some(CAMERAS) {
         return Ok(vec![RigCamera::first(parse_intrinsics(&line)?)]);
     }
-    let [_, count] = line.fields("")?;
+    let [count] = line.fields(CAMERAS)?;
     let n: usize = count
         .parse()
         .map_err(|_| line.error(&format!("'{count}' is not a count")))?;
@@ -385,6 +385,7 @@ impl Line<'_> {
 }
 
 #[cfg(test)]
+#[allow(non_snake_case)]
 mod tests {
     use super::*;
 
@@ -456,6 +457,81 @@ mod tests {
             "{text}"
         );
         assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
+    }
+
+    #[test]
+    fn a_rig_problem_reads_back_with_its_cameras() {
+        let mut p = problem();
+        let (_, lens) = ferroslam_geometry::camera::test_fisheye_cameras()[0];
+        let T_c1_c0 = Isometry3::from_parts(
+            Translation3::new(-0.1, 0.02, 1.0 / 3.0),
+            UnitQuaternion::from_euler_angles(0.0, 1.5, 0.1),
+        );
+        p.cameras
+            .push(RigCamera::new(Intrinsics::new(&lens.into(), 0.0), T_c1_c0));
+        p.observations[1].camera = 1;
+        let text = p.to_text();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[1], "cameras 2");
+        assert!(lines[2].starts_with("intrinsics 517.3 "), "{text}");
+        assert_eq!(lines[3], "T_c_c0 -");
+        assert!(lines[4].contains(" kannala_brandt "), "{text}");
+        assert!(lines[5].starts_with("T_c_c0 "), "{text}");
+        assert!(text.ends_with(&format!("1 1 {} 30 - {} 1\n", 100.0 / 7.0, 1.0 / 1.44)));
+        assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
+        // A first camera given an extrinsic pose is a rig of one camera, kept as such.
+        let mut one = problem();
+        one.cameras[0].T_c_c0 = Some(T_c1_c0);
+        let text = one.to_text();
+        assert!(text.starts_with("ferroslam-ba 1\ncameras 1\n"), "{text}");
+        assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), one);
+    }
+
+    #[test]
+    fn a_malformed_rig_is_refused_naming_the_line() {
+        let mut p = problem();
+        p.cameras.push(RigCamera::new(
+            p.cameras[0].intrinsics,
+            Isometry3::identity(),
+        ));
+        p.observations[1].camera = 1;
+        let text = p.to_text();
+        let lines: Vec<&str> = text.lines().collect();
+        let with_line = |i: usize, new: &str| {
+            let mut l = lines.clone();
+            l[i] = new;
+            l.join("\n")
+        };
+        assert_eq!(
+            error(&with_line(5, "T_c_c0 1 0 0 0 0 0")),
+            "p.txt, line 6: expected 8 fields, found 7"
+        );
+        assert_eq!(
+            error(&with_line(5, "T_c_c0 2 0 0 0 0 0 0")),
+            "p.txt, line 6: the rotation is not a unit quaternion"
+        );
+        assert_eq!(
+            error(&with_line(1, "cameras two")),
+            "p.txt, line 2: 'two' is not a count"
+        );
+        let last = lines.len() - 1;
+        assert_eq!(
+            error(&with_line(last, "1 1 1 30 - 1 x")),
+            format!("p.txt, line {}: 'x' is not an index", last + 1)
+        );
+        assert_eq!(
+            error(&with_line(last, "1 1 1 30 - 1 1 1")),
+            format!("p.txt, line {}: expected 6 or 7 fields, found 8", last + 1)
+        );
+        assert_eq!(
+            BaProblem::from_text(&with_line(last, "1 1 1 30 - 1 2"), "p.txt"),
+            Err(OptimError::IndexOutOfRange {
+                observation: 1,
+                what: "camera",
+                index: 2,
+                len: 2
+            })
+        );
     }
 
     #[test]
