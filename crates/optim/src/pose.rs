@@ -1,4 +1,5 @@
-//! Motion-only bundle adjustment: refine one camera pose against fixed world points with
+//! Motion-only bundle adjustment: refine one camera pose (the first camera's of a rig, the
+//! others seen through their [`RigCamera::T_c_c0`]) against fixed world points with
 //! ORB-SLAM's outlier rejection schedule (`Optimizer::PoseOptimization`).
 
 use crate::error::OptimError;
