@@ -6,13 +6,15 @@
 //! - poses are `T_c_w` (world to camera), `p_c = T_c_w * p_w`, metres;
 //! - observations are undistorted pixel coordinates of an ideal pinhole ([`Intrinsics`]);
 //!   stereo / RGB-D observations add ORB-SLAM's virtual right coordinate `u_r = u - bf / z`;
+//! - an observation names the camera of a multi-camera rig that made it ([`RigCamera`]): a
+//!   pose is the rig's first camera's `T_c0_w`, camera `k` sees from `T_ck_c0 * T_c0_w`;
 //! - pose increments are LEFT perturbations `T_c_w <- exp(xi) * T_c_w` with
 //!   `xi = [rho (0..3); phi (3..6)]` (`ferroslam_geometry::se3::{TRANS, ROT}`);
 //! - residuals are `e = observed - predicted`, weighted by `inv_sigma2` (information
 //!   `inv_sigma2 * I`), and the cost is `sum rho(chi2)` with `chi2 = inv_sigma2 * |e|^2`
 //!   and `rho` the identity or g2o's Huber kernel ([`robust`]).
 //!
-//! Entry points: [`optimize_pose`] (one camera, fixed points, outlier rejection;
+//! Entry points: [`optimize_pose`] (one pose, fixed points, outlier rejection;
 //! [`pose_rolling_shutter::optimize_pose_and_velocity`] for a rolling-shutter frame, its
 //! velocity estimated with the pose),
 //! [`SymbolicBa`] + [`bundle_adjust`] (Levenberg-Marquardt with a Schur complement on the
@@ -42,6 +44,7 @@ pub mod pose_graph;
 pub mod pose_inertial;
 pub mod pose_rolling_shutter;
 pub mod residual;
+pub mod rig_camera;
 pub mod robust;
 pub mod sim3_align;
 
@@ -60,4 +63,5 @@ pub use pose_graph::{
     Se3PoseGraph, Sim3PoseGraph, SymbolicPoseGraph,
 };
 pub use pose_inertial::{optimize_pose_inertial, InertialLink, InertialPoseEstimate};
+pub use rig_camera::RigCamera;
 pub use sim3_align::{optimize_sim3, Sim3AlignResult, Sim3Match, SIM3_TH2_MONO};

@@ -1,12 +1,13 @@
-//! Motion-only bundle adjustment: refine one camera pose against fixed world points with
+//! Motion-only bundle adjustment: refine one camera pose (the first camera's of a rig, the
+//! others seen through their [`RigCamera::T_c_c0`]) against fixed world points with
 //! ORB-SLAM's outlier rejection schedule (`Optimizer::PoseOptimization`).
 
 use crate::error::OptimError;
-use crate::intrinsics::Intrinsics;
 use crate::lm::{
     add_normal_equations, damping_diagonal, dense_damped_step, mirror_lower_triangle, Damping,
 };
 use crate::residual;
+use crate::rig_camera::{carry_jacobian, seen_from, RigCamera};
 use crate::robust::{chi2_threshold, cost_and_weight};
 use ferroslam_geometry::se3;
 use nalgebra::{Isometry3, Matrix6, Vector2, Vector3, Vector6};
@@ -26,9 +27,11 @@ const INITIAL_LAMBDA: f64 = 1e-5;
 /// always runs all 10 (time saved: docs/benchmarks.md).
 const DECREASE_TOLERANCE: f64 = 1e-3;
 
-/// A fixed world point observed in the camera being optimised.
+/// A fixed world point observed by one camera of the rig whose pose is optimised.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseObservation {
+    /// Index into the rig's cameras (0 for a single camera).
+    pub camera: usize,
     /// Point in the world frame, metres.
     pub p_w: Vector3<f64>,
     /// Observed undistorted keypoint, pixels.
@@ -51,6 +54,10 @@ pub struct PoseEstimate {
 
 /// Refines `T_c_w` from fixed 3D-2D (or 3D-stereo) correspondences, classifying outliers.
 ///
+/// `T_c_w` is the pose of the rig's first camera; an observation of camera `k` is seen from
+/// `cameras[k].T_c_c0 * T_c_w` with `cameras[k].intrinsics` (see [`RigCamera`]); a single
+/// camera is `&[RigCamera::first(k)]`.
+///
 /// Schedule (ORB-SLAM2/3 `PoseOptimization`): [`ROUNDS`] rounds, each restarting from the
 /// initial `T_c_w` and running up to [`ITERATIONS_PER_ROUND`] Levenberg-Marquardt iterations
 /// over the observations currently flagged inlier, with the Huber kernel in the first
@@ -62,28 +69,33 @@ pub struct PoseEstimate {
 /// With no usable observation the initial pose is returned unchanged.
 ///
 /// # Errors
-/// [`OptimError::InvalidInput`] if `outlier.len() != obs.len()`, intrinsics are invalid or an
-/// `inv_sigma2` is not positive; [`OptimError::NonFinite`] for a non-finite pose or
+/// [`OptimError::InvalidInput`] if `outlier.len() != obs.len()`, `cameras` is empty, an
+/// observation's camera is not in it, intrinsics are invalid or an `inv_sigma2` is not
+/// positive; [`OptimError::NonFinite`] for a non-finite pose, camera extrinsics or
 /// observation value.
 #[allow(non_snake_case)]
 pub fn optimize_pose(
     T_c_w: &Isometry3<f64>,
     obs: &[PoseObservation],
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     outlier: &mut [bool],
 ) -> Result<PoseEstimate, OptimError> {
-    validate(T_c_w, obs, k, outlier)?;
+    validate(T_c_w, obs, cameras, outlier)?;
     let mut pose = *T_c_w;
     // Like ORB-SLAM, every round restarts from the initial guess so that a round spoiled by
     // outliers does not bias the next; which points it projects is decided once.
-    let projects_at_start: Vec<bool> = obs.iter().map(|o| chi2_of(k, T_c_w, o).is_some()).collect();
+    let projects_at_start: Vec<bool> = obs
+        .iter()
+        .map(|o| chi2_of(cameras, T_c_w, o).is_some())
+        .collect();
     for round in 0..ROUNDS {
         let active: Vec<usize> = (0..obs.len())
             .filter(|&i| !outlier[i] && projects_at_start[i])
             .collect();
-        pose = refine(T_c_w, obs, &active, k, round < ROBUST_ROUNDS);
+        pose = refine(T_c_w, obs, &active, cameras, round < ROBUST_ROUNDS);
         for (flag, o) in outlier.iter_mut().zip(obs) {
-            *flag = chi2_of(k, &pose, o).is_none_or(|c| c > chi2_threshold(o.u_right.is_some()));
+            *flag =
+                chi2_of(cameras, &pose, o).is_none_or(|c| c > chi2_threshold(o.u_right.is_some()));
         }
     }
     let num_inliers = outlier.iter().filter(|&&o| !o).count();
@@ -97,10 +109,10 @@ pub fn optimize_pose(
 pub(crate) fn validate(
     T_c_w: &Isometry3<f64>,
     obs: &[PoseObservation],
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     outlier: &[bool],
 ) -> Result<(), OptimError> {
-    k.validate()?;
+    RigCamera::validate_all(cameras)?;
     if outlier.len() != obs.len() {
         return Err(OptimError::InvalidInput(format!(
             "outlier has {} flags for {} observations",
@@ -117,6 +129,13 @@ pub(crate) fn validate(
         });
     }
     for (i, o) in obs.iter().enumerate() {
+        if o.camera >= cameras.len() {
+            return Err(OptimError::InvalidInput(format!(
+                "observation {i} is of camera {}, but the rig has {} cameras",
+                o.camera,
+                cameras.len()
+            )));
+        }
         if !o.p_w.iter().all(|v| v.is_finite()) {
             return Err(OptimError::NonFinite {
                 what: "observation",
@@ -128,9 +147,33 @@ pub(crate) fn validate(
     Ok(())
 }
 
+/// The observation's camera and the pose it sees from, `T_c_c0 * T_c_w` (`T_c_w` itself for
+/// the first camera).
 #[allow(non_snake_case)]
-pub(crate) fn chi2_of(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservation) -> Option<f64> {
-    residual::chi2(k, T_c_w, &o.p_w, &o.uv, o.u_right, o.inv_sigma2)
+pub(crate) fn camera_pose<'a>(
+    cameras: &'a [RigCamera],
+    T_c_w: &Isometry3<f64>,
+    o: &PoseObservation,
+) -> (&'a RigCamera, Isometry3<f64>) {
+    let camera = &cameras[o.camera];
+    (camera, seen_from(camera.T_c_c0.as_ref(), T_c_w))
+}
+
+#[allow(non_snake_case)]
+pub(crate) fn chi2_of(
+    cameras: &[RigCamera],
+    T_c_w: &Isometry3<f64>,
+    o: &PoseObservation,
+) -> Option<f64> {
+    let (camera, T) = camera_pose(cameras, T_c_w, o);
+    residual::chi2(
+        &camera.intrinsics,
+        &T,
+        &o.p_w,
+        &o.uv,
+        o.u_right,
+        o.inv_sigma2,
+    )
 }
 
 /// Cost and Gauss-Newton system of the `active` observations at one pose.
@@ -149,7 +192,7 @@ pub(crate) struct Evaluation {
 /// and the accepted candidate's system is the next iteration's (separate passes for the two
 /// projected every point twice per iteration).
 pub(crate) fn evaluate(
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     pose: &Isometry3<f64>,
     obs: &[PoseObservation],
     active: &[usize],
@@ -162,10 +205,14 @@ pub(crate) fn evaluate(
     };
     for &i in active {
         let o = &obs[i];
-        let Some((e, j)) = residual::linearize_pose(k, pose, &o.p_w, &o.uv, o.u_right) else {
+        let (camera, seen) = camera_pose(cameras, pose, o);
+        let Some((e, mut j)) =
+            residual::linearize_pose(&camera.intrinsics, &seen, &o.p_w, &o.uv, o.u_right)
+        else {
             at.cost = f64::INFINITY;
             continue;
         };
+        carry_jacobian(camera.T_c_c0.as_ref(), &mut j);
         let chi2 = o.inv_sigma2 * e.norm_squared();
         let (rho, weight) = cost_and_weight(chi2, o.u_right.is_some(), robust);
         at.cost += rho;
@@ -181,14 +228,14 @@ fn refine(
     start: &Isometry3<f64>,
     obs: &[PoseObservation],
     active: &[usize],
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     robust: bool,
 ) -> Isometry3<f64> {
     let mut pose = *start;
     if active.is_empty() {
         return pose;
     }
-    let mut current = evaluate(k, &pose, obs, active, robust);
+    let mut current = evaluate(cameras, &pose, obs, active, robust);
     let mut damping = Damping::new(INITIAL_LAMBDA);
     for _ in 0..ITERATIONS_PER_ROUND {
         let (h, g) = (current.h, current.g);
@@ -202,7 +249,7 @@ fn refine(
                 continue;
             };
             let candidate = se3::retract(&dx, &pose);
-            let at = evaluate(k, &candidate, obs, active, robust);
+            let at = evaluate(cameras, &candidate, obs, active, robust);
             let actual = current.cost - at.cost;
             if actual > 0.0 && predicted > 0.0 {
                 damping.accept(actual / predicted);

@@ -45,9 +45,9 @@
 use std::ops::Range;
 
 use crate::error::OptimError;
-use crate::intrinsics::Intrinsics;
 use crate::lm::{damping_diagonal, dense_damped_step, Damping};
 use crate::pose::{self, PoseObservation, ITERATIONS_PER_ROUND, ROBUST_ROUNDS, ROUNDS};
+use crate::rig_camera::RigCamera;
 use crate::robust::{CHI2_MONO, CHI2_STEREO};
 use ferroslam_geometry::se3;
 use ferroslam_imu::residual::Vector9;
@@ -123,14 +123,16 @@ pub struct InertialPoseEstimate {
 /// Refines the current frame's camera pose, velocity and bias from fixed map points and the
 /// IMU link from a fixed previous state (see the module docs for the schedule).
 ///
-/// `initial` is the starting body state (typically the IMU prediction); `T_b_c` the camera
-/// pose in the body frame. `outlier` holds the initial flags on input (flagged observations
+/// `initial` is the starting body state (typically the IMU prediction); `T_b_c` the pose of
+/// the rig's first camera in the body frame, the other cameras' observations being seen
+/// through their `T_c_c0` as in [`crate::optimize_pose`]. `outlier` holds the initial flags on input (flagged observations
 /// sit out the first round) and the final classification on output.
 ///
 /// # Errors
-/// [`OptimError::InvalidInput`] if `outlier.len() != obs.len()`, intrinsics are invalid or an
-/// `inv_sigma2` is not positive; [`OptimError::NonFinite`] for a non-finite value in an
-/// observation, `initial` (`"initial state"`), `link.previous` (`"previous state"`) or
+/// [`OptimError::InvalidInput`] if `outlier.len() != obs.len()`, `cameras` is empty, an
+/// observation's camera is not in it, intrinsics are invalid or an `inv_sigma2` is not
+/// positive; [`OptimError::NonFinite`] for a non-finite value in an observation or a
+/// camera's extrinsics, `initial` (`"initial state"`), `link.previous` (`"previous state"`) or
 /// `T_b_c` (`"extrinsics"`); [`OptimError::NotPositiveDefinite`] if no damping makes the
 /// system factorisable (not expected: the inertial factors constrain every dimension).
 #[allow(non_snake_case)]
@@ -139,7 +141,7 @@ pub fn optimize_pose_inertial(
     link: &InertialLink<'_>,
     T_b_c: &Isometry3<f64>,
     obs: &[PoseObservation],
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     outlier: &mut [bool],
 ) -> Result<InertialPoseEstimate, OptimError> {
     for (state, what) in [
@@ -160,22 +162,22 @@ pub fn optimize_pose_inertial(
         link,
         T_c_b: T_b_c.inverse(),
         obs,
-        k,
+        cameras,
     };
     let mut x = State {
         T_c_w: (initial.T_w_b * T_b_c).inverse(),
         v_w_b: initial.v_w_b,
         bias: initial.bias,
     };
-    pose::validate(&x.T_c_w, obs, k, outlier)?;
+    pose::validate(&x.T_c_w, obs, cameras, outlier)?;
 
     for round in 0..ROUNDS {
         let active: Vec<usize> = (0..obs.len())
-            .filter(|&i| !outlier[i] && pose::chi2_of(k, &x.T_c_w, &obs[i]).is_some())
+            .filter(|&i| !outlier[i] && pose::chi2_of(cameras, &x.T_c_w, &obs[i]).is_some())
             .collect();
         x = problem.refine(x, &active, round < ROBUST_ROUNDS)?;
         for (flag, o) in outlier.iter_mut().zip(obs) {
-            *flag = !is_inlier(k, &x.T_c_w, o, round);
+            *flag = !is_inlier(cameras, &x.T_c_w, o, round);
         }
         if obs.len() + INERTIAL_EDGES < MIN_EDGES {
             break;
@@ -188,7 +190,7 @@ pub fn optimize_pose_inertial(
             } else {
                 RECOVER_CHI2_MONO
             };
-            if pose::chi2_of(k, &x.T_c_w, o).is_some_and(|c| c < limit) {
+            if pose::chi2_of(cameras, &x.T_c_w, o).is_some_and(|c| c < limit) {
                 *flag = false;
             }
         }
@@ -220,16 +222,22 @@ fn state_finite(s: &ImuState) -> bool {
 
 /// ORB-SLAM3's per-round classification of one visual observation at `T_c_w`.
 #[allow(non_snake_case)]
-fn is_inlier(k: &Intrinsics, T_c_w: &Isometry3<f64>, o: &PoseObservation, round: usize) -> bool {
-    let Some(chi2) = pose::chi2_of(k, T_c_w, o) else {
+fn is_inlier(
+    cameras: &[RigCamera],
+    T_c_w: &Isometry3<f64>,
+    o: &PoseObservation,
+    round: usize,
+) -> bool {
+    let Some(chi2) = pose::chi2_of(cameras, T_c_w, o) else {
         return false;
     };
     let threshold = if o.u_right.is_some() {
         CHI2_STEREO_SCHEDULE[round]
     } else {
-        let p_c = T_c_w * Point3::from(o.p_w);
+        let (camera, T_ck_w) = pose::camera_pose(cameras, T_c_w, o);
+        let p_c = T_ck_w * Point3::from(o.p_w);
         // A fisheye sees points beside and behind its axis: their range, not z, is the depth.
-        let depth = if k.fisheye.is_some() {
+        let depth = if camera.intrinsics.fisheye.is_some() {
             p_c.coords.norm()
         } else {
             p_c.z
@@ -274,7 +282,7 @@ struct Problem<'a> {
     link: &'a InertialLink<'a>,
     T_c_b: Isometry3<f64>,
     obs: &'a [PoseObservation],
-    k: &'a Intrinsics,
+    cameras: &'a [RigCamera],
 }
 
 impl Problem<'_> {
@@ -309,7 +317,7 @@ impl Problem<'_> {
         let r = link.factor.residual(link.previous, &self.body_state(x));
         let inertial = r.dot(&(link.factor.information() * r));
         let walk = link.bias_walk.chi2(&link.previous.bias, &x.bias);
-        let visual = pose::evaluate(self.k, &x.T_c_w, self.obs, active, robust);
+        let visual = pose::evaluate(self.cameras, &x.T_c_w, self.obs, active, robust);
         let total = visual.cost + inertial + walk;
         (if total.is_nan() { f64::INFINITY } else { total }, visual)
     }
@@ -373,6 +381,7 @@ impl Problem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::intrinsics::Intrinsics;
     use ferroslam_geometry::testing::check_jacobian;
     use ferroslam_imu::{ImuParams, Preintegrated};
     use nalgebra::{DMatrix, DVector, Translation3, UnitQuaternion, Vector6};
@@ -457,7 +466,7 @@ mod tests {
             link: &link,
             T_c_b: T_b_c.inverse(),
             obs: &[],
-            k: &K,
+            cameras: &[RigCamera::first(K)],
         };
         // A state well away from the IMU prediction so that every term matters.
         let x = State {

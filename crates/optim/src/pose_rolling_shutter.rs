@@ -18,6 +18,7 @@ use crate::lm::{
 };
 use crate::pose::{self, PoseObservation, ITERATIONS_PER_ROUND, ROBUST_ROUNDS, ROUNDS};
 use crate::residual;
+use crate::rig_camera::RigCamera;
 use crate::robust::{chi2_threshold, cost_and_weight};
 use ferroslam_geometry::rolling_shutter::{point_at_offset, position_at_offset};
 use ferroslam_geometry::se3;
@@ -74,8 +75,13 @@ pub struct PoseVelocityEstimate {
 /// `time_offsets_s` (seconds after the frame's timestamp, one per observation), classifying
 /// outliers as [`crate::optimize_pose`] does (`outlier` in: initial flags, out: final).
 ///
+/// `cameras` is the rig of [`crate::optimize_pose`], but only its first camera, seen from
+/// `T_c_w` itself, is supported here (a readout motion of another camera would need its own
+/// velocity, `T_c_c0` carried through it).
+///
 /// # Errors
-/// As [`crate::optimize_pose`], and [`OptimError::InvalidInput`] when `time_offsets_s` does
+/// As [`crate::optimize_pose`], and [`OptimError::InvalidInput`] for an observation of a
+/// camera other than the first or a first camera with a `T_c_c0`, when `time_offsets_s` does
 /// not have one finite entry per observation or the prior is not finite with a positive
 /// semi-definite information (its diagonal >= 0); [`OptimError::NotPositiveDefinite`] when
 /// no damping makes a round's system factorisable.
@@ -85,15 +91,20 @@ pub fn optimize_pose_and_velocity(
     prior: &VelocityPrior,
     obs: &[PoseObservation],
     time_offsets_s: &[f64],
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     outlier: &mut [bool],
 ) -> Result<PoseVelocityEstimate, OptimError> {
-    pose::validate(T_c_w, obs, k, outlier)?;
+    pose::validate(T_c_w, obs, cameras, outlier)?;
     validate(prior, obs, time_offsets_s)?;
+    if cameras[0].T_c_c0.is_some() || obs.iter().any(|o| o.camera != 0) {
+        return Err(OptimError::InvalidInput(
+            "rolling shutter with several cameras is not supported".into(),
+        ));
+    }
     let problem = Problem {
         obs,
         dt: time_offsets_s,
-        k,
+        k: &cameras[0].intrinsics,
         prior,
     };
     let start = (*T_c_w, prior.xi_dot);

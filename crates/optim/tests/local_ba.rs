@@ -323,6 +323,7 @@ fn points_seen_only_by_fixed_poses_stay_fixed() {
         let (uv, _) =
             common::project(&s.true_poses[pose], &p).unwrap_or((Vector2::new(320.0, 240.0), 1.0));
         s.problem.observations.push(Observation {
+            camera: 0,
             pose,
             point: j,
             uv,

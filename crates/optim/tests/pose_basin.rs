@@ -2,7 +2,7 @@
 #![allow(non_snake_case)]
 
 use ferroslam_geometry::se3;
-use ferroslam_optim::{optimize_pose, Intrinsics, PoseObservation};
+use ferroslam_optim::{optimize_pose, Intrinsics, PoseObservation, RigCamera};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -34,6 +34,7 @@ fn converges_from_several_degrees_off() {
         let p_w = T_c_w.inverse() * Point3::from(p_c);
         let stereo = obs.len() % 2 == 0;
         obs.push(PoseObservation {
+            camera: 0,
             p_w: p_w.coords,
             uv: Vector2::new(u, v),
             u_right: stereo.then(|| u - k.bf / p_c.z),
@@ -52,7 +53,7 @@ fn converges_from_several_degrees_off() {
         let delta = Vector6::new(metres, -metres, metres, r, -r * 0.5, r * 0.3);
         let init: Isometry3<f64> = se3::exp(&delta) * T_c_w;
         let mut outlier = vec![false; obs.len()];
-        let est = optimize_pose(&init, &obs, &k, &mut outlier).unwrap();
+        let est = optimize_pose(&init, &obs, &[RigCamera::first(k)], &mut outlier).unwrap();
         let err = se3::log(&(est.T_c_w * T_c_w.inverse()));
         assert!(
             err.norm() < 1e-6,

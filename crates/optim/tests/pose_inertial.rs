@@ -17,7 +17,7 @@ use ferroslam_optim::pose_inertial::{BIAS_ACCEL, BIAS_GYRO};
 use ferroslam_optim::residual::linearize;
 use ferroslam_optim::{
     optimize_pose, optimize_pose_inertial, InertialLink, InertialPoseEstimate, OptimError,
-    PoseObservation,
+    PoseObservation, RigCamera,
 };
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Rotation3, Translation3, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
@@ -165,6 +165,7 @@ impl Scene {
                 // chi-square with 3 dof, as the thresholds assume.
                 let u_right = u_right.map(|ur| ur - (uv_obs.x - uv.x));
                 PoseObservation {
+                    camera: 0,
                     p_w,
                     uv: uv_obs,
                     u_right,
@@ -195,7 +196,15 @@ fn run(
     obs: &[PoseObservation],
 ) -> (InertialPoseEstimate, Vec<bool>) {
     let mut outlier = vec![false; obs.len()];
-    let est = optimize_pose_inertial(initial, &s.link(), &s.T_b_c, obs, &K, &mut outlier).unwrap();
+    let est = optimize_pose_inertial(
+        initial,
+        &s.link(),
+        &s.T_b_c,
+        obs,
+        &[RigCamera::first(K)],
+        &mut outlier,
+    )
+    .unwrap();
     assert_eq!(est.num_inliers, outlier.iter().filter(|&&o| !o).count());
     // The two views of the estimate agree.
     let (dt, dr) = pose_error(&est.T_c_w, &(est.state.T_w_b * s.T_b_c).inverse());
@@ -238,7 +247,7 @@ fn good_observations_recover_the_true_pose_and_velocity() {
         let visual = optimize_pose(
             &(initial.T_w_b * s.T_b_c).inverse(),
             &obs,
-            &K,
+            &[RigCamera::first(K)],
             &mut [false; 150],
         )
         .unwrap();
@@ -300,12 +309,25 @@ fn information_weights_decide_between_imu_and_vision() {
         let obs = s.observations(&mut rng, 150, 0, 0.0);
         let initial = imu_state(&prediction, previous.bias);
         let mut outlier = vec![false; obs.len()];
-        let est =
-            optimize_pose_inertial(&initial, &link, &s.T_b_c, &obs, &K, &mut outlier).unwrap();
+        let est = optimize_pose_inertial(
+            &initial,
+            &link,
+            &s.T_b_c,
+            &obs,
+            &[RigCamera::first(K)],
+            &mut outlier,
+        )
+        .unwrap();
         let to_truth = pose_error(&est.T_c_w, &s.T_c_w_true).0;
         let to_prediction = (est.state.T_w_b.translation.vector - prediction.p_w_b).norm();
         let T_c_w_initial = (initial.T_w_b * s.T_b_c).inverse();
-        let visual = optimize_pose(&T_c_w_initial, &obs, &K, &mut [false; 150]).unwrap();
+        let visual = optimize_pose(
+            &T_c_w_initial,
+            &obs,
+            &[RigCamera::first(K)],
+            &mut [false; 150],
+        )
+        .unwrap();
         let to_visual = pose_error(&est.T_c_w, &visual.T_c_w).0;
         println!(
             "{name}: {:.2} mm from the truth, {:.2} mm from the IMU prediction ({:.2} mm apart), \
@@ -411,7 +433,14 @@ fn bad_input_is_an_error() {
                 T_b_c: &Isometry3<f64>,
                 obs: &[PoseObservation],
                 n: usize| {
-        optimize_pose_inertial(initial, link, T_b_c, obs, &K, &mut vec![false; n])
+        optimize_pose_inertial(
+            initial,
+            link,
+            T_b_c,
+            obs,
+            &[RigCamera::first(K)],
+            &mut vec![false; n],
+        )
     };
     assert!(matches!(
         call(&good, &link, &s.T_b_c, &obs, 9),
@@ -465,7 +494,14 @@ fn bad_input_is_an_error() {
     );
     let bad_k = ferroslam_optim::Intrinsics { fx: -1.0, ..K };
     assert!(matches!(
-        optimize_pose_inertial(&good, &link, &s.T_b_c, &obs, &bad_k, &mut [false; 10]),
+        optimize_pose_inertial(
+            &good,
+            &link,
+            &s.T_b_c,
+            &obs,
+            &[RigCamera::first(bad_k)],
+            &mut [false; 10]
+        ),
         Err(OptimError::InvalidInput(_))
     ));
 }

@@ -6,7 +6,7 @@ mod common;
 use common::{gaussian, perturb, pose_error, project, random_point, K};
 use ferroslam_geometry::se3;
 use ferroslam_optim::residual::linearize;
-use ferroslam_optim::{optimize_pose, OptimError, PoseObservation};
+use ferroslam_optim::{optimize_pose, OptimError, PoseObservation, RigCamera};
 use nalgebra::{Isometry3, Matrix6, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -53,6 +53,7 @@ fn pose_scene(seed: u64, n: usize, stereo_fraction: f64) -> PoseScene {
             .random_bool(stereo_fraction)
             .then(|| uv_obs.x - K.bf / z + PIXEL_SIGMA * gaussian(&mut rng));
         obs.push(PoseObservation {
+            camera: 0,
             p_w,
             uv: uv_obs,
             u_right,
@@ -84,7 +85,7 @@ fn information(s: &PoseScene) -> Matrix6<f64> {
 fn check_recovery(seed: u64, stereo_fraction: f64) {
     let s = pose_scene(seed, 200, stereo_fraction);
     let mut outlier = vec![false; s.obs.len()];
-    let est = optimize_pose(&s.T_init, &s.obs, &K, &mut outlier).unwrap();
+    let est = optimize_pose(&s.T_init, &s.obs, &[RigCamera::first(K)], &mut outlier).unwrap();
 
     // Accuracy judged against the estimator's own uncertainty: the error twist in the
     // information metric of the true inliers is chi-square(6) distributed, so the 99.9%
@@ -154,7 +155,7 @@ fn initially_flagged_outliers_are_reclassified() {
         .enumerate()
         .map(|(i, &b)| b || i % 2 == 0)
         .collect();
-    let est = optimize_pose(&s.T_init, &s.obs, &K, &mut outlier).unwrap();
+    let est = optimize_pose(&s.T_init, &s.obs, &[RigCamera::first(K)], &mut outlier).unwrap();
     let (dt, _) = pose_error(&est.T_c_w, &s.T_true);
     assert!(dt < 0.01, "{dt}");
 }
@@ -164,26 +165,26 @@ fn behind_camera_points_are_outliers() {
     let mut s = pose_scene(10, 50, 0.0);
     s.obs[0].p_w = s.T_true.inverse() * Vector3::new(0.0, 0.0, -3.0);
     let mut outlier = vec![false; s.obs.len()];
-    optimize_pose(&s.T_init, &s.obs, &K, &mut outlier).unwrap();
+    optimize_pose(&s.T_init, &s.obs, &[RigCamera::first(K)], &mut outlier).unwrap();
     assert!(outlier[0]);
 }
 
 #[test]
 fn degenerate_and_bad_input() {
     let T = Isometry3::identity();
-    let est = optimize_pose(&T, &[], &K, &mut []).unwrap();
+    let est = optimize_pose(&T, &[], &[RigCamera::first(K)], &mut []).unwrap();
     assert_eq!(est.num_inliers, 0);
     assert_eq!(est.T_c_w, T);
 
     let s = pose_scene(11, 10, 0.0);
     assert!(matches!(
-        optimize_pose(&T, &s.obs, &K, &mut [false; 3]),
+        optimize_pose(&T, &s.obs, &[RigCamera::first(K)], &mut [false; 3]),
         Err(OptimError::InvalidInput(_))
     ));
     let mut bad = s.obs.clone();
     bad[2].uv.x = f64::NAN;
     assert_eq!(
-        optimize_pose(&T, &bad, &K, &mut [false; 10]).unwrap_err(),
+        optimize_pose(&T, &bad, &[RigCamera::first(K)], &mut [false; 10]).unwrap_err(),
         OptimError::NonFinite {
             what: "observation",
             index: 2
@@ -192,7 +193,7 @@ fn degenerate_and_bad_input() {
     let mut bad = s.obs.clone();
     bad[1].inv_sigma2 = 0.0;
     assert!(matches!(
-        optimize_pose(&T, &bad, &K, &mut [false; 10]),
+        optimize_pose(&T, &bad, &[RigCamera::first(K)], &mut [false; 10]),
         Err(OptimError::InvalidInput(_))
     ));
 }
@@ -206,7 +207,7 @@ fn rounds_end_at_the_optimum_of_their_inliers() {
     for (seed, stereo_fraction) in [(1, 0.0), (2, 0.0), (4, 0.6), (5, 0.6)] {
         let s = pose_scene(seed, 200, stereo_fraction);
         let mut outlier = vec![false; s.obs.len()];
-        let est = optimize_pose(&s.T_init, &s.obs, &K, &mut outlier).unwrap();
+        let est = optimize_pose(&s.T_init, &s.obs, &[RigCamera::first(K)], &mut outlier).unwrap();
         let (mut h, mut g) = (Matrix6::zeros(), Vector6::zeros());
         for (o, _) in s.obs.iter().zip(&outlier).filter(|(_, &bad)| !bad) {
             let l = linearize(&K, &est.T_c_w, &o.p_w, &o.uv, o.u_right).unwrap();

@@ -9,7 +9,7 @@ use ferroslam_geometry::rolling_shutter::{
     motion_over, point_at_offset, ReadoutDirection, RollingShutter,
 };
 use ferroslam_optim::pose_rolling_shutter::{optimize_pose_and_velocity, VelocityPrior};
-use ferroslam_optim::{optimize_pose, OptimError, PoseObservation};
+use ferroslam_optim::{optimize_pose, OptimError, PoseObservation, RigCamera};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -65,6 +65,7 @@ fn frame(seed: u64, n: usize, outliers: f64, depth: bool) -> Frame {
             uv + noise
         };
         obs.push(PoseObservation {
+            camera: 0,
             p_w,
             uv: uv_obs,
             u_right: depth.then(|| uv_obs.x - K.bf / z),
@@ -105,10 +106,18 @@ fn rolling_shutter_frames_are_recovered_where_the_global_model_is_biased() {
         let mut rng = ChaCha8Rng::seed_from_u64(100 + seed);
         let start = perturb(&mut rng, &f.T_true, 0.02, 0.02);
         let mut flags = vec![false; f.obs.len()];
-        let g = optimize_pose(&start, &f.obs, &K, &mut flags).unwrap();
+        let g = optimize_pose(&start, &f.obs, &[RigCamera::first(K)], &mut flags).unwrap();
         let prior = motion_model_prior(&f, &mut rng);
         let mut flags = vec![false; f.obs.len()];
-        let j = optimize_pose_and_velocity(&start, &prior, &f.obs, &f.dt, &K, &mut flags).unwrap();
+        let j = optimize_pose_and_velocity(
+            &start,
+            &prior,
+            &f.obs,
+            &f.dt,
+            &[RigCamera::first(K)],
+            &mut flags,
+        )
+        .unwrap();
         global = global.max(errors_deg_mm(&g.T_c_w, &f.T_true).0);
         joint = joint.max(errors_deg_mm(&j.T_c_w, &f.T_true).0);
         let w_err = (j.xi_dot - f.xi_dot_true).fixed_rows::<3>(3).norm();
@@ -137,8 +146,16 @@ fn rgbd_observations_are_recovered_too() {
     let start = perturb(&mut rng, &f.T_true, 0.02, 0.02);
     let prior = motion_model_prior(&f, &mut rng);
     let mut flags = vec![false; f.obs.len()];
-    let g = optimize_pose(&start, &f.obs, &K, &mut flags.clone()).unwrap();
-    let j = optimize_pose_and_velocity(&start, &prior, &f.obs, &f.dt, &K, &mut flags).unwrap();
+    let g = optimize_pose(&start, &f.obs, &[RigCamera::first(K)], &mut flags.clone()).unwrap();
+    let j = optimize_pose_and_velocity(
+        &start,
+        &prior,
+        &f.obs,
+        &f.dt,
+        &[RigCamera::first(K)],
+        &mut flags,
+    )
+    .unwrap();
     let (g_deg, g_mm) = errors_deg_mm(&g.T_c_w, &f.T_true);
     let (j_deg, j_mm) = errors_deg_mm(&j.T_c_w, &f.T_true);
     eprintln!("RGB-D: global {g_deg:.3} deg {g_mm:.2} mm, joint {j_deg:.3} deg {j_mm:.2} mm");
@@ -155,9 +172,17 @@ fn zero_offsets_give_the_global_shutter_estimate() {
     let start = perturb(&mut rng, &f.T_true, 0.02, 0.02);
     let prior = motion_model_prior(&f, &mut rng);
     let (mut flags_g, mut flags_j) = (vec![false; f.obs.len()], vec![false; f.obs.len()]);
-    let g = optimize_pose(&start, &f.obs, &K, &mut flags_g).unwrap();
+    let g = optimize_pose(&start, &f.obs, &[RigCamera::first(K)], &mut flags_g).unwrap();
     let zeros = vec![0.0; f.obs.len()];
-    let j = optimize_pose_and_velocity(&start, &prior, &f.obs, &zeros, &K, &mut flags_j).unwrap();
+    let j = optimize_pose_and_velocity(
+        &start,
+        &prior,
+        &f.obs,
+        &zeros,
+        &[RigCamera::first(K)],
+        &mut flags_j,
+    )
+    .unwrap();
     let (t, r) = pose_error(&g.T_c_w, &j.T_c_w);
     assert!(t < 1e-12 && r < 1e-12, "pose differs by {t} m, {r} rad");
     assert_eq!(flags_g, flags_j);
@@ -174,7 +199,15 @@ fn planted_outliers_are_flagged() {
     let start = perturb(&mut rng, &f.T_true, 0.02, 0.02);
     let prior = motion_model_prior(&f, &mut rng);
     let mut flags = vec![false; f.obs.len()];
-    let j = optimize_pose_and_velocity(&start, &prior, &f.obs, &f.dt, &K, &mut flags).unwrap();
+    let j = optimize_pose_and_velocity(
+        &start,
+        &prior,
+        &f.obs,
+        &f.dt,
+        &[RigCamera::first(K)],
+        &mut flags,
+    )
+    .unwrap();
     let missed = f
         .planted
         .iter()
@@ -206,20 +239,41 @@ fn bad_offsets_and_priors_are_refused() {
     let prior = VelocityPrior::isotropic(Vector6::zeros(), 0.2, 0.5);
     let mut flags = vec![false; f.obs.len()];
     let short = &f.dt[..19];
-    let err = optimize_pose_and_velocity(&f.T_true, &prior, &f.obs, short, &K, &mut flags);
+    let err = optimize_pose_and_velocity(
+        &f.T_true,
+        &prior,
+        &f.obs,
+        short,
+        &[RigCamera::first(K)],
+        &mut flags,
+    );
     assert!(
         matches!(err, Err(OptimError::InvalidInput(ref m)) if m.contains("20 observations")),
         "{err:?}"
     );
     let mut nan = f.dt.clone();
     nan[4] = f64::NAN;
-    let err = optimize_pose_and_velocity(&f.T_true, &prior, &f.obs, &nan, &K, &mut flags);
+    let err = optimize_pose_and_velocity(
+        &f.T_true,
+        &prior,
+        &f.obs,
+        &nan,
+        &[RigCamera::first(K)],
+        &mut flags,
+    );
     assert!(
         matches!(err, Err(OptimError::InvalidInput(ref m)) if m.contains("time offset 4")),
         "{err:?}"
     );
     let bad = VelocityPrior::isotropic(Vector6::zeros(), f64::NAN, 0.5);
-    let err = optimize_pose_and_velocity(&f.T_true, &bad, &f.obs, &f.dt, &K, &mut flags);
+    let err = optimize_pose_and_velocity(
+        &f.T_true,
+        &bad,
+        &f.obs,
+        &f.dt,
+        &[RigCamera::first(K)],
+        &mut flags,
+    );
     assert!(
         matches!(err, Err(OptimError::InvalidInput(ref m)) if m.contains("velocity prior")),
         "{err:?}"

@@ -14,8 +14,8 @@ use super::problem::{BaProblem, Observation};
 use super::symbolic::SymbolicBa;
 use crate::block_pattern::factorize_upper;
 use crate::error::OptimError;
-use crate::intrinsics::Intrinsics;
 use crate::lm::{damping_diagonal, predicted_decrease, Damping};
+use crate::rig_camera::RigCamera;
 use crate::robust::cost_and_weight;
 use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::SymbolicLlt;
@@ -104,7 +104,7 @@ pub(crate) fn bundle_adjust_masked(
         .map(|i| use_obs[i] && problem.chi2(i).is_some())
         .collect();
     let ctx = Context {
-        k: problem.intrinsics,
+        cameras: &problem.cameras,
         active: &active,
         robust: options.robust,
     };
@@ -246,7 +246,7 @@ const COST_CHUNK: usize = 1024;
 /// order: a parallel float sum varies run to run, and LM's accept/reject on it would make
 /// the whole SLAM run non-deterministic.
 pub(crate) fn visual_cost(
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     observations: &[Observation],
     active: &[bool],
     poses: &[Isometry3<f64>],
@@ -261,7 +261,7 @@ pub(crate) fn visual_cost(
                 .zip(active)
                 .filter(|(_, &a)| a)
                 .map(|(o, _)| {
-                    o.chi2(k, &poses[o.pose], &points[o.point])
+                    o.chi2(cameras, &poses[o.pose], &points[o.point])
                         .map_or(f64::INFINITY, |c| {
                             cost_and_weight(c, o.is_stereo(), robust).0
                         })
@@ -274,7 +274,7 @@ pub(crate) fn visual_cost(
 }
 
 struct Context<'a> {
-    k: Intrinsics,
+    cameras: &'a [RigCamera],
     active: &'a [bool],
     robust: bool,
 }
@@ -283,7 +283,7 @@ impl Context<'_> {
     /// See [`visual_cost`].
     fn cost(&self, problem: &BaProblem, poses: &[Isometry3<f64>], points: &[Vector3<f64>]) -> f64 {
         visual_cost(
-            &self.k,
+            self.cameras,
             &problem.observations,
             self.active,
             poses,
@@ -300,7 +300,11 @@ impl Context<'_> {
         }
         let o = &problem.observations[i];
         // None is unreachable for an accepted estimate (its cost is finite).
-        let l = o.linearize(&self.k, &problem.poses[o.pose], &problem.points[o.point])?;
+        let l = o.linearize(
+            self.cameras,
+            &problem.poses[o.pose],
+            &problem.points[o.point],
+        )?;
         let chi2 = o.inv_sigma2 * l.e.norm_squared();
         let w = o.inv_sigma2 * cost_and_weight(chi2, o.is_stereo(), self.robust).1;
         Some(ObservationJacobians {

@@ -10,9 +10,23 @@
 //! points <m>
 //! <x> <y> <z>                                              x m: p_w, metres
 //! observations <k>
-//! <pose> <point> <u> <v> <u_right | -> <inv_sigma2>        x k: pixels, 1/pixels^2
+//! <pose> <point> <u> <v> <u_right | -> <inv_sigma2> [<camera>]
+//!                                                          x k: pixels, 1/pixels^2
 //! ```
 //!
+//! A multi-camera rig replaces the `intrinsics` line by a `cameras` section, each camera an
+//! `intrinsics` line as above followed by its pose relative to the first camera (`-` for
+//! [`RigCamera::first`]):
+//!
+//! ```text
+//! cameras <c>
+//! intrinsics <fx> <fy> <cx> <cy> <bf> [kannala_brandt ...]  x c, each followed by
+//! T_c_c0 <qw> <qx> <qy> <qz> <tx> <ty> <tz> | T_c_c0 -      unit quaternion, metres
+//! ```
+//!
+//! and an observation's last field `<camera>` indexes the cameras (written only when not 0,
+//! its default). A problem of one [`RigCamera::first`] is written with the single
+//! `intrinsics` line, so single-camera text stays that of readers that know nothing of rigs.
 //! The `kannala_brandt` tail marks a fisheye camera (coefficients and image size).
 //! `-` marks a monocular observation (no right coordinate). Numbers are written in Rust's
 //! shortest round-trip form, so reading a written problem gives it back bit for bit.
@@ -20,12 +34,17 @@
 use super::problem::{BaProblem, Observation};
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
+use crate::rig_camera::RigCamera;
 use ferroslam_geometry::camera::KannalaBrandtCamera;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector2, Vector3};
 use std::fmt::Write;
 
 /// First line of the format, with its version.
 const HEADER: &str = "ferroslam-ba 1";
+/// Opens the cameras section of a rig.
+const CAMERAS: &str = "cameras";
+/// Opens a camera's pose relative to the first camera.
+const EXTRINSICS: &str = "T_c_c0";
 /// Marks the fisheye tail of the intrinsics line.
 const FISHEYE: &str = "kannala_brandt";
 /// How far from 1 a quaternion's norm may be (the text keeps 17 significant digits).
@@ -35,32 +54,35 @@ impl BaProblem {
     /// The problem in the text form described in the module documentation.
     pub fn to_text(&self) -> String {
         let mut s = String::new();
-        let k = &self.intrinsics;
         // Writing to a String cannot fail.
         let _ = writeln!(s, "{HEADER}");
-        let _ = write!(s, "intrinsics {} {} {} {} {}", k.fx, k.fy, k.cx, k.cy, k.bf);
-        if let Some(c) = &k.fisheye {
-            let [k1, k2, k3, k4] = c.k;
-            let (w, h) = (c.width, c.height);
-            let _ = write!(s, " {FISHEYE} {k1} {k2} {k3} {k4} {w} {h}");
+        match self.cameras.as_slice() {
+            [RigCamera {
+                intrinsics,
+                T_c_c0: None,
+            }] => write_intrinsics(&mut s, intrinsics),
+            cameras => {
+                let _ = writeln!(s, "{CAMERAS} {}", cameras.len());
+                for c in cameras {
+                    write_intrinsics(&mut s, &c.intrinsics);
+                    let _ = write!(s, "{EXTRINSICS}");
+                    match &c.T_c_c0 {
+                        None => {
+                            let _ = writeln!(s, " -");
+                        }
+                        Some(t) => {
+                            write_isometry(&mut s, t);
+                            let _ = writeln!(s);
+                        }
+                    }
+                }
+            }
         }
-        let _ = writeln!(s);
         let _ = writeln!(s, "poses {}", self.poses.len());
         for (pose, &fixed) in self.poses.iter().zip(&self.pose_fixed) {
-            let q = pose.rotation.quaternion();
-            let t = &pose.translation.vector;
-            let _ = writeln!(
-                s,
-                "{} {} {} {} {} {} {} {}",
-                u8::from(fixed),
-                q.w,
-                q.i,
-                q.j,
-                q.k,
-                t.x,
-                t.y,
-                t.z
-            );
+            let _ = write!(s, "{}", u8::from(fixed));
+            write_isometry(&mut s, pose);
+            let _ = writeln!(s);
         }
         let _ = writeln!(s, "points {}", self.points.len());
         for p in &self.points {
@@ -69,11 +91,15 @@ impl BaProblem {
         let _ = writeln!(s, "observations {}", self.observations.len());
         for o in &self.observations {
             let right = o.u_right.map_or_else(|| "-".to_owned(), |u| u.to_string());
-            let _ = writeln!(
+            let _ = write!(
                 s,
                 "{} {} {} {} {right} {}",
                 o.pose, o.point, o.uv.x, o.uv.y, o.inv_sigma2
             );
+            if o.camera != 0 {
+                let _ = write!(s, " {}", o.camera);
+            }
+            let _ = writeln!(s);
         }
         s
     }
@@ -90,8 +116,7 @@ impl BaProblem {
         if header.text != HEADER {
             return Err(header.error(&format!("expected the header '{HEADER}'")));
         }
-        let line = lines.next("the intrinsics")?;
-        let intrinsics = parse_intrinsics(&line)?;
+        let cameras = parse_cameras(&mut lines)?;
         let n_poses = lines.count("poses")?;
         let mut poses = Vec::with_capacity(n_poses);
         let mut pose_fixed = Vec::with_capacity(n_poses);
@@ -103,14 +128,7 @@ impl BaProblem {
                 1.0 => true,
                 _ => return Err(line.error("the fixed flag must be 0 or 1")),
             });
-            let q = Quaternion::new(qw, qx, qy, qz);
-            if (q.norm() - 1.0).abs() > UNIT_TOLERANCE {
-                return Err(line.error("the rotation is not a unit quaternion"));
-            }
-            poses.push(Isometry3::from_parts(
-                Translation3::new(tx, ty, tz),
-                UnitQuaternion::new_unchecked(q),
-            ));
+            poses.push(line.isometry([qw, qx, qy, qz, tx, ty, tz])?);
         }
         let n_points = lines.count("points")?;
         let mut points = Vec::with_capacity(n_points);
@@ -122,7 +140,17 @@ impl BaProblem {
         let mut observations = Vec::with_capacity(n_observations);
         for _ in 0..n_observations {
             let line = lines.next("an observation")?;
-            let [pose, point, u, v, u_right, inv_sigma2] = line.fields("")?;
+            // An observation of the first camera may leave out its camera index.
+            let tokens: Vec<&str> = line.text.split_whitespace().collect();
+            let (fields, camera) = match *tokens.as_slice() {
+                [a, b, c, d, e, f] => ([a, b, c, d, e, f], None),
+                [a, b, c, d, e, f, camera] => ([a, b, c, d, e, f], Some(camera)),
+                _ => {
+                    let found = tokens.len();
+                    return Err(line.error(&format!("expected 6 or 7 fields, found {found}")));
+                }
+            };
+            let [pose, point, u, v, u_right, inv_sigma2] = fields;
             let index = |token: &str| {
                 token
                     .parse::<usize>()
@@ -135,6 +163,7 @@ impl BaProblem {
             observations.push(Observation {
                 pose: index(pose)?,
                 point: index(point)?,
+                camera: camera.map_or(Ok(0), index)?,
                 uv: Vector2::new(line.number(u)?, line.number(v)?),
                 u_right,
                 inv_sigma2: line.number(inv_sigma2)?,
@@ -146,7 +175,7 @@ impl BaProblem {
             return Err(extra.error("text after the last observation"));
         }
         let problem = Self {
-            intrinsics,
+            cameras,
             poses,
             pose_fixed,
             points,
@@ -163,6 +192,52 @@ struct Lines<'a> {
     name: &'a str,
     /// Line number of the end of the text, for "ends before" errors.
     end: usize,
+}
+
+/// Writes ` <qw> <qx> <qy> <qz> <tx> <ty> <tz>` of `t`.
+fn write_isometry(s: &mut String, t: &Isometry3<f64>) {
+    let q = t.rotation.quaternion();
+    let v = &t.translation.vector;
+    let _ = write!(
+        s,
+        " {} {} {} {} {} {} {}",
+        q.w, q.i, q.j, q.k, v.x, v.y, v.z
+    );
+}
+
+/// Writes the intrinsics line of `k`.
+fn write_intrinsics(s: &mut String, k: &Intrinsics) {
+    let _ = write!(s, "intrinsics {} {} {} {} {}", k.fx, k.fy, k.cx, k.cy, k.bf);
+    if let Some(c) = &k.fisheye {
+        let [k1, k2, k3, k4] = c.k;
+        let (w, h) = (c.width, c.height);
+        let _ = write!(s, " {FISHEYE} {k1} {k2} {k3} {k4} {w} {h}");
+    }
+    let _ = writeln!(s);
+}
+
+/// The single camera's `intrinsics` line, or the `cameras` section of a rig.
+#[allow(non_snake_case)]
+fn parse_cameras(lines: &mut Lines<'_>) -> Result<Vec<RigCamera>, OptimError> {
+    let line = lines.next("the intrinsics")?;
+    if line.text.split_whitespace().next() != Some(CAMERAS) {
+        return Ok(vec![RigCamera::first(parse_intrinsics(&line)?)]);
+    }
+    let [count] = line.fields(CAMERAS)?;
+    let n: usize = count
+        .parse()
+        .map_err(|_| line.error(&format!("'{count}' is not a count")))?;
+    let mut cameras = Vec::with_capacity(n);
+    for _ in 0..n {
+        let intrinsics = parse_intrinsics(&lines.next("a camera's intrinsics")?)?;
+        let line = lines.next("a camera's T_c_c0")?;
+        let T_c_c0 = match line.text.split_whitespace().collect::<Vec<_>>().as_slice() {
+            [EXTRINSICS, "-"] => None,
+            _ => Some(line.isometry(line.values(EXTRINSICS)?)?),
+        };
+        cameras.push(RigCamera { intrinsics, T_c_c0 });
+    }
+    Ok(cameras)
 }
 
 /// The intrinsics line, pinhole or with the fisheye tail.
@@ -259,6 +334,21 @@ impl<'a> Lines<'a> {
 }
 
 impl Line<'_> {
+    /// The isometry of `[qw, qx, qy, qz, tx, ty, tz]` read from this line.
+    fn isometry(
+        &self,
+        [qw, qx, qy, qz, tx, ty, tz]: [f64; 7],
+    ) -> Result<Isometry3<f64>, OptimError> {
+        let q = Quaternion::new(qw, qx, qy, qz);
+        if (q.norm() - 1.0).abs() > UNIT_TOLERANCE {
+            return Err(self.error("the rotation is not a unit quaternion"));
+        }
+        Ok(Isometry3::from_parts(
+            Translation3::new(tx, ty, tz),
+            UnitQuaternion::new_unchecked(q),
+        ))
+    }
+
     fn error(&self, what: &str) -> OptimError {
         OptimError::InvalidInput(format!("{}, line {}: {what}", self.name, self.number))
     }
@@ -295,20 +385,21 @@ impl Line<'_> {
 }
 
 #[cfg(test)]
+#[allow(non_snake_case)]
 mod tests {
     use super::*;
 
     fn problem() -> BaProblem {
         let rotation = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3);
         BaProblem {
-            intrinsics: Intrinsics {
+            cameras: vec![RigCamera::first(Intrinsics {
                 fx: 517.3,
                 fy: 516.5,
                 cx: 318.6,
                 cy: 255.3,
                 bf: 40.0,
                 fisheye: None,
-            },
+            })],
             poses: vec![
                 Isometry3::identity(),
                 Isometry3::from_parts(Translation3::new(0.1, -1.0 / 3.0, 2e-7), rotation),
@@ -319,6 +410,7 @@ mod tests {
                 Observation {
                     pose: 0,
                     point: 0,
+                    camera: 0,
                     uv: Vector2::new(404.5, 213.125),
                     u_right: Some(391.2),
                     inv_sigma2: 1.0,
@@ -327,6 +419,7 @@ mod tests {
                 Observation {
                     pose: 1,
                     point: 1,
+                    camera: 0,
                     uv: Vector2::new(100.0 / 7.0, 30.0),
                     u_right: None,
                     inv_sigma2: 1.0 / 1.44,
@@ -357,13 +450,88 @@ mod tests {
     fn a_fisheye_problem_reads_back_with_its_lens() {
         let mut p = problem();
         let (_, lens) = ferroslam_geometry::camera::test_fisheye_cameras()[0];
-        p.intrinsics = Intrinsics::new(&lens.into(), 40.0);
+        p.cameras = vec![RigCamera::first(Intrinsics::new(&lens.into(), 40.0))];
         let text = p.to_text();
         assert!(
             text.lines().nth(1).unwrap().contains(" kannala_brandt "),
             "{text}"
         );
         assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
+    }
+
+    #[test]
+    fn a_rig_problem_reads_back_with_its_cameras() {
+        let mut p = problem();
+        let (_, lens) = ferroslam_geometry::camera::test_fisheye_cameras()[0];
+        let T_c1_c0 = Isometry3::from_parts(
+            Translation3::new(-0.1, 0.02, 1.0 / 3.0),
+            UnitQuaternion::from_euler_angles(0.0, 1.5, 0.1),
+        );
+        p.cameras
+            .push(RigCamera::new(Intrinsics::new(&lens.into(), 0.0), T_c1_c0));
+        p.observations[1].camera = 1;
+        let text = p.to_text();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[1], "cameras 2");
+        assert!(lines[2].starts_with("intrinsics 517.3 "), "{text}");
+        assert_eq!(lines[3], "T_c_c0 -");
+        assert!(lines[4].contains(" kannala_brandt "), "{text}");
+        assert!(lines[5].starts_with("T_c_c0 "), "{text}");
+        assert!(text.ends_with(&format!("1 1 {} 30 - {} 1\n", 100.0 / 7.0, 1.0 / 1.44)));
+        assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), p);
+        // A first camera given an extrinsic pose is a rig of one camera, kept as such.
+        let mut one = problem();
+        one.cameras[0].T_c_c0 = Some(T_c1_c0);
+        let text = one.to_text();
+        assert!(text.starts_with("ferroslam-ba 1\ncameras 1\n"), "{text}");
+        assert_eq!(BaProblem::from_text(&text, "p.txt").unwrap(), one);
+    }
+
+    #[test]
+    fn a_malformed_rig_is_refused_naming_the_line() {
+        let mut p = problem();
+        p.cameras.push(RigCamera::new(
+            p.cameras[0].intrinsics,
+            Isometry3::identity(),
+        ));
+        p.observations[1].camera = 1;
+        let text = p.to_text();
+        let lines: Vec<&str> = text.lines().collect();
+        let with_line = |i: usize, new: &str| {
+            let mut l = lines.clone();
+            l[i] = new;
+            l.join("\n")
+        };
+        assert_eq!(
+            error(&with_line(5, "T_c_c0 1 0 0 0 0 0")),
+            "p.txt, line 6: expected 8 fields, found 7"
+        );
+        assert_eq!(
+            error(&with_line(5, "T_c_c0 2 0 0 0 0 0 0")),
+            "p.txt, line 6: the rotation is not a unit quaternion"
+        );
+        assert_eq!(
+            error(&with_line(1, "cameras two")),
+            "p.txt, line 2: 'two' is not a count"
+        );
+        let last = lines.len() - 1;
+        assert_eq!(
+            error(&with_line(last, "1 1 1 30 - 1 x")),
+            format!("p.txt, line {}: 'x' is not an index", last + 1)
+        );
+        assert_eq!(
+            error(&with_line(last, "1 1 1 30 - 1 1 1")),
+            format!("p.txt, line {}: expected 6 or 7 fields, found 8", last + 1)
+        );
+        assert_eq!(
+            BaProblem::from_text(&with_line(last, "1 1 1 30 - 1 2"), "p.txt"),
+            Err(OptimError::IndexOutOfRange {
+                observation: 1,
+                what: "camera",
+                index: 2,
+                len: 2
+            })
+        );
     }
 
     #[test]

@@ -38,7 +38,8 @@ pub struct InertialBaProblem {
     /// Camera poses `T_c_w`, their fixed flags, points and observations (as for visual BA).
     pub visual: BaProblem,
     /// Camera-to-body extrinsic: `p_b = T_b_c * p_c` (EuRoC's `T_BS` is `T_b_c` with the
-    /// camera as sensor), metres. Constant.
+    /// camera as sensor), metres. Constant. For a rig, that of its first camera, whose pose
+    /// `visual.poses` holds (the others follow through their `RigCamera::T_c_c0`).
     pub T_b_c: Isometry3<f64>,
     /// Velocity of the body frame in the world, m/s, one per pose.
     pub velocities: Vec<Vector3<f64>>,

@@ -246,7 +246,7 @@ impl Context<'_> {
     fn cost(&self, est: &Estimate) -> f64 {
         let visual = &self.problem.visual;
         let mut cost = visual_cost(
-            &visual.intrinsics,
+            &visual.cameras,
             &visual.observations,
             &self.active,
             &est.poses,
@@ -288,8 +288,7 @@ impl Context<'_> {
                 for &i in obs.iter().filter(|&&i| self.active[i]) {
                     let o = &visual.observations[i];
                     // None is unreachable at an accepted estimate (its cost is finite).
-                    let Some(l) =
-                        o.linearize(&visual.intrinsics, &est.poses[o.pose], &est.points[*p])
+                    let Some(l) = o.linearize(&visual.cameras, &est.poses[o.pose], &est.points[*p])
                     else {
                         continue;
                     };

@@ -4,7 +4,7 @@
 
 use ferroslam_geometry::so3;
 use ferroslam_imu::{Bias, BiasWalkFactor, ImuParams, InertialFactor, Preintegrated};
-use ferroslam_optim::{BaProblem, InertialBaProblem, InertialEdge, Observation};
+use ferroslam_optim::{BaProblem, InertialBaProblem, InertialEdge, Observation, RigCamera};
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -132,6 +132,7 @@ pub fn flight(seed: u64, keyframes: usize, points: usize) -> (InertialBaProblem,
         }
         for (pose, uv) in seen {
             observations.push(Observation {
+                camera: 0,
                 pose,
                 point: true_points.len(),
                 uv: uv + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)),
@@ -146,7 +147,7 @@ pub fn flight(seed: u64, keyframes: usize, points: usize) -> (InertialBaProblem,
     pose_fixed[0] = true;
     let problem = InertialBaProblem {
         visual: BaProblem {
-            intrinsics: K,
+            cameras: vec![RigCamera::first(K)],
             poses: poses.clone(),
             pose_fixed,
             points: true_points,

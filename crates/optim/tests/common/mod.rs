@@ -5,7 +5,7 @@ pub mod flight;
 
 use ferroslam_geometry::se3;
 use ferroslam_optim::residual::linearize;
-use ferroslam_optim::{BaProblem, Intrinsics, Observation};
+use ferroslam_optim::{BaProblem, Intrinsics, Observation, RigCamera};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Vector2, Vector3, Vector6};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -131,6 +131,7 @@ pub fn scene(spec: &SceneSpec) -> Scene {
                 .random_bool(spec.stereo_fraction)
                 .then(|| uv.x - K.bf / z + spec.pixel_sigma * gaussian(&mut rng));
             observations.push(Observation {
+                camera: 0,
                 pose,
                 point,
                 uv: noisy,
@@ -164,7 +165,7 @@ pub fn scene(spec: &SceneSpec) -> Scene {
         .collect();
     Scene {
         problem: BaProblem {
-            intrinsics: K,
+            cameras: vec![RigCamera::first(K)],
             poses,
             pose_fixed,
             points,
