@@ -96,12 +96,20 @@ def test_rig_errors_name_the_problem():
         Rig((_camera(), _camera()), (np.eye(4), 2 * np.eye(4)))
     with pytest.raises(ValueError, match="a stereo rig needs two cameras"):
         Rig((_camera(),), stereo=True)
-    three = Rig((_camera(),) * 3, (np.eye(4), _at(0.1), _at(0.2)), stereo=True)
-    with pytest.raises(ValueError, match="this rig has 3 cameras: the core tracks one camera, "
-                                         "one camera with depth, or a stereo pair"):
-        RigVSlam(three)
-    with pytest.raises(ValueError, match="two cameras that are not a stereo pair"):
+    three = Rig((_camera(),) * 3, (_at(1.0), _at(1.1), _at(1.3)), stereo=True)
+    assert three.tracked_sensor() == "stereo" and three.first_observer == 2
+    [(camera, T_c0_c, has_depth)] = three.observers()
+    assert camera is three.cameras[2] and not has_depth
+    np.testing.assert_allclose(T_c0_c, _at(0.3), atol=1e-12)
+    with pytest.raises(ValueError, match="this rig has 2 cameras and its first has neither "
+                                         "depth nor a stereo partner"):
         RigVSlam(Rig((_camera(), _camera()), (np.eye(4), _at(0.1))))
+    with pytest.raises(ValueError, match=r"a rig of 2 camera\(s\) needs one depth flag each, "
+                                         "got 1"):
+        Rig((_camera(), _camera()), (np.eye(4), _at(0.1)), depth=(True,))
+    with pytest.raises(ValueError, match="the cameras of a stereo pair take their depth from "
+                                         "each other"):
+        Rig((_camera(), _camera()), (np.eye(4), _at(0.1)), stereo=True, depth=(True, False))
     with pytest.raises(TypeError, match="rig must be a ferroslam.rig.Rig, got Camera"):
         RigVSlam(_camera())
 

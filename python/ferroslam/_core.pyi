@@ -165,6 +165,7 @@ class SlamSystem:
         threaded: bool = False,
         right_camera: Optional[Any] = None,
         T_left_right: Optional[NDArray[np.float64]] = None,
+        cameras: Optional[Sequence[tuple[Any, NDArray[np.float64]] | tuple[Any, NDArray[np.float64], bool]]] = None,
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
         """Creates a system for a pinhole + radial-tangential or a Kannala-Brandt camera.
@@ -195,6 +196,13 @@ class SlamSystem:
                 ``baseline`` or ``bf``).
             T_left_right: ``(4, 4)`` float64 pose of the right camera in the left one
                 (``p_left = T_left_right @ p_right``, metres).
+            cameras: the rig's further cameras, ``(camera, T_c0_c)`` or ``(camera, T_c0_c,
+                has_depth)`` each: a ``ferroslam.Camera`` (raw, any model and size), its
+                ``(4, 4)`` pose in the first camera (``p_0 = T_c0_c @ p``, metres) and whether
+                its frames come with a depth image. Their images follow the first camera's
+                (and the pair partner's) in every ``track``; their keypoints are tracked,
+                optimised and triangulated with the first camera's. Not with
+                ``sensor="mono"`` nor a rolling shutter.
             options: see ``_SlamOptions``.
 
         Raises:
@@ -210,7 +218,7 @@ class SlamSystem:
         timestamp: float,
         images: NDArray[np.uint8] | Sequence[NDArray[np.uint8]],
         *,
-        depth: NDArray[np.floating] | None = None,
+        depth: NDArray[np.floating] | Sequence[NDArray[np.floating] | None] | None = None,
         colors: NDArray[np.uint8] | Sequence[NDArray[np.uint8] | None] | None = None,
         masks: NDArray[Any] | Sequence[NDArray[Any] | None] | None = None,
     ) -> TrackResult | None:
@@ -224,7 +232,8 @@ class SlamSystem:
             images: one uint8 image, grey (H, W) or BGR (H, W, 3), or one per camera
                 (stereo: ``(left, right)``, rectified), each the camera's size.
             depth: (H, W) float32/float64 metres registered to the first image (RGB-D only;
-                0, negative or NaN = none).
+                0, negative or NaN = none), or one per image (None where a camera has no
+                depth) for a rig with depth cameras.
             colors: the first image in colour when ``images`` is grey (map point colours);
                 per image, or one array for one camera.
             masks: per image a (H, W) uint8/bool mask, 0 = no keypoint there (on top of

@@ -218,6 +218,7 @@ class _RgbdFeed:
 
     core_sensor = "rgbd"
     pair = None
+    observers: tuple = ()
 
     def __init__(self, seq) -> None:
         if not hasattr(seq, "load_depth"):
@@ -259,6 +260,7 @@ class _StereoFeed:
 
     core_sensor = "stereo"
     pair = None
+    observers: tuple = ()
 
     def __init__(self, seq) -> None:
         if not getattr(seq, "is_stereo", False):
@@ -300,6 +302,7 @@ class _MonoFeed:
 
     core_sensor = "mono"
     pair = None
+    observers: tuple = ()
 
     def __init__(self, seq) -> None:
         self.seq = seq
@@ -349,6 +352,7 @@ class _RigFeed(_StereoFeed):
         self.seq, self.rig = seq, rig
         self.core_sensor = rig.tracked_sensor()
         self.pair = (rig.cameras[1], rig.T_left_right) if self.core_sensor == "stereo" else None
+        self.observers = rig.observers()
 
     def system_options(self) -> dict:
         return {}
@@ -472,7 +476,7 @@ def run_sequence(
         T_b_c=seq.T_b_c if imu is not None else None,
         imu_options={k: config[k] for k in IMU_KEYS if k in config},
         mapping_thread=config.get("mapping_thread", False), system_factory=system_factory,
-        pair=feed.pair)
+        pair=feed.pair, observers=feed.observers)
     return _run(seq, session, feed, n, sensor, config, progress, realtime, imu, on_frame)
 
 

@@ -7,10 +7,13 @@ The core tracks a rig as one frame per instant through one call (``SlamSystem.tr
 * one camera with registered depth: RGB-D (:class:`~ferroslam.RGBDVSlam`);
 * a declared pair, cameras 0 and 1, raw: each frame's camera-0 keypoints are matched into
   camera 1 along epipolar curves on unit rays (any model, any relative pose, no
-  rectification) and triangulated.
+  rectification) and triangulated;
+* every further camera (overlapping the others or not, with or without depth) adds its
+  keypoints to the same frame: matched against the map, in the pose optimisation and in
+  local BA, and triangulated against every camera of the neighbouring keyframes.
 
-Rigs of more cameras, and two cameras that are not matched at every frame, are described
-here but not tracked yet: :class:`~ferroslam.RigVSlam` says so when given one.
+The first camera must give the map its metric scale (depth or a pair): a monocular first
+camera with further cameras is refused, naming the reason.
 """
 
 from __future__ import annotations
@@ -37,11 +40,14 @@ class Rig:
             @ p_cam``, metres). With an IMU the body frame is the IMU's (EuRoC's ``T_BS``,
             Kalibr's ``inv(T_cam_imu)``).
         stereo: cameras 0 and 1 are a stereo pair, matched at every frame (metric depth).
+        depth: per camera, whether its frames come with a registered depth image (metres);
+            empty for none.
     """
 
     cameras: tuple[Camera, ...]
     T_body_cam: tuple[np.ndarray, ...] = field(default=())
     stereo: bool = False
+    depth: tuple[bool, ...] = field(default=())
 
     def __post_init__(self) -> None:
         cameras = tuple(self.cameras)
@@ -58,6 +64,14 @@ class Rig:
         poses = tuple(rigid_transform(T, f"T_body_cam[{k}]") for k, T in enumerate(poses))
         if self.stereo and len(cameras) < 2:
             raise ValueError("a stereo rig needs two cameras")
+        depth = tuple(bool(d) for d in self.depth) or tuple(False for _ in cameras)
+        if len(depth) != len(cameras):
+            raise ValueError(f"a rig of {len(cameras)} camera(s) needs one depth flag each, "
+                             f"got {len(depth)}")
+        if self.stereo and (depth[0] or depth[1]):
+            raise ValueError("the cameras of a stereo pair take their depth from each other, "
+                             "not from depth images")
+        object.__setattr__(self, "depth", depth)
         object.__setattr__(self, "cameras", cameras)
         object.__setattr__(self, "T_body_cam", poses)
         object.__setattr__(self, "stereo", bool(self.stereo))
@@ -98,25 +112,35 @@ class Rig:
             raise ValueError("a rig of one camera has no T_left_right")
         return np.linalg.inv(self.T_body_cam[0]) @ self.T_body_cam[1]
 
-    def tracked_sensor(self, *, depth: bool = False) -> str:
-        """The core sensor this rig is tracked as (``"mono"``, ``"rgbd"``, ``"stereo"``).
+    def tracked_sensor(self) -> str:
+        """The core sensor of the rig's first camera (``"mono"``, ``"rgbd"``, ``"stereo"``
+        with its pair partner); the further cameras join it (:meth:`observers`).
 
         Raises:
-            ValueError: a rig the core does not track yet, naming what it would need.
+            ValueError: a monocular first camera with further cameras (its map has no
+                metric scale for the rig's metric extrinsics).
         """
-        n = len(self.cameras)
-        if depth:
-            if n != 1:
-                raise ValueError(f"depth is tracked for a rig of one camera, this one has {n}")
-            return "rgbd"
-        if n == 1:
-            return "mono"
-        if n == 2 and self.stereo:
-            return "stereo"
-        what = ("two cameras that are not a stereo pair" if n == 2
-                else f"{n} cameras")
-        raise ValueError(f"this rig has {what}: the core tracks one camera, one camera with "
-                         "depth, or a stereo pair (cameras 0 and 1, stereo=True) so far")
+        sensor = "stereo" if self.stereo else "rgbd" if self.depth[0] else "mono"
+        if sensor == "mono" and len(self.cameras) > 1:
+            raise ValueError(
+                f"this rig has {len(self.cameras)} cameras and its first has neither depth "
+                "nor a stereo partner: a monocular map has no metric scale for the rig's "
+                "metric extrinsics; declare cameras 0 and 1 a pair (stereo=True) or give "
+                "camera 0 depth")
+        return sensor
+
+    @property
+    def first_observer(self) -> int:
+        """The index of the first camera after the tracked one and its pair partner."""
+        return 2 if self.stereo else 1
+
+    def observers(self) -> list[tuple[Camera, np.ndarray, bool]]:
+        """``(camera, T_c0_c, has_depth)`` of every camera after the first (and its pair
+        partner): its pose in camera 0 (``p_0 = T_c0_c @ p``, metres) and whether it has depth
+        images."""
+        T_c0_body = np.linalg.inv(self.T_body_cam[0])
+        return [(self.cameras[k], T_c0_body @ self.T_body_cam[k], self.depth[k])
+                for k in range(self.first_observer, len(self.cameras))]
 
     def camera_to_imu(self, T_body_imu: Optional[np.ndarray] = None) -> np.ndarray:
         """Camera 0's pose in the IMU frame, ``inv(T_body_imu) @ T_body_cam[0]`` (the body
@@ -128,7 +152,8 @@ class Rig:
 
     def __repr__(self) -> str:
         models = ", ".join(f"{c.model} {c.width}x{c.height}" for c in self.cameras)
-        return f"Rig({len(self.cameras)} camera(s): {models}; stereo={self.stereo})"
+        depth = f", depth={self.depth}" if any(self.depth) else ""
+        return f"Rig({len(self.cameras)} camera(s): {models}; stereo={self.stereo}{depth})"
 
 
 def rig_images(rig: Rig, images: Sequence[np.ndarray] | np.ndarray) -> list[np.ndarray]:

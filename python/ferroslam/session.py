@@ -9,7 +9,7 @@ core (``ferroslam._core.default_options``): a session passes on only the options
 
 from __future__ import annotations
 
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -69,6 +69,9 @@ class Session:
         pair: ``(right_camera, T_left_right)`` of an UNRECTIFIED stereo pair (``sensor``
             ``"stereo"``, ``camera`` the raw left one): the core matches the raw images along
             epipolar curves; its baseline is that of ``T_left_right``.
+        observers: ``(camera, T_c0_c, has_depth)`` of each further camera of a rig
+            (:meth:`ferroslam.rig.Rig.observers`): its image follows the first camera's (and
+            the pair partner's) in every frame.
 
     Raises:
         ValueError, TypeError: bad options, naming them (from the core).
@@ -79,7 +82,8 @@ class Session:
                  T_b_c: Optional[np.ndarray] = None, imu_options: Optional[dict] = None,
                  mapping_thread: bool = False,
                  system_factory: Optional[Callable[..., Any]] = None,
-                 pair: Optional[tuple[Camera, np.ndarray]] = None) -> None:
+                 pair: Optional[tuple[Camera, np.ndarray]] = None,
+                 observers: Sequence[tuple[Camera, np.ndarray, bool]] = ()) -> None:
         c = camera
         self.sensor = sensor
         inertial = imu is not None
@@ -96,16 +100,22 @@ class Session:
                              "ignored; pass the IMU noise parameters too, or leave it out")
         # An unrectified pair's second camera and its pose in the first, for the core.
         paired = {} if pair is None else {"right_camera": pair[0], "T_left_right": pair[1]}
+        if observers:
+            paired["cameras"] = [tuple(o) for o in observers]
         self.system = (system_factory or _core_system)(
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
             model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s,
             **paired, **options)
+        first_observer = 2 if sensor == "stereo" else 1
+        for k, (observer, _, _) in enumerate(observers):
+            if observer.mask is not None:
+                self.system.set_mask(first_observer + k, observer.mask)
         if pair is not None:  # each camera's own static mask
             for camera_index, masked in enumerate((c, pair[0])):
                 if masked.mask is not None:
                     self.system.set_mask(camera_index, masked.mask)
         elif c.mask is not None:  # the camera's static mask, on both images of a pair
-            for camera_index in range(2 if sensor == "stereo" else 1):
+            for camera_index in range(first_observer):
                 self.system.set_mask(camera_index, c.mask)
         if inertial:
             self.system.set_imu(imu, T_b_c, **imu_options)
@@ -123,7 +133,8 @@ class Session:
 
         Args:
             images: the tracked image (grey or BGR uint8), or ``(left, right)`` for stereo.
-            depth_m: the registered depth image in metres (RGB-D).
+            depth_m: the registered depth image in metres (RGB-D), or one per image (None
+                where a camera has no depth) for a rig with depth cameras.
             color: the first image in colour, when ``images`` is grey (map point colours).
             mask: this frame's mask, 0 = no keypoint, on top of the camera's static mask
                 (stereo: ``(left, right)``, either None).

@@ -162,8 +162,10 @@ class _VSlam:
     """
 
     _sensor = ""
-    # An unrectified pair's (right camera, T_left_right), for the core (RigVSlam).
+    # An unrectified pair's (right camera, T_left_right) and the further cameras
+    # (camera, T_c0_c, has_depth), for the core (RigVSlam).
     _pair: Optional[tuple[Camera, np.ndarray]] = None
+    _observers: tuple = ()
 
     def __init__(
         self,
@@ -215,7 +217,8 @@ class _VSlam:
             "imu_time_offset_s", core_default("imu_time_offset_s", self._sensor))
         self._session = Session(
             intrinsics, self._sensor, options, vocabulary=vocabulary, imu=self.imu,
-            T_b_c=camera_to_imu_transform, imu_options=imu_options, pair=self._pair)
+            T_b_c=camera_to_imu_transform, imu_options=imu_options, pair=self._pair,
+            observers=self._observers)
         self._system = self._session.system
         options = self._system.options
         self.scale_factor: float = options["scale_factor"]
@@ -598,20 +601,23 @@ class MonoVSlam(_VSlam):
 
 class RigVSlam(_VSlam):
     """Visual SLAM on a camera rig (:class:`ferroslam.rig.Rig`): one frame per instant, one
-    image per camera, through the core's one door. A rig of one camera is tracked as
-    :class:`MonoVSlam`; a stereo rig (cameras 0 and 1, ``stereo=True``) from its RAW images:
-    the core matches camera 0's keypoints into camera 1 along epipolar curves (each camera
-    with its own model and distortion, no rectification) and the scale is metric from the
-    rig's extrinsics. Poses are camera 0's ``T_w_c``. With ``imu=``, camera 0's pose in the
-    IMU frame defaults to ``rig.T_body_cam[0]`` (the body frame is the IMU's).
+    image per camera, through the core's one door. Camera 0 is tracked as its sensor's (one
+    camera: :class:`MonoVSlam`; with depth: RGB-D; a stereo rig, cameras 0 and 1 with
+    ``stereo=True``, from its RAW images: the core matches camera 0's keypoints into camera 1
+    along epipolar curves, each camera with its own model and distortion, no rectification,
+    and the scale is metric from the rig's extrinsics). Every further camera, overlapping or
+    not, with or without depth, adds its keypoints to the same frame: matched against the
+    map, in every pose and bundle adjustment, triangulated against the other keyframes'
+    cameras. Poses are camera 0's ``T_w_c``. With ``imu=``, camera 0's pose in the IMU frame
+    defaults to ``rig.T_body_cam[0]`` (the body frame is the IMU's).
 
     Keyword options as :class:`_VSlam`'s ``__init__`` (a stereo rig takes its baseline from
     its extrinsics).
 
     Raises:
         TypeError: ``rig`` is not a :class:`~ferroslam.rig.Rig`.
-        ValueError: a rig the core does not track yet (more cameras, two cameras that are
-            not a pair), naming it; options as the other objects.
+        ValueError: a rig the core cannot track (further cameras beside a monocular first
+            camera), naming it; options as the other objects.
     """
 
     def __init__(self, rig: Rig, **options: Any) -> None:
@@ -621,6 +627,7 @@ class RigVSlam(_VSlam):
         self.rig = rig
         if self._sensor == "stereo":
             self._pair = (rig.cameras[1], rig.T_left_right)
+        self._observers = tuple(rig.observers())
         if options.get("imu") is not None and options.get("camera_to_imu_transform") is None:
             options["camera_to_imu_transform"] = rig.camera_to_imu()
         super().__init__(rig.cameras[0], **options)
@@ -628,12 +635,15 @@ class RigVSlam(_VSlam):
     def add_frame(self, images: Union[Sequence[np.ndarray], np.ndarray],
                   timestamp: Optional[float] = None,
                   imu: Optional[Sequence[np.ndarray]] = None, *,
-                  mask: Union[None, np.ndarray, Sequence[Optional[np.ndarray]]] = None) -> None:
+                  mask: Union[None, np.ndarray, Sequence[Optional[np.ndarray]]] = None,
+                  depth: Optional[Sequence[Optional[np.ndarray]]] = None) -> None:
         """Adds one instant of the rig: one raw grey or BGR uint8 image per camera, in the
         rig's order (a single array for a rig of one camera). ``timestamp`` and ``imu`` as
         :meth:`MonoVSlam.add_frame`; ``mask``: this frame's mask per camera (a sequence with
         ``None`` where a camera has none; a single array for a rig of one camera), 0 = no
-        keypoint there, on top of each camera's static mask."""
+        keypoint there, on top of each camera's static mask; ``depth``: per camera its
+        registered depth image in metres (float), ``None`` for the cameras without depth
+        (``rig.depth``)."""
         started_s = time.perf_counter()
         frame = rig_images(self.rig, images)
         if isinstance(mask, np.ndarray) and len(frame) > 1:
@@ -644,8 +654,43 @@ class RigVSlam(_VSlam):
             if len(mask) != len(frame):
                 raise ValueError(f"mask: got {len(mask)} mask(s) for a rig of {len(frame)} "
                                  "camera(s): pass one per camera (None where none)")
+        depth_m = self._depth_images(depth, len(frame))
         images_arg = frame[0] if len(frame) == 1 else tuple(frame)
-        self._track(started_s, timestamp, {"images": images_arg, "mask": mask}, imu=imu)
+        self._track(started_s, timestamp, {"images": images_arg, "mask": mask,
+                                           "depth_m": depth_m}, imu=imu)
+
+    def _depth_images(self, depth: Any, n: int) -> Any:
+        """``depth`` of :meth:`add_frame` checked against the rig's depth cameras: what
+        ``Session.track`` takes (one array for a rig of one camera)."""
+        wanted = self.rig.depth
+        if not any(wanted):
+            if depth is not None and any(d is not None for d in _as_list(depth, n)):
+                raise ValueError("depth given, but no camera of this rig has depth images "
+                                 "(Rig(depth=...))")
+            return None
+        if depth is None:
+            raise ValueError(f"depth: cameras {[k for k in range(n) if wanted[k]]} of this rig "
+                             "have depth images: pass one per camera (None where none)")
+        given = _as_list(depth, n)
+        if len(given) != n:
+            raise ValueError(f"depth: got {len(given)} image(s) for a rig of {n} camera(s): "
+                             "pass one per camera (None where none)")
+        for k, (d, want) in enumerate(zip(given, wanted)):
+            if (d is None) == want:
+                raise ValueError(f"depth[{k}]: camera {k} " + (
+                    "has depth images: pass its depth in metres" if want
+                    else "has no depth: pass None for it"))
+        return given[0] if n == 1 else [None if d is None else np.asarray(d) for d in given]
+
+
+def _as_list(value: Any, n: int) -> list:
+    """A per-camera argument as a list (a single array for a rig of one camera)."""
+    if isinstance(value, np.ndarray) and n == 1:
+        return [value]
+    if isinstance(value, np.ndarray) or not isinstance(value, (list, tuple)):
+        raise ValueError(f"depth must be a sequence of {n} image(s) or None, one per camera, "
+                         f"got {type(value).__name__}")
+    return list(value)
 
 
 class StereoVSlam(_VSlam):

@@ -73,7 +73,8 @@ pub struct SparseModel {
 
 impl Map {
     /// The map as images, points and tracks, keypoints in the raw pixels of `camera` (the
-    /// camera of every keyframe) at each keyframe's reference time.
+    /// first camera of every keyframe) at each keyframe's reference time. A rig's further
+    /// cameras are left out: one image per keyframe, of its first camera.
     pub fn sparse_model(&self, camera: &CameraModel) -> SparseModel {
         let points: Vec<SparsePoint> = self
             .map_point_ids()
@@ -92,7 +93,10 @@ impl Map {
             .into_iter()
             .filter_map(|id| self.keyframe(id))
             .map(|kf| {
-                let point_index: Vec<Option<usize>> = (0..kf.features().len())
+                // The first camera's keypoints (they come first): the image of `camera`.
+                let point_index: Vec<Option<usize>> = kf
+                    .features()
+                    .camera_range(0)
                     .map(|i| kf.map_point(i).and_then(|m| index_of.get(&m).copied()))
                     .collect();
                 let keypoints_raw_px = point_index

@@ -22,7 +22,7 @@ pub struct FrameArrays<'py> {
     images: Vec<PyReadonlyArrayDyn<'py, u8>>,
     colors: Vec<Option<PyReadonlyArrayDyn<'py, u8>>>,
     masks: Vec<Option<PyReadonlyArrayDyn<'py, u8>>>,
-    depth: Option<Depth<'py>>,
+    depths: Vec<Option<Depth<'py>>>,
 }
 
 enum Depth<'py> {
@@ -150,6 +150,53 @@ fn per_camera<'py>(
         .collect()
 }
 
+/// A depth array as the core's image, borrowing float32 pixels.
+fn depth_image<'a>(d: &'a Depth<'_>) -> DepthImage<Cow<'a, [f32]>> {
+    let (shape, data) = match d {
+        Depth::F32(a) => (a.shape(), pixels(a)),
+        Depth::F64(a) => (
+            a.shape(),
+            Cow::Owned(a.as_array().iter().map(|&v| v as f32).collect()),
+        ),
+    };
+    DepthImage {
+        width: shape[1],
+        height: shape[0],
+        data,
+    }
+}
+
+/// `depth` of `SlamSystem.track`: `None`, one array (the first camera's), or a sequence with
+/// one array or `None` per image.
+fn depths<'py>(
+    depth: Option<&Bound<'py, PyAny>>,
+    cameras: usize,
+) -> PyResult<Vec<Option<Depth<'py>>>> {
+    let mut out: Vec<Option<Depth<'py>>> = (0..cameras).map(|_| None).collect();
+    let Some(depth) = depth.filter(|d| !d.is_none()) else {
+        return Ok(out);
+    };
+    if !(depth.is_instance_of::<PyList>() || depth.is_instance_of::<PyTuple>()) {
+        if let Some(first) = out.first_mut() {
+            *first = Some(depth_array(depth)?);
+        }
+        return Ok(out);
+    }
+    let given = items(depth);
+    if given.len() != cameras {
+        return Err(PyValueError::new_err(format!(
+            "depth: {} given for {cameras} image(s): one per image (None for none)",
+            given.len()
+        )));
+    }
+    for (slot, d) in out.iter_mut().zip(&given) {
+        if !d.is_none() {
+            *slot = Some(depth_array(d)?);
+        }
+    }
+    Ok(out)
+}
+
 fn pixels<'a, T: numpy::Element + Clone>(a: &'a PyReadonlyArrayDyn<'_, T>) -> Cow<'a, [T]> {
     match a.as_slice() {
         Ok(s) => Cow::Borrowed(s),
@@ -195,40 +242,23 @@ impl<'py> FrameArrays<'py> {
             timestamp,
             colors: per_camera(colors, n, "colors", false)?,
             masks: per_camera(masks, n, "masks", true)?,
-            depth: depth
-                .filter(|d| !d.is_none())
-                .map(depth_array)
-                .transpose()?,
+            depths: depths(depth, n)?,
             images,
         })
     }
 
-    /// The frame, borrowing the arrays (depth goes with the first camera).
+    /// The frame, borrowing the arrays.
     pub fn frame(&self) -> FrameCow<'_> {
-        let depth = self.depth.as_ref().map(|d| {
-            let (shape, data) = match d {
-                Depth::F32(a) => (a.shape(), pixels(a)),
-                Depth::F64(a) => (
-                    a.shape(),
-                    Cow::Owned(a.as_array().iter().map(|&v| v as f32).collect()),
-                ),
-            };
-            DepthImage {
-                width: shape[1],
-                height: shape[0],
-                data,
-            }
-        });
-        let mut depth = depth;
         let cameras = self
             .images
             .iter()
             .zip(&self.colors)
             .zip(&self.masks)
-            .map(|((img, color), mask)| CameraImage {
+            .zip(&self.depths)
+            .map(|(((img, color), mask), depth)| CameraImage {
                 image: image(img),
                 color: color.as_ref().map(image),
-                depth_m: depth.take(),
+                depth_m: depth.as_ref().map(depth_image),
                 mask: mask.as_ref().map(image),
             })
             .collect();

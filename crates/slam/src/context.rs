@@ -2,12 +2,13 @@
 
 use ferroslam_features::ImageBounds;
 use ferroslam_geometry::camera::CameraModel;
-use ferroslam_optim::Intrinsics;
-use nalgebra::Vector3;
+use ferroslam_optim::{Intrinsics, RigCamera};
+use nalgebra::{Isometry3, Point3, Vector3};
 
-use ferroslam_map::{PairCamera, Rig};
+use ferroslam_map::{PairCamera, Rig, RigMember};
 
 use crate::config::SlamConfig;
+use crate::front_end::ObserverShape;
 use crate::stereo_pair::UnrectifiedPair;
 
 /// The Kannala-Brandt model's name in map files and the bindings.
@@ -32,66 +33,57 @@ pub struct Context {
     /// The second camera of an unrectified stereo pair (stereo depth from matching on
     /// rays), `None` for rectified stereo and the other sensors.
     pub pair: Option<UnrectifiedPair>,
+    /// The rig's further cameras (cameras 1.. of every frame's keypoints), beside the first
+    /// camera (and its pair partner, which only gives it depth).
+    pub observers: Vec<Observer>,
+    /// Every camera as the optimisers see it, the first one first.
+    pub optim_cameras: Vec<RigCamera>,
 }
 
-impl Context {
-    /// Derives the context from a validated configuration.
-    pub fn new(camera: impl Into<CameraModel>, config: SlamConfig) -> Self {
-        let camera = camera.into();
-        let b = camera.bounds();
-        let bounds = ImageBounds {
-            min_x: b.min_x,
-            max_x: b.max_x,
-            min_y: b.min_y,
-            max_y: b.max_y,
-        };
-        let intrinsics = Intrinsics::new(&camera, config.depth.bf);
-        let close_depth_m = config.depth.close_depth_m(camera.fx());
-        let baseline_m = config.depth.bf / camera.fx();
-        Self {
-            camera,
-            bounds,
-            intrinsics,
-            config,
-            close_depth_m,
-            baseline_m,
-            pair: None,
-        }
+/// A further camera of a multi-camera rig: it sees its own part of the scene, beside the
+/// first camera, from a fixed pose on the rig.
+#[derive(Clone, Debug)]
+#[allow(non_snake_case)]
+pub struct Observer {
+    /// Calibrated camera (keypoints in its core pixels, as the first camera's).
+    pub camera: CameraModel,
+    /// Image bounds in core pixels.
+    pub bounds: ImageBounds,
+    /// Projection model and the depth sensor's virtual `bf`, for the optimisers.
+    pub intrinsics: Intrinsics,
+    /// Maps points from the first camera's frame to this camera's, metres.
+    pub T_c_c0: Isometry3<f64>,
+    /// Whether its frames come with a registered depth image.
+    pub has_depth: bool,
+}
+
+/// One camera of the rig as geometry sees it: the first camera or an [`Observer`].
+#[derive(Clone, Copy, Debug)]
+#[allow(non_snake_case)]
+pub struct CameraView<'a> {
+    /// Calibrated camera.
+    pub camera: &'a CameraModel,
+    /// Image bounds in core pixels.
+    pub bounds: &'a ImageBounds,
+    /// Projection model and `bf`, for the optimisers and the right coordinate.
+    pub intrinsics: &'a Intrinsics,
+    /// Maps points from the first camera's frame to this one's; `None` for the first camera,
+    /// whose arithmetic stays that of the pose itself.
+    pub T_c_c0: Option<&'a Isometry3<f64>>,
+}
+
+#[allow(non_snake_case)]
+impl CameraView<'_> {
+    /// This camera's pose `T_c_w` on a rig whose first camera is at `T_c0_w`.
+    pub fn pose(&self, T_c0_w: &Isometry3<f64>) -> Isometry3<f64> {
+        self.T_c_c0.map_or(*T_c0_w, |T| T * T_c0_w)
     }
 
-    /// The sensor and camera, as map files record them.
-    pub fn rig(&self) -> Rig {
-        let (model, intrinsics, distortion) = camera_record(&self.camera);
-        let (width, height) = self.camera.size();
-        let pair = self.pair.as_ref().map(|pair| {
-            let (model, intrinsics, distortion) = camera_record(&pair.right);
-            PairCamera {
-                model: model.to_owned(),
-                intrinsics,
-                distortion,
-                T_left_right: pair.T_left_right,
-            }
-        });
-        Rig {
-            sensor: self.config.sensor.name().to_owned(),
-            model: model.to_owned(),
-            intrinsics,
-            distortion,
-            width,
-            height,
-            pair,
-        }
-    }
-
-    /// Whether the camera is the (ideal) pinhole, whose arithmetic the core keeps exactly as
-    /// ORB-SLAM's; otherwise geometry runs on unit rays.
-    pub fn is_pinhole(&self) -> bool {
-        self.camera.as_pinhole().is_some()
-    }
-
-    /// Whether raw keypoints are distorted pinhole pixels (stereo input must not be).
-    pub fn is_distorted(&self) -> bool {
-        self.camera.as_pinhole().is_some_and(|c| c.is_distorted())
+    /// Camera centre in the world frame (metres) on a rig whose first camera is at `T_c0_w`.
+    pub fn center(&self, T_c0_w: &Isometry3<f64>) -> Vector3<f64> {
+        self.pose(T_c0_w)
+            .inverse_transform_point(&Point3::origin())
+            .coords
     }
 
     /// The virtual right coordinate (pixels) of camera point `p_c` projected at column `u`
@@ -108,6 +100,142 @@ impl Context {
             .unwrap_or_else(|| Vector3::repeat(f64::NAN))
     }
 
+    /// Whether core pixel `uv` lies inside the image bounds.
+    pub fn contains(&self, uv: &nalgebra::Vector2<f64>) -> bool {
+        let b = self.bounds;
+        uv.x >= b.min_x && uv.x < b.max_x && uv.y >= b.min_y && uv.y < b.max_y
+    }
+}
+
+impl Context {
+    /// Derives the context from a validated configuration.
+    pub fn new(camera: impl Into<CameraModel>, config: SlamConfig) -> Self {
+        let camera = camera.into();
+        let bounds = image_bounds(&camera);
+        let intrinsics = Intrinsics::new(&camera, config.depth.bf);
+        let close_depth_m = config.depth.close_depth_m(camera.fx());
+        let baseline_m = config.depth.bf / camera.fx();
+        Self {
+            camera,
+            bounds,
+            intrinsics,
+            config,
+            close_depth_m,
+            baseline_m,
+            pair: None,
+            observers: Vec::new(),
+            optim_cameras: vec![RigCamera::first(intrinsics)],
+        }
+    }
+
+    /// Adds a further camera at `T_c0_c` (its pose in the first camera's frame, metres),
+    /// with depth images when `has_depth` (their virtual baseline is the first camera's `bf`).
+    #[allow(non_snake_case)]
+    pub fn add_observer(&mut self, camera: CameraModel, T_c0_c: Isometry3<f64>, has_depth: bool) {
+        let bounds = image_bounds(&camera);
+        let bf = if has_depth { self.config.depth.bf } else { 0.0 };
+        let intrinsics = Intrinsics::new(&camera, bf);
+        let T_c_c0 = T_c0_c.inverse();
+        self.optim_cameras.push(RigCamera::new(intrinsics, T_c_c0));
+        self.observers.push(Observer {
+            camera,
+            bounds,
+            intrinsics,
+            T_c_c0,
+            has_depth,
+        });
+    }
+
+    /// Number of cameras whose keypoints a frame holds.
+    pub fn num_cameras(&self) -> usize {
+        1 + self.observers.len()
+    }
+
+    /// Camera `k` of the rig (0 = the first); `k` must be below [`Self::num_cameras`].
+    pub fn view(&self, k: usize) -> CameraView<'_> {
+        match k.checked_sub(1) {
+            None => CameraView {
+                camera: &self.camera,
+                bounds: &self.bounds,
+                intrinsics: &self.intrinsics,
+                T_c_c0: None,
+            },
+            Some(o) => {
+                let o = &self.observers[o];
+                CameraView {
+                    camera: &o.camera,
+                    bounds: &o.bounds,
+                    intrinsics: &o.intrinsics,
+                    T_c_c0: Some(&o.T_c_c0),
+                }
+            }
+        }
+    }
+
+    /// The sensor and camera, as map files record them.
+    pub fn rig(&self) -> Rig {
+        let (model, intrinsics, distortion) = camera_record(&self.camera);
+        let (width, height) = self.camera.size();
+        let pair = self.pair.as_ref().map(|pair| {
+            let (model, intrinsics, distortion) = camera_record(&pair.right);
+            PairCamera {
+                model: model.to_owned(),
+                intrinsics,
+                distortion,
+                T_left_right: pair.T_left_right,
+            }
+        });
+        let cameras = self
+            .observers
+            .iter()
+            .map(|o| {
+                let (model, intrinsics, distortion) = camera_record(&o.camera);
+                let (width, height) = o.camera.size();
+                RigMember {
+                    model: model.to_owned(),
+                    intrinsics,
+                    distortion,
+                    width,
+                    height,
+                    T_c0_c: o.T_c_c0.inverse(),
+                    has_depth: o.has_depth,
+                }
+            })
+            .collect();
+        Rig {
+            sensor: self.config.sensor.name().to_owned(),
+            model: model.to_owned(),
+            intrinsics,
+            distortion,
+            width,
+            height,
+            pair,
+            cameras,
+        }
+    }
+
+    /// Whether raw keypoints are distorted pinhole pixels (stereo input must not be).
+    pub fn is_distorted(&self) -> bool {
+        self.camera.as_pinhole().is_some_and(|c| c.is_distorted())
+    }
+
+    /// The unit ray of core pixel `(x, y)` (NaN for a pixel outside a fisheye's image circle).
+    pub fn ray(&self, x: f32, y: f32) -> Vector3<f64> {
+        self.view(0).ray(x, y)
+    }
+
+    /// What the further cameras' images must be.
+    pub fn observer_shapes(&self) -> Vec<ObserverShape> {
+        self.observers
+            .iter()
+            .map(|o| ObserverShape {
+                width: o.camera.size().0,
+                height: o.camera.size().1,
+                has_depth: o.has_depth,
+            })
+            .collect()
+    }
+
     /// What input frames must fit: pyramid depth and image size.
     pub fn input_shape(&self) -> InputShape {
         InputShape {
@@ -115,6 +243,17 @@ impl Context {
             width: self.camera.size().0,
             height: self.camera.size().1,
         }
+    }
+}
+
+/// A camera's image bounds in core pixels.
+fn image_bounds(camera: &CameraModel) -> ImageBounds {
+    let b = camera.bounds();
+    ImageBounds {
+        min_x: b.min_x,
+        max_x: b.max_x,
+        min_y: b.min_y,
+        max_y: b.max_y,
     }
 }
 
@@ -167,8 +306,8 @@ mod tests {
         let ctx = rgbd(pinhole);
         let p_c = Vector3::new(0.3, -0.2, 2.5);
         let u = ctx.camera.project(&p_c).unwrap().x;
-        assert_eq!(ctx.u_right(&p_c, u), u - 40.0 / 2.5);
-        assert!(ctx.is_pinhole() && ctx.rig().model == Rig::PINHOLE);
+        assert_eq!(ctx.view(0).u_right(&p_c, u), u - 40.0 / 2.5);
+        assert!(ctx.camera.as_pinhole().is_some() && ctx.rig().model == Rig::PINHOLE);
 
         let (_, lens) = test_fisheye_cameras()[0];
         let ctx = rgbd(lens);
@@ -177,10 +316,10 @@ mod tests {
         let p_c = Vector3::new(2.0, 0.5, -0.35);
         let u = ctx.camera.project(&p_c).unwrap().x;
         let right = lens.project(&(p_c - Vector3::new(b, 0.0, 0.0))).unwrap().x;
-        assert_eq!(ctx.u_right(&p_c, u), right);
+        assert_eq!(ctx.view(0).u_right(&p_c, u), right);
         // Straight behind the right camera: no projection, no right coordinate.
-        assert!(ctx.u_right(&Vector3::new(b, 0.0, -1.0), u).is_nan());
-        assert!(!ctx.is_pinhole() && ctx.rig().model == KANNALA_BRANDT);
+        assert!(ctx.view(0).u_right(&Vector3::new(b, 0.0, -1.0), u).is_nan());
+        assert!(ctx.camera.as_pinhole().is_none() && ctx.rig().model == KANNALA_BRANDT);
         assert_eq!(ctx.rig().distortion[..4], lens.k);
     }
 

@@ -1,15 +1,15 @@
 //! A tracked image: its features (undistorted, with depth) and their map associations.
 
 use ferroslam_features::{
-    match_stereo, search_by_projection_with, Descriptor, ImageBounds, Keypoint, MatchOptions,
-    ProjectionQuery, ScalePyramid, StereoView,
+    match_stereo, search_by_projection, search_by_projection_with, Descriptor, ImageBounds,
+    Keypoint, MatchOptions, ProjectionQuery, ScalePyramid, StereoView,
 };
 use ferroslam_geometry::camera::CameraModel;
 use ferroslam_geometry::rolling_shutter::motion_over;
 use ferroslam_map::{FrameFeatures, MapPointId, Rgb};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 
-use crate::context::{Context, InputShape};
+use crate::context::{CameraView, Context, InputShape};
 use crate::error::SlamError;
 
 /// One input frame during tracking.
@@ -207,36 +207,8 @@ impl Frame {
         input: &RgbdInput<'_>,
         ctx: &Context,
     ) -> Result<Self, SlamError> {
-        let (camera, config) = (&ctx.camera, &ctx.config);
-        let (dmin, dmax) = config.depth.depth_range;
-        let mut keypoints = Vec::with_capacity(input.keypoints.len());
-        let mut depth = Vec::with_capacity(input.keypoints.len());
-        let mut u_right = Vec::with_capacity(input.keypoints.len());
-        for (kp, &d) in input.keypoints.iter().zip(input.depth_m) {
-            let uv = camera.core_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
-            keypoints.push(Keypoint {
-                x: uv.x as f32,
-                y: uv.y as f32,
-                ..*kp
-            });
-            let d = d as f64;
-            // A fisheye's measured right coordinate: the virtual right camera's column of
-            // the keypoint's ray at its (z-)depth.
-            let ur = match camera {
-                CameraModel::Pinhole(_) => Some(uv.x - config.depth.bf / d),
-                CameraModel::KannalaBrandt(_) => camera
-                    .unproject(&uv)
-                    .and_then(|ray| point_at_depth(&ray, d))
-                    .and_then(|p_c| ctx.intrinsics.u_right(&p_c, uv.x)),
-            };
-            if let Some(ur) = ur.filter(|_| d.is_finite() && d > dmin && d < dmax) {
-                depth.push(d as f32);
-                u_right.push(ur as f32);
-            } else {
-                depth.push(-1.0);
-                u_right.push(-1.0);
-            }
-        }
+        let (keypoints, depth, u_right) =
+            with_depth(&ctx.view(0), input.keypoints, input.depth_m, ctx);
         Self::new(
             index,
             input.timestamp,
@@ -245,9 +217,57 @@ impl Frame {
             depth,
             u_right,
             input.colors,
-            time_offsets_s(input.keypoints, camera),
+            time_offsets_s(input.keypoints, &ctx.camera),
             ctx.bounds,
         )
+    }
+
+    /// The frame with the keypoints of the rig's further cameras appended, camera by camera
+    /// (`observed[k]` is camera `k + 1`'s: raw keypoints, descriptors, colours and, for a
+    /// depth camera, depths in metres).
+    pub fn with_observers(
+        self,
+        observed: &[ObserverInput<'_>],
+        ctx: &Context,
+    ) -> Result<Self, SlamError> {
+        let mut f = self.features;
+        let mut starts = vec![0];
+        let mut bounds = vec![ctx.bounds];
+        let mut colors = f.colors.take();
+        for (k, input) in observed.iter().enumerate() {
+            let view = ctx.view(k + 1);
+            starts.push(f.keypoints.len());
+            bounds.push(*view.bounds);
+            let (keypoints, depth, u_right) = match input.depth_m {
+                Some(d) => with_depth(&view, input.keypoints, d, ctx),
+                None => {
+                    let n = input.keypoints.len();
+                    let kps = to_core_pixels(input.keypoints, view.camera);
+                    (kps, vec![-1.0; n], vec![-1.0; n])
+                }
+            };
+            f.keypoints.extend(keypoints);
+            f.descriptors.extend_from_slice(input.descriptors);
+            f.depth.extend(depth);
+            f.u_right.extend(u_right);
+            if let Some(c) = colors.as_mut() {
+                c.extend_from_slice(input.colors);
+            }
+        }
+        let mut features =
+            FrameFeatures::new(f.keypoints, f.descriptors, f.depth, f.u_right, ctx.bounds)?
+                .with_cameras(starts, &bounds)?;
+        if let Some(colors) = colors {
+            features = features.with_colors(colors)?;
+        }
+        let n = features.len();
+        Ok(Self {
+            features,
+            map_points: vec![None; n],
+            vo_points: vec![None; n],
+            outlier: vec![false; n],
+            ..self
+        })
     }
 
     /// Undistorts the keypoints; no feature has depth.
@@ -372,7 +392,7 @@ impl Frame {
         self.outlier.iter_mut().for_each(|o| *o = false);
     }
 
-    /// Matches projected points against this frame's keypoints (see
+    /// Matches points projected into camera `camera` against that camera's keypoints (see
     /// [`ferroslam_features::search_by_projection`]): per query, `(keypoint, distance)`.
     ///
     /// `predicted_u_right[q]` is the right-image coordinate query `q` should have (`u - bf/z`);
@@ -381,26 +401,107 @@ impl Frame {
     /// of a depth edge looks alike but sits at another depth.
     pub fn search_by_projection(
         &self,
+        camera: usize,
         queries: &[ProjectionQuery],
         predicted_u_right: &[f64],
         taken: &[bool],
         opts: &MatchOptions,
     ) -> Vec<Option<(usize, u32)>> {
         let f = &self.features;
+        let range = f.camera_range(camera);
+        let first = range.start;
         let depth_agrees = |q: usize, t: usize| {
-            let measured = f.u_right[t];
+            let measured = f.u_right[first + t];
             measured < 0.0 || (predicted_u_right[q] - measured as f64).abs() <= queries[q].radius
         };
-        search_by_projection_with(
+        let found = search_by_projection_with(
             queries,
-            &f.keypoints,
-            &f.descriptors,
-            &f.grid,
-            taken,
+            &f.keypoints[range.clone()],
+            &f.descriptors[range.clone()],
+            f.grid(camera),
+            &taken[range],
             opts,
             depth_agrees,
-        )
+        );
+        found
+            .into_iter()
+            .map(|hit| hit.map(|(t, d)| (first + t, d)))
+            .collect()
     }
+}
+
+/// [`search_by_projection`] over the first camera's keypoints of `f`, for the stages that
+/// work in the first camera only (loop matching); the indices are `f`'s (the first camera's
+/// keypoints come first). `taken` is empty or one flag per keypoint of `f`.
+pub fn search_first_camera(
+    queries: &[ProjectionQuery],
+    f: &FrameFeatures,
+    taken: &[bool],
+    opts: &MatchOptions,
+) -> Vec<Option<(usize, u32)>> {
+    let r = f.camera_range(0);
+    let taken = taken.get(r.clone()).unwrap_or_default();
+    search_by_projection(
+        queries,
+        &f.keypoints[r.clone()],
+        &f.descriptors[r],
+        f.grid(0),
+        taken,
+        opts,
+    )
+}
+
+/// One further camera's measured features at an instant (see [`Frame::with_observers`]).
+pub struct ObserverInput<'a> {
+    /// Keypoints in the camera's raw pixels.
+    pub keypoints: &'a [Keypoint],
+    /// One descriptor per keypoint.
+    pub descriptors: &'a [Descriptor],
+    /// One colour per keypoint.
+    pub colors: &'a [Rgb],
+    /// Depth at each keypoint (metres, `<= 0` none) for a depth camera.
+    pub depth_m: Option<&'a [f32]>,
+}
+
+/// Core-pixel keypoints of camera `view` with their depths and virtual right coordinates
+/// (`-1` where the depth is missing or outside the configured range).
+fn with_depth(
+    view: &CameraView<'_>,
+    raw: &[Keypoint],
+    depth_m: &[f32],
+    ctx: &Context,
+) -> (Vec<Keypoint>, Vec<f32>, Vec<f32>) {
+    let (camera, config) = (view.camera, &ctx.config);
+    let (dmin, dmax) = config.depth.depth_range;
+    let mut keypoints = Vec::with_capacity(raw.len());
+    let mut depth = Vec::with_capacity(raw.len());
+    let mut u_right = Vec::with_capacity(raw.len());
+    for (kp, &d) in raw.iter().zip(depth_m) {
+        let uv = camera.core_pixel(&Vector2::new(kp.x as f64, kp.y as f64));
+        keypoints.push(Keypoint {
+            x: uv.x as f32,
+            y: uv.y as f32,
+            ..*kp
+        });
+        let d = d as f64;
+        // A fisheye's measured right coordinate: the virtual right camera's column of
+        // the keypoint's ray at its (z-)depth.
+        let ur = match camera {
+            CameraModel::Pinhole(_) => Some(uv.x - config.depth.bf / d),
+            CameraModel::KannalaBrandt(_) => camera
+                .unproject(&uv)
+                .and_then(|ray| point_at_depth(&ray, d))
+                .and_then(|p_c| view.intrinsics.u_right(&p_c, uv.x)),
+        };
+        if let Some(ur) = ur.filter(|_| d.is_finite() && d > dmin && d < dmax) {
+            depth.push(d as f32);
+            u_right.push(ur as f32);
+        } else {
+            depth.push(-1.0);
+            u_right.push(-1.0);
+        }
+    }
+    (keypoints, depth, u_right)
 }
 
 /// Keypoints moved from raw pixels to the camera's core pixels (see [`CameraModel`]).
@@ -418,19 +519,22 @@ fn to_core_pixels(keypoints: &[Keypoint], camera: &CameraModel) -> Vec<Keypoint>
         .collect()
 }
 
-/// Back-projects keypoint `i` of `features` with its depth (along the optical axis),
-/// returning the world point; `None` without depth or, for a fisheye, for a ray that does not
-/// point forwards.
+/// Back-projects keypoint `i` of `features` with its depth (along its camera's optical
+/// axis), returning the world point, for a rig whose first camera is at `T_w_c0`; `None`
+/// without depth or, for a fisheye, for a ray that does not point forwards.
+#[allow(non_snake_case)]
 pub fn unproject_depth(
     features: &FrameFeatures,
     i: usize,
-    camera: &CameraModel,
-    T_w_c: &Isometry3<f64>,
+    ctx: &Context,
+    T_w_c0: &Isometry3<f64>,
 ) -> Option<Vector3<f64>> {
     let z = features.depth[i] as f64;
     if z <= 0.0 {
         return None;
     }
+    let view = ctx.view(features.camera_of(i));
+    let camera = view.camera;
     let kp = &features.keypoints[i];
     let uv = Vector2::new(kp.x as f64, kp.y as f64);
     let p_c = match camera {
@@ -441,7 +545,8 @@ pub fn unproject_depth(
     // image, so sampled at the colour row's time): D^-1 brings it to the reference line.
     let p_c = Point3::from(p_c);
     let p_c = readout_motion(features, i).map_or(p_c, |D| D.inverse_transform_point(&p_c));
-    Some((T_w_c * p_c).coords)
+    let p_c0 = view.T_c_c0.map_or(p_c, |T| T.inverse_transform_point(&p_c));
+    Some((T_w_c0 * p_c0).coords)
 }
 
 /// The motion `D` of the camera from its frame's reference line to the row of keypoint `i`

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use crate::config::Sensor;
 use crate::context::{Context, InputShape};
 use crate::error::SlamError;
-use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::frame::{Frame, MonoInput, ObserverInput, RgbdInput, StereoInput};
 
 /// An 8-bit image as OpenCV holds it: rows of grey, BGR or BGRA pixels, no padding.
 #[derive(Clone, Debug)]
@@ -76,7 +76,18 @@ pub type RigFrameView<'a> = RigFrame<&'a [u8], &'a [f32]>;
 /// A frame owning its pixels (queued to the tracking thread).
 pub type OwnedRigFrame = RigFrame<Vec<u8>, Vec<f32>>;
 
-/// The cameras a sensor's frame holds: their count and which carry depth.
+/// What a further camera's images must be: their size and whether depth comes with them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ObserverShape {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Whether each image comes with a registered depth image.
+    pub has_depth: bool,
+}
+
+/// The cameras a sensor's frame holds for its first camera (and pair partner).
 fn expected_cameras(sensor: Sensor) -> (usize, &'static str) {
     match sensor {
         Sensor::Monocular => (1, "one image"),
@@ -154,25 +165,46 @@ fn pixel_of(k: &Keypoint, width: usize, height: usize) -> Option<(usize, usize)>
 }
 
 impl<D: AsRef<[u8]>, F: AsRef<[f32]>> RigFrame<D, F> {
-    /// Checks the frame against a `sensor` system whose cameras have `shape`: the number of
-    /// cameras, every image's size and channels, depth exactly where the sensor has it.
-    pub fn validate(&self, sensor: Sensor, shape: &InputShape) -> Result<(), SlamError> {
+    /// Checks the frame against a `sensor` system whose cameras have `shape`, and whose
+    /// further cameras are `observers`: the number of cameras, every image's size and
+    /// channels, depth exactly where the camera has it.
+    pub fn validate(
+        &self,
+        sensor: Sensor,
+        shape: &InputShape,
+        observers: &[ObserverShape],
+    ) -> Result<(), SlamError> {
         if !self.timestamp.is_finite() {
             return Err(invalid("timestamp is not finite".into()));
         }
-        let (n, what) = expected_cameras(sensor);
+        let (first, what) = expected_cameras(sensor);
+        let n = first + observers.len();
         if self.cameras.len() != n {
+            let what = if observers.is_empty() {
+                what.to_owned()
+            } else {
+                format!("{what} and one per further camera ({n} in all)")
+            };
             return Err(invalid(format!(
                 "a {} frame has {what}, got {} image(s)",
                 sensor.name(),
                 self.cameras.len()
             )));
         }
-        let size = (shape.width as usize, shape.height as usize);
         for (i, camera) in self.cameras.iter().enumerate() {
             let name = |part: &str| match n {
                 1 => part.to_string(),
                 _ => format!("camera {i} {part}"),
+            };
+            let (size, wants_depth) = match i.checked_sub(first) {
+                None => (
+                    (shape.width as usize, shape.height as usize),
+                    sensor == Sensor::Rgbd,
+                ),
+                Some(o) => (
+                    (observers[o].width as usize, observers[o].height as usize),
+                    observers[o].has_depth,
+                ),
             };
             camera.image.check(&name("image"), &[1, 3, 4], size)?;
             if let Some(color) = &camera.color {
@@ -181,7 +213,6 @@ impl<D: AsRef<[u8]>, F: AsRef<[f32]>> RigFrame<D, F> {
             if let Some(mask) = &camera.mask {
                 mask.check(&name("mask"), &[1], size)?;
             }
-            let wants_depth = sensor == Sensor::Rgbd;
             match (&camera.depth_m, wants_depth) {
                 (Some(depth), true) => {
                     let len = depth.data.as_ref().len();
@@ -192,6 +223,16 @@ impl<D: AsRef<[u8]>, F: AsRef<[f32]>> RigFrame<D, F> {
                             depth.width, depth.height, size.0, size.1
                         )));
                     }
+                }
+                (None, true) if i >= first => {
+                    return Err(invalid(format!(
+                        "camera {i} is a depth camera: its depth image is missing"
+                    )))
+                }
+                (Some(_), false) if i >= first => {
+                    return Err(invalid(format!(
+                        "camera {i} has no depth sensor: a depth image was given for it"
+                    )))
                 }
                 (None, true) => return Err(invalid("an RGB-D frame needs its depth image".into())),
                 (Some(_), false) => {
@@ -222,8 +263,34 @@ pub struct Measured {
 
 impl Measured {
     /// The frame tracking works on (the one place the sensors part ways): depth from the
-    /// sensor (RGB-D), from matching the pair (stereo), or none yet (monocular).
+    /// sensor (RGB-D), from matching the pair (stereo), or none yet (monocular), then the
+    /// further cameras' keypoints, each with its depth image's depths if it has one.
     pub fn frame(
+        &self,
+        index: usize,
+        sensor: Sensor,
+        pyramid: &ScalePyramid,
+        ctx: &Context,
+    ) -> Result<Frame, SlamError> {
+        let frame = self.first_camera_frame(index, sensor, pyramid, ctx)?;
+        if ctx.observers.is_empty() {
+            return Ok(frame);
+        }
+        let first_observer = expected_cameras(sensor).0;
+        let observed: Vec<ObserverInput<'_>> = self.cameras[first_observer..]
+            .iter()
+            .map(|c| ObserverInput {
+                keypoints: &c.features.keypoints,
+                descriptors: &c.features.descriptors,
+                colors: &c.colors,
+                depth_m: c.depth_m.as_deref(),
+            })
+            .collect();
+        frame.with_observers(&observed, ctx)
+    }
+
+    /// The first camera's frame, as its sensor's.
+    fn first_camera_frame(
         &self,
         index: usize,
         sensor: Sensor,

@@ -7,7 +7,7 @@ use crate::config::Sensor;
 use crate::context::InputShape;
 use crate::error::SlamError;
 use crate::frame::{MonoInput, RgbdInput, StereoInput};
-use crate::front_end::RigFrame;
+use crate::front_end::{ObserverShape, RigFrame};
 use ferroslam_features::OwnedGrayImage;
 
 /// Input rules of one system and the last accepted timestamp.
@@ -16,6 +16,7 @@ pub struct InputGuard {
     sensor: Sensor,
     shape: InputShape,
     distorted: bool,
+    observers: Vec<ObserverShape>,
     last_timestamp: Option<f64>,
 }
 
@@ -27,8 +28,14 @@ impl InputGuard {
             sensor,
             shape,
             distorted,
+            observers: Vec::new(),
             last_timestamp: None,
         }
+    }
+
+    /// The same rules for a rig whose further cameras' images are `observers`.
+    pub fn with_observers(self, observers: Vec<ObserverShape>) -> Self {
+        Self { observers, ..self }
     }
 
     /// Checks an RGB-D frame and, if it passes, accepts its timestamp.
@@ -58,7 +65,7 @@ impl InputGuard {
         &mut self,
         frame: &RigFrame<D, F>,
     ) -> Result<(), SlamError> {
-        frame.validate(self.sensor, &self.shape)?;
+        frame.validate(self.sensor, &self.shape, &self.observers)?;
         self.advance(frame.timestamp)
     }
 
@@ -68,14 +75,21 @@ impl InputGuard {
         camera: usize,
         mask: Option<&OwnedGrayImage>,
     ) -> Result<(), SlamError> {
-        let cameras = if self.sensor == Sensor::Stereo { 2 } else { 1 };
+        let first = if self.sensor == Sensor::Stereo { 2 } else { 1 };
+        let cameras = first + self.observers.len();
         if camera >= cameras {
             return Err(SlamError::InvalidInput(format!(
                 "mask for camera {camera}, but a {} system has {cameras} camera(s)",
                 self.sensor.name()
             )));
         }
-        let size = (self.shape.width as usize, self.shape.height as usize);
+        let size = match camera.checked_sub(first) {
+            None => (self.shape.width as usize, self.shape.height as usize),
+            Some(o) => (
+                self.observers[o].width as usize,
+                self.observers[o].height as usize,
+            ),
+        };
         match mask.map(|m| (m.view().width(), m.view().height())) {
             Some(got) if got != size => Err(SlamError::InvalidInput(format!(
                 "the mask is {}x{} but the camera is {}x{} (width x height)",
@@ -93,6 +107,13 @@ impl InputGuard {
     }
 
     fn expect(&self, sensor: Sensor, method: &str) -> Result<(), SlamError> {
+        if !self.observers.is_empty() {
+            return Err(SlamError::InvalidInput(format!(
+                "{method} takes the first camera's features only, but this rig has {} further \
+                 camera(s): track its images (track)",
+                self.observers.len()
+            )));
+        }
         if self.sensor == sensor {
             return Ok(());
         }

@@ -47,7 +47,7 @@ pub(crate) fn insert_keyframe(
         if frame.map_points[i].is_some() {
             continue;
         }
-        let Some(p_w) = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c) else {
+        let Some(p_w) = unproject_depth(&frame.features, i, ctx, &T_w_c) else {
             continue;
         };
         let m = map.create_map_point(p_w, kf)?;

@@ -109,6 +109,7 @@ impl LocalProblem {
                     u_right: (ur >= 0.0).then_some(ur as f64),
                     inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
                     readout_motion: readout_motion(f, i),
+                    camera: f.camera_of(i),
                 });
                 obs_keys.push((m, k));
             }
@@ -116,7 +117,7 @@ impl LocalProblem {
         // The map's first keyframe fixes the gauge.
         let origin = map.origin();
         let problem = BaProblem {
-            intrinsics: ctx.intrinsics,
+            cameras: ctx.optim_cameras.clone(),
             poses: pose_ids
                 .iter()
                 .map(|k| *map.keyframe(*k).unwrap().T_c_w())

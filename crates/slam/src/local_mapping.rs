@@ -7,9 +7,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use ferroslam_features::matcher::TH_LOW;
-use ferroslam_features::{search_for_triangulation, search_for_triangulation_rays, MatchOptions};
+use ferroslam_features::{
+    search_for_triangulation, search_for_triangulation_rays, Keypoint, MatchOptions,
+};
+use ferroslam_geometry::camera::{CameraModel, PinholeCamera};
 use ferroslam_geometry::triangulation::{triangulate_dlt, triangulate_rays};
-use ferroslam_map::{FrameFeatures, KeyFrameId, Map, MapPointId};
+use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
 #[cfg(feature = "bench")]
 use ferroslam_optim::BaProblem;
@@ -242,95 +245,26 @@ impl LocalMapper {
         let pyramid = map.pyramid().clone();
         let ratio_factor = config.scale_consistency_factor * pyramid.scale_factor;
         let mut created = 0;
+        let n_cameras = ctx.num_cameras();
         for (n, kf2) in neighbours.into_iter().enumerate() {
             if n > 0 && interrupt.requested() {
                 break;
             }
-            let (Some(k1), Some(k2)) = (map.keyframe(kf), map.keyframe(kf2)) else {
-                continue;
-            };
-            let (T_c1_w, T_c2_w) = (*k1.T_c_w(), *k2.T_c_w());
-            let (o1, o2) = (k1.camera_center(), k2.camera_center());
-            let baseline = (o2 - o1).norm();
-            let too_short = if sensor.has_depth() {
-                baseline < ctx.baseline_m
-            } else {
-                median_depth.is_none_or(|d| baseline / d < config.min_baseline_depth_ratio())
-            };
-            if too_short {
+            if map.keyframe(kf).is_none() || map.keyframe(kf2).is_none() {
                 continue;
             }
-            let epipole2 = ctx
-                .camera
-                .project(&(T_c2_w * Point3::from(o1)).coords)
-                .map(|e| (e.x, e.y));
-            let (f1, f2) = (k1.features(), k2.features());
-            let free1: Vec<bool> = k1.map_points().iter().map(Option::is_none).collect();
-            let free2: Vec<bool> = k2.map_points().iter().map(Option::is_none).collect();
-            let opts = MatchOptions {
-                max_distance: TH_LOW,
-                nn_ratio: None,
-                check_orientation: true,
-            };
-            let pairs = if ctx.is_pinhole() {
-                let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, ctx);
-                search_for_triangulation(
-                    &f1.keypoints,
-                    &f1.descriptors,
-                    &free1,
-                    &f2.keypoints,
-                    &f2.descriptors,
-                    &free2,
-                    &f21,
-                    &pyramid.sigma2,
-                    epipole2,
-                    &opts,
-                )
-            } else {
-                let rays = |f: &FrameFeatures| -> Vec<Vector3<f64>> {
-                    f.keypoints.iter().map(|k| ctx.ray(k.x, k.y)).collect()
+            let (mut searched, mut brought) = (false, 0);
+            for (a, b) in (0..n_cameras).flat_map(|a| (0..n_cameras).map(move |b| (a, b))) {
+                let pair = CameraPair {
+                    kf1: kf,
+                    kf2,
+                    cameras: [a, b],
                 };
-                search_for_triangulation_rays(
-                    (&f1.keypoints, &f1.descriptors, &free1, &rays(f1)),
-                    (&f2.keypoints, &f2.descriptors, &free2, &rays(f2)),
-                    &essential_matrix(&T_c1_w, &T_c2_w),
-                    &pyramid.sigma2,
-                    1.0 / ctx.camera.fx(),
-                    epipole2,
-                    &opts,
-                )
-            };
-            let views = [View::new(map, kf), View::new(map, kf2)];
-            let mut new_points = Vec::new();
-            for (i1, i2) in pairs {
-                let Some(p_w) = triangulate_pair(&views, [i1, i2], ctx) else {
+                let Some(new_points) = pair.triangulate(map, ctx, median_depth, ratio_factor)
+                else {
                     continue;
                 };
-                let ok = views
-                    .iter()
-                    .zip([i1, i2])
-                    .all(|(v, i)| v.reprojection_ok(&p_w, i, &pyramid.sigma2, ctx));
-                if !ok {
-                    continue;
-                }
-                let (d1, d2) = ((p_w - o1).norm(), (p_w - o2).norm());
-                if d1 == 0.0 || d2 == 0.0 {
-                    continue;
-                }
-                let ratio_dist = d2 / d1;
-                let ratio_octave =
-                    pyramid.scale[views[0].octave(i1)] / pyramid.scale[views[1].octave(i2)];
-                if ratio_dist * ratio_factor < ratio_octave
-                    || ratio_dist > ratio_octave * ratio_factor
-                {
-                    continue;
-                }
-                new_points.push((p_w, i1, i2));
-            }
-            let last = sensor.has_depth()
-                && n >= config.always_searched_with_depth
-                && new_points.len() < config.min_points_to_search_on;
-            if !new_points.is_empty() {
+                searched = true;
                 for (p_w, i1, i2) in new_points {
                     let m = map.create_map_point(p_w, kf)?;
                     map.add_observation(m, kf, i1)?;
@@ -338,11 +272,20 @@ impl LocalMapper {
                     map.compute_distinctive_descriptor(m)?;
                     map.update_normal_and_depth(m)?;
                     self.recent_points.push(m);
-                    created += 1;
+                    brought += 1;
                 }
+            }
+            if !searched {
+                continue;
+            }
+            created += brought;
+            if brought > 0 {
                 points_added(map);
             }
-            if last {
+            if sensor.has_depth()
+                && n >= config.always_searched_with_depth
+                && brought < config.min_points_to_search_on
+            {
                 break;
             }
         }
@@ -419,6 +362,127 @@ impl LocalMapper {
     }
 }
 
+/// One camera of one keyframe and one of another (or the same) keyframe, whose unmatched
+/// keypoints are searched along epipolar lines and triangulated.
+struct CameraPair {
+    kf1: KeyFrameId,
+    kf2: KeyFrameId,
+    cameras: [usize; 2],
+}
+
+impl CameraPair {
+    /// New points `(p_w, keypoint of kf1, keypoint of kf2)`; `None` when the pair is not
+    /// searched: a baseline too short for its depth (or the stereo baseline), or two cameras
+    /// of the rig facing apart.
+    fn triangulate(
+        &self,
+        map: &Map,
+        ctx: &Context,
+        median_depth: Option<f64>,
+        ratio_factor: f64,
+    ) -> Option<Vec<(Vector3<f64>, usize, usize)>> {
+        let (k1, k2) = (map.keyframe(self.kf1)?, map.keyframe(self.kf2)?);
+        let views = [
+            View::new(map, self.kf1, ctx, self.cameras[0]),
+            View::new(map, self.kf2, ctx, self.cameras[1]),
+        ];
+        let (T_c1_w, T_c2_w) = (views[0].T_c_w, views[1].T_c_w);
+        let (o1, o2) = (views[0].center, views[1].center);
+        if self.cameras[0] != self.cameras[1] {
+            // Optical axes more than 90 degrees apart: no shared view to search.
+            let axis = |v: &View<'_>| v.T_w_c.rotation * Vector3::z();
+            if axis(&views[0]).dot(&axis(&views[1])) <= 0.0 {
+                return None;
+            }
+        }
+        let config = &ctx.config.mapping;
+        let baseline = (o2 - o1).norm();
+        let too_short = if ctx.config.sensor.has_depth() {
+            baseline < ctx.baseline_m
+        } else {
+            median_depth.is_none_or(|d| baseline / d < config.min_baseline_depth_ratio())
+        };
+        if too_short {
+            return None;
+        }
+        let pyramid = map.pyramid();
+        let epipole2 = views[1]
+            .camera
+            .project(&(T_c2_w * Point3::from(o1)).coords)
+            .map(|e| (e.x, e.y));
+        let (r1, r2) = (views[0].range.clone(), views[1].range.clone());
+        let (f1, f2) = (k1.features(), k2.features());
+        let free = |k: &ferroslam_map::KeyFrame, r: std::ops::Range<usize>| -> Vec<bool> {
+            k.map_points()[r].iter().map(Option::is_none).collect()
+        };
+        let (free1, free2) = (free(k1, r1.clone()), free(k2, r2.clone()));
+        let opts = MatchOptions {
+            max_distance: TH_LOW,
+            nn_ratio: None,
+            check_orientation: true,
+        };
+        let (kps1, kps2) = (&f1.keypoints[r1.clone()], &f2.keypoints[r2.clone()]);
+        let (desc1, desc2) = (&f1.descriptors[r1.clone()], &f2.descriptors[r2.clone()]);
+        let pinholes = (views[0].camera.as_pinhole(), views[1].camera.as_pinhole());
+        let pairs = if let (Some(c1), Some(c2)) = pinholes {
+            let f21 = fundamental_matrix(&T_c1_w, &T_c2_w, c1, c2);
+            search_for_triangulation(
+                kps1,
+                desc1,
+                &free1,
+                kps2,
+                desc2,
+                &free2,
+                &f21,
+                &pyramid.sigma2,
+                epipole2,
+                &opts,
+            )
+        } else {
+            let rays = |camera: usize, kps: &[Keypoint]| -> Vec<Vector3<f64>> {
+                let view = ctx.view(camera);
+                kps.iter().map(|k| view.ray(k.x, k.y)).collect()
+            };
+            search_for_triangulation_rays(
+                (kps1, desc1, &free1, &rays(self.cameras[0], kps1)),
+                (kps2, desc2, &free2, &rays(self.cameras[1], kps2)),
+                &essential_matrix(&T_c1_w, &T_c2_w),
+                &pyramid.sigma2,
+                1.0 / views[1].camera.fx(),
+                epipole2,
+                &opts,
+            )
+        };
+        let mut new_points = Vec::new();
+        for (l1, l2) in pairs {
+            let (i1, i2) = (r1.start + l1, r2.start + l2);
+            let Some(p_w) = triangulate_pair(&views, [i1, i2], ctx) else {
+                continue;
+            };
+            let ok = views
+                .iter()
+                .zip([i1, i2])
+                .all(|(v, i)| v.reprojection_ok(&p_w, i, &pyramid.sigma2));
+            if !ok {
+                continue;
+            }
+            let (d1, d2) = ((p_w - o1).norm(), (p_w - o2).norm());
+            if d1 == 0.0 || d2 == 0.0 {
+                continue;
+            }
+            let ratio_dist = d2 / d1;
+            let ratio_octave =
+                pyramid.scale[views[0].octave(i1)] / pyramid.scale[views[1].octave(i2)];
+            if ratio_dist * ratio_factor < ratio_octave || ratio_dist > ratio_octave * ratio_factor
+            {
+                continue;
+            }
+            new_points.push((p_w, i1, i2));
+        }
+        Some(new_points)
+    }
+}
+
 /// Essential matrix `E21 = [t21]x R21` with `r2^T E21 r1 = 0` for rays of two cameras.
 pub(crate) fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>) -> Matrix3<f64> {
     let T_21 = T_c2_w * T_c1_w.inverse();
@@ -427,43 +491,65 @@ pub(crate) fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>)
     t_hat * T_21.rotation.to_rotation_matrix().into_inner()
 }
 
-/// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of two pinhole
-/// cameras.
+/// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of pinhole
+/// cameras `c1` (at `T_c1_w`) and `c2` (at `T_c2_w`).
 fn fundamental_matrix(
     T_c1_w: &Isometry3<f64>,
     T_c2_w: &Isometry3<f64>,
-    ctx: &Context,
+    c1: &PinholeCamera,
+    c2: &PinholeCamera,
 ) -> Matrix3<f64> {
     let e21 = essential_matrix(T_c1_w, T_c2_w);
-    let c = ctx.camera.as_pinhole().expect("a pinhole camera");
-    let k_inv = Matrix3::new(
-        1.0 / c.fx,
-        0.0,
-        -c.cx / c.fx,
-        0.0,
-        1.0 / c.fy,
-        -c.cy / c.fy,
-        0.0,
-        0.0,
-        1.0,
-    );
-    k_inv.transpose() * e21 * k_inv
+    let k_inv = |c: &PinholeCamera| {
+        Matrix3::new(
+            1.0 / c.fx,
+            0.0,
+            -c.cx / c.fx,
+            0.0,
+            1.0 / c.fy,
+            -c.cy / c.fy,
+            0.0,
+            0.0,
+            1.0,
+        )
+    };
+    k_inv(c2).transpose() * e21 * k_inv(c1)
 }
 
-/// One keyframe's view of a feature, for triangulation checks.
+/// One camera of one keyframe's view of a feature, for triangulation checks.
 struct View<'a> {
     T_c_w: Isometry3<f64>,
     T_w_c: Isometry3<f64>,
+    /// The keyframe's first camera pose, to which depth points are referred.
+    T_w_c0: Isometry3<f64>,
+    /// Camera centre in the world frame, metres.
+    center: Vector3<f64>,
     features: &'a ferroslam_map::FrameFeatures,
+    /// This camera's keypoints in `features`.
+    range: std::ops::Range<usize>,
+    camera: &'a CameraModel,
+    ctx: &'a Context,
 }
 
 impl<'a> View<'a> {
-    fn new(map: &'a Map, kf: KeyFrameId) -> Self {
+    fn new(map: &'a Map, kf: KeyFrameId, ctx: &'a Context, camera: usize) -> Self {
         let k = map.keyframe(kf).expect("view of a live keyframe");
+        let view = ctx.view(camera);
+        let T_c_w = view.pose(k.T_c_w());
+        let features = k.features();
         Self {
-            T_c_w: *k.T_c_w(),
-            T_w_c: k.T_w_c(),
-            features: k.features(),
+            T_c_w,
+            T_w_c: if camera == 0 {
+                k.T_w_c()
+            } else {
+                T_c_w.inverse()
+            },
+            T_w_c0: k.T_w_c(),
+            center: view.center(k.T_c_w()),
+            features,
+            range: features.camera_range(camera),
+            camera: view.camera,
+            ctx,
         }
     }
 
@@ -477,16 +563,17 @@ impl<'a> View<'a> {
     }
 
     /// ORB-SLAM's chi2 test (5.991 for (u, v), 7.8 with the right coordinate), positive depth.
-    fn reprojection_ok(&self, p_w: &Vector3<f64>, i: usize, sigma2: &[f64], ctx: &Context) -> bool {
+    fn reprojection_ok(&self, p_w: &Vector3<f64>, i: usize, sigma2: &[f64]) -> bool {
         let p_c = self.T_c_w * Point3::from(*p_w);
-        let Some(uv) = ctx.camera.project(&p_c.coords) else {
+        let Some(uv) = self.camera.project(&p_c.coords) else {
             return false;
         };
         let e = uv - self.pixel(i);
         let s2 = sigma2[self.octave(i)];
         let ur = self.features.u_right[i] as f64;
         if ur >= 0.0 {
-            let er = ctx.u_right(&p_c.coords, uv.x) - ur;
+            let view = self.ctx.view(self.features.camera_of(i));
+            let er = view.u_right(&p_c.coords, uv.x) - ur;
             e.norm_squared() + er * er <= CHI2_STEREO * s2
         } else {
             e.norm_squared() <= CHI2_MONO * s2
@@ -512,13 +599,14 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
         .filter(|&k| depth[k] > 0.0 && depth[k] < ctx.close_depth_m)
         .min_by(|&a, &b| depth[a].total_cmp(&depth[b]));
     if let Some(k) = closest {
-        return unproject_depth(views[k].features, idx[k], &ctx.camera, &views[k].T_w_c);
+        return unproject_depth(views[k].features, idx[k], ctx, &views[k].T_w_c0);
     }
     // (x, y, 1) rays for the pinhole (ORB-SLAM's arithmetic), unit rays otherwise.
-    let pinhole = ctx.camera.as_pinhole();
     let xn = [0, 1].map(|k| {
-        let uv = views[k].pixel(idx[k]);
-        pinhole.map_or_else(|| ctx.camera.unproject(&uv), |c| Some(c.unproject(&uv)))
+        let (camera, uv) = (views[k].camera, views[k].pixel(idx[k]));
+        camera
+            .as_pinhole()
+            .map_or_else(|| camera.unproject(&uv), |c| Some(c.unproject(&uv)))
     });
     let [Some(x1), Some(x2)] = xn else {
         return None;
@@ -528,7 +616,8 @@ fn triangulate_pair(views: &[View<'_>; 2], idx: [usize; 2], ctx: &Context) -> Op
     if cos_rays > ctx.config.mapping.min_ray_parallax_deg.to_radians().cos() {
         return None;
     }
-    if pinhole.is_some() {
+    let pinholes = views[0].camera.as_pinhole().is_some() && views[1].camera.as_pinhole().is_some();
+    if pinholes {
         triangulate_dlt(&views[0].T_c_w, &views[1].T_c_w, &x1, &x2)
     } else {
         triangulate_rays(&views[0].T_c_w, &views[1].T_c_w, &x1, &x2)

@@ -168,11 +168,18 @@ impl MonoInitializer {
             check_orientation: true,
         };
         let f = &frame.features;
-        search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &[], &opts)
-            .into_iter()
-            .enumerate()
-            .filter_map(|(q, hit)| hit.map(|(j, _)| (ids[q], j)))
-            .collect()
+        search_by_projection(
+            &queries,
+            &f.keypoints,
+            &f.descriptors,
+            f.grid(0),
+            &[],
+            &opts,
+        )
+        .into_iter()
+        .enumerate()
+        .filter_map(|(q, hit)| hit.map(|(j, _)| (ids[q], j)))
+        .collect()
     }
 }
 

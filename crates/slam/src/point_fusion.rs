@@ -85,48 +85,61 @@ pub(crate) fn fuse_points_into(
     let Some(k) = map.keyframe(kf) else {
         return Ok(0);
     };
-    let (T_c_w, center) = (*k.T_c_w(), k.camera_center());
+    let (T_c0_w, center0) = (*k.T_c_w(), k.camera_center());
     let pyramid = map.pyramid().clone();
+    let rules = &ctx.config.visibility;
     let mut fused = 0;
     for &m in points {
         let Some(p) = map.map_point(m) else { continue };
         if p.observations().contains_key(&kf) {
             continue;
         }
-        let rules = &ctx.config.visibility;
-        let Some(vis) = visible_point(map, m, &T_c_w, &center, &ctx.camera, &ctx.bounds, rules)
-        else {
-            continue;
-        };
         let descriptor = *p.descriptor();
-        let ur_pred = ctx.u_right(&vis.p_c, vis.u);
         let k = map.keyframe(kf).unwrap();
         let f = k.features();
-        let radius = th * pyramid.scale[vis.level as usize];
+        // The closest descriptor among the cameras that see the point.
         let mut best: Option<(u32, usize)> = None;
-        for i in f
-            .grid
-            .features_in_area(&f.keypoints, vis.u, vis.v, radius, None, None)
-        {
-            let kp = &f.keypoints[i];
-            if kp.octave + 1 < vis.level || kp.octave > vis.level {
-                continue;
-            }
-            let (ex, ey) = (vis.u - kp.x as f64, vis.v - kp.y as f64);
-            let ur = f.u_right[i] as f64;
-            let inv_s2 = pyramid.inv_sigma2[kp.octave as usize];
-            let chi2_ok = if ur >= 0.0 {
-                let er = ur_pred - ur;
-                (ex * ex + ey * ey + er * er) * inv_s2 <= CHI2_STEREO
+        for camera in 0..f.num_cameras().min(ctx.num_cameras()) {
+            let view = ctx.view(camera);
+            let T_c_w = view.pose(&T_c0_w);
+            let center = if camera == 0 {
+                center0
             } else {
-                (ex * ex + ey * ey) * inv_s2 <= CHI2_MONO
+                view.center(&T_c0_w)
             };
-            if !chi2_ok {
+            let Some(vis) = visible_point(map, m, &T_c_w, &center, view.camera, view.bounds, rules)
+            else {
                 continue;
-            }
-            let d = hamming(&descriptor, &f.descriptors[i]);
-            if best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((d, i));
+            };
+            let ur_pred = view.u_right(&vis.p_c, vis.u);
+            let radius = th * pyramid.scale[vis.level as usize];
+            let range = f.camera_range(camera);
+            let keypoints = &f.keypoints[range.clone()];
+            for local in f
+                .grid(camera)
+                .features_in_area(keypoints, vis.u, vis.v, radius, None, None)
+            {
+                let i = range.start + local;
+                let kp = &f.keypoints[i];
+                if kp.octave + 1 < vis.level || kp.octave > vis.level {
+                    continue;
+                }
+                let (ex, ey) = (vis.u - kp.x as f64, vis.v - kp.y as f64);
+                let ur = f.u_right[i] as f64;
+                let inv_s2 = pyramid.inv_sigma2[kp.octave as usize];
+                let chi2_ok = if ur >= 0.0 {
+                    let er = ur_pred - ur;
+                    (ex * ex + ey * ey + er * er) * inv_s2 <= CHI2_STEREO
+                } else {
+                    (ex * ex + ey * ey) * inv_s2 <= CHI2_MONO
+                };
+                if !chi2_ok {
+                    continue;
+                }
+                let d = hamming(&descriptor, &f.descriptors[i]);
+                if best.is_none_or(|(bd, _)| d < bd) {
+                    best = Some((d, i));
+                }
             }
         }
         let Some((_, i)) = best.filter(|(d, _)| *d <= TH_LOW) else {

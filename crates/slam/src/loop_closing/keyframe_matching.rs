@@ -2,7 +2,7 @@
 //! `SearchByBoW(KeyFrame, KeyFrame)`) and guided by a Sim(3) (`SearchBySim3`).
 
 use ferroslam_features::matcher::finalize;
-use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_HIGH, TH_LOW};
+use ferroslam_features::matcher::{ProjectionQuery, TH_HIGH, TH_LOW};
 use ferroslam_features::{hamming, MatchOptions};
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
@@ -11,6 +11,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::row_projection::seen_from_row;
 use crate::context::Context;
+use crate::frame::search_first_camera;
 
 /// For each keypoint of `kf1` carrying a map point, the map point of `kf2` whose keypoint
 /// shares its vocabulary node and has the closest descriptor: within [`TH_LOW`], below `ratio`
@@ -95,7 +96,8 @@ pub(super) fn match_by_sim3(
             let Some(m) = m.filter(|m| map.map_point(*m).is_some()) else {
                 continue;
             };
-            if skip(i, m) {
+            // Loops are matched in the first camera: its keypoints come first.
+            if skip(i, m) || from.features().camera_of(i) != 0 {
                 continue;
             }
             let p = map.map_point(m).unwrap();
@@ -132,8 +134,7 @@ pub(super) fn match_by_sim3(
             nn_ratio: None,
             check_orientation: false,
         };
-        let found =
-            search_by_projection(&queries, &f.keypoints, &f.descriptors, &f.grid, &[], &opts);
+        let found = search_first_camera(&queries, f, &[], &opts);
         let mut out = vec![None; from.map_points().len()];
         for (q, hit) in found.into_iter().enumerate() {
             if let Some((t, _)) = hit {

@@ -8,7 +8,7 @@
 
 use std::collections::HashSet;
 
-use ferroslam_features::matcher::{search_by_projection, ProjectionQuery, TH_LOW};
+use ferroslam_features::matcher::{ProjectionQuery, TH_LOW};
 use ferroslam_features::MatchOptions;
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_geometry::sim3_ransac::{sim3_ransac, Sim3Correspondence, Sim3RansacParams};
@@ -20,6 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use super::keyframe_matching::{match_by_bow, match_by_sim3};
 use super::row_projection::{keypoint_at_reference_line, visible_from_row};
 use crate::context::Context;
+use crate::frame::search_first_camera;
 use crate::place_recognition::PlaceRecognition;
 
 /// chi2 threshold of a reprojection at 2 degrees of freedom, 99 % (RANSAC inliers).
@@ -149,14 +150,7 @@ pub(crate) fn verify_loop(
         nn_ratio: None,
         check_orientation: false,
     };
-    let found = search_by_projection(
-        &queries,
-        &f.keypoints,
-        &f.descriptors,
-        &f.grid,
-        &taken,
-        &opts,
-    );
+    let found = search_first_camera(&queries, f, &taken, &opts);
     for (q, hit) in found.into_iter().enumerate() {
         if let Some((i, _)) = hit {
             matched[i] = Some(sources[q]);
@@ -197,6 +191,10 @@ fn correspondences(
         let Some(i2) = p2.observation(kf2) else {
             continue;
         };
+        // Sim(3) is fitted in the first camera of each keyframe.
+        if k1.features().camera_of(i1) != 0 || k2.features().camera_of(i2) != 0 {
+            continue;
+        }
         let (kp1, kp2) = (&k1.features().keypoints[i1], &k2.features().keypoints[i2]);
         let p1 = (k1.T_c_w() * Point3::from(p1.position())).coords;
         let p2 = (k2.T_c_w() * Point3::from(p2.position())).coords;

@@ -4,7 +4,11 @@
 
 use std::time::Instant;
 
+use ferroslam_geometry::camera::CameraModel;
+use nalgebra::Isometry3;
+
 use super::{SlamSystem, TrackResult};
+use crate::config::Sensor;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
 use crate::front_end::RigFrame;
@@ -47,6 +51,55 @@ impl SlamSystem {
     ) -> Result<(), SlamError> {
         self.guard.check_mask(camera, mask.as_ref())?;
         self.front_end.set_mask(camera, mask);
+        Ok(())
+    }
+
+    /// Adds a further camera to the rig at `T_c0_c` (its pose in the first camera's frame,
+    /// metres; `p_c0 = T_c0_c p_c`), with a registered depth image per frame when
+    /// `has_depth`. Its image follows the first camera's (and its pair partner's) in every
+    /// frame given to [`Self::track`]; its keypoints are observations of the same map, matched,
+    /// optimised and triangulated (with every camera of this and the other keyframes) as the
+    /// first camera's. Poses stay the first camera's.
+    ///
+    /// # Errors
+    /// `InvalidConfig`, the system unchanged, after the first frame or with the mapping
+    /// thread running, on a monocular system (its map's scale is not the rig's metres), with
+    /// a rolling-shutter camera on the rig, or for a pose that is not finite.
+    #[allow(non_snake_case)]
+    pub fn add_camera(
+        &mut self,
+        camera: impl Into<CameraModel>,
+        T_c0_c: Isometry3<f64>,
+        has_depth: bool,
+    ) -> Result<(), SlamError> {
+        let camera = camera.into();
+        let refuse = |why: &str| Err(SlamError::InvalidConfig(format!("add_camera: {why}")));
+        if self.frames_seen > 0 || self.map.num_keyframes() > 0 {
+            return refuse("cameras are added before the first frame");
+        }
+        if self.mapping.is_threaded() {
+            return refuse("cameras are added before the mapping thread starts");
+        }
+        if self.ctx.config.sensor == Sensor::Monocular {
+            return refuse(
+                "a monocular rig's map has no metric scale for the cameras' metric poses: give                  the first camera depth or a stereo partner",
+            );
+        }
+        let rolling = |c: &CameraModel| !c.rolling_shutter().is_global();
+        if rolling(&camera) || rolling(&self.ctx.camera) {
+            return refuse("rolling-shutter cameras are tracked alone, not in a rig");
+        }
+        let pose = T_c0_c
+            .translation
+            .vector
+            .iter()
+            .chain(T_c0_c.rotation.coords.iter());
+        if !pose.clone().all(|v| v.is_finite()) {
+            return refuse("T_c0_c is not finite");
+        }
+        self.ctx.add_observer(camera, T_c0_c, has_depth);
+        self.guard = self.input_guard();
+        self.map.set_rig(self.ctx.rig());
         Ok(())
     }
 

@@ -130,7 +130,8 @@ impl SlamSystem {
         }
         let mut ctx = Context::new(camera, config);
         ctx.pair = pair;
-        let guard = InputGuard::new(ctx.config.sensor, ctx.input_shape(), ctx.is_distorted());
+        let guard = InputGuard::new(ctx.config.sensor, ctx.input_shape(), ctx.is_distorted())
+            .with_observers(ctx.observer_shapes());
         let extractor = &ctx.config.extractor;
         let pyramid = ScalePyramid::new(extractor.scale_factor, extractor.n_levels)
             .map_err(|e| SlamError::InvalidConfig(e.to_string()))?;
@@ -165,6 +166,7 @@ impl SlamSystem {
     pub fn input_guard(&self) -> InputGuard {
         let c = &self.ctx;
         InputGuard::new(c.config.sensor, c.input_shape(), c.is_distorted())
+            .with_observers(c.observer_shapes())
     }
 
     /// Initialises or tracks a frame, then inserts a keyframe when needed.

@@ -18,7 +18,7 @@ use ferroslam_geometry::pnp::{pnp_ransac, PnpRansacOptions};
 use ferroslam_geometry::rolling_shutter::velocity_between;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::{optimize_pose_inertial, InertialLink};
-use nalgebra::{Isometry3, Point3, Vector2, Vector6};
+use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 
 use crate::config::TrackingConfig;
 use crate::context::Context;
@@ -237,7 +237,7 @@ impl Tracker {
             &link,
             T_b_c,
             &obs,
-            &ctx.intrinsics,
+            &ctx.optim_cameras,
             &mut outlier,
         );
         self.pose_optimisation += start.elapsed();
@@ -268,7 +268,7 @@ impl Tracker {
             let T_w_c = frame.T_c_w.inverse();
             for i in frame.closest_depth_features(ctx.close_depth_m) {
                 if frame.map_points[i].is_none() {
-                    frame.vo_points[i] = unproject_depth(&frame.features, i, &ctx.camera, &T_w_c);
+                    frame.vo_points[i] = unproject_depth(&frame.features, i, ctx, &T_w_c);
                 }
             }
         }
@@ -367,11 +367,13 @@ impl Tracker {
             {
                 continue;
             }
+            // PnP runs in the first camera; the other cameras' matches join in motion-only BA.
             let matched: Vec<(usize, MapPointId)> = frame
                 .map_points
                 .iter()
                 .enumerate()
                 .filter_map(|(i, m)| m.map(|m| (i, m)))
+                .filter(|&(i, _)| frame.features.camera_of(i) == 0)
                 .collect();
             let points_w: Vec<_> = matched
                 .iter()
@@ -536,42 +538,53 @@ impl Tracker {
         let center = frame.camera_center();
         let pyramid = map.pyramid().clone();
         let tracking = &ctx.config.tracking;
-        let mut ids = Vec::new();
-        let mut queries = Vec::new();
-        let mut u_right = Vec::new();
+        let mut searches: Vec<ProjectionSearch<MapPointId>> = (0..ctx.num_cameras())
+            .map(|_| ProjectionSearch::default())
+            .collect();
         for &m in &self.local_points {
             if in_frame.contains(&m) {
                 continue;
             }
-            let (camera, bounds) = (&ctx.camera, &ctx.bounds);
-            let Some(vis) = visible_point(
-                map,
-                m,
-                &frame.T_c_w,
-                &center,
-                camera,
-                bounds,
-                &ctx.config.visibility,
-            ) else {
-                continue;
-            };
-            map.increase_visible(m, 1)?;
-            let r = if vis.view_cos > tracking.frontal_view_cos {
-                tracking.frontal_radius
-            } else {
-                tracking.oblique_radius
-            } * th;
-            queries.push(ProjectionQuery {
-                u: vis.u,
-                v: vis.v,
-                radius: r * pyramid.scale[vis.level as usize],
-                min_level: vis.level.saturating_sub(1),
-                max_level: vis.level,
-                descriptor: *map.map_point(m).unwrap().descriptor(),
-                angle_deg: None,
-            });
-            ids.push(m);
-            u_right.push(ctx.u_right(&vis.p_c, vis.u));
+            let mut seen = false;
+            for (k, search) in searches.iter_mut().enumerate() {
+                let view = ctx.view(k);
+                let T_c_w = view.pose(&frame.T_c_w);
+                let center = if k == 0 {
+                    center
+                } else {
+                    view.center(&frame.T_c_w)
+                };
+                let Some(vis) = visible_point(
+                    map,
+                    m,
+                    &T_c_w,
+                    &center,
+                    view.camera,
+                    view.bounds,
+                    &ctx.config.visibility,
+                ) else {
+                    continue;
+                };
+                seen = true;
+                let r = if vis.view_cos > tracking.frontal_view_cos {
+                    tracking.frontal_radius
+                } else {
+                    tracking.oblique_radius
+                } * th;
+                let query = ProjectionQuery {
+                    u: vis.u,
+                    v: vis.v,
+                    radius: r * pyramid.scale[vis.level as usize],
+                    min_level: vis.level.saturating_sub(1),
+                    max_level: vis.level,
+                    descriptor: *map.map_point(m).unwrap().descriptor(),
+                    angle_deg: None,
+                };
+                search.push(query, view.u_right(&vis.p_c, vis.u), m);
+            }
+            if seen {
+                map.increase_visible(m, 1)?;
+            }
         }
         let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
         let opts = MatchOptions {
@@ -579,10 +592,9 @@ impl Tracker {
             nn_ratio: Some(tracking.local_search_nn_ratio),
             check_orientation: false,
         };
-        let found = frame.search_by_projection(&queries, &u_right, &taken, &opts);
-        for (q, hit) in found.iter().enumerate() {
-            if let Some((i, _)) = hit {
-                frame.map_points[*i] = Some(ids[q]);
+        for (k, search) in searches.iter().enumerate() {
+            for (i, m) in search.run(frame, k, &taken, &opts) {
+                frame.map_points[i] = Some(m);
             }
         }
         Ok(())
@@ -768,9 +780,10 @@ fn search_last_frame(
     let has_depth = ctx.config.sensor.has_depth();
     let forward = has_depth && center_in_last.z > ctx.baseline_m;
     let backward = has_depth && -center_in_last.z > ctx.baseline_m;
-    let mut queries = Vec::new();
-    let mut u_right = Vec::new();
-    let mut sources = Vec::new();
+    let mut searches: Vec<ProjectionSearch<(Option<MapPointId>, Vector3<f64>)>> = (0..ctx
+        .num_cameras())
+        .map(|_| ProjectionSearch::default())
+        .collect();
     for i in 0..last.len() {
         let (p_w, descriptor, point) = if let Some(m) = last.map_points[i] {
             let Some(p) = map.map_point(m) else { continue };
@@ -780,14 +793,6 @@ fn search_last_frame(
         } else {
             continue;
         };
-        let p_c = frame.T_c_w * Point3::from(p_w);
-        let Some(uv) = ctx.camera.project(&p_c.coords) else {
-            continue;
-        };
-        let b = &ctx.bounds;
-        if uv.x < b.min_x || uv.x >= b.max_x || uv.y < b.min_y || uv.y >= b.max_y {
-            continue;
-        }
         let kp = &last.features.keypoints[i];
         let octave = kp.octave;
         let (min_level, max_level) = if forward {
@@ -797,17 +802,29 @@ fn search_last_frame(
         } else {
             (octave.saturating_sub(1), (octave + 1).min(n_levels - 1))
         };
-        queries.push(ProjectionQuery {
-            u: uv.x,
-            v: uv.y,
-            radius: radius_px * pyramid.scale[octave as usize],
-            min_level,
-            max_level,
-            descriptor,
-            angle_deg: Some(kp.angle_deg),
-        });
-        u_right.push(ctx.u_right(&p_c.coords, uv.x));
-        sources.push((point, p_w));
+        for (k, search) in searches.iter_mut().enumerate() {
+            let view = ctx.view(k);
+            let p_c = view.pose(&frame.T_c_w) * Point3::from(p_w);
+            let Some(uv) = view.camera.project(&p_c.coords) else {
+                continue;
+            };
+            if !view.contains(&uv) {
+                continue;
+            }
+            search.push(
+                ProjectionQuery {
+                    u: uv.x,
+                    v: uv.y,
+                    radius: radius_px * pyramid.scale[octave as usize],
+                    min_level,
+                    max_level,
+                    descriptor,
+                    angle_deg: Some(kp.angle_deg),
+                },
+                view.u_right(&p_c.coords, uv.x),
+                (point, p_w),
+            );
+        }
     }
     let taken = vec![false; frame.len()];
     let opts = MatchOptions {
@@ -815,18 +832,62 @@ fn search_last_frame(
         nn_ratio: None,
         check_orientation: true,
     };
-    let found = frame.search_by_projection(&queries, &u_right, &taken, &opts);
     let mut n = 0;
-    for (q, hit) in found.iter().enumerate() {
-        if let Some((i, _)) = hit {
-            match sources[q] {
-                (Some(m), _) => frame.map_points[*i] = Some(m),
-                (None, p_w) => frame.vo_points[*i] = Some(p_w),
+    for (k, search) in searches.iter().enumerate() {
+        for (i, source) in search.run(frame, k, &taken, &opts) {
+            match source {
+                (Some(m), _) => frame.map_points[i] = Some(m),
+                (None, p_w) => frame.vo_points[i] = Some(p_w),
             }
             n += 1;
         }
     }
     n
+}
+
+/// Points projected into one camera of a frame, searched for together.
+struct ProjectionSearch<S> {
+    queries: Vec<ProjectionQuery>,
+    u_right: Vec<f64>,
+    sources: Vec<S>,
+}
+
+impl<S> Default for ProjectionSearch<S> {
+    fn default() -> Self {
+        Self {
+            queries: Vec::new(),
+            u_right: Vec::new(),
+            sources: Vec::new(),
+        }
+    }
+}
+
+impl<S: Copy> ProjectionSearch<S> {
+    /// Adds a query with the right coordinate it predicts and what it stands for.
+    fn push(&mut self, query: ProjectionQuery, u_right: f64, source: S) {
+        self.queries.push(query);
+        self.u_right.push(u_right);
+        self.sources.push(source);
+    }
+
+    /// The keypoints of camera `camera` of `frame` found, with what each query stood for.
+    fn run(
+        &self,
+        frame: &Frame,
+        camera: usize,
+        taken: &[bool],
+        opts: &MatchOptions,
+    ) -> Vec<(usize, S)> {
+        if self.queries.is_empty() {
+            return Vec::new();
+        }
+        let found = frame.search_by_projection(camera, &self.queries, &self.u_right, taken, opts);
+        found
+            .iter()
+            .zip(&self.sources)
+            .filter_map(|(hit, &source)| hit.map(|(i, _)| (i, source)))
+            .collect()
+    }
 }
 
 #[cfg(test)]

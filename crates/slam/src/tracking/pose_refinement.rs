@@ -30,7 +30,7 @@ pub fn optimize_frame_pose(
     }
     let mut outlier = vec![false; obs.len()];
     let num_inliers = if ctx.camera.rolling_shutter().is_global() {
-        let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.intrinsics, &mut outlier)?;
+        let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.optim_cameras, &mut outlier)?;
         frame.T_c_w = estimate.T_c_w;
         estimate.num_inliers
     } else {
@@ -49,7 +49,7 @@ pub fn optimize_frame_pose(
             &prior,
             &obs,
             &offsets,
-            &ctx.intrinsics,
+            &ctx.optim_cameras,
             &mut outlier,
         )?;
         frame.T_c_w = estimate.T_c_w;
@@ -84,6 +84,7 @@ pub(super) fn frame_observations(frame: &Frame, map: &Map) -> (Vec<PoseObservati
             uv: Vector2::new(kp.x as f64, kp.y as f64),
             u_right: (ur >= 0.0).then_some(ur as f64),
             inv_sigma2: pyramid.inv_sigma2[kp.octave as usize],
+            camera: frame.features.camera_of(i),
         });
         index.push(i);
     }
