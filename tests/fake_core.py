@@ -34,7 +34,8 @@ class FakeSlamSystem:
     # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
     KNOWN = {"n_features", "ini_fast", "min_fast", "scale_factor", "n_levels",
              "track_feature_range", "skip_max_frames", "bf", "baseline", "depth_threshold",
-             "depth_range", "seed", "deterministic", "loop_closure", "loop_closure_threshold"}
+             "depth_range", "match_pair_every_frame", "seed", "deterministic", "loop_closure",
+             "loop_closure_threshold"}
     # The extractor's defaults, read from the core's option table (never restated).
     EXTRACTOR_DEFAULTS = {name: core_default(name, "rgbd") for name in
                           ("n_features", "ini_fast", "min_fast", "scale_factor", "n_levels")}

@@ -40,6 +40,14 @@ def test_config_option_of_the_vslam_objects(tum_desk, tmp_path, capsys):
     assert not (tmp_path / "o").exists()  # failed before any output: no folder, no partial-*
 
 
+def test_no_stereo_is_for_a_rig(tum_desk, tmp_path, capsys):
+    line = _fails(["run", str(tum_desk), "--sensor", "rgbd", "--no-stereo",
+                   "--out", str(tmp_path / "o"), "--silent"], capsys)
+    assert line == ("ferroslam: error: --no-stereo is for --sensor rig (a stereo pair left "
+                    "raw), not --sensor rgbd")
+    assert not (tmp_path / "o").exists()
+
+
 def test_deeply_nested_config_and_spec(tmp_path, capsys):
     deep = tmp_path / "deep.json"
     deep.write_text("[" * 100_000 + "]" * 100_000)

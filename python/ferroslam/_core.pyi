@@ -74,6 +74,9 @@ class _SlamOptions(TypedDict, total=False):
     depth_range: Sequence[float]
     """(min, max) valid depth in metres (max may be inf); the default depends on the
     sensor."""
+    match_pair_every_frame: bool
+    """Unrectified stereo pair only: match it at every frame (default); False: only at the
+    frames that become keyframes, where its two cameras are triangulated."""
     seed: int
     """Seed of every random choice (RANSAC)."""
     deterministic: bool

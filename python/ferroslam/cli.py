@@ -185,6 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
                            '{"n_features": 2000, "depth_threshold": 35}')
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
     algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
+    algo.add_argument("--no-stereo", action="store_true",
+                      help="rig: match cameras 0 and 1 only at keyframes, where their keypoints "
+                           "are triangulated across the rig (no per-frame stereo matching)")
     algo.add_argument("--dense", action="store_true",
                       help="rgbd: fuse the keyframes' depth into mesh.ply and dense.ply (TSDF, "
                            "pip install 'ferroslam[dense]'; voxel and truncation: the "
@@ -444,6 +447,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         config["seed"] = args.seed
     if args.dense:
         config["dense"] = True
+    if args.no_stereo:
+        if args.sensor not in ("rig", "rig-inertial"):
+            raise ValueError(f"--no-stereo is for --sensor rig (a stereo pair left raw), not "
+                             f"--sensor {args.sensor}")
+        config["match_pair_every_frame"] = False
     seq, notes = _open_input(args)
     from .check import require_cheap_checks
 

@@ -6,7 +6,7 @@
 use crate::pool;
 use ferroslam_geometry::camera::{CameraModel, KannalaBrandtCamera, PinholeCamera, RadTan};
 use ferroslam_geometry::rolling_shutter::ReadoutDirection;
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Isometry3, Vector2, Vector3};
 use numpy::ndarray::Array2;
 use numpy::{PyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -14,6 +14,7 @@ use pyo3::prelude::*;
 
 use crate::convert;
 use crate::errors::geometry_to_py;
+use crate::inertial;
 
 /// The `CameraModel` of a `ferroslam.Camera` (its `model`, `fx fy cx cy`, `dist`, `width`,
 /// `height`, `rolling_shutter_readout_s` attributes): the one conversion from the Python camera to the core's.
@@ -175,4 +176,41 @@ pub fn unproject_pixels<'py>(
             .unproject_raw(&Vector2::from(uv))
             .map(|r| [r.x, r.y, r.z])
     })
+}
+
+/// `cameras` of the constructor: `(camera, T_c0_c)` or `(camera, T_c0_c, has_depth)` per
+/// further camera of the rig.
+#[allow(non_snake_case)]
+pub fn further_cameras(
+    cameras: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<(CameraModel, Isometry3<f64>, bool)>> {
+    let Some(cameras) = cameras.filter(|c| !c.is_none()) else {
+        return Ok(Vec::new());
+    };
+    let entry_error = |k: usize| {
+        PyTypeError::new_err(format!(
+            "cameras[{k}] must be (camera, T_c0_c) or (camera, T_c0_c, has_depth)"
+        ))
+    };
+    let mut out = Vec::new();
+    for (k, entry) in cameras.try_iter()?.enumerate() {
+        let entry = entry?;
+        let items: Vec<Bound<'_, PyAny>> = entry
+            .try_iter()
+            .map_err(|_| entry_error(k))?
+            .collect::<PyResult<_>>()?;
+        if !(2..=3).contains(&items.len()) {
+            return Err(entry_error(k));
+        }
+        let camera = camera_model(&items[0])?;
+        let T_c0_c = inertial::rigid_transform(&items[1], &format!("cameras[{k}] T_c0_c"))?;
+        let has_depth = match items.get(2) {
+            Some(d) => d.extract::<bool>().map_err(|_| {
+                PyTypeError::new_err(format!("cameras[{k}] has_depth must be a bool"))
+            })?,
+            None => false,
+        };
+        out.push((camera, T_c0_c, has_depth));
+    }
+    Ok(out)
 }

@@ -106,6 +106,7 @@ const OPTIONS: &[Opt] = &[
     },
     field!("depth_threshold", depth.depth_threshold, number),
     field!("depth_range", depth.depth_range, pair),
+    field!("match_pair_every_frame", depth.match_pair_every_frame, flag),
     field!("seed", seed, int),
     field!("deterministic", deterministic, flag),
     field!("loop_closure", loop_closing.loop_closure, flag),

@@ -5,15 +5,13 @@ use std::mem::ManuallyDrop;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
-use ferroslam_geometry::camera::CameraModel;
 use ferroslam_slam::{
     BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamError, SlamSystem, TrackResult,
     TrackingState,
 };
-use nalgebra::Isometry3;
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -211,43 +209,6 @@ impl Drop for PySlamSystem {
     }
 }
 
-/// `cameras` of the constructor: `(camera, T_c0_c)` or `(camera, T_c0_c, has_depth)` per
-/// further camera of the rig.
-#[allow(non_snake_case)]
-fn further_cameras(
-    cameras: Option<&Bound<'_, PyAny>>,
-) -> PyResult<Vec<(CameraModel, Isometry3<f64>, bool)>> {
-    let Some(cameras) = cameras.filter(|c| !c.is_none()) else {
-        return Ok(Vec::new());
-    };
-    let entry_error = |k: usize| {
-        PyTypeError::new_err(format!(
-            "cameras[{k}] must be (camera, T_c0_c) or (camera, T_c0_c, has_depth)"
-        ))
-    };
-    let mut out = Vec::new();
-    for (k, entry) in cameras.try_iter()?.enumerate() {
-        let entry = entry?;
-        let items: Vec<Bound<'_, PyAny>> = entry
-            .try_iter()
-            .map_err(|_| entry_error(k))?
-            .collect::<PyResult<_>>()?;
-        if !(2..=3).contains(&items.len()) {
-            return Err(entry_error(k));
-        }
-        let camera = camera::camera_model(&items[0])?;
-        let T_c0_c = inertial::rigid_transform(&items[1], &format!("cameras[{k}] T_c0_c"))?;
-        let has_depth = match items.get(2) {
-            Some(d) => d.extract::<bool>().map_err(|_| {
-                PyTypeError::new_err(format!("cameras[{k}] has_depth must be a bool"))
-            })?,
-            None => false,
-        };
-        out.push((camera, T_c0_c, has_depth));
-    }
-    Ok(out)
-}
-
 #[pymethods]
 impl PySlamSystem {
     #[new]
@@ -309,7 +270,7 @@ impl PySlamSystem {
         }
         .map_err(to_py)?;
         let mut system = system;
-        for (camera, T_c0_c, has_depth) in further_cameras(cameras)? {
+        for (camera, T_c0_c, has_depth) in camera::further_cameras(cameras)? {
             system
                 .add_camera(camera, T_c0_c, has_depth)
                 .map_err(to_py)?;

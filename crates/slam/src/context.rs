@@ -8,7 +8,6 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use ferroslam_map::{PairCamera, Rig, RigMember};
 
 use crate::config::SlamConfig;
-use crate::front_end::ObserverShape;
 use crate::stereo_pair::UnrectifiedPair;
 
 /// The Kannala-Brandt model's name in map files and the bindings.
@@ -285,6 +284,17 @@ pub struct InputShape {
     pub width: u32,
     /// Image height, pixels: raw keypoints lie in `[0, height)`.
     pub height: u32,
+}
+
+/// What a further camera's images must be: their size and whether depth comes with them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ObserverShape {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Whether each image comes with a registered depth image.
+    pub has_depth: bool,
 }
 
 #[cfg(test)]

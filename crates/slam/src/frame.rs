@@ -33,6 +33,21 @@ pub struct Frame {
     pub outlier: Vec<bool>,
     /// Camera pose, world to camera.
     pub T_c_w: Isometry3<f64>,
+    /// An unrectified pair matched at keyframes only: what matching needs, until the frame
+    /// is matched ([`Frame::match_pair`]) or dropped.
+    pub unmatched_pair: Option<UnmatchedPair>,
+}
+
+/// The first camera's raw keypoints and its pair partner's features, kept on a frame whose
+/// pair is matched only if it starts the map or becomes a keyframe.
+#[derive(Clone, Debug)]
+pub struct UnmatchedPair {
+    /// The first camera's keypoints in raw pixels.
+    pub left_raw: Vec<Keypoint>,
+    /// The partner's keypoints, raw pixels.
+    pub right_keypoints: Vec<Keypoint>,
+    /// The partner's descriptors.
+    pub right_descriptors: Vec<Descriptor>,
 }
 
 /// Raw per-frame input of an RGB-D camera: distorted keypoints with their sensor depth.
@@ -357,12 +372,34 @@ impl Frame {
             vo_points: vec![None; n],
             outlier: vec![false; n],
             T_c_w: Isometry3::identity(),
+            unmatched_pair: None,
         })
     }
 
     /// Number of keypoints.
     pub fn len(&self) -> usize {
         self.map_points.len()
+    }
+
+    /// Gives the first camera's keypoints their depth from the unrectified pair kept unmatched
+    /// (see [`UnmatchedPair`]); nothing for a frame matched already.
+    pub fn match_pair(&mut self, pyramid: &ScalePyramid, ctx: &Context) {
+        let (Some(unmatched), Some(pair)) = (self.unmatched_pair.take(), &ctx.pair) else {
+            return;
+        };
+        let first = self.features.camera_range(0);
+        let depth_m = pair.depths(
+            &ctx.camera,
+            (
+                &unmatched.left_raw,
+                &self.features.descriptors[first.clone()],
+            ),
+            (&unmatched.right_keypoints, &unmatched.right_descriptors),
+            &pyramid.sigma2,
+        );
+        let (_, depth, u_right) = with_depth(&ctx.view(0), &unmatched.left_raw, &depth_m, ctx);
+        self.features.depth[first.clone()].copy_from_slice(&depth);
+        self.features.u_right[first].copy_from_slice(&u_right);
     }
 
     /// Camera centre in the world frame, metres.

@@ -18,9 +18,9 @@ use ferroslam_map::Rgb;
 use rayon::prelude::*;
 
 use crate::config::Sensor;
-use crate::context::{Context, InputShape};
+use crate::context::{Context, InputShape, ObserverShape};
 use crate::error::SlamError;
-use crate::frame::{Frame, MonoInput, ObserverInput, RgbdInput, StereoInput};
+use crate::frame::{Frame, MonoInput, ObserverInput, RgbdInput, StereoInput, UnmatchedPair};
 
 /// An 8-bit image as OpenCV holds it: rows of grey, BGR or BGRA pixels, no padding.
 #[derive(Clone, Debug)]
@@ -75,17 +75,6 @@ pub struct RigFrame<D, F> {
 pub type RigFrameView<'a> = RigFrame<&'a [u8], &'a [f32]>;
 /// A frame owning its pixels (queued to the tracking thread).
 pub type OwnedRigFrame = RigFrame<Vec<u8>, Vec<f32>>;
-
-/// What a further camera's images must be: their size and whether depth comes with them.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ObserverShape {
-    /// Image width, pixels.
-    pub width: u32,
-    /// Image height, pixels.
-    pub height: u32,
-    /// Whether each image comes with a registered depth image.
-    pub has_depth: bool,
-}
 
 /// The cameras a sensor's frame holds for its first camera (and pair partner).
 fn expected_cameras(sensor: Sensor) -> (usize, &'static str) {
@@ -324,6 +313,22 @@ impl Measured {
             ),
             Sensor::Stereo => {
                 let right = &self.cameras[1].features;
+                if ctx.pair.is_some() && !ctx.config.depth.match_pair_every_frame {
+                    let input = RgbdInput {
+                        timestamp: self.timestamp,
+                        keypoints,
+                        descriptors,
+                        depth_m: &vec![0.0; keypoints.len()],
+                        colors,
+                    };
+                    let mut frame = Frame::from_rgbd(index, &input, ctx)?;
+                    frame.unmatched_pair = Some(UnmatchedPair {
+                        left_raw: keypoints.clone(),
+                        right_keypoints: right.keypoints.clone(),
+                        right_descriptors: right.descriptors.clone(),
+                    });
+                    return Ok(frame);
+                }
                 if let Some(pair) = &ctx.pair {
                     let depth_m = pair.depths(
                         &ctx.camera,

@@ -130,7 +130,7 @@ impl InertialConfig {
                 self.gravity_magnitude
             ));
         }
-        if !(self.imu_time_offset_s.abs() <= MAX_IMU_TIME_OFFSET_S) {
+        if self.imu_time_offset_s.is_nan() || self.imu_time_offset_s.abs() > MAX_IMU_TIME_OFFSET_S {
             return bad(format!(
                 "imu: imu_time_offset_s = {} must be in [-{MAX_IMU_TIME_OFFSET_S}, \
                  {MAX_IMU_TIME_OFFSET_S}] s",

@@ -4,10 +4,10 @@
 //! caller's thread, with the same messages.
 
 use crate::config::Sensor;
-use crate::context::InputShape;
+use crate::context::{InputShape, ObserverShape};
 use crate::error::SlamError;
 use crate::frame::{MonoInput, RgbdInput, StereoInput};
-use crate::front_end::{ObserverShape, RigFrame};
+use crate::front_end::RigFrame;
 use ferroslam_features::OwnedGrayImage;
 
 /// Input rules of one system and the last accepted timestamp.

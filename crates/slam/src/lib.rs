@@ -41,9 +41,7 @@ pub use config::{
 };
 pub use error::SlamError;
 pub use frame::{MonoInput, RgbdInput, StereoInput};
-pub use front_end::{
-    CameraImage, DepthImage, Image, ObserverShape, OwnedRigFrame, RigFrame, RigFrameView,
-};
+pub use front_end::{CameraImage, DepthImage, Image, OwnedRigFrame, RigFrame, RigFrameView};
 pub use inertial::{
     AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig, Preintegrated,
 };

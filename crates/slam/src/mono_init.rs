@@ -197,6 +197,9 @@ pub struct InitialMap {
 /// uses: their `(x/z, y/z)` is a pinhole point, whose plane grows without bound towards 90.
 const TWO_VIEW_MAX_RAY_DEG: f64 = 70.0;
 
+/// The virtual pinhole, both frames' pixels and the matches of [`virtual_pinhole_pairs`].
+type VirtualPinholePairs = (PinholeCamera, [Vec<Vector2<f64>>; 2], Vec<(usize, usize)>);
+
 /// A fisheye pair as a distortion-free pinhole with the same `fx, fy, cx, cy` would see it:
 /// the camera, both frames' pixels (NaN for rays beyond [`TWO_VIEW_MAX_RAY_DEG`]) and the
 /// matches whose rays are both within that angle.
@@ -206,7 +209,7 @@ fn virtual_pinhole_pairs(
     frame: &Frame,
     matches: Vec<(usize, usize)>,
     ctx: &Context,
-) -> (PinholeCamera, [Vec<Vector2<f64>>; 2], Vec<(usize, usize)>) {
+) -> VirtualPinholePairs {
     let min_z = TWO_VIEW_MAX_RAY_DEG.to_radians().cos();
     let pixels = |f: &Frame| -> Vec<Vector2<f64>> {
         f.features

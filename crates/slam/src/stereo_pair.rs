@@ -201,7 +201,7 @@ mod tests {
             Translation3::new(0.11, 0.001, -0.002),
             UnitQuaternion::from_euler_angles(0.01, -0.03, 0.02),
         );
-        let pair = UnrectifiedPair::new(&left, right.clone(), T_left_right).unwrap();
+        let pair = UnrectifiedPair::new(&left, right, T_left_right).unwrap();
         let T_right_left = T_left_right.inverse();
         let (mut kl, mut kr, mut dl, mut dr, mut truth) = (vec![], vec![], vec![], vec![], vec![]);
         while truth.len() < 200 {

@@ -58,6 +58,7 @@ fn scale_error(disparity_sigma: f64, frames: usize) -> f64 {
         bf,
         depth_threshold: 35.0,
         depth_range: (0.0, f64::INFINITY),
+        ..config.depth
     };
     let mut system = SlamSystem::new(cam, config).unwrap();
     for i in 0..frames {

@@ -74,6 +74,15 @@ pub fn search_for_triangulation(
     )
 }
 
+/// One keyframe's side of [`search_for_triangulation_rays`]: keypoints, descriptors, which
+/// are free (no map point yet) and unit rays, one per keypoint.
+pub type RayView<'a> = (
+    &'a [Keypoint],
+    &'a [Descriptor],
+    &'a [bool],
+    &'a [Vector3<f64>],
+);
+
 /// [`search_for_triangulation`] on unit rays, for cameras without an image plane (a fisheye
 /// whose field of view may exceed 180 degrees).
 ///
@@ -85,8 +94,8 @@ pub fn search_for_triangulation(
 /// (`epipole2`, pixels of the keypoints) and the matching rules are those of
 /// [`search_for_triangulation`].
 pub fn search_for_triangulation_rays(
-    (kps1, desc1, free1, rays1): (&[Keypoint], &[Descriptor], &[bool], &[Vector3<f64>]),
-    (kps2, desc2, free2, rays2): (&[Keypoint], &[Descriptor], &[bool], &[Vector3<f64>]),
+    (kps1, desc1, free1, rays1): RayView<'_>,
+    (kps2, desc2, free2, rays2): RayView<'_>,
     e21: &Matrix3<f64>,
     sigma2: &[f64],
     rad_per_px: f64,

@@ -86,7 +86,8 @@ pub(super) fn check_monotonic_over_image(
     for i in 1usize.. {
         let r = (step * i as f64).min(max_r);
         let r_d = distorted(r);
-        if !(r_d > previous) {
+        // NaN fails the test too: `partial_cmp` is None then.
+        if r_d.partial_cmp(&previous) != Some(std::cmp::Ordering::Greater) {
             return blame(
                 r,
                 "the distortion folds the image over inside the image area (the distorted \

@@ -119,6 +119,11 @@ pub struct DepthConfig {
     /// `(min, max)` valid measured depth, metres; other depths count as missing. `max` may be
     /// infinite.
     pub depth_range: (f64, f64),
+    /// Whether an unrectified stereo pair is matched at every frame (depth for tracking, as
+    /// rectified stereo) or only at the frames that become keyframes (and until the map
+    /// starts): then the two cameras meet only where a keyframe's keypoints are triangulated
+    /// across them, and tracking sees the first camera alone.
+    pub match_pair_every_frame: bool,
 }
 
 impl DepthConfig {
@@ -134,6 +139,7 @@ impl DepthConfig {
             } else {
                 (0.1, 8.0)
             },
+            match_pair_every_frame: true,
         }
     }
 

@@ -232,7 +232,8 @@ mod tests {
                 )
             };
         }
-        let cases: [(&str, fn(&mut SlamConfig)); 24] = [
+        type Case = (&'static str, fn(&mut SlamConfig));
+        let cases: [Case; 24] = [
             case!(extractor.n_features = 0),
             case!(extractor.min_fast = 0),
             case!(extractor.min_fast = 21),

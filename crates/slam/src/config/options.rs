@@ -173,6 +173,7 @@ pub struct UserOption {
 
 const ALL: &[Sensor] = &[Sensor::Monocular, Sensor::Stereo, Sensor::Rgbd];
 const DEPTH: &[Sensor] = &[Sensor::Stereo, Sensor::Rgbd];
+const STEREO: &[Sensor] = &[Sensor::Stereo];
 
 /// An option with the defaults of most: core scope, every sensor.
 const fn option(
@@ -309,6 +310,18 @@ pub fn user_options() -> Vec<UserOption> {
                     ..OptionRange::at_least(0.0)
                 },
                 "(min, max) valid measured depth; others count as missing; max may be inf",
+            )
+        },
+        UserOption {
+            sensors: STEREO,
+            ..option(
+                "match_pair_every_frame",
+                "depth.match_pair_every_frame",
+                Flag,
+                "",
+                OptionRange::default(),
+                "Match an unrectified pair at every frame; false: at keyframes only, where \
+                 its two cameras are triangulated",
             )
         },
         option(

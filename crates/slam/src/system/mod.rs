@@ -15,9 +15,7 @@ use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::front_end::FrontEnd;
 use crate::imu_prediction::ImuPredictor;
-use crate::inertial::{
-    rescale_map, AlignmentStatus, Bias, ImuSample, Inertial, InertialConfig, Preintegrated,
-};
+use crate::inertial::Inertial;
 use crate::input_guard::InputGuard;
 use crate::keyframe_insertion::insert_keyframe;
 use crate::local_mapping::MappingReport;
@@ -31,6 +29,7 @@ use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
 
 mod door;
+mod imu;
 use ferroslam_vocabulary::Vocabulary;
 use std::sync::Arc;
 
@@ -120,6 +119,13 @@ impl SlamSystem {
         config.validate()?;
         let (width, height) = camera.size();
         config.extractor.check_pyramid(width, height)?;
+        if !config.depth.match_pair_every_frame && pair.is_none() {
+            return Err(SlamError::InvalidConfig(
+                "match_pair_every_frame=false is for an unrectified pair (right_camera and \
+                 T_left_right): rectified stereo is matched at every frame"
+                    .into(),
+            ));
+        }
         if config.sensor == Sensor::Stereo && pair.is_none() && camera.as_pinhole().is_none() {
             return Err(SlamError::InvalidConfig(
                 "stereo needs rectified pinhole images (matching runs along image rows), but \
@@ -176,6 +182,7 @@ impl SlamSystem {
         self.collect_mapping(false)?;
         if self.tracker.state == TrackingState::NotInitialized {
             let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
+                frame.match_pair(self.map.pyramid(), &self.ctx);
                 (self.initialise(frame)?, None)
             } else {
                 match self.initialise_monocular(frame)? {
@@ -274,6 +281,7 @@ impl SlamSystem {
             }
         }
         if new_keyframe {
+            frame.match_pair(self.map.pyramid(), &self.ctx);
             let (kf, created) =
                 insert_keyframe(&mut frame, &mut self.map, &self.ctx, self.ctx.close_depth_m)?;
             self.tracker.on_keyframe(frame.index, kf);
@@ -570,94 +578,6 @@ impl SlamSystem {
         if let Some(inertial) = self.inertial.as_mut() {
             inertial.clear_map();
         }
-    }
-
-    /// Sets the IMU (noise model, camera pose in the body frame, alignment knobs): from now
-    /// on keyframes keep their preintegrated IMU and the camera-IMU alignment runs once the
-    /// map holds `num_poses_threshold` keyframes (see the `inertial` module). Replaces an
-    /// earlier IMU setup, its buffered samples and its alignment.
-    ///
-    /// # Errors
-    /// `InvalidConfig` naming the bad value; the system is unchanged then.
-    pub fn set_imu(&mut self, config: InertialConfig) -> Result<(), SlamError> {
-        let known_scale = self.ctx.config.sensor.has_depth();
-        let tuning = self.ctx.config.inertial.clone();
-        self.inertial = Some(Inertial::new(config, tuning, known_scale)?);
-        Ok(())
-    }
-
-    /// The IMU setup, if any.
-    pub fn imu_config(&self) -> Option<&InertialConfig> {
-        self.inertial.as_ref().map(Inertial::config)
-    }
-
-    /// Adds IMU samples (body frame, rad/s and m/s^2, camera clock). Feed the samples up to
-    /// (and including) a frame's time before tracking that frame: a keyframe's IMU is
-    /// integrated once samples cover it.
-    ///
-    /// # Errors
-    /// `InvalidInput` without [`Self::set_imu`], for non-finite values, timestamps not
-    /// strictly increasing (within the batch or after the samples already added) or values
-    /// that look like deg/s or g; the system is unchanged then.
-    pub fn add_imu(&mut self, samples: &[ImuSample]) -> Result<(), SlamError> {
-        let inertial = self.inertial.as_mut().ok_or_else(|| {
-            SlamError::InvalidInput("add_imu: no IMU configured, call set_imu first".into())
-        })?;
-        inertial.add(samples)
-    }
-
-    /// Where the camera-IMU alignment of the current map stands (`None` without an IMU).
-    pub fn inertial_alignment(&self) -> Option<&AlignmentStatus> {
-        self.inertial.as_ref().map(Inertial::status)
-    }
-
-    /// The newest keyframe's IMU state once aligned: `(keyframe, timestamp s, body velocity
-    /// in the world m/s, biases)`; refined by local inertial BA after the last refinement of
-    /// the alignment, predicted from the previous keyframe before.
-    pub fn keyframe_imu_state(&self) -> Option<(KeyFrameId, f64, Vector3<f64>, Bias)> {
-        let (id, velocity, bias) = self.inertial.as_ref()?.newest_state()?;
-        let timestamp = self.map.keyframe(id)?.timestamp();
-        Some((id, timestamp, velocity, bias))
-    }
-
-    /// IMU preintegrated from the previous live keyframe (returned with it) to keyframe `kf`,
-    /// at the newest keyframe's biases once aligned (zero before).
-    pub fn keyframe_imu(&self, kf: KeyFrameId) -> Option<(KeyFrameId, &Preintegrated)> {
-        self.inertial.as_ref()?.preintegrated(kf)
-    }
-
-    /// Whether a frame at `timestamp` must become a keyframe for the camera-IMU alignment
-    /// (not aligned yet and `inertial.init_keyframe_interval_s` since the newest keyframe).
-    fn inertial_keyframe_due(&self, timestamp: f64) -> bool {
-        let waiting = self.inertial.as_ref().is_some_and(|i| !i.is_aligned());
-        let newest = self.map.keyframes().map(|k| k.timestamp()).reduce(f64::max);
-        let (tracking, inertial) = (&self.ctx.config.tracking, &self.ctx.config.inertial);
-        waiting
-            && self.tracker.matches_inliers > tracking.min_keyframe_inliers
-            && newest.is_some_and(|t| timestamp - t >= inertial.init_keyframe_interval_s)
-    }
-
-    /// Preintegrates the new keyframe's IMU and, when due, aligns camera and IMU: a
-    /// monocular map is then rescaled to metres (map, frame trajectory, motion model).
-    fn update_inertial(&mut self) -> Result<(), SlamError> {
-        let Some(mut alignment) = self.inertial.as_mut().and_then(|i| i.try_align(&self.map))
-        else {
-            return Ok(());
-        };
-        if !self.ctx.config.sensor.has_depth() {
-            // The mapping thread's edits land first, so none arrives in the old scale.
-            self.finish_mapping()?;
-            let s = alignment.scale;
-            self.trajectory
-                .rescale(s, &mut self.map, |map| rescale_map(map, s))?;
-            self.tracker.rescale(s);
-            self.predictor.clear();
-            alignment.map_rescaled = true;
-        }
-        if let Some(inertial) = self.inertial.as_mut() {
-            inertial.accept(alignment, &self.map);
-        }
-        Ok(())
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by their bag of words and a lost frame

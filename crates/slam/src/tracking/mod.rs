@@ -28,6 +28,7 @@ use crate::frustum::visible_point;
 use crate::imu_prediction::ImuPrediction;
 use crate::inertial::scale_translation;
 use crate::place_recognition::PlaceRecognition;
+use projection_search::ProjectionSearch;
 
 /// Tracking state exposed to users.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -367,13 +368,23 @@ impl Tracker {
             {
                 continue;
             }
-            // PnP runs in the first camera; the other cameras' matches join in motion-only BA.
+            // PnP runs in the camera with the most matches; the other cameras' matches
+            // join in motion-only BA.
+            let counts = (0..ctx.num_cameras()).map(|k| {
+                let range = frame.features.camera_range(k);
+                frame.map_points[range].iter().flatten().count()
+            });
+            let camera = counts
+                .enumerate()
+                .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+                .map_or(0, |(k, _)| k);
+            let view = ctx.view(camera);
             let matched: Vec<(usize, MapPointId)> = frame
                 .map_points
                 .iter()
                 .enumerate()
                 .filter_map(|(i, m)| m.map(|m| (i, m)))
-                .filter(|&(i, _)| frame.features.camera_of(i) == 0)
+                .filter(|&(i, _)| frame.features.camera_of(i) == camera)
                 .collect();
             let points_w: Vec<_> = matched
                 .iter()
@@ -395,7 +406,7 @@ impl Tracker {
                 seed: ctx.config.seed ^ frame.index as u64,
                 ..PnpRansacOptions::default()
             };
-            let Some(solution) = pnp_ransac(&points_w, &pixels, &sigma2, &ctx.camera, &options)
+            let Some(solution) = pnp_ransac(&points_w, &pixels, &sigma2, view.camera, &options)
             else {
                 continue;
             };
@@ -404,7 +415,11 @@ impl Tracker {
                     frame.map_points[i] = None;
                 }
             }
-            frame.T_c_w = solution.T_c_w;
+            // The body (first camera) pose of the camera PnP found: T_c0_w = T_c_c0^-1 T_c_w.
+            let T_c0_w = view
+                .T_c_c0
+                .map_or(solution.T_c_w, |T| T.inverse() * solution.T_c_w);
+            frame.T_c_w = T_c0_w;
             self.optimize_pose(frame, map, ctx)?;
             let inliers = discard_outliers(frame);
             if inliers >= tracking.min_pose_inliers {
@@ -845,50 +860,6 @@ fn search_last_frame(
     n
 }
 
-/// Points projected into one camera of a frame, searched for together.
-struct ProjectionSearch<S> {
-    queries: Vec<ProjectionQuery>,
-    u_right: Vec<f64>,
-    sources: Vec<S>,
-}
-
-impl<S> Default for ProjectionSearch<S> {
-    fn default() -> Self {
-        Self {
-            queries: Vec::new(),
-            u_right: Vec::new(),
-            sources: Vec::new(),
-        }
-    }
-}
-
-impl<S: Copy> ProjectionSearch<S> {
-    /// Adds a query with the right coordinate it predicts and what it stands for.
-    fn push(&mut self, query: ProjectionQuery, u_right: f64, source: S) {
-        self.queries.push(query);
-        self.u_right.push(u_right);
-        self.sources.push(source);
-    }
-
-    /// The keypoints of camera `camera` of `frame` found, with what each query stood for.
-    fn run(
-        &self,
-        frame: &Frame,
-        camera: usize,
-        taken: &[bool],
-        opts: &MatchOptions,
-    ) -> Vec<(usize, S)> {
-        if self.queries.is_empty() {
-            return Vec::new();
-        }
-        let found = frame.search_by_projection(camera, &self.queries, &self.u_right, taken, opts);
-        found
-            .iter()
-            .zip(&self.sources)
-            .filter_map(|(hit, &source)| hit.map(|(i, _)| (i, source)))
-            .collect()
-    }
-}
-
+mod projection_search;
 #[cfg(test)]
 mod tests;
