@@ -5,9 +5,12 @@ sensor."""
 
 from __future__ import annotations
 
+import re
+
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from conftest import require_data
 from ferroslam import Calibration, Camera, Rig, load_calibration
@@ -513,3 +516,38 @@ def test_two_camera_files_load_as_the_euroc_rig(tmp_path, euroc, text, name):
     np.testing.assert_allclose(rig.T_left_right, raw.rig.T_left_right, atol=1e-8)
     for got, want in zip(rig.cameras, raw.rig.cameras):
         np.testing.assert_allclose(got.K, want.K, rtol=1e-6)
+
+
+def _camchain_without_imu(n_cameras: int, chain_last: bool = True) -> str:
+    """The EuRoC camchain without its IMU poses, cam1's section repeated as cam2.. (each
+    camera chained to the previous one by cam1's ``T_cn_cnm1``, unless ``chain_last`` is
+    false for the last)."""
+    text = re.sub(r"  T_cam_imu:\n(    - .*\n){4}", "", KALIBR_CAMCHAIN)
+    cam1 = text[text.index("cam1:"):]
+    for n in range(2, n_cameras):
+        section = cam1.replace("cam1:", f"cam{n}:", 1).replace("/cam1/", f"/cam{n}/")
+        if n == n_cameras - 1 and not chain_last:
+            section = re.sub(r"  T_cn_cnm1:\n(    - .*\n){4}", "", section)
+        text += section
+    return text
+
+
+def test_a_camchain_of_three_cameras_loads_as_a_rig(tmp_path):
+    """No IMU: the cameras' poses chain Kalibr's T_cn_cnm1 (cam n-1 -> cam n) from cam0; the
+    first two are a pair, the third a further camera of the rig."""
+    calib = load_calibration(_write(tmp_path, _camchain_without_imu(3), "camchain.yaml"))
+    assert len(calib.cameras) == 3 and calib.camera_to_imu == [None] * 3
+    T_c1_c0 = np.array(yaml.safe_load(KALIBR_CAMCHAIN)["cam1"]["T_cn_cnm1"])
+    T_c0_c1 = np.linalg.inv(T_c1_c0)
+    rig = Rig.from_calibration(calib)
+    assert rig.stereo and rig.tracked_sensor() == "stereo" and len(rig.cameras) == 3
+    np.testing.assert_allclose(rig.T_body_cam[1], T_c0_c1, atol=1e-12)
+    np.testing.assert_allclose(rig.T_body_cam[2], T_c0_c1 @ T_c0_c1, atol=1e-12)
+    [(camera, T_c0_c2, has_depth)] = rig.observers()
+    assert camera is rig.cameras[2] and not has_depth
+    np.testing.assert_allclose(T_c0_c2, T_c0_c1 @ T_c0_c1, atol=1e-12)
+    broken = load_calibration(_write(tmp_path, _camchain_without_imu(3, chain_last=False),
+                                     "broken.yaml"))
+    assert broken.T_c0_cam[2] is None
+    with pytest.raises(ValueError, match="has 3 cameras but does not give each one's pose"):
+        Rig.from_calibration(broken)

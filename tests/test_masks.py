@@ -87,8 +87,7 @@ def test_the_core_refuses_bad_masks_itself(rpy_frame):
                               "640x480: give a mask of the image's size (0 = no keypoint there)")
     with pytest.raises(ValueError) as err:
         core.extract_stereo(rpy_frame, rpy_frame, None, np.ones((H, W), np.int64))
-    assert str(err.value) == ("right_mask must be a 2-D uint8 or bool array (0 = no keypoint "
-                              "there), got int64 array of shape (480, 640)")
+    assert str(err.value) == "right_mask dtype must be uint8 or bool, got int64"
     left, right = core.extract_stereo(rpy_frame, rpy_frame, None, _lower_third_closed())
     assert _on_closed_pixels(right[0], _lower_third_closed()) == 0
     assert _on_closed_pixels(left[0], _lower_third_closed()) > 0

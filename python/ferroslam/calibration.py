@@ -155,6 +155,10 @@ class Calibration:
         depth_factor: depth pixel value per metre of the RGB-D camera's depth images
             (``metres = pixel / depth_factor``: 5000 for TUM, 1000 for millimetres), ``None``
             where the file gives none; see :data:`DEPTH_FACTOR_KEYS`.
+        T_c0_cam: per camera, its ``(4, 4)`` pose in ``cameras[0]``'s frame (``p_0 = T @
+            p``) from the file's own chain of relative poses (Kalibr ``T_cn_cnm1``, ORB-SLAM3
+            ``Stereo.T_c1_c2``), ``None`` from the first camera the chain does not reach;
+            derived from ``T_left_right`` for two cameras when not given.
     """
 
     cameras: list[Camera]
@@ -162,6 +166,11 @@ class Calibration:
     imu: Optional[ImuParams] = None
     T_left_right: Optional[np.ndarray] = None
     depth_factor: Optional[float] = None
+    T_c0_cam: list[Optional[np.ndarray]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.T_c0_cam and self.T_left_right is not None and len(self.cameras) == 2:
+            object.__setattr__(self, "T_c0_cam", [np.eye(4), np.asarray(self.T_left_right)])
 
     @property
     def baseline_m(self) -> Optional[float]:
@@ -484,7 +493,15 @@ def _read_kalibr_camchain(fields: _Fields) -> Calibration:
         T_left_right = inverse(sections[1].pose("T_cn_cnm1"))
     elif len(sections) > 1 and camera_to_imu[0] is not None and camera_to_imu[1] is not None:
         T_left_right = inverse(camera_to_imu[0]) @ camera_to_imu[1]
-    return Calibration(cameras, camera_to_imu, None, T_left_right)
+    # cam n in cam 0: the chain of T_cn_cnm1 (each maps cam n-1 points into cam n).
+    T_c0_cam: list[Optional[np.ndarray]] = [np.eye(4)]
+    for section in sections[1:]:
+        previous = T_c0_cam[-1]
+        chained = previous is not None and "T_cn_cnm1" in section
+        T_c0_cam.append(previous @ inverse(section.pose("T_cn_cnm1")) if chained else None)
+    if len(sections) < 2 or T_c0_cam[1] is None:
+        T_c0_cam = []
+    return Calibration(cameras, camera_to_imu, None, T_left_right, T_c0_cam=T_c0_cam)
 
 
 def _kalibr_camera(cam: _Fields) -> Camera:

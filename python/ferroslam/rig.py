@@ -81,7 +81,8 @@ class Rig:
                          ) -> "Rig":
         """The rig of a calibration file (:func:`ferroslam.load_calibration`: Kalibr
         camchain ``cam0..camN``, ORB-SLAM3 ``Camera1``/``Camera2`` with ``Stereo.T_c1_c2``):
-        body = the IMU where the file relates the cameras to one, else camera 0.
+        body = the IMU where the file relates every camera to one, else camera 0 (the
+        cameras chained by the file's relative poses).
         ``stereo`` defaults to whether the file relates cameras 0 and 1."""
         cameras = tuple(calibration.cameras)
         T_imu_cam = list(calibration.camera_to_imu)
@@ -90,11 +91,13 @@ class Rig:
             poses = tuple(np.asarray(T, dtype=np.float64) for T in T_imu_cam[: len(cameras)])
         elif len(cameras) == 1:
             poses = (np.eye(4),)
-        elif len(cameras) == 2 and calibration.T_left_right is not None:
-            poses = (np.eye(4), np.asarray(calibration.T_left_right, dtype=np.float64))
+        elif len(calibration.T_c0_cam) == len(cameras) and all(
+                T is not None for T in calibration.T_c0_cam):
+            poses = tuple(np.asarray(T, dtype=np.float64) for T in calibration.T_c0_cam)
         else:
             raise ValueError(f"the calibration has {len(cameras)} cameras but does not give "
-                             "each one's pose (camera-IMU transforms or T_left_right)")
+                             "each one's pose (camera-IMU transforms, or relative poses "
+                             "chaining every camera to the first)")
         if stereo is None:
             stereo = len(cameras) >= 2 and calibration.T_left_right is not None
         rig = cls(cameras, poses, stereo)

@@ -8,12 +8,13 @@ use ferroslam_features::{
     OrbConfig, OrbExtractor,
 };
 use numpy::ndarray::Array2;
-use numpy::{PyArray2, PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMethods};
+use numpy::PyArray2;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::convert;
 use crate::errors::features_to_py;
+use crate::rig_frame;
 
 /// `(keypoints (N, 5) float32, descriptors (N, 32) uint8, pyramid [2-D uint8 arrays])`.
 type FeatureArrays<'py> = (
@@ -56,37 +57,11 @@ fn level_arrays(py: Python<'_>, pyramid: ImagePyramid) -> Vec<Bound<'_, PyArray2
 /// An image as [`convert::gray_image`] gives it: `(width, height, pixels)`.
 type Pixels = (usize, usize, Vec<u8>);
 
-/// A keypoint mask given as a 2-D uint8 or bool array (0 / False: no keypoint there), as
-/// [`Pixels`]; `None` when none is given. Anything else is a `ValueError` naming `name`.
+/// A keypoint mask (see [`rig_frame::mask_pixels`]); `None` when none is given.
 fn mask_pixels(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<Pixels>> {
-    let Some(obj) = obj.filter(|o| !o.is_none()) else {
-        return Ok(None);
-    };
-    let to_pixels = |shape: &[usize], pixels: Vec<u8>| Some((shape[1], shape[0], pixels));
-    if let Ok(mask) = obj.extract::<PyReadonlyArray2<'_, u8>>() {
-        return Ok(to_pixels(
-            mask.shape(),
-            mask.as_array().iter().copied().collect(),
-        ));
-    }
-    if let Ok(mask) = obj.extract::<PyReadonlyArray2<'_, bool>>() {
-        let pixels = mask.as_array().iter().map(|&open| u8::from(open)).collect();
-        return Ok(to_pixels(mask.shape(), pixels));
-    }
-    let got = match obj.cast::<PyUntypedArray>() {
-        Ok(a) => format!(
-            "{} array of shape {}",
-            a.dtype(),
-            convert::shape_tuple(a.shape())
-        ),
-        Err(_) => obj
-            .get_type()
-            .name()
-            .map_or_else(|_| "another type".into(), |n| n.to_string()),
-    };
-    Err(PyValueError::new_err(format!(
-        "{name} must be a 2-D uint8 or bool array (0 = no keypoint there), got {got}"
-    )))
+    obj.filter(|o| !o.is_none())
+        .map(|o| rig_frame::mask_pixels(o, name))
+        .transpose()
 }
 
 /// A `ValueError` naming `name` unless `mask` is the size of `image` (checked before the
@@ -112,13 +87,9 @@ fn mask_view(mask: &Option<Pixels>) -> Result<Option<GrayImage<'_>>, FeaturesErr
 /// `features` as numpy arrays.
 fn arrays(py: Python<'_>, features: Features) -> FeatureArrays<'_> {
     let n = features.keypoints.len();
-    let keypoints = Array2::from_shape_fn((n, 5), |(i, c)| {
-        let k = &features.keypoints[i];
-        [k.x, k.y, f32::from(k.octave), k.angle_deg, k.response][c]
-    });
     let descriptors = Array2::from_shape_fn((n, 32), |(i, b)| features.descriptors[i][b]);
     (
-        PyArray2::from_owned_array(py, keypoints),
+        convert::keypoint_array(py, &features.keypoints),
         PyArray2::from_owned_array(py, descriptors),
         level_arrays(py, features.pyramid),
     )

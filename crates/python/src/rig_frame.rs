@@ -109,9 +109,11 @@ fn depth_array<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Depth<'py>> {
     )))
 }
 
-/// A static mask: `(width, height, pixels)` with 0 = no keypoint.
-pub fn mask_pixels(obj: &Bound<'_, PyAny>) -> PyResult<(usize, usize, Vec<u8>)> {
-    let mask = image_array(obj, "mask", true)?;
+/// A keypoint mask (0 / False = no keypoint there) as `(width, height, pixels)`: the one
+/// reader of masks given apart from a frame (static masks, the extractor's); errors name it
+/// `name`.
+pub fn mask_pixels(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(usize, usize, Vec<u8>)> {
+    let mask = image_array(obj, name, true)?;
     let view = image(&mask);
     Ok((view.width, view.height, view.data.into_owned()))
 }

@@ -342,7 +342,7 @@ impl PySlamSystem {
         let mask = match mask.filter(|m| !m.is_none()) {
             None => None,
             Some(m) => {
-                let (w, h, pixels) = rig_frame::mask_pixels(m)?;
+                let (w, h, pixels) = rig_frame::mask_pixels(m, "mask")?;
                 Some(
                     OwnedGrayImage::new(w, h, pixels)
                         .map_err(|e| PyValueError::new_err(e.to_string()))?,
