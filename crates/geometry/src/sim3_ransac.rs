@@ -2,9 +2,12 @@
 //! `Sim3Solver`), as a pure function.
 //!
 //! Loop closing matches map points seen in keyframe 1 with map points seen in keyframe 2,
-//! each expressed in its own camera frame. Three matches fix a similarity `S_12` (Horn /
-//! Umeyama); a match is an inlier when both of its points reproject onto the other
-//! keyframe's keypoint: `S_12 * p2` near `uv1` and `S_21 * p1` near `uv2`.
+//! each expressed in its keyframe's reference frame (the camera's, or a rig's first
+//! camera's). Three matches fix a similarity `S_12` (Horn / Umeyama); a match is an inlier
+//! when both of its points reproject onto the other keyframe's keypoint, in the camera that
+//! measured it: `S_12 * p2` near `uv1` and `S_21 * p1` near `uv2`. A keyframe of a rig is
+//! one generalised camera: the camera indices route each reprojection, so a place seen
+//! earlier by one camera and now by another verifies as any loop.
 
 use nalgebra::{Vector2, Vector3};
 use rand::Rng;
@@ -15,14 +18,19 @@ use crate::umeyama::umeyama;
 /// One map-point match between keyframe 1 and keyframe 2.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sim3Correspondence {
-    /// The map point seen by keyframe 1, in camera-1 coordinates (metres).
+    /// The map point seen by keyframe 1, in keyframe 1's reference frame (metres).
     pub p1: Vector3<f64>,
-    /// Its matched map point seen by keyframe 2, in camera-2 coordinates (metres of map 2).
+    /// Its matched map point seen by keyframe 2, in keyframe 2's reference frame (metres of
+    /// map 2).
     pub p2: Vector3<f64>,
-    /// Undistorted keypoint observing `p1` in keyframe 1, pixels.
+    /// Undistorted keypoint observing `p1` in keyframe 1, pixels of camera `camera1`.
     pub uv1: Vector2<f64>,
-    /// Undistorted keypoint observing `p2` in keyframe 2, pixels.
+    /// Undistorted keypoint observing `p2` in keyframe 2, pixels of camera `camera2`.
     pub uv2: Vector2<f64>,
+    /// The camera of keyframe 1 that measured `uv1` (0 for a single camera).
+    pub camera1: usize,
+    /// The camera of keyframe 2 that measured `uv2`.
+    pub camera2: usize,
     /// Squared reprojection threshold in keyframe 1, pixels^2 (ORB-SLAM:
     /// `9.21 * sigma2` of the keypoint's octave).
     pub max_err2_1: f64,
@@ -74,10 +82,10 @@ const MAX_REFITS: usize = 3;
 
 /// Estimates `S_12` from map-point matches by RANSAC on 3-point Horn/Umeyama hypotheses.
 ///
-/// `project` is the pinhole projection of a camera-frame point (metres) to undistorted
-/// pixels, `None` behind the camera; it is used for both keyframes. Match `i` is an inlier
-/// of a hypothesis `S_12` when `|uv1 - project(S_12 p2)|^2 <= max_err2_1` AND
-/// `|uv2 - project(S_12^-1 p1)|^2 <= max_err2_2`.
+/// `project(camera, p)` is the projection of a reference-frame point (metres) into camera
+/// `camera`'s undistorted pixels, `None` behind it; it is used for both keyframes. Match `i`
+/// is an inlier of a hypothesis `S_12` when `|uv1 - project(camera1, S_12 p2)|^2 <=
+/// max_err2_1` AND `|uv2 - project(camera2, S_12^-1 p1)|^2 <= max_err2_2`.
 ///
 /// Iterations: like ORB-SLAM, the hypothesis budget starts at
 /// `ceil(ln(1 - probability) / ln(1 - w^3))` with the inlier ratio `w = min_inliers / n`,
@@ -96,7 +104,7 @@ const MAX_REFITS: usize = 3;
 /// use ferroslam_geometry::sim3_ransac::{sim3_ransac, Sim3Correspondence, Sim3RansacParams};
 /// use nalgebra::{Vector2, Vector3};
 /// use rand::SeedableRng;
-/// let project = |p: &Vector3<f64>| {
+/// let project = |_camera: usize, p: &Vector3<f64>| {
 ///     (p.z > 0.0).then(|| Vector2::new(500.0 * p.x / p.z + 320.0, 500.0 * p.y / p.z + 240.0))
 /// };
 /// let s_12 = Sim3::exp(&Vector7::from([0.1, 0.0, -0.05, 0.0, 0.05, 0.0, 0.3]));
@@ -104,7 +112,8 @@ const MAX_REFITS: usize = 3;
 ///     .map(|i| {
 ///         let p1 = Vector3::new((i % 6) as f64 * 0.3 - 0.8, (i / 6) as f64 * 0.3 - 0.6, 3.0 + (i % 4) as f64 * 0.4);
 ///         let p2 = s_12.inverse().transform_point(&p1);
-///         Sim3Correspondence { p1, p2, uv1: project(&p1).unwrap(), uv2: project(&p2).unwrap(), max_err2_1: 9.21, max_err2_2: 9.21 }
+///         let (uv1, uv2) = (project(0, &p1).unwrap(), project(0, &p2).unwrap());
+///         Sim3Correspondence { p1, p2, uv1, uv2, camera1: 0, camera2: 0, max_err2_1: 9.21, max_err2_2: 9.21 }
 ///     })
 ///     .collect();
 /// let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
@@ -114,7 +123,7 @@ const MAX_REFITS: usize = 3;
 /// ```
 pub fn sim3_ransac(
     matches: &[Sim3Correspondence],
-    project: impl Fn(&Vector3<f64>) -> Option<Vector2<f64>>,
+    project: impl Fn(usize, &Vector3<f64>) -> Option<Vector2<f64>>,
     params: &Sim3RansacParams,
     rng: &mut impl Rng,
 ) -> Option<Sim3RansacResult> {
@@ -192,18 +201,18 @@ fn iterations_for(w: f64, params: &Sim3RansacParams) -> usize {
 /// Inlier flags of every match under `s_12`, and their count.
 fn inliers_of(
     matches: &[Sim3Correspondence],
-    project: &impl Fn(&Vector3<f64>) -> Option<Vector2<f64>>,
+    project: &impl Fn(usize, &Vector3<f64>) -> Option<Vector2<f64>>,
     s_12: &Sim3,
 ) -> (Vec<bool>, usize) {
     let s_21 = s_12.inverse();
-    let within = |p: Vector3<f64>, uv: &Vector2<f64>, max_err2: f64| {
-        project(&p).is_some_and(|pred| (pred - uv).norm_squared() <= max_err2)
+    let within = |camera: usize, p: Vector3<f64>, uv: &Vector2<f64>, max_err2: f64| {
+        project(camera, &p).is_some_and(|pred| (pred - uv).norm_squared() <= max_err2)
     };
     let flags: Vec<bool> = matches
         .iter()
         .map(|m| {
-            within(s_12.transform_point(&m.p2), &m.uv1, m.max_err2_1)
-                && within(s_21.transform_point(&m.p1), &m.uv2, m.max_err2_2)
+            within(m.camera1, s_12.transform_point(&m.p2), &m.uv1, m.max_err2_1)
+                && within(m.camera2, s_21.transform_point(&m.p1), &m.uv2, m.max_err2_2)
         })
         .collect();
     let count = flags.iter().filter(|&&f| f).count();
@@ -237,6 +246,11 @@ mod tests {
 
     fn project(p: &Vector3<f64>) -> Option<Vector2<f64>> {
         (p.z > 1e-6).then(|| Vector2::new(FX * p.x / p.z + 320.0, FX * p.y / p.z + 240.0))
+    }
+
+    /// One camera: every index is the reference camera.
+    fn project_any(_camera: usize, p: &Vector3<f64>) -> Option<Vector2<f64>> {
+        project(p)
     }
 
     /// A point in front of a camera, inside a 640x480 image, 2-6 m deep.
@@ -275,6 +289,8 @@ mod tests {
                     p2: p2 + jitter(&mut rng) * s_21.scale,
                     uv1,
                     uv2,
+                    camera1: 0,
+                    camera2: 0,
                     max_err2_1: 9.21,
                     max_err2_2: 9.21,
                 }
@@ -309,7 +325,7 @@ mod tests {
         };
         sim3_ransac(
             matches,
-            project,
+            project_any,
             &params,
             &mut ChaCha8Rng::seed_from_u64(seed),
         )
@@ -367,7 +383,7 @@ mod tests {
             ..Default::default()
         };
         let mut rng = ChaCha8Rng::seed_from_u64(8);
-        assert!(sim3_ransac(&matches, project, &bad_params, &mut rng).is_none());
+        assert!(sim3_ransac(&matches, project_any, &bad_params, &mut rng).is_none());
         matches[3].p2.y = f64::NAN;
         assert!(run(&matches, false, 8).is_none());
         matches[3].p2.y = 1.0;
@@ -388,12 +404,70 @@ mod tests {
                     p2,
                     uv1: project(&p1).unwrap(),
                     uv2: project(&p2).unwrap(),
+                    camera1: 0,
+                    camera2: 0,
                     max_err2_1: 9.21,
                     max_err2_2: 9.21,
                 }
             })
             .collect();
         assert!(run(&matches, false, 10).is_none());
+    }
+
+    /// A two-camera rig, camera 1 turned 90 degrees about the vertical axis and 0.1 m out:
+    /// keyframe 1 saw the place through camera 1, keyframe 2 through camera 0. Each match is
+    /// measured in its own camera, its points in the reference (camera-0) frames.
+    #[test]
+    #[allow(non_snake_case)]
+    fn matches_measured_by_different_cameras_of_a_rig_verify() {
+        let T_c1_c0 = nalgebra::Isometry3::new(
+            Vector3::new(0.1, 0.0, 0.0),
+            Vector3::new(0.0, std::f64::consts::FRAC_PI_2, 0.0),
+        );
+        let T_c0_c1 = T_c1_c0.inverse();
+        let rig = |camera: usize, p: &Vector3<f64>| match camera {
+            0 => project(p),
+            _ => project(&(T_c1_c0 * nalgebra::Point3::from(*p)).coords),
+        };
+        // Keyframe 2's camera 0 faces where keyframe 1's camera 1 did.
+        let s = Sim3::from_isometry(&T_c0_c1) * truth(1.0);
+        let s_21 = s.inverse();
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let matches: Vec<_> = (0..60)
+            .map(|i| {
+                // In front of camera 1 of keyframe 1, and of camera 0 of keyframe 2 for the
+                // true matches; the first 20 are wrong.
+                let p1 = (T_c0_c1 * nalgebra::Point3::from(random_point(&mut rng))).coords;
+                let p2 = if i < 20 {
+                    random_point(&mut rng)
+                } else {
+                    s_21.transform_point(&p1)
+                };
+                Sim3Correspondence {
+                    p1,
+                    p2,
+                    uv1: rig(1, &p1).unwrap() + pixel_noise(&mut rng, 0.7),
+                    uv2: rig(0, &p2).unwrap() + pixel_noise(&mut rng, 0.7),
+                    camera1: 1,
+                    camera2: 0,
+                    max_err2_1: 9.21,
+                    max_err2_2: 9.21,
+                }
+            })
+            .collect();
+        let params = Sim3RansacParams {
+            fix_scale: true,
+            ..Default::default()
+        };
+        let found = sim3_ransac(&matches, rig, &params, &mut ChaCha8Rng::seed_from_u64(11))
+            .expect("a rigid transform");
+        assert_close(&found.S_12, &s);
+        assert!(found.inliers[20..].iter().all(|&f| f));
+        // Through the wrong camera nothing reprojects: keyframe 1's points are beside
+        // camera 0, not in front of it.
+        let wrong = |_camera: usize, p: &Vector3<f64>| project(p);
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        assert!(sim3_ransac(&matches, wrong, &params, &mut rng).is_none());
     }
 
     #[test]

@@ -6,11 +6,17 @@
 //! `e_1 = uv1 - proj(S_12 * p2)` and `e_2 = uv2 - proj(S_12^-1 * p1)`, with information
 //! `inv_sigma2_k * I` and a Huber kernel of width `sqrt(th2)` on `chi2_k = inv_sigma2_k |e_k|^2`.
 //! Increments are LEFT perturbations `S_12 <- exp(zeta) * S_12`, `zeta = [rho; phi; sigma]`.
+//!
+//! A keyframe of a multi-camera rig is one generalised camera: its points are in the rig's
+//! first-camera frame and each keypoint is compared in the camera that measured it,
+//! `proj_k(T_ck_c0 * q)` ([`RigCamera`]), so a loop seen by another camera than before
+//! refines as any other.
 
 use crate::error::OptimError;
 use crate::intrinsics::Intrinsics;
 use crate::lm::{damping_diagonal, dense_damped_step, Damping};
 use crate::residual::{self, validate_measurement};
+use crate::rig_camera::RigCamera;
 use crate::robust::Huber;
 use ferroslam_geometry::sim3::{Sim3, Vector7, SCALE};
 use ferroslam_geometry::so3;
@@ -36,14 +42,19 @@ type Matrix3x7<T> = SMatrix<T, 3, 7>;
 /// A map-point match between keyframe 1 and keyframe 2 (both points fixed).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sim3Match {
-    /// The map point seen by keyframe 1, in camera-1 coordinates (metres).
+    /// The map point seen by keyframe 1, in keyframe 1's reference (first-camera) frame
+    /// (metres).
     pub p1: Vector3<f64>,
-    /// Its matched map point seen by keyframe 2, in camera-2 coordinates.
+    /// Its matched map point seen by keyframe 2, in keyframe 2's reference frame.
     pub p2: Vector3<f64>,
-    /// Undistorted keypoint observing `p1` in keyframe 1, pixels.
+    /// Undistorted keypoint observing `p1` in keyframe 1, pixels of camera `camera1`.
     pub uv1: Vector2<f64>,
-    /// Undistorted keypoint observing `p2` in keyframe 2, pixels.
+    /// Undistorted keypoint observing `p2` in keyframe 2, pixels of camera `camera2`.
     pub uv2: Vector2<f64>,
+    /// Index into the rig's cameras of the one that measured `uv1` (0 for a single camera).
+    pub camera1: usize,
+    /// Index of the camera that measured `uv2`.
+    pub camera2: usize,
     /// Information `1 / sigma^2` of `uv1` (ORB-SLAM's per-octave `invSigma2`), 1/pixels^2.
     pub inv_sigma2_1: f64,
     /// Information `1 / sigma^2` of `uv2`, 1/pixels^2.
@@ -76,11 +87,12 @@ pub struct Sim3AlignResult {
 /// returned as is: callers apply their own minimum (ORB-SLAM's loop closer wants 20).
 ///
 /// With `fix_scale` the scale is not optimised (6 dof) and stays exactly `S_12.scale`.
-/// With a single camera model for both keyframes, `intrinsics` projects both sides (the
-/// stereo `bf` is not used).
+/// `cameras` are the rig's (one for a single camera), the same for both keyframes; each
+/// side is projected through its match's camera (the stereo `bf` is not used).
 ///
 /// # Errors
-/// [`OptimError::InvalidInput`] for no matches, invalid intrinsics, `th2` not positive,
+/// [`OptimError::InvalidInput`] for no matches, no camera or invalid intrinsics, a match
+/// naming a camera the rig does not have, `th2` not positive,
 /// `S_12.scale <= 0` or an `inv_sigma2` not positive; [`OptimError::NonFinite`] for a
 /// non-finite value in `S_12` (`what = "sim3"`) or in a match (`what = "observation"`,
 /// `index` = the match). The underlying LM cannot fail otherwise (its 7x7 system is
@@ -89,7 +101,7 @@ pub struct Sim3AlignResult {
 /// ```
 /// use ferroslam_geometry::sim3::{Sim3, Vector7};
 /// use ferroslam_optim::sim3_align::{optimize_sim3, Sim3Match, SIM3_TH2_MONO};
-/// use ferroslam_optim::Intrinsics;
+/// use ferroslam_optim::{Intrinsics, RigCamera};
 /// use nalgebra::{Vector2, Vector3};
 /// let k = Intrinsics { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, bf: 0.0, fisheye: None };
 /// let proj = |p: Vector3<f64>| Vector2::new(500.0 * p.x / p.z + 320.0, 500.0 * p.y / p.z + 240.0);
@@ -98,11 +110,11 @@ pub struct Sim3AlignResult {
 ///     .map(|i| {
 ///         let p1 = Vector3::new((i % 6) as f64 * 0.3 - 0.8, (i / 6) as f64 * 0.3 - 0.6, 3.0 + (i % 4) as f64 * 0.4);
 ///         let p2 = truth.inverse().transform_point(&p1);
-///         Sim3Match { p1, p2, uv1: proj(p1), uv2: proj(p2), inv_sigma2_1: 1.0, inv_sigma2_2: 1.0 }
+///         Sim3Match { p1, p2, uv1: proj(p1), uv2: proj(p2), camera1: 0, camera2: 0, inv_sigma2_1: 1.0, inv_sigma2_2: 1.0 }
 ///     })
 ///     .collect();
 /// let start = Sim3::exp(&Vector7::from([0.02, 0.01, 0.0, 0.01, 0.0, 0.0, 0.05])) * truth;
-/// let out = optimize_sim3(&start, &matches, &k, SIM3_TH2_MONO, false).unwrap();
+/// let out = optimize_sim3(&start, &matches, &[RigCamera::first(k)], SIM3_TH2_MONO, false).unwrap();
 /// assert_eq!(out.num_inliers, 30);
 /// assert!((out.S_12.scale - truth.scale).abs() < 1e-8);
 /// ```
@@ -110,22 +122,21 @@ pub struct Sim3AlignResult {
 pub fn optimize_sim3(
     S_12: &Sim3,
     matches: &[Sim3Match],
-    intrinsics: &Intrinsics,
+    cameras: &[RigCamera],
     th2: f64,
     fix_scale: bool,
 ) -> Result<Sim3AlignResult, OptimError> {
-    validate(S_12, matches, intrinsics, th2)?;
+    validate(S_12, matches, cameras, th2)?;
     let problem = Problem {
-        k: intrinsics,
+        k: cameras,
         matches,
         huber: Huber { delta: th2.sqrt() },
         fix_scale,
     };
-    let within = |s: &Sim3, m: &Sim3Match| {
-        chi2s(intrinsics, s, m).is_some_and(|c| c[0] <= th2 && c[1] <= th2)
-    };
+    let within =
+        |s: &Sim3, m: &Sim3Match| chi2s(cameras, s, m).is_some_and(|c| c[0] <= th2 && c[1] <= th2);
     let first: Vec<usize> = (0..matches.len())
-        .filter(|&i| chi2s(intrinsics, S_12, &matches[i]).is_some())
+        .filter(|&i| chi2s(cameras, S_12, &matches[i]).is_some())
         .collect();
     let s = problem.refine(S_12, &first, FIRST_ITERATIONS)?;
     let second: Vec<usize> = first
@@ -155,10 +166,10 @@ pub fn optimize_sim3(
 fn validate(
     S_12: &Sim3,
     matches: &[Sim3Match],
-    k: &Intrinsics,
+    cameras: &[RigCamera],
     th2: f64,
 ) -> Result<(), OptimError> {
-    k.validate()?;
+    RigCamera::validate_all(cameras)?;
     if matches.is_empty() {
         return Err(OptimError::InvalidInput(
             "optimize_sim3 needs at least one match".into(),
@@ -190,6 +201,14 @@ fn validate(
                 what: "observation",
                 index: i,
             });
+        }
+        if m.camera1.max(m.camera2) >= cameras.len() {
+            return Err(OptimError::InvalidInput(format!(
+                "match {i} names cameras {} and {} of a rig of {}",
+                m.camera1,
+                m.camera2,
+                cameras.len()
+            )));
         }
         validate_measurement(i, &m.uv1, None, m.inv_sigma2_1)?;
         validate_measurement(i, &m.uv2, None, m.inv_sigma2_2)?;
@@ -225,14 +244,31 @@ fn project(k: &Intrinsics, p_c: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x
     ))
 }
 
-fn linearize(k: &Intrinsics, s_12: &Sim3, m: &Sim3Match) -> Option<Linearization> {
+/// [`project`] of a reference-frame point through rig camera `camera`: the pixel and its
+/// Jacobian with respect to the reference-frame point (`d uv / d p_c * R_c_c0`).
+fn project_in(camera: &RigCamera, p: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+    let k = &camera.intrinsics;
+    match &camera.T_c_c0 {
+        None => project(k, p),
+        Some(t_c_c0) => {
+            let p_c = t_c_c0.rotation * p + t_c_c0.translation.vector;
+            let (uv, d_uv_d_p_c) = project(k, &p_c)?;
+            Some((
+                uv,
+                d_uv_d_p_c * t_c_c0.rotation.to_rotation_matrix().into_inner(),
+            ))
+        }
+    }
+}
+
+fn linearize(cameras: &[RigCamera], s_12: &Sim3, m: &Sim3Match) -> Option<Linearization> {
     // Keyframe 1 sees q = S_12 p2; perturbed, exp(zeta) q.
     let q = s_12.transform_point(&m.p2);
-    let (pred_1, d_uv_d_q) = project(k, &q)?;
+    let (pred_1, d_uv_d_q) = project_in(&cameras[m.camera1], &q)?;
     // Keyframe 2 sees r = S_12^-1 p1; perturbed, S_12^-1 exp(-zeta) p1, and the linear part
     // of S_12^-1 is R^T / s.
     let r = s_12.inverse().transform_point(&m.p1);
-    let (pred_2, d_uv_d_r) = project(k, &r)?;
+    let (pred_2, d_uv_d_r) = project_in(&cameras[m.camera2], &r)?;
     let r_t_over_s = s_12.rotation.inverse().to_rotation_matrix().into_inner() / s_12.scale;
     let lin = Linearization {
         e: [m.uv1 - pred_1, m.uv2 - pred_2],
@@ -246,7 +282,7 @@ fn linearize(k: &Intrinsics, s_12: &Sim3, m: &Sim3Match) -> Option<Linearization
 }
 
 /// `[chi2_1, chi2_2]` of a match, `None` where [`linearize`] is `None`.
-fn chi2s(k: &Intrinsics, s_12: &Sim3, m: &Sim3Match) -> Option<[f64; 2]> {
+fn chi2s(k: &[RigCamera], s_12: &Sim3, m: &Sim3Match) -> Option<[f64; 2]> {
     linearize(k, s_12, m).map(|lin| {
         [
             m.inv_sigma2_1 * lin.e[0].norm_squared(),
@@ -257,7 +293,7 @@ fn chi2s(k: &Intrinsics, s_12: &Sim3, m: &Sim3Match) -> Option<[f64; 2]> {
 
 /// Everything fixed during the optimisation.
 struct Problem<'a> {
-    k: &'a Intrinsics,
+    k: &'a [RigCamera],
     matches: &'a [Sim3Match],
     huber: Huber,
     fix_scale: bool,
@@ -344,6 +380,7 @@ impl Problem<'_> {
 }
 
 #[cfg(test)]
+#[allow(non_snake_case)]
 mod tests {
     use super::*;
     use ferroslam_geometry::testing::check_jacobian;
@@ -359,6 +396,37 @@ mod tests {
         bf: 0.0,
         fisheye: None,
     };
+
+    /// The single camera as a rig of one.
+    fn one() -> [RigCamera; 1] {
+        [RigCamera::first(K)]
+    }
+
+    /// A two-camera rig: camera 1 turned 90 degrees about its y axis, 0.1 m out.
+    fn two() -> [RigCamera; 2] {
+        let T_c1_c0 = nalgebra::Isometry3::new(
+            Vector3::new(0.1, 0.0, 0.0),
+            Vector3::new(0.0, std::f64::consts::FRAC_PI_2, 0.0),
+        );
+        [RigCamera::first(K), RigCamera::new(K, T_c1_c0)]
+    }
+
+    /// `scene`'s matches with keyframe 1's side seen through camera 1 of [`two`]: its
+    /// points moved into the reference frame as that camera sees them, `S_12` turned to
+    /// match, `uv1` kept.
+    fn rig_scene(s_12: &Sim3, n: usize, seed: u64) -> (Sim3, Vec<Sim3Match>) {
+        let T_c0_c1 = two()[1].T_c_c0.unwrap().inverse();
+        let s_rig = Sim3::from_isometry(&T_c0_c1) * *s_12;
+        let matches = scene(s_12, n, 0, seed)
+            .into_iter()
+            .map(|m| Sim3Match {
+                p1: (T_c0_c1 * nalgebra::Point3::from(m.p1)).coords,
+                camera1: 1,
+                ..m
+            })
+            .collect();
+        (s_rig, matches)
+    }
 
     fn pixel(p: &Vector3<f64>) -> Vector2<f64> {
         project(&K, p).expect("point in front").0
@@ -393,6 +461,8 @@ mod tests {
                     p2,
                     uv1,
                     uv2,
+                    camera1: 0,
+                    camera2: 0,
                     inv_sigma2_1: 1.0,
                     inv_sigma2_2: 1.0 / 1.44, // second octave
                 }
@@ -420,11 +490,11 @@ mod tests {
     fn jacobians_match_numeric_derivatives() {
         let s = truth(1.6);
         for m in scene(&s, 5, 2, 11) {
-            let lin = linearize(&K, &s, &m).unwrap();
+            let lin = linearize(&one(), &s, &m).unwrap();
             let analytic = DMatrix::from_fn(4, 7, |r, c| lin.d_e_d_zeta[r / 2][(r % 2, c)]);
             let f = |zeta: &DVector<f64>| {
                 let moved = Sim3::exp(&Vector7::from_column_slice(zeta.as_slice())) * s;
-                let l = linearize(&K, &moved, &m).unwrap();
+                let l = linearize(&one(), &moved, &m).unwrap();
                 DVector::from_iterator(4, l.e[0].iter().chain(l.e[1].iter()).copied())
             };
             check_jacobian(
@@ -439,10 +509,53 @@ mod tests {
     }
 
     #[test]
+    fn rig_jacobians_match_numeric_derivatives() {
+        let (s, matches) = rig_scene(&truth(1.6), 5, 21);
+        let rig = two();
+        for m in matches {
+            let lin = linearize(&rig, &s, &m).unwrap();
+            let analytic = DMatrix::from_fn(4, 7, |r, c| lin.d_e_d_zeta[r / 2][(r % 2, c)]);
+            let f = |zeta: &DVector<f64>| {
+                let moved = Sim3::exp(&Vector7::from_column_slice(zeta.as_slice())) * s;
+                let l = linearize(&rig, &moved, &m).unwrap();
+                DVector::from_iterator(4, l.e[0].iter().chain(l.e[1].iter()).copied())
+            };
+            check_jacobian(
+                "rig sim3 reprojection",
+                &analytic,
+                f,
+                &DVector::zeros(7),
+                1e-6,
+                1e-5,
+            );
+        }
+    }
+
+    #[test]
+    fn matches_seen_by_another_camera_converge_to_truth() {
+        let (s, matches) = rig_scene(&truth(1.0), 60, 22);
+        let out =
+            optimize_sim3(&perturbed(&s, false), &matches, &two(), SIM3_TH2_MONO, true).unwrap();
+        let (rot, trans, _) = error(&out.S_12, &s);
+        assert!(rot < 0.05 && trans < 0.005, "{rot} deg, {trans} m");
+        assert_eq!(out.num_inliers, 60);
+        // A camera index the rig does not have is refused, naming the match.
+        let mut bad = matches.clone();
+        bad[7].camera2 = 2;
+        let err = optimize_sim3(&s, &bad, &two(), SIM3_TH2_MONO, true).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            OptimError::InvalidInput("match 7 names cameras 1 and 2 of a rig of 2".into())
+                .to_string()
+        );
+    }
+
+    #[test]
     fn perturbed_start_converges_to_truth() {
         let s = truth(1.6);
         let matches = scene(&s, 60, 0, 12);
-        let out = optimize_sim3(&perturbed(&s, true), &matches, &K, SIM3_TH2_MONO, false).unwrap();
+        let out =
+            optimize_sim3(&perturbed(&s, true), &matches, &one(), SIM3_TH2_MONO, false).unwrap();
         let (rot, trans, scale) = error(&out.S_12, &s);
         assert!(
             rot < 0.05 && trans < 0.005 && scale < 0.002,
@@ -456,7 +569,8 @@ mod tests {
     fn fixed_scale_converges_and_keeps_scale() {
         let s = truth(1.0);
         let matches = scene(&s, 60, 0, 13);
-        let out = optimize_sim3(&perturbed(&s, false), &matches, &K, SIM3_TH2_MONO, true).unwrap();
+        let out =
+            optimize_sim3(&perturbed(&s, false), &matches, &one(), SIM3_TH2_MONO, true).unwrap();
         assert_eq!(out.S_12.scale, 1.0);
         let (rot, trans, _) = error(&out.S_12, &s);
         assert!(rot < 0.05 && trans < 0.005, "{rot} deg, {trans} m");
@@ -465,7 +579,7 @@ mod tests {
             scale: 1.3,
             ..perturbed(&s, false)
         };
-        let out = optimize_sim3(&start, &matches, &K, SIM3_TH2_MONO, true).unwrap();
+        let out = optimize_sim3(&start, &matches, &one(), SIM3_TH2_MONO, true).unwrap();
         assert_eq!(out.S_12.scale, 1.3);
     }
 
@@ -473,7 +587,8 @@ mod tests {
     fn outliers_are_flagged() {
         let s = truth(1.6);
         let matches = scene(&s, 80, 16, 14);
-        let out = optimize_sim3(&perturbed(&s, true), &matches, &K, SIM3_TH2_MONO, false).unwrap();
+        let out =
+            optimize_sim3(&perturbed(&s, true), &matches, &one(), SIM3_TH2_MONO, false).unwrap();
         assert!(
             out.inliers[..16].iter().all(|&f| !f),
             "{:?}",
@@ -493,7 +608,7 @@ mod tests {
         let s = truth(1.6);
         let mut matches = scene(&s, 30, 0, 15);
         matches[0].p2 = -matches[0].p2 * 3.0;
-        let out = optimize_sim3(&s, &matches, &K, SIM3_TH2_MONO, false).unwrap();
+        let out = optimize_sim3(&s, &matches, &one(), SIM3_TH2_MONO, false).unwrap();
         assert!(!out.inliers[0]);
         assert_eq!(out.num_inliers, 29);
     }
@@ -502,7 +617,7 @@ mod tests {
     fn bad_input_is_an_error() {
         let s = truth(1.6);
         let matches = scene(&s, 10, 0, 16);
-        let run = |s: &Sim3, m: &[Sim3Match], th2: f64| optimize_sim3(s, m, &K, th2, false);
+        let run = |s: &Sim3, m: &[Sim3Match], th2: f64| optimize_sim3(s, m, &one(), th2, false);
         assert!(matches!(
             run(&s, &[], 10.0),
             Err(OptimError::InvalidInput(_))

@@ -99,6 +99,12 @@ impl CameraView<'_> {
             .unwrap_or_else(|| Vector3::repeat(f64::NAN))
     }
 
+    /// Point `p_c0` of the first camera's frame (metres) in this camera's frame.
+    pub fn point_in_camera(&self, p_c0: &Vector3<f64>) -> Vector3<f64> {
+        self.T_c_c0
+            .map_or(*p_c0, |T| (T * Point3::from(*p_c0)).coords)
+    }
+
     /// Whether core pixel `uv` lies inside the image bounds.
     pub fn contains(&self, uv: &nalgebra::Vector2<f64>) -> bool {
         let b = self.bounds;

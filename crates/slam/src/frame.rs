@@ -467,25 +467,29 @@ impl Frame {
     }
 }
 
-/// [`search_by_projection`] over the first camera's keypoints of `f`, for the stages that
-/// work in the first camera only (loop matching); the indices are `f`'s (the first camera's
-/// keypoints come first). `taken` is empty or one flag per keypoint of `f`.
-pub fn search_first_camera(
+/// [`search_by_projection`] over the keypoints of camera `camera` of `f` (a keyframe's, for
+/// loop matching); the indices are `f`'s. `taken` is empty or one flag per keypoint of `f`.
+pub fn search_camera(
     queries: &[ProjectionQuery],
     f: &FrameFeatures,
+    camera: usize,
     taken: &[bool],
     opts: &MatchOptions,
 ) -> Vec<Option<(usize, u32)>> {
-    let r = f.camera_range(0);
+    let r = f.camera_range(camera);
+    let first = r.start;
     let taken = taken.get(r.clone()).unwrap_or_default();
     search_by_projection(
         queries,
         &f.keypoints[r.clone()],
         &f.descriptors[r],
-        f.grid(0),
+        f.grid(camera),
         taken,
         opts,
     )
+    .into_iter()
+    .map(|hit| hit.map(|(t, d)| (first + t, d)))
+    .collect()
 }
 
 /// One further camera's measured features at an instant (see [`Frame::with_observers`]).

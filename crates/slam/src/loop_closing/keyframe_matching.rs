@@ -11,7 +11,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::row_projection::seen_from_row;
 use crate::context::Context;
-use crate::frame::search_first_camera;
+use crate::frame::search_camera;
 
 /// For each keypoint of `kf1` carrying a map point, the map point of `kf2` whose keypoint
 /// shares its vocabulary node and has the closest descriptor: within [`TH_LOW`], below `ratio`
@@ -66,8 +66,8 @@ pub(super) fn match_by_bow(
 }
 
 /// Completes `matches` (indexed by `kf1`'s keypoints, map points of `kf2`) with matches
-/// found by projecting each keyframe's unmatched map points into the other through
-/// `S_12` (camera-2 to camera-1 similarity) within `th` pixels times the predicted level's
+/// found by projecting each keyframe's unmatched map points into every camera of the other
+/// through `S_12` (keyframe-2 to keyframe-1 reference frames) within `th` pixels times the predicted level's
 /// scale (each projection from the row it lands on, [`seen_from_row`]); a pair is added
 /// only when both directions agree. Returns the number added.
 pub(super) fn match_by_sim3(
@@ -85,60 +85,64 @@ pub(super) fn match_by_sim3(
     let already: std::collections::HashSet<MapPointId> =
         matches.iter().flatten().copied().collect();
     let S_21 = S_12.inverse();
-    // Camera-1 points of kf1's unmatched map points, projected into kf2, and vice versa.
+    // Reference-frame points of kf1's unmatched map points, projected into every camera of
+    // kf2, and vice versa.
     let side = |from: &ferroslam_map::KeyFrame,
                 to: &ferroslam_map::KeyFrame,
                 S_to_from: &Sim3,
                 skip: &dyn Fn(usize, MapPointId) -> bool| {
-        let mut queries = Vec::new();
-        let mut sources = Vec::new();
+        let f = to.features();
+        let cameras = f.num_cameras();
+        let mut queries: Vec<Vec<ProjectionQuery>> = vec![Vec::new(); cameras];
+        let mut sources: Vec<Vec<usize>> = vec![Vec::new(); cameras];
         for (i, m) in from.map_points().iter().enumerate() {
             let Some(m) = m.filter(|m| map.map_point(*m).is_some()) else {
                 continue;
             };
-            // Loops are matched in the first camera: its keypoints come first.
-            if skip(i, m) || from.features().camera_of(i) != 0 {
+            if skip(i, m) {
                 continue;
             }
             let p = map.map_point(m).unwrap();
             let p_from = (from.T_c_w() * Point3::from(p.position())).coords;
             let p_to: Vector3<f64> = S_to_from.transform_point(&p_from);
-            let p_row = seen_from_row(&ctx.camera, &to.features().xi_dot, &p_to);
-            let Some(uv) = ctx.camera.project(&p_row) else {
-                continue;
-            };
-            let b = &ctx.bounds;
-            if uv.x < b.min_x || uv.x >= b.max_x || uv.y < b.min_y || uv.y >= b.max_y {
-                continue;
+            for k in 0..cameras {
+                let view = ctx.view(k);
+                let p_k = view.point_in_camera(&p_to);
+                let p_row = seen_from_row(view.camera, &f.xi_dot, &p_k);
+                let Some(uv) = view.camera.project(&p_row).filter(|uv| view.contains(uv)) else {
+                    continue;
+                };
+                let dist = p_k.norm();
+                let range = (p.min_distance(), p.max_distance());
+                if !ctx.config.visibility.in_scale_range(dist, range) {
+                    continue;
+                }
+                let level = p.predict_level(dist, map.pyramid()) as u8;
+                queries[k].push(ProjectionQuery {
+                    u: uv.x,
+                    v: uv.y,
+                    radius: th * map.pyramid().scale[level as usize],
+                    min_level: level.saturating_sub(1),
+                    max_level: level + 1,
+                    descriptor: *p.descriptor(),
+                    angle_deg: None,
+                });
+                sources[k].push(i);
             }
-            let dist = p_to.norm();
-            let range = (p.min_distance(), p.max_distance());
-            if !ctx.config.visibility.in_scale_range(dist, range) {
-                continue;
-            }
-            let level = p.predict_level(dist, map.pyramid()) as u8;
-            queries.push(ProjectionQuery {
-                u: uv.x,
-                v: uv.y,
-                radius: th * map.pyramid().scale[level as usize],
-                min_level: level.saturating_sub(1),
-                max_level: level + 1,
-                descriptor: *p.descriptor(),
-                angle_deg: None,
-            });
-            sources.push(i);
         }
-        let f = to.features();
         let opts = MatchOptions {
             max_distance: TH_HIGH,
             nn_ratio: None,
             check_orientation: false,
         };
-        let found = search_first_camera(&queries, f, &[], &opts);
+        // A point in the view of two cameras keeps the first camera's match.
         let mut out = vec![None; from.map_points().len()];
-        for (q, hit) in found.into_iter().enumerate() {
-            if let Some((t, _)) = hit {
-                out[sources[q]] = Some(t);
+        for (k, (queries, sources)) in queries.iter().zip(&sources).enumerate() {
+            let found = search_camera(queries, f, k, &[], &opts);
+            for (q, hit) in found.into_iter().enumerate() {
+                if let Some((t, _)) = hit {
+                    out[sources[q]].get_or_insert(t);
+                }
             }
         }
         out

@@ -12,6 +12,12 @@
 //! edges).
 //! Through a rolling shutter, [`row_projection`] makes each keyframe observation's projection
 //! from its row's pose.
+//!
+//! A keyframe of a multi-camera rig is one generalised camera: bag-of-words matching pairs
+//! keypoints of any of its cameras, the Sim(3) is fitted between the keyframes' reference
+//! (first-camera) frames with each keypoint compared in the camera that measured it, and the
+//! guided searches project into every camera. A place seen by the front camera and, on the
+//! return, by a side camera closes as any loop.
 
 mod correction;
 mod detection;

@@ -17,7 +17,7 @@ use ferroslam_geometry::rolling_shutter::{pixel_at_reference_line, predicted_rea
 use ferroslam_map::{FrameFeatures, Map, MapPointId};
 use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
 
-use crate::context::Context;
+use crate::context::{CameraView, Context};
 use crate::frame::readout_motion;
 use crate::frustum::{visible_point, VisiblePoint};
 
@@ -49,21 +49,23 @@ pub(super) fn seen_from_row(
     predicted_readout_motion(camera, xi_dot, p_c).map_or(*p_c, |D| (D * Point3::from(*p_c)).coords)
 }
 
-/// [`visible_point`] of map point `m` from the row of a camera at `T_c_w` (centre
-/// `center_w`) moving at `xi_dot` on which the point lands: pixel and camera-frame point
-/// from the row's pose, distance and viewing angle from the centre (the readout moves it
-/// millimetres).
+/// [`visible_point`] of map point `m` in camera `view` of a rig whose first camera is at
+/// `T_c0_w`, from the row it lands on when the keyframe moves at `xi_dot`: pixel and
+/// camera-frame point from the row's pose, distance and viewing angle from the camera's
+/// centre (the readout moves it millimetres).
 pub(super) fn visible_from_row(
     map: &Map,
     m: MapPointId,
-    T_c_w: &Isometry3<f64>,
-    center_w: &Vector3<f64>,
+    T_c0_w: &Isometry3<f64>,
     xi_dot: &Vector6<f64>,
+    view: &CameraView<'_>,
     ctx: &Context,
 ) -> Option<VisiblePoint> {
+    let T_c_w = view.pose(T_c0_w);
     let p_c = T_c_w * Point3::from(map.map_point(m)?.position());
     let T_row =
-        predicted_readout_motion(&ctx.camera, xi_dot, &p_c.coords).map_or(*T_c_w, |D| D * T_c_w);
+        predicted_readout_motion(view.camera, xi_dot, &p_c.coords).map_or(T_c_w, |D| D * T_c_w);
     let rules = &ctx.config.visibility;
-    visible_point(map, m, &T_row, center_w, &ctx.camera, &ctx.bounds, rules)
+    let center = T_c_w.inverse().translation.vector;
+    visible_point(map, m, &T_row, &center, view.camera, view.bounds, rules)
 }

@@ -20,7 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use super::keyframe_matching::{match_by_bow, match_by_sim3};
 use super::row_projection::{keypoint_at_reference_line, visible_from_row};
 use crate::context::Context;
-use crate::frame::search_first_camera;
+use crate::frame::search_camera;
 use crate::place_recognition::PlaceRecognition;
 
 /// chi2 threshold of a reprojection at 2 degrees of freedom, 99 % (RANSAC inliers).
@@ -81,11 +81,17 @@ pub(crate) fn verify_loop(
             p2: p.p2,
             uv1: p.uv1,
             uv2: p.uv2,
+            camera1: p.camera1,
+            camera2: p.camera2,
             max_err2_1: CHI2_2DOF / p.inv_sigma2_1,
             max_err2_2: CHI2_2DOF / p.inv_sigma2_2,
         })
         .collect();
-    let ransac = sim3_ransac(&corr, |p| ctx.camera.project(p), &params, rng)?;
+    let project = |k: usize, p: &nalgebra::Vector3<f64>| {
+        let view = ctx.view(k);
+        view.camera.project(&view.point_in_camera(p))
+    };
+    let ransac = sim3_ransac(&corr, project, &params, rng)?;
     match_by_sim3(
         map,
         ctx,
@@ -99,7 +105,7 @@ pub(crate) fn verify_loop(
     let refined = optimize_sim3(
         &ransac.S_12,
         &pairs,
-        &ctx.intrinsics,
+        &ctx.optim_cameras,
         config.sim3_huber_chi2,
         fix_scale,
     )
@@ -124,36 +130,40 @@ pub(crate) fn verify_loop(
     );
     let already: HashSet<MapPointId> = matched.iter().flatten().copied().collect();
     let T_cw = pose_of(&S_cw);
-    let center = T_cw.inverse().translation.vector;
-    let mut queries = Vec::new();
-    let mut sources = Vec::new();
-    let xi_dot = k1.features().xi_dot;
-    for &m in loop_points.iter().filter(|m| !already.contains(m)) {
-        let Some(vis) = visible_from_row(map, m, &T_cw, &center, &xi_dot, ctx) else {
-            continue;
-        };
-        queries.push(ProjectionQuery {
-            u: vis.u,
-            v: vis.v,
-            radius: config.projection_radius_px * map.pyramid().scale[vis.level as usize],
-            min_level: vis.level.saturating_sub(1),
-            max_level: vis.level,
-            descriptor: *map.map_point(m)?.descriptor(),
-            angle_deg: None,
-        });
-        sources.push(m);
-    }
     let f = k1.features();
-    let taken: Vec<bool> = matched.iter().map(Option::is_some).collect();
     let opts = MatchOptions {
         max_distance: TH_LOW,
         nn_ratio: None,
         check_orientation: false,
     };
-    let found = search_first_camera(&queries, f, &taken, &opts);
-    for (q, hit) in found.into_iter().enumerate() {
-        if let Some((i, _)) = hit {
-            matched[i] = Some(sources[q]);
+    // Camera by camera; a point found by one camera is not searched for by the next.
+    let mut found_points: HashSet<MapPointId> = already;
+    for k in 0..f.num_cameras() {
+        let view = ctx.view(k);
+        let mut queries = Vec::new();
+        let mut sources = Vec::new();
+        for &m in loop_points.iter().filter(|m| !found_points.contains(m)) {
+            let Some(vis) = visible_from_row(map, m, &T_cw, &f.xi_dot, &view, ctx) else {
+                continue;
+            };
+            queries.push(ProjectionQuery {
+                u: vis.u,
+                v: vis.v,
+                radius: config.projection_radius_px * map.pyramid().scale[vis.level as usize],
+                min_level: vis.level.saturating_sub(1),
+                max_level: vis.level,
+                descriptor: *map.map_point(m)?.descriptor(),
+                angle_deg: None,
+            });
+            sources.push(m);
+        }
+        let taken: Vec<bool> = matched.iter().map(Option::is_some).collect();
+        let found = search_camera(&queries, f, k, &taken, &opts);
+        for (q, hit) in found.into_iter().enumerate() {
+            if let Some((i, _)) = hit {
+                matched[i] = Some(sources[q]);
+                found_points.insert(sources[q]);
+            }
         }
     }
     let num_matches = matched.iter().flatten().count();
@@ -167,8 +177,9 @@ pub(crate) fn verify_loop(
 }
 
 /// The matches whose two map points both exist, as `(keypoint of kf1, map point of kf2)` and
-/// as Sim(3) correspondences (points in each keyframe's reference camera frame, keypoint
-/// pixels moved to the reference line and octave weights).
+/// as Sim(3) correspondences (points in each keyframe's reference frame, its first camera's;
+/// keypoint pixels of the camera that measured them, moved to the reference line; octave
+/// weights).
 fn correspondences(
     map: &Map,
     ctx: &Context,
@@ -191,19 +202,22 @@ fn correspondences(
         let Some(i2) = p2.observation(kf2) else {
             continue;
         };
-        // Sim(3) is fitted in the first camera of each keyframe.
-        if k1.features().camera_of(i1) != 0 || k2.features().camera_of(i2) != 0 {
-            continue;
-        }
+        // Each keyframe is one generalised camera: points in its reference frame, each
+        // keypoint in the camera that measured it.
+        let (c1, c2) = (k1.features().camera_of(i1), k2.features().camera_of(i2));
+        let (view1, view2) = (ctx.view(c1), ctx.view(c2));
         let (kp1, kp2) = (&k1.features().keypoints[i1], &k2.features().keypoints[i2]);
         let p1 = (k1.T_c_w() * Point3::from(p1.position())).coords;
         let p2 = (k2.T_c_w() * Point3::from(p2.position())).coords;
+        let (p1_c, p2_c) = (view1.point_in_camera(&p1), view2.point_in_camera(&p2));
         ids.push((i1, m2));
         out.push(Sim3Match {
             p1,
             p2,
-            uv1: keypoint_at_reference_line(&ctx.camera, k1.features(), i1, &p1),
-            uv2: keypoint_at_reference_line(&ctx.camera, k2.features(), i2, &p2),
+            uv1: keypoint_at_reference_line(view1.camera, k1.features(), i1, &p1_c),
+            uv2: keypoint_at_reference_line(view2.camera, k2.features(), i2, &p2_c),
+            camera1: c1,
+            camera2: c2,
             inv_sigma2_1: inv_sigma2[kp1.octave as usize],
             inv_sigma2_2: inv_sigma2[kp2.octave as usize],
         });
