@@ -40,7 +40,7 @@ pub use config::{
     Sensor, SlamConfig, TrackingConfig, UserOption, VisibilityConfig,
 };
 pub use error::SlamError;
-pub use frame::{MonoInput, RgbdInput, StereoInput};
+pub use frame::{MonoInput, ObserverInput, RgbdInput, StereoInput};
 pub use front_end::{CameraImage, DepthImage, Image, OwnedRigFrame, RigFrame, RigFrameView};
 pub use inertial::{
     AlignmentStatus, Bias, ImuParams, ImuSample, InertialAlignment, InertialConfig, Preintegrated,

@@ -10,7 +10,7 @@ use nalgebra::Isometry3;
 use super::{SlamSystem, TrackResult};
 use crate::config::Sensor;
 use crate::error::SlamError;
-use crate::frame::{Frame, MonoInput, RgbdInput, StereoInput};
+use crate::frame::{Frame, MonoInput, ObserverInput, RgbdInput, StereoInput};
 use crate::front_end::RigFrame;
 
 impl SlamSystem {
@@ -104,14 +104,55 @@ impl SlamSystem {
     }
 
     /// Tracks one RGB-D frame; keypoints are raw (distorted) pixels with sensor depth.
+    /// [`Self::track_rgbd_rig`] of a single camera.
     ///
     /// # Errors
     /// `InvalidInput` for mismatched lengths, non-finite values, octaves beyond the pyramid or
-    /// a timestamp not after the previous one; the system state is unchanged then.
+    /// a timestamp not after the previous one, and on a rig with further cameras (their
+    /// features go to [`Self::track_rgbd_rig`]); the system state is unchanged then.
     pub fn track_rgbd(&mut self, input: &RgbdInput<'_>) -> Result<TrackResult, SlamError> {
         let start = Instant::now();
         self.guard.accept_rgbd(input)?;
-        let frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx)?;
+        self.track_rgbd_checked(input, &[], start)
+    }
+
+    /// Tracks one instant of an RGB-D rig from features measured elsewhere (synthetic scenes,
+    /// another front end): the first camera's `input` as [`Self::track_rgbd`]'s, then one
+    /// `observers[k]` per further camera `k + 1`, in the order [`Self::add_camera`] added
+    /// them: raw (distorted) keypoints of that camera, descriptors, colours (empty for none;
+    /// given for every camera or none) and depths in metres (exactly for cameras added with
+    /// depth; `<= 0` or NaN means no measurement). The frame is tracked as one made by
+    /// [`Self::track`] from images.
+    ///
+    /// # Errors
+    /// `InvalidInput` as [`Self::track_rgbd`], for another number of observers than the
+    /// rig's further cameras, and naming the camera (`camera k: ...`) for an observer whose
+    /// lengths differ, whose coordinates are non-finite or outside its image, whose octaves
+    /// are beyond the pyramid, whose colours are given while camera 0's are not (or the
+    /// reverse), or whose depths are missing, given to a camera without depth or of another
+    /// length; the system state is unchanged then.
+    pub fn track_rgbd_rig(
+        &mut self,
+        input: &RgbdInput<'_>,
+        observers: &[ObserverInput<'_>],
+    ) -> Result<TrackResult, SlamError> {
+        let start = Instant::now();
+        self.guard.accept_rgbd_rig(input, observers)?;
+        self.track_rgbd_checked(input, observers, start)
+    }
+
+    /// Builds and tracks a frame the guard accepted: the first camera's features, then the
+    /// further cameras' (as [`crate::front_end::Measured::frame`] appends them).
+    fn track_rgbd_checked(
+        &mut self,
+        input: &RgbdInput<'_>,
+        observers: &[ObserverInput<'_>],
+        start: Instant,
+    ) -> Result<TrackResult, SlamError> {
+        let mut frame = Frame::from_rgbd(self.frames_seen, input, &self.ctx)?;
+        if !observers.is_empty() {
+            frame = frame.with_observers(observers, &self.ctx)?;
+        }
         self.track_frame(frame, start)
     }
 
