@@ -346,11 +346,13 @@ const LOOP_MIN_SHARED: usize = 30;
 /// The side camera's view of the start closes the loop, and only true loops are closed;
 /// loop closing then brings the trajectory well below the open-loop run's error.
 ///
-/// Measured (release, on the code whose loop closing matches the first camera only, so the
-/// test fails there): 678 frames, all tracked, 65 keyframes; 0 loops, loop stats 55
-/// keyframes checked, 6 with candidates, 3 verified, 3 rejected; ATE 0.0176 m with and
-/// without loop closing, open-loop drift at the return 0.058 m; camera 0 alone closes no
-/// loop. About 4 s of tracking per run, three runs.
+/// Measured (release, seed 11): 678 frames, all tracked, 64 keyframes; one loop, keyframe 62
+/// (21.3 s) to keyframe 1 (0.47 s), 477 points matched, scale 1, the current keyframe moved
+/// 5.5 cm; loop stats 53 keyframes checked, 4 with candidates, 1 verified, 0 rejected. ATE
+/// 0.0051 m against 0.0176 m without loop closing (0.29x); open-loop drift at the return
+/// 0.058 m; camera 0 alone closes no loop (no candidate). With loop closing matching each
+/// keyframe's first camera only (before the rig's loop closing), the same run closed no
+/// loop: 3 candidates verified, 3 rejected. About 3 s of tracking per run, three runs.
 #[test]
 fn a_loop_seen_only_by_the_side_camera_is_closed() {
     let scene = Scene::new(11);
@@ -398,14 +400,15 @@ fn a_loop_seen_only_by_the_side_camera_is_closed() {
         let shared = shared_landmarks(&scene, &a, &b);
         assert!(
             (l.timestamps.0 - l.timestamps.1).abs() >= 10.0
+                && l.scale == 1.0
                 && apart_m < LOOP_MAX_APART_M
                 && shared >= LOOP_MIN_SHARED,
             "{l:?}: {apart_m:.2} m apart, {shared} landmarks seen by both"
         );
     }
-    // (c) The closed loop's trajectory is well below the open loop's.
+    // (c) The closed loop's trajectory is well below the open loop's (0.29x measured).
     assert!(
-        closed_ate < 0.7 * open_ate,
+        closed_ate < 0.5 * open_ate,
         "ATE {closed_ate} m with loop closing, {open_ate} m without"
     );
 }
