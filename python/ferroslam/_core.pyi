@@ -407,9 +407,13 @@ class SlamSystem:
         each the colour of the keypoint that created the point (the ``colors`` given with
         its frame); grey ``(128, 128, 128)`` for points made from frames given without
         colours, as the exporters draw uncoloured points."""
-    def sparse_model(self) -> dict[str, NDArray[Any]]:
-        """The map as images and tracks, in one call (GIL released): ``keyframe_ids (K,)``
-        uint32, ``timestamps (K,)`` float64 s, ``T_w_c (K, 4, 4)`` float64,
+    def sparse_model(self) -> dict[str, Any]:
+        """The map as images and tracks, in one call (GIL released), one image per keyframe
+        and rig camera: ``keyframe_ids (K,)`` uint32, ``camera_index (K,)`` uint32 (the
+        image's camera, 0 the tracked one), ``rig_cameras`` (list of dicts of cameras 1..:
+        ``model``, ``fx``, ``fy``, ``cx``, ``cy``, ``dist``, ``width``, ``height``, ``T_c0_c
+        (4, 4)`` metres), ``timestamps (K,)`` float64 s, ``T_w_c (K, 4, 4)`` float64 (the
+        image's camera),
         ``keypoint_offsets (K + 1,)`` int64 (keyframe ``k``'s keypoints are rows
         ``offsets[k]:offsets[k + 1]``), ``keypoints_px (N, 2)`` float64 raw image pixels
         (the lens distortion applied), ``point_index (N,)`` int64 (row of ``points_xyz``
@@ -541,9 +545,10 @@ class SlamSystem:
 
 def load_sparse_model(
     path: str | os.PathLike[str],
-) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """``(camera, model)`` of a map file: ``camera`` the dict (``sensor``, ``model``, ``fx``,
-    ``fy``, ``cx``, ``cy``, ``dist``, ``width``, ``height``) of the camera it was built with,
+    ``fy``, ``cx``, ``cy``, ``dist``, ``width``, ``height``) of the first camera it was built
+    with,
     ``model`` as ``SlamSystem.sparse_model``. Read without the GIL.
 
     Raises:

@@ -6,7 +6,7 @@ nerfstudio (``ns-process-data``'s output) and Gaussian-splatting trainers (gspla
 original 3DGS ``-s FOLDER``) read. The model comes from the core in one call
 (:class:`SparseModel`: ``SlamSystem.sparse_model()`` or, for a saved map,
 ``_core.load_sparse_model(path)``), written against the map's keyframes, keypoints and
-points only, so a multi-camera rig will only add cameras.
+points only. A rig's model carries every camera (below).
 
 Images are the raw (distorted) frames as tracked, and the camera is written in the COLMAP
 model of the same lens (``OPENCV`` / ``FULL_OPENCV`` / ``PINHOLE``, ``OPENCV_FISHEYE``;
@@ -17,6 +17,14 @@ its row's motion (``ferroslam_map::sparse_model``), so points reproject through 
 poses as closely as through the rows' poses the core adjusted them with.
 Trainers that take only ``PINHOLE`` cameras (the original 3DGS) want ``colmap
 image_undistorter`` run on the folder first.
+
+A multi-camera rig (``ferroslam.Rig``, ``RigVSlam``) is one COLMAP camera per core camera
+(the tracked one, then the rig's further cameras, each with its own model and size) and one
+image per keyframe and camera, ``images/cam<k>/keyframe_<id>.png``, posed at ``T_ck_w =
+T_ck_c0 T_c0_w`` with that camera's keypoints, so a point's track spans the cameras that saw
+it. ``rigs.txt`` and ``frames.txt`` (COLMAP 3.12 on) say the cameras are rigidly mounted:
+one frame per keyframe. The partner of a stereo pair gives the first camera depths only (its
+keypoints are no map observations), so it is no camera of the model.
 """
 
 from __future__ import annotations
@@ -29,7 +37,7 @@ import numpy as np
 
 from ._files import regular_file, write_bytes, write_text
 from .camera import Camera
-from .export import write_colmap_model
+from .export import default_image_name, write_colmap_model
 from .keyframe_images import KeyframeImages
 
 __all__ = ["MIN_TRACK_LENGTH", "SparseModel", "export_map_file", "image_name", "write_colmap"]
@@ -50,6 +58,9 @@ class SparseModel:
     ``offsets[k]:offsets[k + 1]`` of ``keypoints_px (N, 2)`` (raw image pixels, OpenCV's
     centre of the top-left pixel at (0, 0), as seen from ``T_w_c``) and ``point_index (N,)`` (row of
     ``points_xyz (M, 3)`` the keypoint observes, -1 for none); ``point_colors (M, 3)`` uint8.
+    A rig's model has one image per keyframe and camera: ``camera_index (K,)`` (0 for the
+    tracked camera), the further cameras' records in ``rig_cameras`` (the camera dict of
+    ``_core.load_sparse_model`` with ``T_c0_c (4, 4)``, metres).
     """
 
     keyframe_ids: np.ndarray
@@ -60,11 +71,29 @@ class SparseModel:
     point_index: np.ndarray
     points_xyz: np.ndarray
     point_colors: np.ndarray
+    camera_index: Optional[np.ndarray] = None
+    rig_cameras: tuple[dict, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.camera_index is None:  # one camera
+            object.__setattr__(self, "camera_index", np.zeros(len(self.keyframe_ids), np.uint32))
 
     @classmethod
     def from_core(cls, arrays: dict) -> "SparseModel":
         """From the dict of ``SlamSystem.sparse_model()`` / ``_core.load_sparse_model``."""
-        return cls(**{name: np.asarray(arrays[name]) for name in cls.__dataclass_fields__})
+        fields = {name: np.asarray(arrays[name]) for name in cls.__dataclass_fields__
+                  if name in arrays and name != "rig_cameras"}
+        return cls(**fields, rig_cameras=tuple(arrays.get("rig_cameras", ())))
+
+    @property
+    def is_rig(self) -> bool:
+        """Whether the model has several cameras."""
+        return bool(self.rig_cameras)
+
+    def image_names(self) -> list[str]:
+        """Each image's file name in ``images/`` (:func:`image_name`)."""
+        return [image_name(i, int(k) if self.is_rig else None)
+                for i, k in zip(self.keyframe_ids, np.asarray(self.camera_index))]
 
     def with_tracks_of_at_least(self, length: int) -> "SparseModel":
         """The model without the points seen by fewer than ``length`` keypoints (their
@@ -81,9 +110,16 @@ class SparseModel:
         return np.repeat(np.arange(len(self.keyframe_ids)), np.diff(self.keypoint_offsets))
 
 
-def image_name(keyframe_id: int) -> str:
-    """The file name of a keyframe's image in ``images/`` (and in ``images.txt``)."""
-    return f"keyframe_{int(keyframe_id):06d}.png"
+def image_name(keyframe_id: int, camera: Optional[int] = None) -> str:
+    """The file name of a keyframe's image in ``images/`` (and in ``images.txt``): in
+    sub-folder ``cam<k>/`` for camera ``k`` of a rig."""
+    return default_image_name(keyframe_id, camera)
+
+
+def _camera_of(record: dict) -> Camera:
+    """The camera of a core camera record (``load_sparse_model``, ``rig_cameras``)."""
+    return Camera(record["fx"], record["fy"], record["cx"], record["cy"], record["dist"],
+                  record["width"], record["height"], model=record["model"])
 
 
 def write_colmap(folder: Path, camera: Camera, model: SparseModel,
@@ -101,16 +137,20 @@ def write_colmap(folder: Path, camera: Camera, model: SparseModel,
     """
     folder = Path(folder)
     model = model.with_tracks_of_at_least(MIN_TRACK_LENGTH)
-    names = [image_name(i) for i in model.keyframe_ids]
+    names = model.image_names()
+    cameras: list[Camera] = [camera, *(_camera_of(c) for c in model.rig_cameras)]
+    # One camera: no rig files, the model as before rigs.
+    T_c0_c = ([np.eye(4), *(np.asarray(c["T_c0_c"]) for c in model.rig_cameras)]
+              if model.is_rig else None)
     write_colmap_model(
-        folder / "sparse" / "0", camera, model.keyframe_ids, model.T_w_c, model.points_xyz,
+        folder / "sparse" / "0", cameras, model.keyframe_ids, model.T_w_c, model.points_xyz,
         point_colors=model.point_colors,
         observations=(model.keyframe_of_keypoint(), model.point_index, model.keypoints_px),
-        image_names=names)
+        image_names=names, camera_index=model.camera_index, T_c0_c=T_c0_c)
     if images is not None:
-        for name, t in zip(names, model.timestamps):
-            if t in images:
-                write_bytes(folder / "images" / name, images.png(t))
+        for name, t, k in zip(names, model.timestamps, np.asarray(model.camera_index)):
+            if images.has(t, int(k)):
+                write_bytes(folder / "images" / name, images.png(t, int(k)))
     return folder
 
 
@@ -135,11 +175,8 @@ def export_map_file(map_path: Path, folder: Path) -> Path:
     from ._core import load_sparse_model
 
     camera_record, arrays = load_sparse_model(regular_file(map_path, "map file"))
-    c = camera_record
-    camera = Camera(c["fx"], c["fy"], c["cx"], c["cy"], c["dist"], c["width"], c["height"],
-                    model=c["model"])
     model = SparseModel.from_core(arrays)
-    folder = write_colmap(Path(folder), camera, model)
+    folder = write_colmap(Path(folder), _camera_of(camera_record), model)
     write_text(folder / TIMESTAMPS_FILE, "# NAME TIMESTAMP_S\n" + "".join(
-        f"{image_name(i)} {float(t)!r}\n" for i, t in zip(model.keyframe_ids, model.timestamps)))
+        f"{name} {float(t)!r}\n" for name, t in zip(model.image_names(), model.timestamps)))
     return folder

@@ -189,7 +189,7 @@ def write_trajectory(
 _COLMAP_HEADERS = {
     "cameras.txt": ("# Camera list with one line of data per camera:\n"
                     "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-                    "# Number of cameras: 1\n"),
+                    "# Number of cameras: {n}\n"),
     "images.txt": ("# Image list with two lines of data per image:\n"
                    "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
                    "#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
@@ -198,13 +198,23 @@ _COLMAP_HEADERS = {
                      "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as "
                      "(IMAGE_ID, POINT2D_IDX)\n"
                      "# Number of points: {n}, mean track length: {mean}\n"),
+    # COLMAP 3.12 on: the cameras rigidly mounted together, and each instant of the rig.
+    "rigs.txt": ("# Rig calib list with one line of data per calib:\n"
+                 "#   RIG_ID, NUM_SENSORS, REF_SENSOR_TYPE, REF_SENSOR_ID, SENSORS[] as "
+                 "(SENSOR_TYPE, SENSOR_ID, HAS_POSE, [QW, QX, QY, QZ, TX, TY, TZ])\n"
+                 "# Number of rigs: 1\n"),
+    "frames.txt": ("# Frame list with one line of data per frame:\n"
+                   "#   FRAME_ID, RIG_ID, RIG_FROM_WORLD[QW, QX, QY, QZ, TX, TY, TZ], "
+                   "NUM_DATA_IDS, DATA_IDS[] as (SENSOR_TYPE, SENSOR_ID, DATA_ID)\n"
+                   "# Number of frames: {n}\n"),
 }
 
 # COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV and ferroslam at (0, 0).
 _COLMAP_PIXEL_OFFSET = 0.5
 
-# The text model has one camera, with this id.
-_COLMAP_CAMERA_ID = 1
+# COLMAP numbers from 1: camera k of the list is CAMERA_ID k + 1, and a rig's model has one
+# rig, with this id.
+_COLMAP_RIG_ID = 1
 
 
 def _numbers(values: np.ndarray | Sequence[float]) -> str:
@@ -213,7 +223,7 @@ def _numbers(values: np.ndarray | Sequence[float]) -> str:
     return " ".join(repr(float(v) + 0.0) for v in values)
 
 
-def _colmap_camera_line(camera: Camera) -> str:
+def _colmap_camera_line(camera: Camera, camera_id: int = 1) -> str:
     """``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`` for ``camera``'s raw (distorted) images.
 
     ``PINHOLE`` (fx fy cx cy) without distortion, ``OPENCV`` (+ k1 k2 p1 p2) when ``k3 = 0``,
@@ -227,7 +237,7 @@ def _colmap_camera_line(camera: Camera) -> str:
     if camera.model == "kannala_brandt":
         params = [camera.fx, camera.fy, camera.cx + _COLMAP_PIXEL_OFFSET,
                   camera.cy + _COLMAP_PIXEL_OFFSET, *camera.dist]
-        return (f"{_COLMAP_CAMERA_ID} OPENCV_FISHEYE {camera.width} {camera.height} "
+        return (f"{camera_id} OPENCV_FISHEYE {camera.width} {camera.height} "
                 f"{_numbers(params)}")
     k1, k2, p1, p2, k3 = camera.dist
     params = [camera.fx, camera.fy, camera.cx + _COLMAP_PIXEL_OFFSET,
@@ -238,21 +248,44 @@ def _colmap_camera_line(camera: Camera) -> str:
         model, params = "OPENCV", params + [k1, k2, p1, p2]
     else:
         model = "PINHOLE"
-    return f"{_COLMAP_CAMERA_ID} {model} {camera.width} {camera.height} {_numbers(params)}"
+    return f"{camera_id} {model} {camera.width} {camera.height} {_numbers(params)}"
 
 
-def _keyframe_ids(keyframe_ids: object) -> np.ndarray:
-    """``(N,)`` int64 unique ids that leave room for COLMAP's uint32 ``IMAGE_ID`` = id + 1."""
-    ids = _index_array(keyframe_ids, "keyframe_ids", None, 2**32 - 1)
-    if np.unique(ids).size != ids.size:
-        raise ValueError("keyframe_ids must be unique")
-    return ids
+def _cameras(camera: Camera | Sequence[Camera]) -> list[Camera]:
+    """One camera or a non-empty list of them."""
+    cameras = [camera] if isinstance(camera, Camera) else list(camera)
+    if not cameras:
+        raise ValueError("camera must be a ferroslam.Camera or a non-empty list of them")
+    return cameras
 
 
-def _image_names(image_names: Optional[Sequence[str]], keyframe_ids: np.ndarray) -> list[str]:
-    """One unique name per keyframe, without whitespace (COLMAP splits lines on spaces)."""
+def _image_ids(keyframe_ids: object, camera_index: Optional[object], n_cameras: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``(image_ids, camera_index)``: COLMAP's uint32 ``IMAGE_ID = id * n_cameras + camera +
+    1`` (``id + 1`` for one camera), each keyframe seen once per camera."""
+    ids = _index_array(keyframe_ids, "keyframe_ids", None, (2**32 - 1) // n_cameras)
+    camera = (np.zeros(ids.size, np.int64) if camera_index is None
+              else _index_array(camera_index, "camera_index", ids.size, n_cameras))
+    image_ids = ids * n_cameras + camera + 1
+    if np.unique(image_ids).size != image_ids.size:
+        raise ValueError("keyframe_ids must be unique (per camera)")
+    return image_ids, camera
+
+
+def default_image_name(keyframe_id: int, camera: Optional[int] = None) -> str:
+    """A keyframe's image file name: ``keyframe_<id:06d>.png``, in sub-folder ``cam<k>/``
+    for camera ``k`` of a rig (``camera=None``: the one camera)."""
+    name = f"keyframe_{int(keyframe_id):06d}.png"
+    return name if camera is None else f"cam{int(camera)}/{name}"
+
+
+def _image_names(image_names: Optional[Sequence[str]], keyframe_ids: np.ndarray,
+                 camera: Optional[np.ndarray] = None) -> list[str]:
+    """One unique name per image, without whitespace (COLMAP splits lines on spaces);
+    ``camera`` the rig camera of each (``None``: one camera)."""
     if image_names is None:
-        return [f"keyframe_{int(i):06d}.png" for i in keyframe_ids]
+        cameras = [None] * len(keyframe_ids) if camera is None else list(camera)
+        return [default_image_name(i, k) for i, k in zip(keyframe_ids, cameras)]
     names = list(image_names)
     if len(names) != keyframe_ids.size:
         raise ValueError(f"image_names has {len(names)} names for {keyframe_ids.size} keyframes")
@@ -325,19 +358,17 @@ def _mean(total: int, count: int) -> str:
 
 
 def _images_txt(
-    image_ids: np.ndarray, T_w_c: np.ndarray, names: list[str],
+    image_ids: np.ndarray, camera: np.ndarray, T_w_c: np.ndarray, names: list[str],
     by_image: list[np.ndarray], point: np.ndarray, uv_px: np.ndarray,
 ) -> str:
-    """Two lines per keyframe: the world-to-camera pose ``T_c_w = T_w_c^-1`` as
+    """Two lines per image: the world-to-camera pose ``T_c_w = T_w_c^-1`` as
     ``QW QX QY QZ TX TY TZ`` (COLMAP's ``cam_from_world``), then its ``X Y POINT3D_ID``s."""
-    T_c_w = inverse(T_w_c)
-    q_xyzw = matrix_to_quat(T_c_w[:, :3, :3])
+    poses = _pose_texts(inverse(T_w_c))
     header = _COLMAP_HEADERS["images.txt"]
     n_observations = int(np.count_nonzero(point >= 0))
     lines = [header.format(n=len(names), mean=_mean(n_observations, len(names)))]
     for i, rows in enumerate(by_image):
-        pose = np.concatenate([q_xyzw[i, 3:], q_xyzw[i, :3], T_c_w[i, :3, 3]])
-        lines.append(f"{image_ids[i]} {_numbers(pose)} {_COLMAP_CAMERA_ID} {names[i]}\n")
+        lines.append(f"{image_ids[i]} {poses[i]} {camera[i] + 1} {names[i]}\n")
         # POINT3D_ID -1: a keypoint without a point (COLMAP's "invalid" id).
         lines.append(" ".join(f"{_numbers(uv_px[r] + _COLMAP_PIXEL_OFFSET)} "
                               f"{point[r] + 1 if point[r] >= 0 else -1}"
@@ -358,9 +389,37 @@ def _points3d_txt(
     return "".join(lines)
 
 
+def _pose_texts(T_b_a: np.ndarray) -> list[str]:
+    """``QW QX QY QZ TX TY TZ`` of each of ``(N, 4, 4)`` poses (COLMAP's ``b_from_a``)."""
+    q_xyzw = matrix_to_quat(T_b_a[:, :3, :3])
+    return [_numbers(np.concatenate([q[3:], q[:3], T[:3, 3]])) for q, T in zip(q_xyzw, T_b_a)]
+
+
+def _rig_texts(T_c0_c: Sequence[np.ndarray], keyframe_ids: np.ndarray, camera: np.ndarray,
+               image_ids: np.ndarray, T_w_c: np.ndarray) -> dict[str, str]:
+    """``rigs.txt`` (camera 1 the reference, camera ``k`` at ``sensor_from_rig = T_ck_c0``)
+    and ``frames.txt`` (per keyframe, ``rig_from_world = T_c0_w`` and its images)."""
+    T_c0_ck = np.stack([finite_array(T, f"T_c0_c[{k}]", (4, 4)) for k, T in enumerate(T_c0_c)])
+    _rigid_poses(T_c0_ck, "T_c0_c", "a rig's cameras are rigidly mounted")
+    sensors = "".join(f" CAMERA {k + 1} 1 {pose}"
+                      for k, pose in enumerate(_pose_texts(inverse(T_c0_ck))) if k > 0)
+    rig_line = f"{_COLMAP_RIG_ID} {len(T_c0_ck)} CAMERA 1{sensors}\n"
+    frame_ids = np.unique(keyframe_ids)
+    frames = [_COLMAP_HEADERS["frames.txt"].format(n=len(frame_ids))]
+    for frame_id, rows in zip(frame_ids, _groups(np.searchsorted(frame_ids, keyframe_ids),
+                                                len(frame_ids))):
+        # T_c0_w = T_c0_ck T_ck_w, from the keyframe's first image.
+        i = rows[0]
+        T_c0_w = T_c0_ck[camera[i]] @ inverse(T_w_c[i][None])
+        data = "".join(f" CAMERA {camera[r] + 1} {image_ids[r]}" for r in rows)
+        frames.append(f"{frame_id + 1} {_COLMAP_RIG_ID} {_pose_texts(T_c0_w)[0]} "
+                      f"{len(rows)}{data}\n")
+    return {"rigs.txt": _COLMAP_HEADERS["rigs.txt"] + rig_line, "frames.txt": "".join(frames)}
+
+
 def write_colmap_model(
     folder: PathLike,
-    camera: Camera,
+    camera: Camera | Sequence[Camera],
     keyframe_ids: np.ndarray,
     keyframe_poses_T_w_c: np.ndarray,
     points_xyz: np.ndarray,
@@ -368,6 +427,8 @@ def write_colmap_model(
     point_colors: Optional[np.ndarray] = None,
     observations: Optional[tuple[np.ndarray, np.ndarray, np.ndarray]] = None,
     image_names: Optional[Sequence[str]] = None,
+    camera_index: Optional[np.ndarray] = None,
+    T_c0_c: Optional[Sequence[np.ndarray]] = None,
 ) -> Path:
     """Write keyframes and map points as a COLMAP text model in ``folder``; return it.
 
@@ -378,14 +439,16 @@ def write_colmap_model(
     world-to-camera pose ``T_c_w = T_w_c^-1`` (``cam_from_world``: ``p_c = R p_w + t``) as
     ``QW QX QY QZ TX TY TZ``. Pixel coordinates follow OpenCV (centre of the top-left pixel at
     ``(0, 0)``); COLMAP puts it at ``(0.5, 0.5)``, so the principal point and every
-    observation are written 0.5 px larger. ``IMAGE_ID`` is keyframe id + 1 and
-    ``POINT3D_ID`` is row + 1 (COLMAP numbers from 1); the single camera has ``CAMERA_ID`` 1.
+    observation are written 0.5 px larger. ``IMAGE_ID`` is keyframe id + 1 (``id *
+    n_cameras + camera + 1`` for several cameras), ``POINT3D_ID`` is row + 1 and camera
+    ``k`` is ``CAMERA_ID`` ``k + 1`` (COLMAP numbers from 1).
 
     Args:
         folder: output folder (created with its parents).
         camera: intrinsics of the images the keyframes come from (raw, distorted images:
-            ``PINHOLE``, ``OPENCV`` or ``FULL_OPENCV``, see below).
-        keyframe_ids: ``(N,)`` unique integer keyframe ids.
+            ``PINHOLE``, ``OPENCV`` or ``FULL_OPENCV``, see below), or a list of them: the
+            cameras of a rig.
+        keyframe_ids: ``(N,)`` integer keyframe ids, one per image: unique per camera.
         keyframe_poses_T_w_c: ``(N, 4, 4)`` rigid camera poses in the world, metres.
         points_xyz: ``(M, 3)`` world positions in metres.
         point_colors: optional ``(M, 3)`` RGB (integers in ``[0, 255]`` or floats in
@@ -398,6 +461,10 @@ def write_colmap_model(
             have empty tracks.
         image_names: optional ``N`` unique names without whitespace, the image files
             relative to the tools' image folder (default ``keyframe_<id:06d>.png``).
+        camera_index: optional ``(N,)`` row of ``camera`` that took each image (default 0).
+        T_c0_c: optional ``(4, 4)`` pose of each camera in the first (``p_c0 = T_c0_c p_c``,
+            metres): the cameras are a rig, written to ``rigs.txt`` and ``frames.txt``
+            (COLMAP 3.12 on; one frame per keyframe id, its images those of the id).
 
     The camera model is ``PINHOLE`` without distortion, ``OPENCV`` when ``k3 = 0`` and
     ``FULL_OPENCV`` (``k4 = k5 = k6 = 0``) otherwise; ``ERROR`` is -1 (not computed).
@@ -407,23 +474,29 @@ def write_colmap_model(
         ValueError: shapes, NaN/inf, non-rigid poses, ids or indices out of range or
             repeated, bad names or colours.
     """
-    camera_line = _colmap_camera_line(camera)
-    ids = _keyframe_ids(keyframe_ids)
-    image_ids = ids + 1
+    cameras = _cameras(camera)
+    camera_lines = "".join(_colmap_camera_line(c, k + 1) + "\n" for k, c in enumerate(cameras))
+    image_ids, image_camera = _image_ids(keyframe_ids, camera_index, len(cameras))
+    ids = np.asarray(keyframe_ids, np.int64)
     T_w_c = finite_array(keyframe_poses_T_w_c, "keyframe_poses_T_w_c", (len(ids), 4, 4))
     _rigid_poses(T_w_c, "keyframe_poses_T_w_c", "COLMAP images need rigid camera poses")
-    names = _image_names(image_names, ids)
+    names = _image_names(image_names, ids, image_camera if len(cameras) > 1 else None)
     xyz = finite_array(points_xyz, "points_xyz", (None, 3))
     rgb = (np.full(xyz.shape, 128, np.uint8) if point_colors is None
            else _colors_u8(point_colors, len(xyz), "point_colors"))
     image, point, uv_px = _observations(observations, len(image_ids), len(xyz))
     by_image = _groups(image, len(image_ids))
     texts = {
-        "cameras.txt": _COLMAP_HEADERS["cameras.txt"] + camera_line + "\n",
-        "images.txt": _images_txt(image_ids, T_w_c, names, by_image, point, uv_px),
+        "cameras.txt": _COLMAP_HEADERS["cameras.txt"].format(n=len(cameras)) + camera_lines,
+        "images.txt": _images_txt(image_ids, image_camera, T_w_c, names, by_image, point,
+                                  uv_px),
         "points3D.txt": _points3d_txt(xyz, rgb, _tracks(point, len(xyz)), image_ids[image],
                                       _point2d_indices(by_image, len(image))),
     }
+    if T_c0_c is not None:
+        if len(T_c0_c) != len(cameras):
+            raise ValueError(f"T_c0_c has {len(T_c0_c)} poses for {len(cameras)} cameras")
+        texts.update(_rig_texts(T_c0_c, ids, image_camera, image_ids, T_w_c))
     folder = Path(folder)
     for name, text in texts.items():
         write_text(folder / name, text)

@@ -365,6 +365,11 @@ class _RigFeed(_StereoFeed):
         """``Session.track``'s arguments for a loaded instant."""
         return {"images": data[0] if len(data) == 1 else tuple(data)}
 
+    def camera_images(self, data) -> tuple[np.ndarray, ...]:
+        """The images of the core's cameras (the tracked one, then the further cameras:
+        a pair partner gives depths only, it has no keyframe image of its own)."""
+        return (data[0], *data[self.rig.first_observer:])
+
 
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
 
@@ -567,11 +572,25 @@ def run_source(source, config: Optional[dict] = None, max_frames: Optional[int] 
         )
 
 
-def _keep_keyframe(images: KeyframeImages, system, timestamp_s: float, image: np.ndarray,
-                   depth_m: Optional[np.ndarray]) -> None:
-    """Keeps a new keyframe's image; forgets those of culled keyframes once they are as many
+def _camera_images(feed, data) -> tuple[np.ndarray, ...]:
+    """The keyframe images of loaded ``data``, one per core camera (``_RigFeed``'s
+    ``camera_images``; the other feeds' one image)."""
+    camera_images = getattr(feed, "camera_images", None)
+    return (feed.image(data),) if camera_images is None else camera_images(data)
+
+
+def _add_keyframe(images: KeyframeImages, timestamp_s: float, feed, data) -> None:
+    """Keeps every core camera's image of a keyframe (and the first camera's depth)."""
+    first, *others = _camera_images(feed, data)
+    images.add(timestamp_s, first, feed.depth(data))
+    for k, image in enumerate(others, start=1):
+        images.add(timestamp_s, image, camera=k)
+
+
+def _keep_keyframe(images: KeyframeImages, system, timestamp_s: float, feed, data) -> None:
+    """Keeps a new keyframe's images; forgets those of culled keyframes once they are as many
     as the live ones, so memory follows the map."""
-    images.add(timestamp_s, image, depth_m)
+    _add_keyframe(images, timestamp_s, feed, data)
     if len(images) > 2 * system.num_keyframes:
         images.keep_only(system.keyframe_trajectory()[1])
 
@@ -589,7 +608,7 @@ def _complete_keyframe_images(images: KeyframeImages, keyframe_stamps: np.ndarra
                 data = feed.load(frame_of[float(t)])
             except (OSError, ValueError):
                 continue  # the model names the image all the same; the run's error says why
-            images.add(float(t), feed.image(data), feed.depth(data))
+            _add_keyframe(images, float(t), feed, data)
 
 
 def _fuse_keyframes(camera: Camera, keyframes: Trajectory, images: KeyframeImages,
@@ -647,8 +666,7 @@ def _run(seq, session: Session, feed, n: int, sensor: str, config: dict, progres
             t2 = time.perf_counter()
             res = session.track(float(seq.timestamps[i]), **frame)
             if res.is_keyframe:
-                _keep_keyframe(keyframe_images, system, float(seq.timestamps[i]),
-                               feed.image(data), feed.depth(data))
+                _keep_keyframe(keyframe_images, system, float(seq.timestamps[i]), feed, data)
             if on_frame is not None:
                 on_frame(res, image=feed.image(data), keypoints=res.keypoints,
                          timestamp_s=float(seq.timestamps[i]), system=system)

@@ -4,8 +4,12 @@
 //! Such tools keep every keypoint of an image, the ones without a 3-D point too, in the
 //! pixels of the image file they are given: the raw (distorted) image. The map keeps its
 //! keypoints in the core's pixels (undistorted for a pinhole camera), so the export moves
-//! them back through the camera ([`CameraModel::raw_pixel`]). A keyframe of a multi-camera
-//! rig will add one image per camera here; points and tracks do not change.
+//! them back through the camera ([`CameraModel::raw_pixel`]).
+//!
+//! A keyframe of a multi-camera rig is one image per camera, camera `k`'s keypoints
+//! ([`crate::FrameFeatures::camera_range`]) seen from `T_w_ck = T_w_c0 * T_c0_ck`
+//! ([`crate::RigMember::T_c0_c`]): a point seen by several cameras then has one track across
+//! them, which is what lets a tool's BA tie the cameras together.
 //!
 //! # Rolling shutter
 //! Such tools model a global shutter: one pose per image. A rolling-shutter keyframe saw
@@ -34,14 +38,17 @@ use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 
 use crate::{KeyFrame, KeyFrameId, Map, MapPointId, Rgb};
 
-/// One keyframe's image: its pose and every keypoint with the point it observes.
+/// One camera's image of a keyframe: its pose and every keypoint with the point it observes.
 #[derive(Clone, Debug)]
 pub struct SparseImage {
     /// The keyframe.
     pub id: KeyFrameId,
+    /// The rig camera that took it (0 = the first).
+    pub camera: usize,
     /// Timestamp of the source frame, seconds.
     pub timestamp_s: f64,
-    /// Camera-to-world pose at the frame's reference time (`p_w = T_w_c * p_c`, metres).
+    /// Pose of the image's camera at the frame's reference time (`p_w = T_w_c * p_c`,
+    /// metres).
     pub T_w_c: Isometry3<f64>,
     /// Every keypoint in raw image pixels (centre of the top-left pixel at (0, 0)), as seen
     /// from `T_w_c` (rolling-shutter compensated, see the module docs).
@@ -65,7 +72,7 @@ pub struct SparsePoint {
 /// by keypoint: the track of a point is every `(image, keypoint)` whose `point_index` is it.
 #[derive(Clone, Debug, Default)]
 pub struct SparseModel {
-    /// One image per keyframe.
+    /// One image per keyframe and camera, by keyframe then camera.
     pub images: Vec<SparseImage>,
     /// The map points, in the order of [`Map::map_point_ids`].
     pub points: Vec<SparsePoint>,
@@ -73,9 +80,16 @@ pub struct SparseModel {
 
 impl Map {
     /// The map as images, points and tracks, keypoints in the raw pixels of `camera` (the
-    /// first camera of every keyframe) at each keyframe's reference time. A rig's further
-    /// cameras are left out: one image per keyframe, of its first camera.
+    /// first camera of every keyframe) at each keyframe's reference time: one image per
+    /// keyframe, a rig's further cameras left out ([`Self::rig_sparse_model`] has them).
     pub fn sparse_model(&self, camera: &CameraModel) -> SparseModel {
+        self.rig_sparse_model(std::slice::from_ref(camera))
+    }
+
+    /// As [`Self::sparse_model`], with one image per keyframe for each of `cameras` (camera
+    /// `k` of the rig is `cameras[k]`, placed by [`Map::rig`]'s `T_c0_c`): what a rig's
+    /// model holds. A camera the rig record does not place is left out.
+    pub fn rig_sparse_model(&self, cameras: &[CameraModel]) -> SparseModel {
         let points: Vec<SparsePoint> = self
             .map_point_ids()
             .into_iter()
@@ -88,68 +102,101 @@ impl Map {
             .collect();
         let index_of: std::collections::HashMap<MapPointId, usize> =
             points.iter().enumerate().map(|(i, p)| (p.id, i)).collect();
-        let images = self
+        // Per camera, its pose in the first camera's frame (`None`: the first camera itself,
+        // whose keyframe pose is used as it is).
+        let mounts: Vec<(&CameraModel, Option<Isometry3<f64>>)> = cameras
+            .iter()
+            .enumerate()
+            .map_while(|(k, camera)| match k.checked_sub(1) {
+                None => Some((camera, None)),
+                Some(m) => Some((camera, Some(self.rig()?.cameras.get(m)?.T_c0_c))),
+            })
+            .collect();
+        let mut images = Vec::new();
+        for kf in self
             .keyframe_ids()
             .into_iter()
             .filter_map(|id| self.keyframe(id))
-            .map(|kf| {
-                // The first camera's keypoints (they come first): the image of `camera`.
+        {
+            for (k, &(camera, T_c0_ck)) in mounts.iter().enumerate() {
+                let view = View {
+                    camera,
+                    T_c_w: T_c0_ck.map_or(*kf.T_c_w(), |T| T.inverse() * kf.T_c_w()),
+                    T_c0_c: T_c0_ck,
+                };
                 let point_index: Vec<Option<usize>> = kf
                     .features()
-                    .camera_range(0)
+                    .camera_range(k)
                     .map(|i| kf.map_point(i).and_then(|m| index_of.get(&m).copied()))
                     .collect();
-                let keypoints_raw_px = point_index
-                    .iter()
-                    .enumerate()
+                let keypoints_raw_px = kf
+                    .features()
+                    .camera_range(k)
+                    .zip(&point_index)
                     .map(|(i, point)| {
                         let p_w = point.map(|j| &points[j].position);
-                        camera.raw_pixel(&at_reference_time(kf, i, p_w, camera))
+                        camera.raw_pixel(&view.at_reference_time(kf, i, p_w))
                     })
                     .collect();
-                SparseImage {
+                images.push(SparseImage {
                     id: kf.id(),
+                    camera: k,
                     timestamp_s: kf.timestamp(),
-                    T_w_c: kf.T_w_c(),
+                    T_w_c: view.T_c_w.inverse(),
                     keypoints_raw_px,
                     point_index,
-                }
-            })
-            .collect();
+                });
+            }
+        }
         SparseModel { images, points }
     }
 }
 
-/// Keypoint `i` of `kf` (core pixels) where `camera` would have seen it from the keyframe's
-/// reference pose (see the module docs; `p_w` the point it observes, if any). Unchanged for
-/// a keypoint read at the reference time, and where a projection fails (a point or ray
-/// turned behind a pinhole): no better place is known.
-fn at_reference_time(
-    kf: &KeyFrame,
-    i: usize,
-    p_w: Option<&Vector3<f64>>,
-    camera: &CameraModel,
-) -> Vector2<f64> {
-    let features = kf.features();
-    let kp = &features.keypoints[i];
-    let uv = Vector2::new(f64::from(kp.x), f64::from(kp.y));
-    let dt = features.time_offset_s(i);
-    if dt == 0.0 {
-        return uv;
-    }
-    let D = motion_over(&features.xi_dot, dt);
-    let moved = match p_w {
-        Some(p_w) => {
-            let p_c = kf.T_c_w() * Point3::from(*p_w);
-            let at_reference = camera.project(&p_c.coords);
-            let at_row = camera.project(&(D * p_c).coords);
-            at_reference.zip(at_row).map(|(r, s)| uv + (r - s))
+/// One camera of a keyframe: how its keypoints are moved to the keyframe's reference time.
+struct View<'a> {
+    camera: &'a CameraModel,
+    /// The camera's pose at the reference time (world to camera, metres).
+    T_c_w: Isometry3<f64>,
+    /// Its pose in the first camera's frame, whose motion the keyframe's velocity is;
+    /// `None` for the first camera.
+    T_c0_c: Option<Isometry3<f64>>,
+}
+
+impl View<'_> {
+    /// Keypoint `i` of `kf` (core pixels) where the camera would have seen it from the
+    /// keyframe's reference pose (see the module docs; `p_w` the point it observes, if any).
+    /// Unchanged for a keypoint read at the reference time, and where a projection fails (a
+    /// point or ray turned behind a pinhole): no better place is known.
+    fn at_reference_time(
+        &self,
+        kf: &KeyFrame,
+        i: usize,
+        p_w: Option<&Vector3<f64>>,
+    ) -> Vector2<f64> {
+        let features = kf.features();
+        let kp = &features.keypoints[i];
+        let uv = Vector2::new(f64::from(kp.x), f64::from(kp.y));
+        let dt = features.time_offset_s(i);
+        if dt == 0.0 {
+            return uv;
         }
-        None => camera
-            .unproject(&uv)
-            .and_then(|ray_row| camera.project(&(D.rotation.inverse() * ray_row))),
-    };
-    moved.unwrap_or(uv)
+        // The first camera's motion over `dt`, seen in this camera's frame.
+        let D_c0 = motion_over(&features.xi_dot, dt);
+        let D = self.T_c0_c.map_or(D_c0, |T| T.inverse() * D_c0 * T);
+        let camera = self.camera;
+        let moved = match p_w {
+            Some(p_w) => {
+                let p_c = self.T_c_w * Point3::from(*p_w);
+                let at_reference = camera.project(&p_c.coords);
+                let at_row = camera.project(&(D * p_c).coords);
+                at_reference.zip(at_row).map(|(r, s)| uv + (r - s))
+            }
+            None => camera
+                .unproject(&uv)
+                .and_then(|ray_row| camera.project(&(D.rotation.inverse() * ray_row))),
+        };
+        moved.unwrap_or(uv)
+    }
 }
 
 #[cfg(test)]
@@ -190,6 +237,81 @@ mod tests {
                 assert_eq!(*raw, camera.raw_pixel(&core_px(&map, kf, i)));
             }
         }
+    }
+
+    /// Two keyframes of a 2-camera rig (keypoints 0-1 camera 0's, 2-3 camera 1's): one image
+    /// per keyframe and camera, camera 1's placed by the rig and in its own pixels, and a
+    /// point seen by both cameras (in two keyframes) in one track.
+    #[test]
+    fn a_rig_keyframe_is_one_image_per_camera() {
+        let (template, old) = map_with_keyframes(2, 4);
+        let bounds = ferroslam_features::ImageBounds {
+            min_x: 0.0,
+            max_x: 640.0,
+            min_y: 0.0,
+            max_y: 480.0,
+        };
+        let mut map = Map::new(template.pyramid().clone());
+        let kfs: Vec<KeyFrameId> = old
+            .iter()
+            .enumerate()
+            .map(|(n, &id)| {
+                let kf = template.keyframe(id).unwrap();
+                let features = kf.features().clone().with_cameras(vec![0, 2], &[bounds; 2]);
+                map.insert_keyframe(n as f64, n, *kf.T_c_w(), features.unwrap())
+            })
+            .collect();
+        // A point observes one keypoint per keyframe: camera 0's in the first, camera 1's
+        // in the second.
+        let point = observe_all(&mut map, &kfs[..1], 1);
+        map.add_observation(point, kfs[1], 3).unwrap();
+        let T_c0_c1 = Isometry3::translation(0.1, 0.0, 0.0);
+        let member = CameraModel::from(test_cameras()[1].1);
+        let mut rig = crate::Rig {
+            sensor: "rgbd".into(),
+            model: crate::Rig::PINHOLE.into(),
+            intrinsics: [0.0; 4],
+            distortion: [0.0; 5],
+            width: 640,
+            height: 480,
+            pair: None,
+            cameras: Vec::new(),
+        };
+        rig.cameras.push(crate::RigMember {
+            model: crate::Rig::PINHOLE.into(),
+            intrinsics: [0.0; 4],
+            distortion: [0.0; 5],
+            width: 640,
+            height: 480,
+            T_c0_c: T_c0_c1,
+            has_depth: false,
+        });
+        map.set_rig(rig);
+        let cameras = [tum_fr1(), member.clone()];
+        let model = map.rig_sparse_model(&cameras);
+        assert_eq!(model.images.len(), 4);
+        for (n, image) in model.images.iter().enumerate() {
+            let (kf, k) = (kfs[n / 2], n % 2);
+            assert_eq!((image.id, image.camera), (kf, k));
+            let T_w_c0 = map.keyframe(kf).unwrap().T_w_c();
+            let expected = if k == 0 { T_w_c0 } else { T_w_c0 * T_c0_c1 };
+            assert_relative_eq!(image.T_w_c, expected, epsilon = 1e-12);
+            let seen = Some(0).filter(|_| n == 0 || n == 3);
+            assert_eq!(image.point_index, vec![None, seen]);
+            let raw = cameras[k].raw_pixel(&core_px(&map, kf, 2 * k + 1));
+            assert_eq!(image.keypoints_raw_px[1], raw);
+        }
+        // The first camera alone: the single-camera model.
+        let first = map.sparse_model(&cameras[0]);
+        assert_eq!(first.images.len(), 2);
+        assert!(first
+            .images
+            .iter()
+            .all(|i| i.camera == 0 && i.point_index.len() == 2));
+        assert_ne!(
+            member.raw_pixel(&Vector2::new(3.0, 10.0)),
+            cameras[0].raw_pixel(&Vector2::new(3.0, 10.0))
+        );
     }
 
     /// Keyframe 1 read as a rolling shutter turning at 1.5 rad/s (fr1/rpy's peaks): its

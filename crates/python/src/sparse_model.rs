@@ -4,12 +4,13 @@
 
 use std::path::PathBuf;
 
-use ferroslam_map::{Rig, SparseModel};
+use ferroslam_geometry::camera::CameraModel;
+use ferroslam_map::{Map, Rig, SparseModel};
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 
 use crate::camera::camera_model_of;
 use crate::convert;
@@ -21,8 +22,14 @@ use crate::pool;
 /// `offsets[k]:offsets[k + 1]`), `keypoints_px (N, 2) float64` (raw image pixels, as seen
 /// from `T_w_c`: rolling-shutter compensated, `ferroslam_map::sparse_model`),
 /// `point_index (N,) int64` (row of `points_xyz`, -1 for none), `points_xyz (M, 3)`,
-/// `point_colors (M, 3) uint8` (128 grey without colour).
-pub fn model_dict<'py>(py: Python<'py>, model: SparseModel) -> PyResult<Bound<'py, PyDict>> {
+/// `point_colors (M, 3) uint8` (128 grey without colour); `camera_index (K,) uint32` (the
+/// rig camera of each image) and `rig_cameras`, a list of camera dicts (as
+/// [`load_sparse_model`]'s, with `T_c0_c (4, 4)`) of cameras 1.. of `rig` (empty for one).
+pub fn model_dict<'py>(
+    py: Python<'py>,
+    model: SparseModel,
+    rig: Option<&Rig>,
+) -> PyResult<Bound<'py, PyDict>> {
     let mut offsets = vec![0i64];
     let mut keypoints = Vec::new();
     let mut point_index = Vec::new();
@@ -42,6 +49,17 @@ pub fn model_dict<'py>(py: Python<'py>, model: SparseModel) -> PyResult<Bound<'p
         convert::f64_array(py, model.images.iter().map(|i| i.timestamp_s).collect()),
     )?;
     d.set_item("T_w_c", convert::pose_stack(py, &poses))?;
+    d.set_item(
+        "camera_index",
+        PyArray1::from_vec(py, model.images.iter().map(|i| i.camera as u32).collect()),
+    )?;
+    let members = PyList::empty(py);
+    for m in rig.map_or(&[][..], |r| &r.cameras) {
+        let camera = camera_dict(py, &m.model, m.intrinsics, &m.distortion, m.width, m.height)?;
+        camera.set_item("T_c0_c", convert::pose_matrix(&m.T_c0_c))?;
+        members.append(camera)?;
+    }
+    d.set_item("rig_cameras", members)?;
     d.set_item("keypoint_offsets", PyArray1::from_vec(py, offsets))?;
     d.set_item(
         "keypoints_px",
@@ -64,9 +82,38 @@ pub fn model_dict<'py>(py: Python<'py>, model: SparseModel) -> PyResult<Bound<'p
     Ok(d)
 }
 
+/// The model of `map` with every camera of its rig record (one image per keyframe and
+/// camera), and the record. Row times are the keyframes' own, stored with them: the cameras'
+/// readouts are not needed to move keypoints to their reference poses.
+///
+/// Raises `ValueError` for a map without its record (files before format version 3) or an
+/// invalid camera in it.
+pub fn rig_sparse_model(map: &Map) -> PyResult<(Rig, SparseModel)> {
+    let rig = map.rig().cloned().ok_or_else(|| {
+        PyValueError::new_err("the map records no camera (written before format version 3)")
+    })?;
+    let first = (
+        &rig.model,
+        rig.intrinsics,
+        &rig.distortion,
+        rig.width,
+        rig.height,
+    );
+    let members = rig
+        .cameras
+        .iter()
+        .map(|m| (&m.model, m.intrinsics, &m.distortion, m.width, m.height));
+    let cameras = std::iter::once(first)
+        .chain(members)
+        .map(|(model, k, dist, w, h)| camera_model_of(model, k, distortion(model, dist), w, h, 0.0))
+        .collect::<PyResult<Vec<CameraModel>>>()?;
+    let model = map.rig_sparse_model(&cameras);
+    Ok((rig, model))
+}
+
 /// `(camera, model)` of the map file at `path`: `camera` a dict (`sensor`, `model`, `fx`,
-/// `fy`, `cx`, `cy`, `dist`, `width`, `height`) of the camera the map was built with, and
-/// the model as `SlamSystem.sparse_model` gives it. The map is read without the GIL.
+/// `fy`, `cx`, `cy`, `dist`, `width`, `height`) of the first camera the map was built with,
+/// and the model as `SlamSystem.sparse_model` gives it. The map is read without the GIL.
 ///
 /// Raises `FileNotFoundError` for a missing file, `ValueError` for a corrupt one or one
 /// without its camera record.
@@ -77,40 +124,46 @@ pub fn load_sparse_model<'py>(
 ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
     let (rig, model) = pool::detach(py, || -> PyResult<(Rig, SparseModel)> {
         let map = ferroslam_slam::load_map_file(&path).map_err(to_py)?;
-        let rig = map.rig().cloned().ok_or_else(|| {
-            PyValueError::new_err(format!(
-                "{}: the map file records no camera (written before format version 3)",
-                path.display()
-            ))
-        })?;
-        let camera = camera_model_of(
-            &rig.model,
-            rig.intrinsics,
-            distortion(&rig),
-            rig.width,
-            rig.height,
-            // Row times are the keyframes' own, stored in the file (version 6 on): the
-            // camera's readout is not needed to move keypoints to their reference poses.
-            0.0,
-        )?;
-        Ok((rig.clone(), map.sparse_model(&camera)))
+        rig_sparse_model(&map)
+            .map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))
     })??;
-    let camera = PyDict::new(py);
-    let [fx, fy, cx, cy] = rig.intrinsics;
+    let camera = camera_dict(
+        py,
+        &rig.model,
+        rig.intrinsics,
+        &rig.distortion,
+        rig.width,
+        rig.height,
+    )?;
     camera.set_item("sensor", &rig.sensor)?;
-    camera.set_item("model", &rig.model)?;
+    let model = model_dict(py, model, Some(&rig))?;
+    Ok((camera, model))
+}
+
+/// A camera's dict (`model`, `fx`, `fy`, `cx`, `cy`, `dist`, `width`, `height`), as
+/// `ferroslam.Camera` takes it.
+fn camera_dict<'py>(
+    py: Python<'py>,
+    model: &str,
+    [fx, fy, cx, cy]: [f64; 4],
+    dist: &[f64; 5],
+    width: u32,
+    height: u32,
+) -> PyResult<Bound<'py, PyDict>> {
+    let camera = PyDict::new(py);
+    camera.set_item("model", model)?;
     for (name, value) in [("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)] {
         camera.set_item(name, value)?;
     }
-    camera.set_item("dist", distortion(&rig).to_vec())?;
-    camera.set_item("width", rig.width)?;
-    camera.set_item("height", rig.height)?;
-    Ok((camera, model_dict(py, model)?))
+    camera.set_item("dist", distortion(model, dist).to_vec())?;
+    camera.set_item("width", width)?;
+    camera.set_item("height", height)?;
+    Ok(camera)
 }
 
-/// The rig's distortion coefficients as its model counts them: 5 radial-tangential for the
+/// A record's distortion coefficients as its model counts them: 5 radial-tangential for the
 /// pinhole, 4 for Kannala-Brandt (whose record pads a zero).
-fn distortion(rig: &Rig) -> &[f64] {
-    let n = if rig.model == Rig::PINHOLE { 5 } else { 4 };
-    &rig.distortion[..n]
+fn distortion<'a>(model: &str, dist: &'a [f64; 5]) -> &'a [f64] {
+    let n = if model == Rig::PINHOLE { 5 } else { 4 };
+    &dist[..n]
 }

@@ -650,11 +650,13 @@ impl PySlamSystem {
     }
 
     /// The map as images and tracks, in one dict of arrays (see `ferroslam._core.pyi`):
-    /// every keyframe's pose and keypoints (raw image pixels) with the map point each
-    /// observes (row of `points_xyz`, -1 for none), and the points.
+    /// every keyframe's pose and keypoints (raw image pixels) in each camera of the rig
+    /// with the map point each observes (row of `points_xyz`, -1 for none), and the points.
     fn sparse_model<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let model = self.engine()?.run(py, |s| s.sparse_model())?;
-        crate::sparse_model::model_dict(py, model)
+        let (rig, model) = self
+            .engine()?
+            .run(py, |s| crate::sparse_model::rig_sparse_model(s.map()))??;
+        crate::sparse_model::model_dict(py, model, Some(&rig))
     }
 
     /// Writes the map to `path` (versioned binary file with a checksum).
