@@ -37,6 +37,17 @@ def room_textures(photos: list[Path]) -> np.ndarray:
     return np.vstack(faces)
 
 
+def room_atlas(data: Path) -> np.ndarray:
+    """The room's texture atlas from 12 real photographs of the shared data (TUM, KITTI,
+    EuRoC), the same room for every rig test."""
+    tum = sorted((data / "tum/rgbd_dataset_freiburg1_desk/rgb").glob("*.png"))
+    rpy = sorted((data / "tum/rgbd_dataset_freiburg1_rpy/rgb").glob("*.jpg"))
+    kitti = sorted((data / "kitti/odometry_06_first51/image_0").glob("*.png"))
+    euroc = sorted((data / "euroc/MH_01_easy_window/mav0/cam0/data").glob("*.jpg"))
+    return room_textures([tum[0], kitti[0], tum[4], kitti[25], tum[8], euroc[0], rpy[150],
+                          euroc[200], kitti[50], rpy[0], euroc[399], rpy[299]])
+
+
 @dataclass
 class RoomRenderer:
     """Renders the room through ``camera`` (a pinhole without distortion)."""

@@ -438,20 +438,13 @@ def room_rig_model(tmp_path_factory):
     """The rendered 3-camera room (tests/rig_scene.py, as tests/test_rig_cameras.py builds
     it), 45 frames tracked inline, exported live (``sparse_model``) and from the saved map;
     ``(folder, map folder, rig, T_w_c0 truth by timestamp)``."""
-    from rig_scene import RoomRenderer, body_path, room_textures, three_camera_rig
+    from rig_scene import RoomRenderer, body_path, room_atlas, three_camera_rig
 
     from ferroslam import Rig, RigVSlam
     from ferroslam.colmap import SparseModel, export_map_file, write_colmap
 
-    data = require_data()
-    tum = sorted((data / "tum/rgbd_dataset_freiburg1_desk/rgb").glob("*.png"))
-    rpy = sorted((data / "tum/rgbd_dataset_freiburg1_rpy/rgb").glob("*.jpg"))
-    kitti = sorted((data / "kitti/odometry_06_first51/image_0").glob("*.png"))
-    euroc = sorted((data / "euroc/MH_01_easy_window/mav0/cam0/data").glob("*.jpg"))
-    photos = [tum[0], kitti[0], tum[4], kitti[25], tum[8], euroc[0], rpy[150], euroc[200],
-              kitti[50], rpy[0], euroc[399], rpy[299]]
     camera = Camera(400.0, 400.0, 320.0, 240.0, [0.0] * 5, 640, 480)
-    room = RoomRenderer(room_textures(photos), camera)
+    room = RoomRenderer(room_atlas(require_data()), camera)
     T_body_cam = three_camera_rig()
     rig = Rig((camera,) * 3, tuple(T_body_cam), depth=(True, True, True))
     truth = {}

@@ -28,7 +28,7 @@ from ferroslam import Camera, Rig, RigVSlam, _core
 from ferroslam.datasets import open_sequence
 from ferroslam.metrics import ate
 from ferroslam.trajectory import Trajectory
-from rig_scene import RoomRenderer, body_path, room_textures, three_camera_rig
+from rig_scene import RoomRenderer, body_path, room_atlas, three_camera_rig
 from test_rgbd_inertial_euroc import SGBM, _depth_m
 
 RATE_HZ = 30.0
@@ -39,14 +39,7 @@ CAMERA = Camera(400.0, 400.0, 320.0, 240.0, [0.0] * 5, 640, 480)
 
 @pytest.fixture(scope="module")
 def room():
-    data = require_data()
-    tum = sorted((data / "tum/rgbd_dataset_freiburg1_desk/rgb").glob("*.png"))
-    rpy = sorted((data / "tum/rgbd_dataset_freiburg1_rpy/rgb").glob("*.jpg"))
-    kitti = sorted((data / "kitti/odometry_06_first51/image_0").glob("*.png"))
-    euroc = sorted((data / "euroc/MH_01_easy_window/mav0/cam0/data").glob("*.jpg"))
-    photos = [tum[0], kitti[0], tum[4], kitti[25], tum[8], euroc[0], rpy[150], euroc[200],
-              kitti[50], rpy[0], euroc[399], rpy[299]]
-    return RoomRenderer(room_textures(photos), CAMERA)
+    return RoomRenderer(room_atlas(require_data()), CAMERA)
 
 
 @pytest.fixture(scope="module")
