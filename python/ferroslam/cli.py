@@ -86,16 +86,22 @@ Every command has its own help: ferroslam COMMAND --help"""
 
 _OUTPUTS = """\
 outputs (in --out):
-  trajectory.txt      every tracked frame, TUM format (timestamp tx ty tz qx qy qz qw, T_w_c);
+  trajectory.txt      the tracked frames of the largest map (most frames; ties: the older), in
+                      its frame; TUM format (timestamp tx ty tz qx qy qz qw, T_w_c);
                       --trajectory-format kitti / euroc (trajectory.csv) for the others
-  keyframes.txt       keyframe poses, same format
+  keyframes.txt       keyframe poses of the current (last) map, same format
+  maps/map_<id>.txt   each map's tracked frames in its own frame, same format (a monocular run
+                      starts a new map, id 1, 2, ..., after its map stays lost; one file with
+                      one map)
   colmap/             COLMAP model: images/ (the keyframes' images), sparse/0/ (cameras,
                       images with their 2-D points, points with their tracks; text)
   mesh.ply, dense.ply with --dense (rgbd): TSDF mesh and dense cloud of the keyframes
   map.ply             map points (world frame = first camera, metres), PLY
   plot.png            top and side views against the ground truth, map points
   trajectory_top.png  top view only
-  results.json        settings, tracking states, timings, ATE/RPE"""
+  results.json        settings, tracking states, timings, ATE/RPE, "maps" (id, frames,
+                      keyframes: null for a map closed during the run) and
+                      "trajectory_map" (the id trajectory.txt holds)"""
 
 _LAYOUTS = """\
 dataset layouts (--format auto detects them):
@@ -565,6 +571,17 @@ def _log_final_map(logger, result) -> None:
             logger.log_mesh(result.dense)
 
 
+def _maps_line(summary: dict) -> str:
+    """How many maps the run made and which one the trajectory file holds (named without
+    its suffix: .csv with --trajectory-format euroc)."""
+    maps = summary["maps"]
+    chosen = next(m for m in maps if m["id"] == summary["trajectory_map"])
+    held = f"map {chosen['id']} ({chosen['frames']} frames"
+    if len(maps) == 1:
+        return f"1: {held}), the trajectory"
+    return f"{len(maps)}; the trajectory holds {held}, the largest), maps/ each one"
+
+
 def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
     print(f"sequence        {summary['sequence']}  ({summary['sensor']})")
     print(f"tracked frames  {summary['tracked_frames']}/{summary['frames']}  "
@@ -583,6 +600,8 @@ def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
         print(f"initialised at  frame {summary['first_initialised_frame']}; "
               f"{100 * summary['tracked_after_init']:.1f} % of the later frames tracked, "
               f"{summary['segments']} map segment(s)")
+    if summary.get("maps"):  # none when nothing was tracked
+        print(f"maps            {_maps_line(summary)}")
     for name, label in (("ate_frames", "ATE frames"), ("ate_keyframes", "ATE keyframes")):
         if name in metrics:
             m = metrics[name]
@@ -610,7 +629,7 @@ def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
               f"from {d['frames']} keyframes (fusion {d['fusion_s']:.1f} s)")
     for note in [*notes, *summary["metric_errors"]]:
         print(f"note: {note}")
-    print(f"results in      {out}/ (trajectory, keyframes, map.ply, colmap/, plot.png, "
+    print(f"results in      {out}/ (trajectory, keyframes, maps/, map.ply, colmap/, plot.png, "
           "results.json)")
 
 

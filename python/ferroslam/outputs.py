@@ -1,9 +1,16 @@
 """What a run leaves in its output folder, written the same way by ``ferroslam run``,
-``demo`` and ``batch``: trajectories, ``map.ply``, a COLMAP model (``colmap/images/`` and
-``colmap/sparse/0/``), with ``dense`` the TSDF mesh (``mesh.ply``) and dense cloud
+``demo`` and ``batch``: trajectories (``trajectory.txt``: the largest map's frames;
+``keyframes.txt``; ``maps/map_<id>.txt``: each map's frames), ``map.ply``, a COLMAP model
+(``colmap/images/`` and ``colmap/sparse/0/``), with ``dense`` the TSDF mesh (``mesh.ply``) and dense cloud
 (``dense.ply``), plots and ``results.json``. The files are written into a fresh folder
 beside the output folder and moved into it when the run is over (:class:`ferroslam._files.StagedFolder`): a failed run
-never replaces the results of an earlier one."""
+never replaces the results of an earlier one.
+
+``maps/`` is written for every run, with one file for a single map (the same poses as
+``trajectory.txt``) and none when nothing was tracked: the staged folder replaces a folder
+entry whole, so a run into an ``--out`` that holds an earlier multi-map run's ``maps/``
+never leaves those files beside a trajectory they do not belong to; and readers find every
+map at the same place whatever the run."""
 
 from __future__ import annotations
 
@@ -18,6 +25,8 @@ from .dense import write_dense_outputs
 from .export import write_ply, write_trajectory
 
 __all__ = ["publish_run_outputs", "write_run_outputs"]
+
+_MAPS = "maps"  # the folder of the per-map trajectories
 
 
 def publish_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict:
@@ -36,6 +45,19 @@ def write_run_outputs(result, out: Path, trajectory_format: str = "tum") -> dict
     return summary
 
 
+def _write_trajectories(result, out: Path, trajectory_format: str) -> None:
+    """``trajectory`` (the largest map's frames: poses of different maps live in different
+    frames and scales, so one file never mixes them), ``keyframes`` (the core's current map)
+    and ``maps/map_<id>`` per map, all through the one writer in ``trajectory_format``."""
+    suffix = ".csv" if trajectory_format == "euroc" else ".txt"
+    (out / _MAPS).mkdir(parents=True, exist_ok=True)  # also when empty: see the module doc
+    files = [("trajectory", result.largest_map_trajectory), ("keyframes", result.keyframes),
+             *((f"{_MAPS}/map_{m.id}", m.trajectory) for m in result.maps)]
+    for stem, trajectory in files:
+        write_trajectory(out / f"{stem}{suffix}", trajectory.timestamps, trajectory.poses,
+                         format=trajectory_format)
+
+
 def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None:
     """Trajectories (in ``trajectory_format``), map points with their colours (PLY), the
     keyframes and points as a COLMAP model (``colmap/``), the dense mesh if fused, and plots; the plots show the
@@ -43,10 +65,7 @@ def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None
     # matplotlib (a third of a second) only once a run writes its plots, not for `--help`.
     from .plot import plot_overview, plot_trajectory_top_view
 
-    suffix = ".csv" if trajectory_format == "euroc" else ".txt"
-    for stem, trajectory in (("trajectory", result.trajectory), ("keyframes", result.keyframes)):
-        write_trajectory(out / f"{stem}{suffix}", trajectory.timestamps, trajectory.poses,
-                         format=trajectory_format)
+    _write_trajectories(result, out, trajectory_format)
     write_ply(out / "map.ply", result.map_points, result.map_point_colors)
     if result.camera is not None and result.sparse_model is not None:
         write_colmap(out / "colmap", result.camera, result.sparse_model,
@@ -63,7 +82,7 @@ def _write_outputs(result, out: Path, name: str, trajectory_format: str) -> None
         points = result.map_points @ s[:3, :3].T + s[:3, 3]
         keyframes = s @ result.keyframes.poses
     else:
-        est, ref, title = result.trajectory, None, name
+        est, ref, title = result.largest_map_trajectory, None, name
         points, keyframes = result.map_points, result.keyframes.poses
     plot_trajectory_top_view(est, ref, out / "trajectory_top.png", title=title)
     plot_overview(est, ref, points, np.asarray(keyframes).reshape(-1, 4, 4), out / "plot.png",

@@ -28,8 +28,8 @@ from .rig import rig_images
 from .trajectory import Trajectory
 from .vslam import FrameResult, MonoVSlam
 
-__all__ = ["EXTRACTOR_KEYS", "RunError", "RunResult", "load_vocabulary", "make_extractor",
-           "run_sequence", "run_source"]
+__all__ = ["EXTRACTOR_KEYS", "MapInfo", "RunError", "RunResult", "load_vocabulary",
+           "make_extractor", "run_sequence", "run_source"]
 
 SENSORS = RUN_SENSORS
 _INERTIAL = "-inertial"
@@ -37,6 +37,33 @@ _INERTIAL = "-inertial"
 _PIPELINE_ONLY = tuple(o.name for o in OPTIONS if o.scope == "pipeline") + IMU_KEYS
 _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "matching_ms", "pose_optimisation_ms",
             "mapping_ms", "local_ba_ms", "loop_closing_ms", "track_call_ms", "frame_ms")
+
+
+@dataclass(frozen=True)
+class MapInfo:
+    """One map of a run.
+
+    ``id``: the core's segment index (``SlamSystem.frame_segments``): maps are numbered 0,
+    1, ... in creation order; a monocular run starts a new map after its map stayed lost.
+    ``trajectory``: the poses of the frames tracked in this map, in its own world frame
+    (and, monocular, its own scale): poses of different maps are not comparable.
+    ``keyframes``: the map's keyframe count if it is the core's current map at the end of
+    the run; ``None`` for a map closed during the run, because the core drops a closed
+    map's keyframes and points (only its frame poses are kept), so the count is not known.
+    """
+
+    id: int
+    trajectory: Trajectory
+    keyframes: Optional[int]
+
+    @property
+    def frames(self) -> int:
+        """Frame poses in this map."""
+        return len(self.trajectory)
+
+    def summary(self) -> dict:
+        """``{"id", "frames", "keyframes"}``, as results.json's ``"maps"`` lists them."""
+        return {"id": self.id, "frames": self.frames, "keyframes": self.keyframes}
 
 
 @dataclass
@@ -55,11 +82,14 @@ class RunResult:
     inside the call only), ``track_call_ms`` measured around the one call into the core, ``frame_ms`` = the
     track call and the Python around it);
     ``states``: tracking state per frame; ``segments``: map segment of each trajectory pose
-    (a monocular run starts a new map after it stays lost); ``init_reasons``: per frame, why
+    (a monocular run starts a new map after it stays lost), also ``map_ids``; ``maps``: the
+    maps (:class:`MapInfo`) and ``largest_map`` the one ``trajectory.txt`` holds (the
+    ``trajectory`` field itself holds every map's poses, each in its own frame);
+    ``init_reasons``: per frame, why
     monocular initialisation waited (``None`` otherwise); ``loops``: the loops closed (see
     ``SlamSystem.loops``) and ``loop_stats`` what loop detection did; ``inertial``: the
     camera-IMU alignment at the end (``SlamSystem.inertial_alignment``) for the ``-inertial``
-    sensors. With ground truth: ATE (SE(3), or Sim(3) over the longest segment for monocular
+    sensors. With ground truth: ATE (SE(3), or Sim(3) over the largest map for monocular
     runs without an IMU alignment), RPE, path length and ``scale_error`` (metric scale; not
     for those runs): the estimate's scale relative to the ground truth minus 1, from a Sim(3)
     alignment (``1 / s - 1`` for the alignment's scale ``s``). Path lengths are not a scale
@@ -139,6 +169,49 @@ class RunResult:
         """Map segments in the trajectory (0 when nothing was tracked)."""
         return 0 if self.segments is None or self.segments.size == 0 else int(self.segments.max()) + 1
 
+    @property
+    def map_ids(self) -> np.ndarray:
+        """``(N,)`` int64: the map id of each pose of ``trajectory`` (``segments``; all 0 for
+        a result made without them)."""
+        if self.segments is None:
+            return np.zeros(len(self.trajectory), dtype=np.int64)
+        return np.asarray(self.segments, dtype=np.int64)
+
+    @property
+    def maps(self) -> list[MapInfo]:
+        """The maps with at least one frame pose, oldest first (empty when nothing was
+        tracked)."""
+        ids = self.map_ids
+        current = self._current_map_id()
+        return [MapInfo(int(i), self.trajectory.subset(np.flatnonzero(ids == i)),
+                        len(self.keyframes) if i == current else None)
+                for i in np.unique(ids)]
+
+    @property
+    def largest_map(self) -> Optional[MapInfo]:
+        """The map with the most frame poses (ties: the older), ``None`` when nothing was
+        tracked: what ``trajectory.txt`` holds and monocular ATE is computed over."""
+        # max() keeps the first of equal maxima and maps are oldest first.
+        return max(self.maps, key=lambda m: m.frames, default=None)
+
+    @property
+    def largest_map_trajectory(self) -> Trajectory:
+        """The largest map's poses, what ``trajectory.txt`` holds (the whole trajectory, empty,
+        when nothing was tracked; the whole one, too, with a single map)."""
+        largest = self.largest_map
+        return self.trajectory if largest is None else largest.trajectory
+
+    def _current_map_id(self) -> Optional[int]:
+        """Id of the map the core's keyframes belong to: the newest map, if one of the
+        keyframes is among its frames (a keyframe is a tracked frame). ``None`` when the
+        last map was closed and no new one started (the core then has no keyframes)."""
+        ids = self.map_ids
+        if not ids.size or not len(self.keyframes):
+            return None
+        newest = int(ids.max())
+        frames = self.trajectory.timestamps[ids == newest]
+        return newest if np.isin(self.keyframes.timestamps, frames).any() else None
+
     def summary(self) -> dict:
         """JSON-serialisable summary (what ``ferroslam run`` writes to results.json)."""
         timing = {}
@@ -150,6 +223,7 @@ class RunResult:
                  "mean": float(np.mean(v)), "max": float(np.max(v))}
                 if v.size else None
             )
+        largest = self.largest_map
         out: dict[str, Any] = {
             "sequence": self.sequence,
             "sensor": self.sensor,
@@ -161,6 +235,8 @@ class RunResult:
             "first_initialised_frame": self.first_initialised_frame,
             "tracked_after_init": self.tracked_after_init,
             "segments": self.num_segments,
+            "maps": [m.summary() for m in self.maps],
+            "trajectory_map": None if largest is None else largest.id,
             "loops": len(self.loops),
             "keyframes": len(self.keyframes),
             "map_points": int(self.map_points.shape[0]),
@@ -374,17 +450,10 @@ class _RigFeed(_StereoFeed):
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}
 
 
-def _longest_segment(result: RunResult) -> Trajectory:
-    if result.segments is None or result.segments.size == 0:
-        return result.trajectory
-    longest = np.bincount(result.segments).argmax()
-    return result.trajectory.subset(np.flatnonzero(result.segments == longest))
-
-
 def _evaluate(result: RunResult, gt: Trajectory) -> None:
-    if result.scale_free:  # per map segment
+    if result.scale_free:  # per map: each has its own frame and scale
         cases = (
-            ("ate_frames", lambda: ate(gt, _longest_segment(result), align="sim3")),
+            ("ate_frames", lambda: ate(gt, result.largest_map_trajectory, align="sim3")),
             ("ate_keyframes", lambda: ate(gt, result.keyframes, align="sim3")),
         )
     else:
