@@ -271,6 +271,53 @@ impl Map {
         Ok(())
     }
 
+    /// Adds 1 to the visible counter of each point of `mps` (ORB-SLAM `IncreaseVisible`, once
+    /// per point and frame), recorded as one journal entry for the whole list: tracking counts
+    /// every local point it projects, every frame. A point listed twice counts twice.
+    ///
+    /// # Errors
+    /// [`MapError::UnknownMapPoint`] for the first unknown point; the known ones are counted
+    /// all the same, as a replay of the journal entry does.
+    pub fn increase_visible_many(&mut self, mps: &[MapPointId]) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::IncreaseVisibleMany { mps: mps.to_vec() },
+            |map| map.increase_many_now(mps, |p| &mut p.visible),
+        )
+    }
+
+    /// Adds 1 to the found counter of each point of `mps` (ORB-SLAM `IncreaseFound`), as one
+    /// journal entry; see [`Map::increase_visible_many`].
+    ///
+    /// # Errors
+    /// [`MapError::UnknownMapPoint`] for the first unknown point, the others counted.
+    pub fn increase_found_many(&mut self, mps: &[MapPointId]) -> Result<(), MapError> {
+        self.journaled(
+            || MapEdit::IncreaseFoundMany { mps: mps.to_vec() },
+            |map| map.increase_many_now(mps, |p| &mut p.found),
+        )
+    }
+
+    /// The body of the batched counters: the counter `counter` picks, plus one per listing.
+    fn increase_many_now(
+        &mut self,
+        mps: &[MapPointId],
+        counter: impl Fn(&mut MapPoint) -> &mut u32,
+    ) -> Result<(), MapError> {
+        let mut first_unknown = None;
+        for &mp in mps {
+            match self.map_points.get_mut(&mp) {
+                Some(point) => {
+                    let c = counter(point);
+                    *c = c.saturating_add(1);
+                }
+                None => {
+                    first_unknown.get_or_insert(MapError::UnknownMapPoint(mp));
+                }
+            }
+        }
+        first_unknown.map_or(Ok(()), Err)
+    }
+
     /// Number of points of `kf` with at least `min_obs` observations (ORB-SLAM
     /// `TrackedMapPoints`, `nObs` counting stereo twice); 0 for an unknown keyframe.
     pub fn tracked_points(&self, kf: KeyFrameId, min_obs: usize) -> usize {
@@ -294,19 +341,41 @@ impl Map {
         &self,
         keyframes: impl IntoIterator<Item = KeyFrameId>,
     ) -> Vec<MapPointId> {
-        let mut seen = vec![0u64; (self.next_map_point as usize).div_ceil(64)];
-        keyframes
-            .into_iter()
-            .filter_map(|kf| self.keyframes.get(&kf))
-            .flat_map(|frame| frame.map_points.iter().flatten().copied())
-            .filter(|mp| {
-                debug_assert!(self.map_points.contains_key(mp), "slot holds dead {mp:?}");
-                let (word, bit) = (mp.0 as usize / 64, mp.0 % 64);
-                let first = seen[word] & (1 << bit) == 0;
-                seen[word] |= 1 << bit;
-                first
-            })
-            .collect()
+        let mut out = Vec::new();
+        self.points_seen_by_into(keyframes, &mut Vec::new(), &mut out);
+        out
+    }
+
+    /// [`Map::points_seen_by`] into `out` (cleared first), with `seen` as the bitset: buffers
+    /// kept by the caller so that tracking allocates nothing per frame once they have grown.
+    /// `seen` must be all zeros (or empty) and is left so.
+    pub fn points_seen_by_into(
+        &self,
+        keyframes: impl IntoIterator<Item = KeyFrameId>,
+        seen: &mut Vec<u64>,
+        out: &mut Vec<MapPointId>,
+    ) {
+        out.clear();
+        let words = (self.next_map_point as usize).div_ceil(64);
+        if seen.len() < words {
+            seen.resize(words, 0);
+        }
+        out.extend(
+            keyframes
+                .into_iter()
+                .filter_map(|kf| self.keyframes.get(&kf))
+                .flat_map(|frame| frame.map_points.iter().flatten().copied())
+                .filter(|mp| {
+                    debug_assert!(self.map_points.contains_key(mp), "slot holds dead {mp:?}");
+                    let (word, bit) = (mp.0 as usize / 64, mp.0 % 64);
+                    let first = seen[word] & (1 << bit) == 0;
+                    seen[word] |= 1 << bit;
+                    first
+                }),
+        );
+        for mp in out.iter() {
+            seen[mp.0 as usize / 64] = 0;
+        }
     }
 
     /// The live point `id` stands for: itself if in the map, else the point it was fused

@@ -287,7 +287,7 @@ mod tests {
             has_depth: false,
         });
         map.set_rig(rig);
-        let cameras = [tum_fr1(), member.clone()];
+        let cameras = [tum_fr1(), member];
         let model = map.rig_sparse_model(&cameras);
         assert_eq!(model.images.len(), 4);
         for (n, image) in model.images.iter().enumerate() {

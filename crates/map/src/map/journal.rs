@@ -48,6 +48,12 @@ pub enum MapEdit {
         mp: MapPointId,
         n: u32,
     },
+    IncreaseVisibleMany {
+        mps: Vec<MapPointId>,
+    },
+    IncreaseFoundMany {
+        mps: Vec<MapPointId>,
+    },
     AddObservation {
         mp: MapPointId,
         kf: KeyFrameId,
@@ -214,6 +220,14 @@ impl Map {
                 }
                 MapEdit::IncreaseVisible { mp, n } => self.increase_visible(id(mp, renamed), n),
                 MapEdit::IncreaseFound { mp, n } => self.increase_found(id(mp, renamed), n),
+                MapEdit::IncreaseVisibleMany { ref mps } => {
+                    let mps: Vec<MapPointId> = mps.iter().map(|&m| id(m, renamed)).collect();
+                    self.increase_visible_many(&mps)
+                }
+                MapEdit::IncreaseFoundMany { ref mps } => {
+                    let mps: Vec<MapPointId> = mps.iter().map(|&m| id(m, renamed)).collect();
+                    self.increase_found_many(&mps)
+                }
                 MapEdit::AddObservation { mp, kf, index } => {
                     self.add_observation(id(mp, renamed), kf, index)
                 }
@@ -369,6 +383,64 @@ mod tests {
         assert_eq!(a.observations().len(), 2);
         assert!(by_parts.map_point(old).is_none());
         by_parts.check_consistency().unwrap();
+    }
+
+    /// A batched counter is one journal entry per call; replayed on the original it gives the
+    /// counters the copy got by applying it, with the copy's new points renamed and points
+    /// culled meanwhile skipped without stopping the rest of the list.
+    #[test]
+    fn batched_counters_replay_as_applied() {
+        let (mut map, kfs) = map_with_keyframes(3, 10);
+        let a = observe_all(&mut map, &kfs[..2], 1);
+        let b = observe_all(&mut map, &kfs[1..], 2);
+        let culled = observe_all(&mut map, &kfs[..1], 3);
+        let mut copy = map.clone();
+        copy.begin_journal();
+        let new = copy
+            .create_map_point(Vector3::new(1.0, 2.0, 6.0), kfs[0])
+            .unwrap();
+        copy.add_observation(new, kfs[0], 5).unwrap();
+        copy.increase_visible_many(&[a, culled, b, new, a]).unwrap();
+        copy.increase_found_many(&[b, new, culled]).unwrap();
+        let journal = copy.take_journal();
+        assert_eq!(journal.len(), 4);
+
+        map.set_map_point_bad(culled);
+        let renamed = map.apply_journal(&journal);
+        for (here, there) in [(a, a), (b, b), (renamed[&new], new)] {
+            let (p, q) = (map.map_point(here).unwrap(), copy.map_point(there).unwrap());
+            assert_eq!((p.visible(), p.found()), (q.visible(), q.found()));
+        }
+        // Counters start at 1; `a` was listed twice.
+        let p = map.map_point(a).unwrap();
+        assert_eq!((p.visible(), p.found()), (3, 1));
+        map.check_consistency().unwrap();
+    }
+
+    /// The batched counters do what one call per point does, and an unknown point is
+    /// reported without keeping the others from being counted.
+    #[test]
+    fn batched_counters_equal_one_call_per_point() {
+        let (mut map, kfs) = map_with_keyframes(2, 6);
+        let points: Vec<MapPointId> = (0..4).map(|i| observe_all(&mut map, &kfs, i)).collect();
+        let mut one_by_one = map.clone();
+        let listed = [points[0], points[2], points[2], points[3]];
+        for &m in &listed {
+            one_by_one.increase_visible(m, 1).unwrap();
+            one_by_one.increase_found(m, 1).unwrap();
+        }
+        map.increase_visible_many(&listed).unwrap();
+        map.increase_found_many(&listed).unwrap();
+        for &m in &points {
+            let (p, q) = (map.map_point(m).unwrap(), one_by_one.map_point(m).unwrap());
+            assert_eq!((p.visible(), p.found()), (q.visible(), q.found()));
+        }
+        let unknown = MapPointId(999);
+        assert_eq!(
+            map.increase_visible_many(&[unknown, points[1]]),
+            Err(MapError::UnknownMapPoint(unknown))
+        );
+        assert_eq!(map.map_point(points[1]).unwrap().visible(), 2);
     }
 
     #[test]

@@ -24,10 +24,10 @@ use crate::config::TrackingConfig;
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::frame::{unproject_depth, Frame};
-use crate::frustum::visible_point;
 use crate::imu_prediction::ImuPrediction;
 use crate::inertial::scale_translation;
 use crate::place_recognition::PlaceRecognition;
+use local_map::LocalMap;
 use projection_search::ProjectionSearch;
 
 /// Tracking state exposed to users.
@@ -61,7 +61,9 @@ pub struct Tracker {
     pub last_keyframe_frame: usize,
     last_relocalisation_frame: Option<usize>,
     local_keyframes: Vec<KeyFrameId>,
-    local_points: Vec<MapPointId>,
+    local_map: LocalMap,
+    /// The inliers of the frame, whose found counter is raised in one map call.
+    found: Vec<MapPointId>,
     /// Map point inliers of the last tracked frame.
     pub matches_inliers: usize,
     /// Time spent in motion-only BA since the last [`Self::take_pose_optimisation_ms`].
@@ -81,7 +83,8 @@ impl Default for Tracker {
             last_keyframe_frame: 0,
             last_relocalisation_frame: None,
             local_keyframes: Vec::new(),
-            local_points: Vec::new(),
+            local_map: LocalMap::default(),
+            found: Vec::new(),
             matches_inliers: 0,
             pose_optimisation: Duration::ZERO,
             keyframe_deferred_at: None,
@@ -475,6 +478,7 @@ impl Tracker {
         )?;
         self.optimize_pose(frame, map, ctx)?;
         let mut inliers = 0;
+        self.found.clear();
         for i in 0..frame.len() {
             let Some(m) = frame.map_points[i] else {
                 continue;
@@ -483,11 +487,12 @@ impl Tracker {
                 frame.map_points[i] = None;
                 continue;
             }
-            map.increase_found(m, 1)?;
+            self.found.push(m);
             if map.map_point(m).is_some_and(|p| p.num_observations() > 0) {
                 inliers += 1;
             }
         }
+        map.increase_found_many(&self.found)?;
         self.matches_inliers = inliers;
         let min_inliers = if unconfirmed {
             tracking.relocalised_min_inliers
@@ -532,87 +537,20 @@ impl Tracker {
         self.local_keyframes = local;
     }
 
+    /// Gathers the points of the local keyframes into the local-map cache.
     fn update_local_points(&mut self, map: &Map) {
-        self.local_points = map.points_seen_by(self.local_keyframes.iter().copied());
+        self.local_map.gather(map, &self.local_keyframes);
     }
 
-    /// Projects the local points not yet matched into the frame and searches for their
-    /// keypoints (ORB-SLAM `SearchLocalPoints`; ratio and radius by viewing angle from
-    /// `tracking`).
+    /// Searches the frame for the local points not yet matched ([`LocalMap::search`]).
     fn search_local_points(
-        &self,
+        &mut self,
         frame: &mut Frame,
         map: &mut Map,
         ctx: &Context,
         th: f64,
     ) -> Result<(), SlamError> {
-        let in_frame: HashSet<MapPointId> = frame.map_points.iter().flatten().copied().collect();
-        for &m in &in_frame {
-            map.increase_visible(m, 1)?;
-        }
-        let center = frame.camera_center();
-        let pyramid = map.pyramid().clone();
-        let tracking = &ctx.config.tracking;
-        let mut searches: Vec<ProjectionSearch<MapPointId>> = (0..ctx.num_cameras())
-            .map(|_| ProjectionSearch::default())
-            .collect();
-        for &m in &self.local_points {
-            if in_frame.contains(&m) {
-                continue;
-            }
-            let mut seen = false;
-            for (k, search) in searches.iter_mut().enumerate() {
-                let view = ctx.view(k);
-                let T_c_w = view.pose(&frame.T_c_w);
-                let center = if k == 0 {
-                    center
-                } else {
-                    view.center(&frame.T_c_w)
-                };
-                let Some(vis) = visible_point(
-                    map,
-                    m,
-                    &T_c_w,
-                    &center,
-                    view.camera,
-                    view.bounds,
-                    &ctx.config.visibility,
-                ) else {
-                    continue;
-                };
-                seen = true;
-                let r = if vis.view_cos > tracking.frontal_view_cos {
-                    tracking.frontal_radius
-                } else {
-                    tracking.oblique_radius
-                } * th;
-                let query = ProjectionQuery {
-                    u: vis.u,
-                    v: vis.v,
-                    radius: r * pyramid.scale[vis.level as usize],
-                    min_level: vis.level.saturating_sub(1),
-                    max_level: vis.level,
-                    descriptor: *map.map_point(m).unwrap().descriptor(),
-                    angle_deg: None,
-                };
-                search.push(query, view.u_right(&vis.p_c, vis.u), m);
-            }
-            if seen {
-                map.increase_visible(m, 1)?;
-            }
-        }
-        let taken: Vec<bool> = frame.map_points.iter().map(Option::is_some).collect();
-        let opts = MatchOptions {
-            max_distance: TH_HIGH,
-            nn_ratio: Some(tracking.local_search_nn_ratio),
-            check_orientation: false,
-        };
-        for (k, search) in searches.iter().enumerate() {
-            for (i, m) in search.run(frame, k, &taken, &opts) {
-                frame.map_points[i] = Some(m);
-            }
-        }
-        Ok(())
+        self.local_map.search(frame, map, ctx, th)
     }
 
     /// Whether the keyframe that frame `frame_index` asks for, while local mapping is still
@@ -860,6 +798,7 @@ fn search_last_frame(
     n
 }
 
+mod local_map;
 mod projection_search;
 #[cfg(test)]
 mod tests;

@@ -6,6 +6,7 @@ use ferroslam_features::{MatchOptions, ProjectionQuery};
 use crate::frame::Frame;
 
 /// Points projected into one camera of a frame, searched for together.
+#[derive(Debug)]
 pub(super) struct ProjectionSearch<S> {
     queries: Vec<ProjectionQuery>,
     u_right: Vec<f64>,
@@ -23,6 +24,13 @@ impl<S> Default for ProjectionSearch<S> {
 }
 
 impl<S: Copy> ProjectionSearch<S> {
+    /// Forgets the queries, keeping the buffers for the next frame.
+    pub(super) fn clear(&mut self) {
+        self.queries.clear();
+        self.u_right.clear();
+        self.sources.clear();
+    }
+
     /// Adds a query with the right coordinate it predicts and what it stands for.
     pub(super) fn push(&mut self, query: ProjectionQuery, u_right: f64, source: S) {
         self.queries.push(query);
