@@ -211,9 +211,9 @@ impl Tracker {
         frame.T_c_w = prediction.T_c_w;
         frame.clear_associations();
         self.local_keyframes = self.reference_neighbourhood(map, ctx);
-        self.update_local_points(map);
+        self.local_map.gather(map, &self.local_keyframes);
         let width = ctx.config.tracking.imu_prediction_search_width;
-        self.search_local_points(frame, map, ctx, width)?;
+        self.local_map.search(frame, map, ctx, width)?;
         let searched = frame.map_points.clone();
         let tracking = &ctx.config.tracking;
         if searched.iter().flatten().count() >= tracking.min_search_matches {
@@ -457,7 +457,7 @@ impl Tracker {
     ) -> Result<bool, SlamError> {
         frame.vo_points.iter_mut().for_each(|p| *p = None);
         self.update_local_keyframes(frame, map, &ctx.config.tracking);
-        self.update_local_points(map);
+        self.local_map.gather(map, &self.local_keyframes);
         // ORB-SLAM: a wider search right after relocalisation, and a stricter inlier count
         // while the relocalised pose is still unconfirmed.
         let tracking = &ctx.config.tracking;
@@ -466,7 +466,7 @@ impl Tracker {
             since_relocalisation.is_some_and(|n| n < tracking.relocalised_wide_search_frames);
         let unconfirmed =
             since_relocalisation.is_some_and(|n| n < tracking.post_relocalisation_frames);
-        self.search_local_points(
+        self.local_map.search(
             frame,
             map,
             ctx,
@@ -535,22 +535,6 @@ impl Tracker {
             }
         }
         self.local_keyframes = local;
-    }
-
-    /// Gathers the points of the local keyframes into the local-map cache.
-    fn update_local_points(&mut self, map: &Map) {
-        self.local_map.gather(map, &self.local_keyframes);
-    }
-
-    /// Searches the frame for the local points not yet matched ([`LocalMap::search`]).
-    fn search_local_points(
-        &mut self,
-        frame: &mut Frame,
-        map: &mut Map,
-        ctx: &Context,
-        th: f64,
-    ) -> Result<(), SlamError> {
-        self.local_map.search(frame, map, ctx, th)
     }
 
     /// Whether the keyframe that frame `frame_index` asks for, while local mapping is still
