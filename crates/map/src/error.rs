@@ -161,6 +161,60 @@ pub enum MapError {
         /// What is wrong.
         what: String,
     },
+    /// A whole-map operation that the journal cannot record was called while recording.
+    #[error("Map::{0} is not recorded in the journal: stop recording (Map::take_journal) first")]
+    Recording(&'static str),
+    /// An argument outside its domain.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// Renumbering would push ids past `u32::MAX`.
+    #[error("shifting {what} ids by {offset} overflows u32 (the next id is {next})")]
+    IdOverflow {
+        /// "keyframe" or "map point".
+        what: &'static str,
+        /// The map's next id of that kind.
+        next: u32,
+        /// The rejected offset.
+        offset: u32,
+    },
+    /// Both maps of a merge hold this keyframe id (live or culled).
+    #[error(
+        "keyframe id {0} is in both maps (live or culled): renumber one with Map::shift_ids \
+         first (e.g. by the other's Map::next_ids)"
+    )]
+    KeyFrameIdCollision(KeyFrameId),
+    /// Both maps of a merge hold this map point id (live or fused).
+    #[error(
+        "map point id {0} is in both maps (live or fused): renumber one with Map::shift_ids \
+         first (e.g. by the other's Map::next_ids)"
+    )]
+    MapPointIdCollision(MapPointId),
+    /// The maps of a merge use different ORB scale pyramids.
+    #[error(
+        "scale pyramids differ: this map has {ours_levels} levels of factor {ours_factor}, \
+         the other {theirs_levels} of factor {theirs_factor}"
+    )]
+    PyramidMismatch {
+        /// Levels of the absorbing map.
+        ours_levels: usize,
+        /// Scale factor of the absorbing map.
+        ours_factor: f64,
+        /// Levels of the absorbed map.
+        theirs_levels: usize,
+        /// Scale factor of the absorbed map.
+        theirs_factor: f64,
+    },
+    /// The link keyframe of the absorbed map is not connected to that map's origin.
+    #[error(
+        "keyframe {kf} does not reach its map's origin {origin} by parent links: connect it \
+         (Map::update_connections) before merging through it"
+    )]
+    NotInSpanningTree {
+        /// The link keyframe.
+        kf: KeyFrameId,
+        /// The absorbed map's origin.
+        origin: KeyFrameId,
+    },
 }
 
 impl From<std::io::Error> for MapError {

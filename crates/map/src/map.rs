@@ -2,7 +2,8 @@
 //!
 //! The link-changing operations live in the submodules, one concept each: observations
 //! (point <-> keyframe), covisibility, spanning tree (keyframe culling), point geometry and
-//! descriptor, the consistency check, and map files ([`persist`]).
+//! descriptor, the consistency check, whole-map atlas operations (moving, renumbering,
+//! merging) and map files ([`persist`]).
 
 use ferroslam_features::ScalePyramid;
 use nalgebra::{Isometry3, Vector3};
@@ -10,6 +11,7 @@ use nalgebra::{Isometry3, Vector3};
 use crate::{FrameFeatures, KeyFrame, KeyFrameId, MapError, MapPoint, MapPointId, Rig};
 
 mod arena;
+mod atlas_ops;
 mod consistency;
 mod covisibility;
 mod journal;

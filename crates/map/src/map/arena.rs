@@ -44,6 +44,13 @@ impl<K: Ord + Clone, V: Clone> Arena<K, V> {
     pub(crate) fn remove(&mut self, key: &K) -> Option<V> {
         self.entries.remove(key).map(Arc::unwrap_or_clone)
     }
+
+    /// All entries by increasing key, taken out (each cloned only if a copy shares it).
+    pub(crate) fn into_entries(self) -> impl Iterator<Item = (K, V)> {
+        self.entries
+            .into_iter()
+            .map(|(key, entry)| (key, Arc::unwrap_or_clone(entry)))
+    }
 }
 
 impl<K: Ord + Clone, V> Arena<K, V> {
@@ -57,6 +64,14 @@ impl<K: Ord + Clone, V> Arena<K, V> {
 
     pub(crate) fn insert(&mut self, key: K, value: V) {
         self.entries.insert(key, Arc::new(value));
+    }
+
+    /// Moves every entry of `other` in, without copying any (an entry under a key both hold
+    /// is `other`'s afterwards).
+    pub(crate) fn append(&mut self, other: Self) {
+        for (key, entry) in other.entries {
+            self.entries.insert(key, entry);
+        }
     }
 
     pub(crate) fn len(&self) -> usize {
