@@ -33,7 +33,8 @@ class FakeTrackResult:
 class FakeSlamSystem:
     # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
     KNOWN = {"n_features", "ini_fast", "min_fast", "scale_factor", "n_levels",
-             "track_feature_range", "skip_max_frames", "bf", "baseline", "depth_threshold",
+             "track_feature_range", "skip_max_frames", "relocalisation_window_s", "bf",
+             "baseline", "depth_threshold",
              "depth_range", "match_pair_every_frame", "seed", "deterministic", "loop_closure",
              "loop_closure_threshold"}
     # The extractor's defaults, read from the core's option table (never restated).
@@ -82,8 +83,15 @@ class FakeSlamSystem:
     def set_vocabulary(self, vocabulary):
         self.vocabulary = vocabulary
 
-    def frame_segments(self):
+    def frame_map_ids(self):
         return np.zeros(len(self.stamps), dtype=np.uint32)
+
+    def maps(self):
+        return [{"id": 0, "frames": len(self.stamps), "keyframes": len(self.kf), "points": 10,
+                 "current": True}] if self.stamps else []
+
+    def merges(self):
+        return []
 
     def close(self):
         pass
@@ -101,11 +109,11 @@ class FakeSlamSystem:
     def num_keyframes(self) -> int:
         return len(self.kf)
 
-    def keyframe_trajectory(self):
+    def keyframe_trajectory(self, map_id=None):
         ids = np.arange(len(self.kf), dtype=np.uint32)
         return ids, np.array(self.stamps)[self.kf], np.array(self.poses)[self.kf]
 
-    def map_points(self):
+    def map_points(self, map_id=None):
         return np.zeros((10, 3))
 
     def map_point_colors(self):

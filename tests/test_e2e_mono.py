@@ -45,7 +45,7 @@ def test_kitti_initialises_early_and_tracks_every_later_frame(kitti_run):
     first = result.first_initialised_frame
     assert first is not None and first <= 10, result.init_reasons[:12]
     assert result.states[first:] == ["ok"] * (len(seq) - first)
-    assert result.num_segments == 1
+    assert result.num_maps == 1
     # The reference frame of the two-view pair is in the trajectory too.
     assert len(result.trajectory) >= len(seq) - first
 
@@ -78,7 +78,7 @@ def test_tum_rpy_rotation_heavy(tum_rpy):
     assert ate.pairs >= 100
     assert ate.rmse < TUM_ATE_BOUND_M, f"Sim(3) ATE {ate.rmse:.4f} m"
     summary = result.summary()
-    assert summary["segments"] == result.num_segments >= 1
+    assert summary["num_maps"] == result.num_maps >= 1
     assert summary["metrics"]["ate_frames"]["align"] == "sim3"
 
 
@@ -121,6 +121,6 @@ def test_cli_mono_run(kitti_mono, tmp_path, capsys):
     assert cli_main(["run", str(kitti_mono), "--sensor", "mono", "--config", str(config),
                      "--max-frames", "12", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "initialised at  frame 1" in printed and "Sim(3), longest segment" in printed
+    assert "initialised at  frame 1" in printed and "Sim(3), largest map" in printed
     summary = json.loads((out / "results.json").read_text())
-    assert summary["sensor"] == "mono" and summary["segments"] == 1
+    assert summary["sensor"] == "mono" and summary["num_maps"] == 1

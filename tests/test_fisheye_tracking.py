@@ -128,7 +128,7 @@ def test_fisheye_tum_mono_tracks_like_the_pinhole():
     seq = InpaintedFisheyeTum(require_data("tum", "rgbd_dataset_freiburg1_rpy"))
     result = run_sequence(seq, sensor="mono", progress=False)
     rmse = result.ate_frames.rmse
-    segments = len(np.unique(result.segments))
+    segments = len(np.unique(result.map_ids))
     print(f"fisheye TUM fr1/rpy mono: {result.tracked_frames}/{result.frames} tracked, "
           f"ATE {rmse * 100:.2f} cm, {segments} map segment(s)")
     assert result.tracked_frames >= 246

@@ -305,7 +305,7 @@ def test_imu_carries_tracking_through_weak_vision(seq12, sensor):
         assert slam.inertial_alignment()["status"] == "aligned"
         assert set(states[dropped]) == {"recently_lost"}
         assert states[int(np.flatnonzero(dropped)[-1]) + 1] == "ok"
-        assert set(slam.frame_segments()) == {0}
+        assert set(slam.frame_map_ids()) == {0}
         errors[keep] = _stretch_errors(seq12, slam, dropped)
     rms = {k: float(np.sqrt(np.mean(e ** 2))) for k, e in errors.items()}
     print(f"\n{sensor}-inertial, 1 s of weak vision: IMU alone {100 * errors[0][-1]:.1f} cm "

@@ -63,7 +63,7 @@ def _check_mh01(result, sensor: str, *, bound_m: float, inertial: bool) -> None:
     ate_frames = summary["metrics"]["ate_frames"]
     print(f"MH_01 {sensor}: {summary['tracked_frames']}/400, SE(3) ATE "
           f"{ate_frames['rmse'] * 1e3:.2f} mm")
-    assert summary["tracked_frames"] == 400 and summary["segments"] == 1
+    assert summary["tracked_frames"] == 400 and summary["num_maps"] == 1
     assert ate_frames["align"] == "se3" and ate_frames["pairs"] == 400
     assert ate_frames["rmse"] <= bound_m
     if inertial:

@@ -265,7 +265,7 @@ def test_mono_waits_for_take_off_then_initialises_and_tracks(flight):
     t_init = seq.timestamps[first] - seq.timestamps[0]
     assert t_init < 2.0, f"monocular initialisation only {t_init:.2f} s after 5 s"
     assert states[first:] == ["ok"] * (len(seq) - first)
-    assert set(slam.frame_segments()) == {0}
+    assert set(slam.frame_map_ids()) == {0}
     result = metrics.ate(Trajectory(*seq.groundtruth()), Trajectory(*slam.frame_trajectory()),
                          align="sim3")
     print(f"mono from 5 s: initialised after {t_init:.2f} s, Sim(3) ATE "

@@ -65,6 +65,9 @@ class _SlamOptions(TypedDict, total=False):
     monocular example; ORB-SLAM's keyframe rules apply too)."""
     skip_max_frames: int
     """Frames after which a keyframe is inserted regardless of tracking quality."""
+    relocalisation_window_s: float
+    """Seconds a lost map tries to relocalise before the atlas keeps it and a new map
+    starts (monocular, or with a vocabulary to find it again)."""
     bf: float
     """RGB-D only: fx * baseline of the virtual right camera, pixels * metres."""
     baseline: float
@@ -103,6 +106,15 @@ class TrackResult:
     def T_w_c(self) -> NDArray[np.float64] | None:
         """Camera pose in the world, (4, 4) float64 (the IMU's prediction when ``recently_lost``),
         or None when the frame was not tracked."""
+    @property
+    def map_id(self) -> int:
+        """The map ``T_w_c`` is in (see ``SlamSystem.maps``)."""
+    @property
+    def merge(self) -> dict[str, Any] | None:
+        """The merge this frame made: ``merged_map`` (joined into) ``into_map``, whose id and
+        world the merged map keeps; keyframes ``current`` and ``matched``, their
+        ``timestamps`` (s), ``num_matches``, the similarity's ``scale`` (1 with depth) and
+        the essential graph's ``graph_cost`` (before, after)."""
     @property
     def is_keyframe(self) -> bool:
         """Whether this frame became a keyframe."""
@@ -328,8 +340,8 @@ class SlamSystem:
     ) -> TrackResult | None:
         """Tracks one monocular frame (the GIL is released while it runs). Until the map
         exists every frame is offered to two-view initialisation (see
-        ``TrackResult.init_reason``); a map that stays lost for a second is closed as a
-        segment and a new one starts (see ``frame_segments``).
+        ``TrackResult.init_reason``); a map that stays lost for a second goes to the
+        atlas and a new one starts (see ``maps``).
 
         Args:
             timestamp: seconds, finite, strictly after the previous accepted frame's.
@@ -387,21 +399,32 @@ class SlamSystem:
         """Loop-detection counters: ``keyframes_checked``, ``with_candidates`` (bag-of-words
         candidates found), ``verified`` (consistent candidates checked geometrically) and
         ``rejected`` (refused by the Sim(3) or the match count)."""
-    def frame_segments(self) -> NDArray[np.uint32]:
-        """Map segment of each pose of ``frame_trajectory`` (N,): 0 for the first map, one
-        more per map started after a monocular map was lost. Segments have their own world
-        frame (and, monocular, scale)."""
+    def frame_map_ids(self) -> NDArray[np.uint32]:
+        """Map id of each pose of ``frame_trajectory`` (N,). A system lost for
+        ``relocalisation_window_s`` keeps its map in the atlas and starts a new one; maps
+        have their own world frame (and, monocular, scale) until merged."""
+    def maps(self) -> list[dict[str, Any]]:
+        """Every map of the run with frames or keyframes, the atlas's oldest first, then the
+        current one: ``id``, ``frames`` (poses tracked in it), ``keyframes``, ``points``,
+        ``current`` (tracking runs in it)."""
+    @property
+    def current_map_id(self) -> int:
+        """Id of the map tracking runs in."""
+    def merges(self) -> list[dict[str, Any]]:
+        """Maps merged so far, oldest first (keys as ``TrackResult.merge``)."""
     def frame_trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """``(timestamps (N,) float64, T_w_c (N, 4, 4) float64)`` of every tracked frame,
-        relative to its reference keyframe, so later map corrections are included; closed map
-        segments first (see ``frame_segments``)."""
+        """``(timestamps (N,) float64, T_w_c (N, 4, 4) float64)`` of every tracked frame in
+        time order, relative to its reference keyframe, so later map corrections are
+        included; each in its map's world (see ``frame_map_ids``)."""
     def keyframe_trajectory(
-        self,
+        self, map_id: int | None = None
     ) -> tuple[NDArray[np.uint32], NDArray[np.float64], NDArray[np.float64]]:
         """``(ids (K,) uint32, timestamps (K,) float64, T_w_c (K, 4, 4) float64)`` of the
-        live keyframes of the current map."""
-    def map_points(self) -> NDArray[np.float64]:
-        """World positions of the live map points, (M, 3) float64 metres."""
+        live keyframes of map ``map_id`` (default the current map). ``ValueError`` naming
+        the run's maps for an id that is none of them."""
+    def map_points(self, map_id: int | None = None) -> NDArray[np.float64]:
+        """World positions of the live map points of map ``map_id`` (default the current
+        map), (M, 3) float64 metres; ``ValueError`` as ``keyframe_trajectory``."""
     def map_point_colors(self) -> NDArray[np.uint8]:
         """Colours of the live map points, (M, 3) uint8 RGB in the order of ``map_points``:
         each the colour of the keypoint that created the point (the ``colors`` given with

@@ -599,13 +599,13 @@ def _print_summary(summary: dict, out: Path, notes: Sequence[str] = ()) -> None:
     elif summary["sensor"].startswith("mono"):
         print(f"initialised at  frame {summary['first_initialised_frame']}; "
               f"{100 * summary['tracked_after_init']:.1f} % of the later frames tracked, "
-              f"{summary['segments']} map segment(s)")
+              f"{summary['num_maps']} map(s)")
     if summary.get("maps"):  # none when nothing was tracked
         print(f"maps            {_maps_line(summary)}")
     for name, label in (("ate_frames", "ATE frames"), ("ate_keyframes", "ATE keyframes")):
         if name in metrics:
             m = metrics[name]
-            align = "Sim(3), longest segment" if m["align"] == "sim3" else "SE(3)"
+            align = "Sim(3), largest map" if m["align"] == "sim3" else "SE(3)"
             print(f"{label:<15} RMSE {m['rmse']:.4f} m  ({align}, {m['pairs']} poses)")
     if "scale_error" in metrics:
         print(f"scale error     {100 * metrics['scale_error']:+.2f} %  (Sim(3) alignment's scale)")

@@ -43,18 +43,18 @@ _TIMINGS = ("load_ms", "extraction_ms", "tracking_ms", "matching_ms", "pose_opti
 class MapInfo:
     """One map of a run.
 
-    ``id``: the core's segment index (``SlamSystem.frame_segments``): maps are numbered 0,
-    1, ... in creation order; a monocular run starts a new map after its map stayed lost.
-    ``trajectory``: the poses of the frames tracked in this map, in its own world frame
-    (and, monocular, its own scale): poses of different maps are not comparable.
-    ``keyframes``: the map's keyframe count if it is the core's current map at the end of
-    the run; ``None`` for a map closed during the run, because the core drops a closed
-    map's keyframes and points (only its frame poses are kept), so the count is not known.
+    ``id``: the core's map id (``SlamSystem.maps``): unique within the run, in creation
+    order; a run lost for ``relocalisation_window_s`` keeps its map and starts a new one, and
+    a merged map keeps the older map's id. ``trajectory``: the poses of the frames tracked in
+    this map, in its own world frame (and, monocular, its own scale): poses of different maps
+    are not comparable. ``keyframes`` and ``points``: the map's live keyframes and points at
+    the end of the run (``None`` for a result made without the core's map list).
     """
 
     id: int
     trajectory: Trajectory
     keyframes: Optional[int]
+    points: Optional[int] = None
 
     @property
     def frames(self) -> int:
@@ -62,8 +62,10 @@ class MapInfo:
         return len(self.trajectory)
 
     def summary(self) -> dict:
-        """``{"id", "frames", "keyframes"}``, as results.json's ``"maps"`` lists them."""
-        return {"id": self.id, "frames": self.frames, "keyframes": self.keyframes}
+        """``{"id", "frames", "keyframes", "points"}``, as results.json's ``"maps"`` lists
+        them."""
+        return {"id": self.id, "frames": self.frames, "keyframes": self.keyframes,
+                "points": self.points}
 
 
 @dataclass
@@ -81,10 +83,12 @@ class RunResult:
     local-map search, keyframe decision), ``local_ba_ms`` and ``loop_closing_ms`` (mapping
     inside the call only), ``track_call_ms`` measured around the one call into the core, ``frame_ms`` = the
     track call and the Python around it);
-    ``states``: tracking state per frame; ``segments``: map segment of each trajectory pose
-    (a monocular run starts a new map after it stays lost), also ``map_ids``; ``maps``: the
-    maps (:class:`MapInfo`) and ``largest_map`` the one ``trajectory.txt`` holds (the
-    ``trajectory`` field itself holds every map's poses, each in its own frame);
+    ``states``: tracking state per frame; ``map_ids``: the map of each trajectory pose (a run
+    lost for ``relocalisation_window_s`` keeps its map and starts a new one; merges join
+    them); ``atlas``: the core's map list (``SlamSystem.maps``); ``maps``: the maps
+    (:class:`MapInfo`) and ``largest_map`` the one ``trajectory.txt`` holds (the
+    ``trajectory`` field itself holds every map's poses, each in its own frame); ``merges``:
+    the maps merged (``SlamSystem.merges``);
     ``init_reasons``: per frame, why
     monocular initialisation waited (``None`` otherwise); ``loops``: the loops closed (see
     ``SlamSystem.loops``) and ``loop_stats`` what loop detection did; ``inertial``: the
@@ -117,7 +121,9 @@ class RunResult:
     keyframe_ids: np.ndarray
     map_points: np.ndarray
     map_point_colors: np.ndarray
-    segments: Optional[np.ndarray] = None
+    map_ids: Optional[np.ndarray] = None
+    atlas: list = field(default_factory=list)
+    merges: list = field(default_factory=list)
     init_reasons: list = field(default_factory=list)
     loops: list = field(default_factory=list)
     loop_stats: dict = field(default_factory=dict)
@@ -165,26 +171,24 @@ class RunResult:
         return sum(s == "ok" for s in self.states[first:]) / (len(self.states) - first)
 
     @property
-    def num_segments(self) -> int:
-        """Map segments in the trajectory (0 when nothing was tracked)."""
-        return 0 if self.segments is None or self.segments.size == 0 else int(self.segments.max()) + 1
+    def num_maps(self) -> int:
+        """Maps with frame poses (0 when nothing was tracked)."""
+        return len(self.maps)
 
-    @property
-    def map_ids(self) -> np.ndarray:
-        """``(N,)`` int64: the map id of each pose of ``trajectory`` (``segments``; all 0 for
-        a result made without them)."""
-        if self.segments is None:
+    def _pose_map_ids(self) -> np.ndarray:
+        """``(N,)`` int64: ``map_ids``, all 0 for a result made without them."""
+        if self.map_ids is None:
             return np.zeros(len(self.trajectory), dtype=np.int64)
-        return np.asarray(self.segments, dtype=np.int64)
+        return np.asarray(self.map_ids, dtype=np.int64)
 
     @property
     def maps(self) -> list[MapInfo]:
-        """The maps with at least one frame pose, oldest first (empty when nothing was
-        tracked)."""
-        ids = self.map_ids
-        current = self._current_map_id()
+        """The maps with at least one frame pose, by id (empty when nothing was tracked)."""
+        ids = self._pose_map_ids()
+        known = {m["id"]: m for m in self.atlas}
         return [MapInfo(int(i), self.trajectory.subset(np.flatnonzero(ids == i)),
-                        len(self.keyframes) if i == current else None)
+                        known.get(int(i), {}).get("keyframes"),
+                        known.get(int(i), {}).get("points"))
                 for i in np.unique(ids)]
 
     @property
@@ -200,17 +204,6 @@ class RunResult:
         when nothing was tracked; the whole one, too, with a single map)."""
         largest = self.largest_map
         return self.trajectory if largest is None else largest.trajectory
-
-    def _current_map_id(self) -> Optional[int]:
-        """Id of the map the core's keyframes belong to: the newest map, if one of the
-        keyframes is among its frames (a keyframe is a tracked frame). ``None`` when the
-        last map was closed and no new one started (the core then has no keyframes)."""
-        ids = self.map_ids
-        if not ids.size or not len(self.keyframes):
-            return None
-        newest = int(ids.max())
-        frames = self.trajectory.timestamps[ids == newest]
-        return newest if np.isin(self.keyframes.timestamps, frames).any() else None
 
     def summary(self) -> dict:
         """JSON-serialisable summary (what ``ferroslam run`` writes to results.json)."""
@@ -234,8 +227,9 @@ class RunResult:
             "trajectory_poses": len(self.trajectory),
             "first_initialised_frame": self.first_initialised_frame,
             "tracked_after_init": self.tracked_after_init,
-            "segments": self.num_segments,
+            "num_maps": self.num_maps,
             "maps": [m.summary() for m in self.maps],
+            "merges": len(self.merges),
             "trajectory_map": None if largest is None else largest.id,
             "loops": len(self.loops),
             "keyframes": len(self.keyframes),
@@ -579,14 +573,16 @@ def imu_batch_end(stamps: np.ndarray, frame_s: float, period_s: float,
 
 def _map_outputs(system) -> dict:
     """The ``RunResult`` fields a ``SlamSystem`` holds at the end of a run: trajectories,
-    keyframes, segments, loops, map points."""
+    keyframes, maps, merges, loops, map points."""
     stamps, poses = system.frame_trajectory()
     kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
     return dict(
         trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
         keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
         keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
-        segments=np.asarray(system.frame_segments(), dtype=np.int64).reshape(-1),
+        map_ids=np.asarray(system.frame_map_ids(), dtype=np.int64).reshape(-1),
+        atlas=system.maps(),
+        merges=system.merges(),
         loops=system.loops(),
         loop_stats=system.loop_stats(),
         map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),

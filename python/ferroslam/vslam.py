@@ -438,10 +438,24 @@ class _VSlam:
         ``MonoVSlam.track_source``); every frame read is either added or dropped."""
         return self._dropped
 
-    def map_points(self) -> np.ndarray:
-        """World positions of the map points, ``(M, 3)`` float64 (metres, or map units
-        monocular)."""
-        return np.asarray(self._system.map_points(), dtype=np.float64).reshape(-1, 3)
+    def map_points(self, map_id: Optional[int] = None) -> np.ndarray:
+        """World positions of the map points of map ``map_id`` (default the current map),
+        ``(M, 3)`` float64 (metres, or map units monocular)."""
+        return np.asarray(self._system.map_points(map_id), dtype=np.float64).reshape(-1, 3)
+
+    def maps(self) -> list[dict]:
+        """Every map of the run (the atlas's and the current one): dicts ``id``, ``frames``,
+        ``keyframes``, ``points``, ``current`` (see ``ferroslam._core.SlamSystem.maps``)."""
+        return self._system.maps()
+
+    @property
+    def current_map_id(self) -> int:
+        """Id of the map tracking runs in."""
+        return self._system.current_map_id
+
+    def merges(self) -> list[dict]:
+        """Maps merged so far (see ``ferroslam._core.TrackResult.merge``)."""
+        return self._system.merges()
 
     def map_point_colors(self) -> np.ndarray:
         """Colours of the map points, ``(M, 3)`` uint8 RGB in the order of :meth:`map_points`:
@@ -454,17 +468,18 @@ class _VSlam:
         ``ferroslam._core.SlamSystem.inertial_alignment``)."""
         return self._system.inertial_alignment()
 
-    def poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(keyframe ids (K,), T_w_c (K, 4, 4))`` of the current map's keyframes (MATLAB
-        ``poses``)."""
-        ids, _, poses = self._system.keyframe_trajectory()
+    def poses(self, map_id: Optional[int] = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(keyframe ids (K,), T_w_c (K, 4, 4))`` of the keyframes of map ``map_id``
+        (default the current map; MATLAB ``poses``)."""
+        ids, _, poses = self._system.keyframe_trajectory(map_id)
         return np.asarray(ids), np.asarray(poses).reshape(-1, 4, 4)
 
     def frame_trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(timestamps (N,), T_w_c (N, 4, 4), segment (N,))`` of every tracked frame."""
+        """``(timestamps (N,), T_w_c (N, 4, 4), map id (N,))`` of every tracked frame, each
+        in its map's world (see ``maps``)."""
         stamps, poses = self._system.frame_trajectory()
         return (np.asarray(stamps), np.asarray(poses).reshape(-1, 4, 4),
-                np.asarray(self._system.frame_segments()))
+                np.asarray(self._system.frame_map_ids()))
 
     def plot(self, ax: Any = None, *, path: Optional[Union[str, Path]] = None) -> Any:
         """3-D plot of the map points and the keyframe trajectory (MATLAB ``plot``); returns

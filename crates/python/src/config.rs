@@ -86,6 +86,11 @@ const OPTIONS: &[Opt] = &[
     field!("n_levels", extractor.n_levels, int),
     field!("track_feature_range", tracking.track_feature_range, pair),
     field!("skip_max_frames", tracking.skip_max_frames, int),
+    field!(
+        "relocalisation_window_s",
+        tracking.relocalisation_window_s,
+        number
+    ),
     Opt {
         name: "bf",
         read: |p, value| {

@@ -5,6 +5,7 @@
 #![allow(non_snake_case)]
 #![warn(missing_docs)]
 
+mod atlas;
 mod camera;
 mod config;
 mod convert;
@@ -16,6 +17,7 @@ mod rig_frame;
 mod sparse_model;
 mod stereo;
 mod system;
+mod track_result;
 mod vocabulary;
 
 use pyo3::prelude::*;
@@ -24,7 +26,7 @@ use pyo3::prelude::*;
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SlamError", m.py().get_type::<errors::SlamError>())?;
     m.add_class::<system::PySlamSystem>()?;
-    m.add_class::<system::PyTrackResult>()?;
+    m.add_class::<track_result::PyTrackResult>()?;
     m.add_function(wrap_pyfunction!(config::default_options, m)?)?;
     m.add_function(wrap_pyfunction!(config::option_table, m)?)?;
     m.add_function(wrap_pyfunction!(stereo::match_stereo, m)?)?;

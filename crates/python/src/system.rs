@@ -1,14 +1,12 @@
 //! `SlamSystem` and `TrackResult` Python classes.
 
 use crate::pool;
+use crate::track_result::{state_name, PyTrackResult};
 use std::mem::ManuallyDrop;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Mutex, MutexGuard, TryLockError};
 
-use ferroslam_slam::{
-    BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamError, SlamSystem, TrackResult,
-    TrackingState,
-};
+use ferroslam_slam::{BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamError, SlamSystem};
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -24,15 +22,6 @@ use crate::rig_frame;
 use crate::vocabulary::PyVocabulary;
 use ferroslam_features::OwnedGrayImage;
 
-fn state_name(state: TrackingState) -> &'static str {
-    match state {
-        TrackingState::NotInitialized => "not_initialized",
-        TrackingState::Ok => "ok",
-        TrackingState::Lost => "lost",
-        TrackingState::RecentlyLost => "recently_lost",
-    }
-}
-
 /// `(timestamps (N,), T_w_c (N, 4, 4))` of tracked frames, as numpy arrays.
 type FrameArrays<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray3<f64>>);
 
@@ -42,119 +31,6 @@ type KeyFrameArrays<'py> = (
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray3<f64>>,
 );
-
-/// Result of tracking one frame.
-#[pyclass(name = "TrackResult", module = "ferroslam._core", frozen)]
-pub struct PyTrackResult {
-    inner: TrackResult,
-}
-
-#[pymethods]
-impl PyTrackResult {
-    /// "not_initialized", "ok", "lost" or "recently_lost" (vision failed; the pose is the
-    /// IMU's prediction, aligned visual-inertial maps only).
-    #[getter]
-    fn state(&self) -> &'static str {
-        state_name(self.inner.state)
-    }
-
-    /// Camera pose in the world, (4, 4) float64, or None when not tracked.
-    #[getter]
-    fn T_w_c<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
-        self.inner.T_w_c.map(|T| {
-            let m = convert::pose_matrix(&T);
-            PyArray2::from_owned_array(py, Array2::from_shape_fn((4, 4), |(r, c)| m[r][c]))
-        })
-    }
-
-    /// Wall time of the front end inside `track` (extraction, masks, sampling), milliseconds.
-    #[getter]
-    fn extraction_ms(&self) -> f64 {
-        self.inner.extraction_ms
-    }
-
-    /// The first camera's raw keypoints as `track` extracted them, (N, 5) float32
-    /// [x, y, octave, angle_deg, response]; empty (0, 5) when the features were given.
-    #[getter]
-    fn keypoints<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
-        let first = self.inner.keypoints.first().map_or(&[][..], Vec::as_slice);
-        convert::keypoint_array(py, first)
-    }
-
-    /// Every camera's raw keypoints as `track` extracted them (stereo: left, right), each
-    /// (N, 5) float32 as `keypoints`; empty when the features were given.
-    #[getter]
-    fn camera_keypoints<'py>(&self, py: Python<'py>) -> Vec<Bound<'py, PyArray2<f32>>> {
-        self.inner
-            .keypoints
-            .iter()
-            .map(|k| convert::keypoint_array(py, k))
-            .collect()
-    }
-
-    /// Whether this frame became a keyframe.
-    #[getter]
-    fn is_keyframe(&self) -> bool {
-        self.inner.is_keyframe
-    }
-
-    /// Map points tracked as inliers.
-    #[getter]
-    fn num_tracked(&self) -> usize {
-        self.inner.num_tracked
-    }
-
-    /// Tracking wall time, milliseconds.
-    #[getter]
-    fn tracking_ms(&self) -> f64 {
-        self.inner.tracking_ms
-    }
-
-    /// Local mapping wall time, milliseconds.
-    #[getter]
-    fn mapping_ms(&self) -> f64 {
-        self.inner.mapping_ms
-    }
-
-    /// Of `tracking_ms`, motion-only BA, milliseconds.
-    #[getter]
-    fn pose_optimisation_ms(&self) -> f64 {
-        self.inner.pose_optimisation_ms
-    }
-
-    /// Of `mapping_ms`, local BA, milliseconds (inline mapping; 0 without a keyframe).
-    #[getter]
-    fn local_ba_ms(&self) -> f64 {
-        self.inner.mapping.as_ref().map_or(0.0, |m| m.local_ba_ms)
-    }
-
-    /// Of `mapping_ms`, loop closing, milliseconds (inline mapping; 0 without a keyframe).
-    #[getter]
-    fn loop_closing_ms(&self) -> f64 {
-        self.inner.loop_closing_ms
-    }
-
-    /// Monocular, before the map exists: why this frame did not initialise it; else None.
-    #[getter]
-    fn init_reason(&self) -> Option<String> {
-        self.inner.init_status.as_ref().map(|s| s.to_string())
-    }
-
-    /// Whether this frame's keyframe closed a loop (details: `SlamSystem.loops()`).
-    #[getter]
-    fn loop_closed(&self) -> bool {
-        self.inner.loop_closure.is_some()
-    }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "TrackResult(state={:?}, is_keyframe={}, num_tracked={})",
-            state_name(self.inner.state),
-            self.inner.is_keyframe,
-            self.inner.num_tracked
-        )
-    }
-}
 
 /// The SLAM system: tracking, local mapping and loop closing inside each call, or tracking in
 /// a background thread and mapping in another (`threaded`), or mapping alone in its own
@@ -566,13 +442,35 @@ impl PySlamSystem {
         config::options_dict(py, &self.config)
     }
 
-    /// Map segment of each frame of frame_trajectory(), (N,) uint32: a monocular system
-    /// starts a new segment (own frame and scale) after it stays lost.
-    fn frame_segments<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+    /// Map id of each frame of frame_trajectory(), (N,) uint32: a system lost for
+    /// `relocalisation_window_s` starts a new map (own world and, monocular, scale).
+    fn frame_map_ids<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
         let ids: Vec<u32> = self.engine()?.run(py, |s| {
-            s.frame_segments().into_iter().map(|s| s as u32).collect()
+            s.frame_map_ids().into_iter().map(|s| s as u32).collect()
         })?;
         Ok(PyArray1::from_vec(py, ids))
+    }
+
+    /// Every map of the run with frames or keyframes: dicts "id", "frames", "keyframes",
+    /// "points", "current" (the one tracked in), the atlas's oldest first.
+    fn maps<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let maps = self.engine()?.run(py, |s| s.maps())?;
+        crate::atlas::map_dicts(py, &maps)
+    }
+
+    /// Id of the map tracking runs in.
+    #[getter]
+    fn current_map_id(&self, py: Python<'_>) -> PyResult<usize> {
+        self.engine()?.run(py, |s| s.current_map_id())
+    }
+
+    /// Maps merged so far, oldest first (see `TrackResult.merge` for the keys).
+    fn merges<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let merges = self.engine()?.run(py, |s| s.merges().to_vec())?;
+        merges
+            .iter()
+            .map(|m| crate::atlas::merge_dict(py, m))
+            .collect()
     }
 
     /// Loops closed so far, oldest first: dicts with the two keyframe ids ("current",
@@ -581,18 +479,8 @@ impl PySlamSystem {
     fn loops<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
         let loops = self.engine()?.run(py, |s| s.loops().to_vec())?;
         loops
-            .into_iter()
-            .map(|l| {
-                let d = PyDict::new(py);
-                d.set_item("current", l.current.0)?;
-                d.set_item("matched", l.matched.0)?;
-                d.set_item("timestamps", l.timestamps)?;
-                d.set_item("num_matches", l.num_matches)?;
-                d.set_item("scale", l.scale)?;
-                d.set_item("correction_m", l.correction_m)?;
-                d.set_item("graph_cost", l.graph_cost)?;
-                Ok(d)
-            })
+            .iter()
+            .map(|l| crate::atlas::loop_dict(py, l))
             .collect()
     }
 
@@ -620,9 +508,18 @@ impl PySlamSystem {
         ))
     }
 
-    /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes.
-    fn keyframe_trajectory<'py>(&self, py: Python<'py>) -> PyResult<KeyFrameArrays<'py>> {
-        let kfs = self.engine()?.run(py, |s| s.keyframe_trajectory())?;
+    /// (ids (K,) uint32, timestamps (K,), T_w_c (K, 4, 4)) of the live keyframes of map
+    /// `map_id` (default: the current map).
+    #[pyo3(signature = (map_id=None))]
+    fn keyframe_trajectory<'py>(
+        &self,
+        py: Python<'py>,
+        map_id: Option<usize>,
+    ) -> PyResult<KeyFrameArrays<'py>> {
+        let kfs = self.engine()?.run(py, move |s| {
+            s.keyframe_trajectory_of(map_id.unwrap_or(s.current_map_id()))
+        })?;
+        let kfs = kfs.map_err(to_py)?;
         let ids: Vec<u32> = kfs.iter().map(|(id, _, _)| id.0).collect();
         let stamps = kfs.iter().map(|(_, t, _)| *t).collect();
         let poses: Vec<_> = kfs.into_iter().map(|(_, _, T)| T).collect();
@@ -633,9 +530,20 @@ impl PySlamSystem {
         ))
     }
 
-    /// World positions of the map points, (M, 3) float64 metres.
-    fn map_points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let pts = self.engine()?.run(py, |s| s.map_points())?;
+    /// World positions of the map points of map `map_id` (default: the current map),
+    /// (M, 3) float64 metres.
+    #[pyo3(signature = (map_id=None))]
+    fn map_points<'py>(
+        &self,
+        py: Python<'py>,
+        map_id: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = self
+            .engine()?
+            .run(py, move |s| {
+                s.map_points_of(map_id.unwrap_or(s.current_map_id()))
+            })?
+            .map_err(to_py)?;
         Ok(PyArray2::from_owned_array(
             py,
             Array2::from_shape_fn((pts.len(), 3), |(i, c)| pts[i][c]),

@@ -8,6 +8,7 @@
 #![allow(non_snake_case)]
 #![warn(missing_docs)]
 
+mod atlas;
 mod background;
 mod config;
 mod context;
@@ -33,6 +34,7 @@ mod track_result;
 mod tracking;
 mod trajectory;
 
+pub use atlas::MapSummary;
 pub use background::{BackgroundSlam, OwnedFrame};
 pub use config::{
     user_options, DepthConfig, ExtractorConfig, InertialTuning, InitializationConfig,
@@ -47,7 +49,7 @@ pub use inertial::{
 };
 pub use input_guard::InputGuard;
 pub use local_mapping::MappingReport;
-pub use loop_closing::{LoopClosure, LoopStats};
+pub use loop_closing::{LoopClosure, LoopStats, MapMerge};
 pub use mono_init::InitStatus;
 pub use place_recognition::PlaceRecognition;
 pub use system::{load_map_file, SlamSystem, TrackResult};

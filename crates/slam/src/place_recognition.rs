@@ -167,6 +167,24 @@ impl PlaceRecognition {
         let mut excluded: HashSet<KeyFrameId> =
             map.covisibles(kf).into_iter().map(|(k, _)| k).collect();
         excluded.insert(kf);
+        self.candidates_sharing_words(bow, map, min_score, &excluded)
+    }
+
+    /// Keyframes of this index's map (`map`) a keyframe of ANOTHER map, with bag of words
+    /// `bow`, may be merged at (ORB-SLAM3 `DetectNBestCandidates` over the other maps): the
+    /// selection of [`Self::loop_candidates`], with nothing excluded (no keyframe of `map`
+    /// is connected to the other map's).
+    pub fn merge_candidates(&self, bow: &BowVector, map: &Map, min_score: f64) -> Vec<KeyFrameId> {
+        self.candidates_sharing_words(bow, map, min_score, &HashSet::new())
+    }
+
+    fn candidates_sharing_words(
+        &self,
+        bow: &BowVector,
+        map: &Map,
+        min_score: f64,
+        excluded: &HashSet<KeyFrameId>,
+    ) -> Vec<KeyFrameId> {
         let common = self.database.common_words(bow, |id| {
             let id = KeyFrameId(id);
             !excluded.contains(&id) && map.keyframe(id).is_some()
@@ -180,11 +198,21 @@ impl PlaceRecognition {
             .filter(|&(_, n)| n as f64 > min_common)
             .filter_map(|(id, _)| {
                 let id = KeyFrameId(id);
-                let score = self.score(kf, id)?;
+                let score = bow.l1_score(&self.bows.get(&id)?.0);
                 (score >= min_score).then_some((id, score))
             })
             .collect();
         best_of_groups(&scores, map, &self.config)
+    }
+
+    /// Takes in every keyframe `other` indexes (the index of a map merged into this one's),
+    /// in id order.
+    pub fn absorb(&mut self, other: PlaceRecognition) {
+        let mut entries: Vec<_> = other.bows.into_iter().collect();
+        entries.sort_unstable_by_key(|(kf, _)| *kf);
+        for (kf, entry) in entries {
+            self.insert(kf, entry);
+        }
     }
 }
 

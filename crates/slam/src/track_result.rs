@@ -3,7 +3,7 @@
 use nalgebra::Isometry3;
 
 use crate::local_mapping::MappingReport;
-use crate::loop_closing::LoopClosure;
+use crate::loop_closing::{LoopClosure, MapMerge};
 use crate::mono_init::InitStatus;
 use crate::tracking::TrackingState;
 
@@ -14,6 +14,11 @@ pub struct TrackResult {
     pub state: TrackingState,
     /// Camera pose in the world when tracked.
     pub T_w_c: Option<Isometry3<f64>>,
+    /// The map `T_w_c` is in (its world); a merge during the call may have joined it to an
+    /// older map since (see [`Self::merge`]).
+    pub map_id: usize,
+    /// The merge this frame's keyframes made, if any.
+    pub merge: Option<MapMerge>,
     /// Whether this frame became a keyframe.
     pub is_keyframe: bool,
     /// Map points matched as inliers in this frame.

@@ -4,7 +4,10 @@
 use ferroslam_map::{KeyFrameId, Map};
 use nalgebra::Isometry3;
 
+use ferroslam_geometry::sim3::Sim3;
+
 use crate::inertial::scale_translation;
+use crate::loop_closing::pose_of;
 
 /// One tracked frame: its reference keyframe and its pose relative to it.
 #[derive(Clone, Copy, Debug)]
@@ -15,7 +18,7 @@ struct FrameRecord {
 }
 
 /// Tracked frames, each anchored to a keyframe.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct Trajectory {
     frames: Vec<FrameRecord>,
 }
@@ -61,18 +64,45 @@ impl Trajectory {
         map: &mut Map,
         rescale_map: impl FnOnce(&mut Map) -> Result<(), E>,
     ) -> Result<(), E> {
-        // Culled keyframes are placed relative to their anchors by unscaled offsets (inside
-        // the map), so the frames are re-anchored rather than their offsets scaled.
-        let scaled: Vec<_> = self
+        self.reanchor(map, |T_c_w| scale_translation(T_c_w, s), rescale_map)
+    }
+
+    /// Moves the world by the similarity `S_new_old` (a map merged into another's frame):
+    /// `transform_map` moves `map`, and every frame keeps its projections (`T_c_w S^-1`, as
+    /// a rigid pose), re-anchored to its reference keyframe.
+    ///
+    /// # Errors
+    /// Whatever `transform_map` returns; the trajectory is unchanged then.
+    pub fn transform_world<E>(
+        &mut self,
+        S_new_old: &Sim3,
+        map: &mut Map,
+        transform_map: impl FnOnce(&mut Map) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let S_old_new = S_new_old.inverse();
+        let moved = |T_c_w: &Isometry3<f64>| pose_of(&(Sim3::from_isometry(T_c_w) * S_old_new));
+        self.reanchor(map, moved, transform_map)
+    }
+
+    /// Each frame's pose through `new_pose`, then `change_map`, then re-anchored.
+    fn reanchor<E>(
+        &mut self,
+        map: &mut Map,
+        new_pose: impl Fn(&Isometry3<f64>) -> Isometry3<f64>,
+        change_map: impl FnOnce(&mut Map) -> Result<(), E>,
+    ) -> Result<(), E> {
+        // Culled keyframes are placed relative to their anchors (inside the map), so the
+        // frames are re-anchored rather than their offsets changed.
+        let moved: Vec<_> = self
             .frames
             .iter()
             .map(|f| {
                 let T_r_w = map.resolve_keyframe_pose(f.reference)?;
-                Some(scale_translation(&(f.T_c_r * T_r_w), s))
+                Some(new_pose(&(f.T_c_r * T_r_w)))
             })
             .collect();
-        rescale_map(map)?;
-        for (f, T_c_w) in self.frames.iter_mut().zip(scaled) {
+        change_map(map)?;
+        for (f, T_c_w) in self.frames.iter_mut().zip(moved) {
             if let (Some(T_c_w), Some(T_r_w)) = (T_c_w, map.resolve_keyframe_pose(f.reference)) {
                 f.T_c_r = T_c_w * T_r_w.inverse();
             }
@@ -80,9 +110,12 @@ impl Trajectory {
         Ok(())
     }
 
-    /// Whether no frame was tracked.
-    pub fn is_empty(&self) -> bool {
-        self.frames.is_empty()
+    /// Takes in the frames of `other` (the trajectory of a map merged into this one's, its
+    /// keyframes now in this map), keeping time order.
+    pub fn append(&mut self, other: Trajectory) {
+        self.frames.extend(other.frames);
+        self.frames
+            .sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
     }
 
     /// Forgets everything.

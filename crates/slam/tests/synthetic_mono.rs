@@ -90,7 +90,7 @@ fn translating_camera_initialises_and_matches_the_truth_up_to_scale() {
     assert_eq!(system.state(), TrackingState::Ok);
     let traj = system.frame_trajectory();
     assert!(traj.len() >= 50, "tracked {} frames", traj.len());
-    assert_eq!(system.frame_segments().iter().max(), Some(&0));
+    assert_eq!(system.frame_map_ids().iter().max(), Some(&0));
     // The first keyframe is the world origin: align by the one scale that fits best.
     let (t0, first) = traj[0];
     let i0 = (t0 * 30.0).round() as usize;

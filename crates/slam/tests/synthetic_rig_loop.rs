@@ -389,7 +389,7 @@ fn a_loop_seen_only_by_the_side_camera_is_closed() {
     assert!(first_camera.system.loops().is_empty());
     // (a) Every frame tracked (asserted in `run`), in one map.
     assert_eq!(system.frame_trajectory().len(), Scene::frames());
-    assert!(system.frame_segments().iter().all(|&s| s == 0));
+    assert!(system.frame_map_ids().iter().all(|&s| s == 0));
     assert_eq!(system.resets(), 0);
     // (b) A loop, and only true ones: keyframes of the start and of the return, close to
     // each other and seeing the same landmarks.

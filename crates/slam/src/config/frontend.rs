@@ -302,8 +302,8 @@ pub struct TrackingConfig {
     /// Observing keyframes that make a point "mapped structure" for `redundant_view_share`
     /// (three, as keyframe culling's `mapping.redundant_observations`).
     pub redundant_view_keyframes: usize,
-    /// How long a lost monocular map keeps trying to relocalise before a new map segment
-    /// starts, seconds. ORB-SLAM3 waits up to 3 s; a second loses fewer frames to the wait.
+    /// How long a lost map keeps trying to relocalise before the atlas keeps it and a new map
+    /// starts, seconds (monocular, or with a vocabulary, which can find it again).
     pub relocalisation_window_s: f64,
     /// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM: 5).
     pub min_keyframes_to_keep: usize,

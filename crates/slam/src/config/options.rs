@@ -263,6 +263,15 @@ pub fn user_options() -> Vec<UserOption> {
             count(1.0),
             "Frames after which a keyframe is inserted regardless of tracking quality",
         ),
+        option(
+            "relocalisation_window_s",
+            "tracking.relocalisation_window_s",
+            Float,
+            "seconds",
+            OptionRange::above(0.0),
+            "How long a lost map tries to relocalise before the atlas keeps it and a new map \
+             starts (monocular, or with a vocabulary to find it again)",
+        ),
         UserOption {
             sensors: &[Sensor::Rgbd],
             ..option(
@@ -433,6 +442,7 @@ mod tests {
                 c.tracking.track_feature_range = (value as usize, value as usize + 1)
             }
             "skip_max_frames" => c.tracking.skip_max_frames = value as u32 as usize,
+            "relocalisation_window_s" => c.tracking.relocalisation_window_s = value,
             "bf" => c.depth.bf = value,
             "depth_threshold" => c.depth.depth_threshold = value,
             "depth_range" => c.depth.depth_range = (value, value + 1.0),

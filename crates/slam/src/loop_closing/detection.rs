@@ -8,14 +8,14 @@ use crate::place_recognition::PlaceRecognition;
 
 /// The candidate groups of the previous keyframe with their consistency counts.
 #[derive(Debug, Default)]
-pub(super) struct LoopDetector {
+pub(crate) struct LoopDetector {
     groups: Vec<(BTreeSet<KeyFrameId>, usize)>,
     had_candidates: bool,
 }
 
 impl LoopDetector {
     /// Forgets the groups (after a loop is closed).
-    pub(super) fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.groups.clear();
     }
 
@@ -40,17 +40,24 @@ impl LoopDetector {
         consistency: usize,
     ) -> Vec<KeyFrameId> {
         self.had_candidates = false;
-        let min_score = map
-            .covisibles(kf)
-            .into_iter()
-            .filter_map(|(k, _)| place.score(kf, k))
-            .reduce(f64::min);
-        let Some(min_score) = min_score else {
+        let Some(min_score) = min_neighbour_score(kf, map, place) else {
             // An unconnected keyframe has nothing to compare against.
             self.groups.clear();
             return Vec::new();
         };
         let candidates = place.loop_candidates(kf, map, min_score);
+        self.consistent(candidates, map, consistency)
+    }
+
+    /// The `candidates` (keyframes of `map`) whose covisibility groups are consistent with
+    /// the previous query's groups, counted as in [`Self::consistent_candidates`]; the
+    /// groups become this query's. Loops and merges (candidates in another map) alike.
+    pub(crate) fn consistent(
+        &mut self,
+        candidates: Vec<KeyFrameId>,
+        map: &Map,
+        consistency: usize,
+    ) -> Vec<KeyFrameId> {
         self.had_candidates = !candidates.is_empty();
         let mut next: Vec<(BTreeSet<KeyFrameId>, usize)> = Vec::new();
         let mut inherited = vec![false; self.groups.len()];
@@ -81,4 +88,18 @@ impl LoopDetector {
         self.groups = next;
         enough
     }
+}
+
+/// The lowest bag-of-words similarity between `kf` and the keyframes it is connected to: a
+/// loop or merge candidate must look more like `kf` than its own neighbours do. `None` for an
+/// unconnected keyframe.
+pub(crate) fn min_neighbour_score(
+    kf: KeyFrameId,
+    map: &Map,
+    place: &PlaceRecognition,
+) -> Option<f64> {
+    map.covisibles(kf)
+        .into_iter()
+        .filter_map(|(k, _)| place.score(kf, k))
+        .reduce(f64::min)
 }

@@ -10,7 +10,8 @@
 //! neighbourhood, fusion of duplicated points, new loop links) and [`essential_graph`]
 //! (Sim(3) pose-graph optimisation over the spanning tree, loop edges and strong covisibility
 //! edges).
-//! Through a rolling shutter, [`row_projection`] makes each keyframe observation's projection
+//! [`merging`] joins a map of the atlas to another through the same verification and
+//! correction. Through a rolling shutter, [`row_projection`] makes each keyframe observation's projection
 //! from its row's pose.
 //!
 //! A keyframe of a multi-camera rig is one generalised camera: bag-of-words matching pairs
@@ -23,6 +24,7 @@ mod correction;
 mod detection;
 mod essential_graph;
 mod keyframe_matching;
+mod merging;
 mod row_projection;
 mod verification;
 
@@ -34,7 +36,10 @@ use crate::context::Context;
 use crate::error::SlamError;
 use crate::local_ba_problem::adjust_keyframes;
 use crate::place_recognition::PlaceRecognition;
-use detection::LoopDetector;
+pub(crate) use detection::{min_neighbour_score, LoopDetector};
+pub use merging::MapMerge;
+pub(crate) use merging::{join_maps, verify_merge, MergeMatch};
+pub(crate) use verification::pose_of;
 
 /// A loop the system closed.
 #[derive(Clone, Debug, PartialEq)]
@@ -117,7 +122,11 @@ impl LoopCloser {
         let mut rng = ChaCha8Rng::seed_from_u64(ctx.config.seed ^ u64::from(kf.0));
         for candidate in candidates {
             self.stats.verified += 1;
-            let Some(found) = verification::verify_loop(kf, candidate, map, ctx, place, &mut rng)
+            let fv = place
+                .feature_vector(kf)
+                .zip(place.feature_vector(candidate));
+            let Some(found) =
+                fv.and_then(|fv| verification::verify_loop(kf, candidate, map, ctx, fv, &mut rng))
             else {
                 self.stats.rejected += 1;
                 continue;

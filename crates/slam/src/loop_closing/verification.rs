@@ -14,6 +14,7 @@ use ferroslam_geometry::sim3::Sim3;
 use ferroslam_geometry::sim3_ransac::{sim3_ransac, Sim3Correspondence, Sim3RansacParams};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::sim3_align::{optimize_sim3, Sim3Match};
+use ferroslam_vocabulary::FeatureVector;
 use nalgebra::{Isometry3, Point3, Translation3};
 use rand_chacha::ChaCha8Rng;
 
@@ -21,7 +22,6 @@ use super::keyframe_matching::{match_by_bow, match_by_sim3};
 use super::row_projection::{keypoint_at_reference_line, visible_from_row};
 use crate::context::Context;
 use crate::frame::search_camera;
-use crate::place_recognition::PlaceRecognition;
 
 /// chi2 threshold of a reprojection at 2 degrees of freedom, 99 % (RANSAC inliers).
 const CHI2_2DOF: f64 = 9.21;
@@ -50,17 +50,18 @@ pub(crate) fn pose_of(S_cw: &Sim3) -> Isometry3<f64> {
     )
 }
 
-/// Verifies `candidate` as a loop for `current`; `None` when any stage falls short.
+/// Verifies `candidate` as a loop for `current`, given their bag-of-words feature vectors
+/// `fv`; `None` when any stage falls short. A merge candidate is verified the same way, both
+/// maps in one (each keyframe's pose in its own map's world).
 pub(crate) fn verify_loop(
     current: KeyFrameId,
     candidate: KeyFrameId,
     map: &Map,
     ctx: &Context,
-    place: &PlaceRecognition,
+    fv: (&FeatureVector, &FeatureVector),
     rng: &mut ChaCha8Rng,
 ) -> Option<LoopMatch> {
-    let fv1 = place.feature_vector(current)?;
-    let fv2 = place.feature_vector(candidate)?;
+    let (fv1, fv2) = fv;
     let config = &ctx.config.loop_closing;
     let mut matches = match_by_bow(map, (current, fv1), (candidate, fv2), config.bow_nn_ratio);
     if matches.iter().flatten().count() < config.min_stage_matches {

@@ -9,6 +9,7 @@ use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::BaProblem;
 use nalgebra::{Isometry3, Vector3};
 
+use crate::atlas::StoredMap;
 use crate::config::{Sensor, SlamConfig};
 use crate::context::Context;
 use crate::error::SlamError;
@@ -19,6 +20,7 @@ use crate::inertial::Inertial;
 use crate::input_guard::InputGuard;
 use crate::keyframe_insertion::insert_keyframe;
 use crate::local_mapping::MappingReport;
+use crate::loop_closing::MapMerge;
 use crate::loop_closing::{LoopClosure, LoopStats};
 use crate::mapping::{KeyFrameWork, Mapped, Mapping};
 use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializer};
@@ -30,15 +32,15 @@ use crate::trajectory::Trajectory;
 
 mod door;
 mod imu;
+mod maps;
 use ferroslam_vocabulary::Vocabulary;
 use std::sync::Arc;
 
 /// The SLAM system: tracking and local mapping run inline, in call order (deterministic).
 ///
-/// A monocular system that stays lost for `tracking.relocalisation_window_s` of its
-/// configuration ([`SlamConfig`]) closes the current map
-/// as a *segment* (its frame poses are kept, in that segment's own frame and scale) and
-/// initialises a new map from the following frames.
+/// A system that stays lost for `tracking.relocalisation_window_s` of its configuration
+/// ([`SlamConfig`]) keeps the current map in its atlas (with the frames tracked in it) and
+/// starts a new map from the following frames; see [`Self::maps`] and the `maps` module.
 pub struct SlamSystem {
     ctx: Context,
     map: Map,
@@ -49,8 +51,15 @@ pub struct SlamSystem {
     new_points: Vec<MapPointId>,
     initializer: MonoInitializer,
     trajectory: Trajectory,
-    /// Frame poses `(timestamp, T_w_c)` of the closed map segments, oldest first.
-    segments: Vec<Vec<(f64, Isometry3<f64>)>>,
+    /// The maps kept besides the current one, oldest first (see `crate::atlas`).
+    atlas: Vec<StoredMap>,
+    /// Id of the current map, and the id the next map gets.
+    map_id: usize,
+    next_map_id: usize,
+    /// Maps merged so far.
+    merges: Vec<MapMerge>,
+    /// Keyframes mapped since the last frame, to look for a merge with.
+    merge_checks: Vec<KeyFrameId>,
     lost_since: Option<f64>,
     /// Track against the map without changing it (no keyframes, no mapping).
     localization_only: bool,
@@ -154,7 +163,11 @@ impl SlamSystem {
             new_points: Vec::new(),
             initializer: MonoInitializer::default(),
             trajectory: Trajectory::default(),
-            segments: Vec::new(),
+            atlas: Vec::new(),
+            map_id: 0,
+            next_map_id: 1,
+            merges: Vec::new(),
+            merge_checks: Vec::new(),
             lost_since: None,
             localization_only: false,
             place: None,
@@ -180,6 +193,10 @@ impl SlamSystem {
         self.frames_seen += 1;
         self.mapping.frame_started();
         self.collect_mapping(false)?;
+        let lost_before = self.tracker.state == TrackingState::Lost;
+        // A new map's first frames may show a stored map: tracking resumes there.
+        let resumed = self.tracker.state == TrackingState::NotInitialized
+            && self.relocalise_in_atlas(&mut frame)?;
         if self.tracker.state == TrackingState::NotInitialized {
             let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
                 frame.match_pair(self.map.pyramid(), &self.ctx);
@@ -193,6 +210,8 @@ impl SlamSystem {
             return Ok(TrackResult {
                 state: self.tracker.state,
                 T_w_c,
+                map_id: self.map_id,
+                merge: None,
                 is_keyframe: T_w_c.is_some(),
                 num_tracked: if T_w_c.is_some() {
                     self.tracker.matches_inliers
@@ -210,9 +229,14 @@ impl SlamSystem {
                 extraction_ms: 0.0,
             });
         }
-        let mut tracked =
-            self.tracker
+        let mut tracked = resumed
+            || self
+                .tracker
                 .track(&mut frame, &mut self.map, &self.ctx, self.place.as_ref())?;
+        // Lost in the current map since the last frame too: perhaps it is in a stored one.
+        if !tracked && lost_before {
+            tracked = self.relocalise_in_atlas(&mut frame)?;
+        }
         let predicted = match (tracked, self.inertial.as_ref()) {
             (false, Some(inertial)) => self.predictor.predict(frame.timestamp, inertial),
             _ => None,
@@ -234,6 +258,8 @@ impl SlamSystem {
         let mut result = TrackResult {
             state: self.tracker.state,
             T_w_c: tracked.then(|| frame.T_c_w.inverse()),
+            map_id: self.map_id,
+            merge: None,
             is_keyframe: false,
             num_tracked: if tracked {
                 self.tracker.matches_inliers
@@ -322,6 +348,9 @@ impl SlamSystem {
         }
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, new_keyframe);
+        let merges = self.merges.len();
+        self.check_merges()?;
+        result.merge = self.merges.get(merges).cloned();
         Ok(result)
     }
 
@@ -457,6 +486,8 @@ impl SlamSystem {
         }
         let mut error = None;
         for mapped in finished {
+            self.merge_checks
+                .extend(mapped.reports.iter().map(|(kf, _)| *kf));
             if let Some(inertial) = self.inertial.as_mut() {
                 mapped.inertial.iter().for_each(|w| inertial.store(w));
             }
@@ -476,9 +507,10 @@ impl SlamSystem {
         error.map_or(Ok(()), Err)
     }
 
-    /// A lost map with few keyframes is discarded (ORB-SLAM); a lost monocular map that does
-    /// not relocalise within `tracking.relocalisation_window_s` is closed as a segment. Maps with
-    /// depth, and any map in localisation-only mode, wait for relocalisation.
+    /// A lost map with few keyframes is discarded (ORB-SLAM); a lost map that does not
+    /// relocalise within `tracking.relocalisation_window_s` goes to the atlas and a new map
+    /// starts. Maps with depth but no vocabulary (nothing could find them again), and any
+    /// map in localisation-only mode, wait for relocalisation.
     fn handle_lost(&mut self, timestamp: f64) {
         // A map being localised in is never discarded or closed.
         if self.tracker.state != TrackingState::Lost || self.localization_only {
@@ -490,9 +522,9 @@ impl SlamSystem {
         }
         let since = *self.lost_since.get_or_insert(timestamp);
         let window_s = self.ctx.config.tracking.relocalisation_window_s;
-        if !self.ctx.config.sensor.has_depth() && timestamp - since >= window_s {
-            self.segments.push(self.trajectory.poses(&self.map));
-            self.clear_map();
+        let findable = self.place.is_some() || !self.ctx.config.sensor.has_depth();
+        if findable && timestamp - since >= window_s {
+            self.store_current_map();
         }
     }
 
@@ -556,7 +588,7 @@ impl SlamSystem {
         Ok(Some(Isometry3::identity()))
     }
 
-    /// Discards the current map and its trajectory (closed segments stay) and starts again
+    /// Discards the current map and its trajectory (the atlas's maps stay) and starts again
     /// from the next frame; counted in [`Self::resets`].
     pub fn reset(&mut self) {
         self.clear_map();
@@ -574,6 +606,7 @@ impl SlamSystem {
         self.initializer.reset();
         self.trajectory.clear();
         self.lost_since = None;
+        self.merge_checks.clear();
         self.predictor.clear();
         if let Some(inertial) = self.inertial.as_mut() {
             inertial.clear_map();
@@ -651,8 +684,11 @@ impl SlamSystem {
             .map_err(|e| map_file_error(path, e))
     }
 
-    /// Replaces the map with the one in `path`; tracking then relocalises in it with the next
-    /// frame (state `Lost` until it does). The current trajectory is closed as a segment.
+    /// Makes the map in `path` the current one; tracking then relocalises in it with the next
+    /// frame (state `Lost` until it does), and maps onward from it (unless
+    /// localisation-only). Lost in it for `tracking.relocalisation_window_s`, the run starts
+    /// a map of its own, merged into the loaded one once it recognises it. The map tracked
+    /// until now goes to the atlas.
     ///
     /// # Errors
     /// [`SlamError::MapFile`] for a missing, truncated or corrupt file, another format version,
@@ -681,11 +717,16 @@ impl SlamSystem {
                 not_found: false,
             });
         }
-        if !self.trajectory.is_empty() {
-            self.segments.push(self.trajectory.poses(&self.map));
+        // The loaded map's ids follow every id this run has used, so it can merge with them.
+        let (kf, mp) = self.used_ids();
+        map.shift_ids(kf.0, mp.0)
+            .map_err(|e| map_file_error(path, e))?;
+        if self.map.num_keyframes() > 0 {
+            self.store_current_map();
         }
         self.clear_map();
         self.map = map;
+        self.map_id = self.new_map_id();
         self.index_keyframes();
         self.tracker.state = if self.map.num_keyframes() > 0 {
             TrackingState::Lost
@@ -716,38 +757,9 @@ impl SlamSystem {
         self.resets
     }
 
-    /// `(timestamp, T_w_c)` of every tracked frame, with all map corrections applied: the
-    /// closed segments' frames first, then the current map's (see [`Self::frame_segments`]).
-    pub fn frame_trajectory(&self) -> Vec<(f64, Isometry3<f64>)> {
-        let mut poses: Vec<_> = self.segments.iter().flatten().copied().collect();
-        poses.extend(self.trajectory.poses(&self.map));
-        poses
-    }
-
-    /// Map segment of each entry of [`Self::frame_trajectory`]: 0 for the first map, one more
-    /// for each map started after a monocular map was lost. Poses of different segments live
-    /// in different frames (and, monocular, scales).
-    pub fn frame_segments(&self) -> Vec<usize> {
-        let current = self.trajectory.poses(&self.map).len();
-        self.segments
-            .iter()
-            .enumerate()
-            .flat_map(|(s, poses)| std::iter::repeat_n(s, poses.len()))
-            .chain(std::iter::repeat_n(self.segments.len(), current))
-            .collect()
-    }
-
-    /// `(id, timestamp, T_w_c)` of every live keyframe, in id order.
+    /// `(id, timestamp, T_w_c)` of every live keyframe of the current map, in id order.
     pub fn keyframe_trajectory(&self) -> Vec<(KeyFrameId, f64, Isometry3<f64>)> {
-        self.map
-            .keyframe_ids()
-            .into_iter()
-            .filter_map(|id| {
-                self.map
-                    .keyframe(id)
-                    .map(|k| (id, k.timestamp(), k.T_w_c()))
-            })
-            .collect()
+        keyframes_of(&self.map)
     }
 
     /// The map's keyframes, points and tracks with every keypoint in raw image pixels
@@ -756,13 +768,9 @@ impl SlamSystem {
         self.map.sparse_model(&self.ctx.camera)
     }
 
-    /// World positions of every live map point, metres.
+    /// World positions of every live map point of the current map, metres.
     pub fn map_points(&self) -> Vec<Vector3<f64>> {
-        self.map
-            .map_point_ids()
-            .into_iter()
-            .filter_map(|m| self.map.map_point(m).map(|p| p.position()))
-            .collect()
+        points_of(&self.map)
     }
 
     /// Colour of every live map point, in the order of [`Self::map_points`] (see
@@ -774,6 +782,22 @@ impl SlamSystem {
             .filter_map(|m| self.map.map_point(m).map(|p| p.color()))
             .collect()
     }
+}
+
+/// `(id, timestamp, T_w_c)` of every live keyframe of `map`, in id order.
+fn keyframes_of(map: &Map) -> Vec<(KeyFrameId, f64, Isometry3<f64>)> {
+    map.keyframe_ids()
+        .into_iter()
+        .filter_map(|id| map.keyframe(id).map(|k| (id, k.timestamp(), k.T_w_c())))
+        .collect()
+}
+
+/// World positions of every live map point of `map`, in id order.
+fn points_of(map: &Map) -> Vec<Vector3<f64>> {
+    map.map_point_ids()
+        .into_iter()
+        .filter_map(|m| map.map_point(m).map(|p| p.position()))
+        .collect()
 }
 
 /// The map saved at `path`, as it is: for reading it without a system (exports).

@@ -16,9 +16,10 @@ use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
 use ferroslam_features::{match_brute_force, Descriptor, MatchOptions, ProjectionQuery};
 use ferroslam_geometry::pnp::{pnp_ransac, PnpRansacOptions};
 use ferroslam_geometry::rolling_shutter::velocity_between;
+use ferroslam_geometry::sim3::Sim3;
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::{optimize_pose_inertial, InertialLink};
-use nalgebra::{Isometry3, Point3, Vector2, Vector3, Vector6};
+use nalgebra::{Isometry3, Point3, Translation3, Vector2, Vector3, Vector6};
 
 use crate::config::TrackingConfig;
 use crate::context::Context;
@@ -300,6 +301,22 @@ impl Tracker {
         }
         if let Some(velocity) = self.velocity.as_mut() {
             *velocity = scale_translation(velocity, s);
+        }
+    }
+
+    /// Expresses the last frame and the motion model in the world of the map this one was
+    /// merged into (`p_new = S_new_old p_old`): the world scaled by `s`, then moved rigidly.
+    pub(crate) fn transform_world(&mut self, S_new_old: &Sim3) {
+        self.rescale(S_new_old.scale);
+        let T_new_scaled = Isometry3::from_parts(
+            Translation3::from(S_new_old.translation),
+            S_new_old.rotation,
+        );
+        if let Some(last) = self.last_frame.as_mut() {
+            last.T_c_w *= T_new_scaled.inverse();
+            for p in last.vo_points.iter_mut().flatten() {
+                *p = T_new_scaled.transform_point(&Point3::from(*p)).coords;
+            }
         }
     }
 

@@ -1,0 +1,99 @@
+//! Map merging (ORB-SLAM3 `LoopClosing::MergeLocal`) with loop closing's own stages: a place
+//! the current map shares with an older one of the atlas is verified as a loop is (both maps
+//! seen as one, each keyframe posed in its own map's world), the current map is moved into the
+//! older map's world by the verified similarity and joined to it at the matched keyframes, and
+//! the seam is then corrected as a loop: duplicated points fused, new links, the essential
+//! graph, then global bundle adjustment.
+
+use ferroslam_geometry::sim3::Sim3;
+use ferroslam_map::{KeyFrameId, Map};
+use ferroslam_vocabulary::FeatureVector;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::correction::correct_loop;
+use super::verification::{verify_loop, LoopMatch};
+use crate::context::Context;
+use crate::error::SlamError;
+use crate::local_ba_problem::adjust_keyframes;
+
+/// Two maps the system merged.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapMerge {
+    /// The map that was merged away (the current one when the place was recognised).
+    pub merged_map: usize,
+    /// The older map it joined, whose id and world frame the merged map keeps.
+    pub into_map: usize,
+    /// The current map's keyframe that recognised the place.
+    pub current: KeyFrameId,
+    /// The older map's keyframe it was matched to.
+    pub matched: KeyFrameId,
+    /// Frame timestamps of the two keyframes, seconds.
+    pub timestamps: (f64, f64),
+    /// Map points of the older map matched in the current keyframe after verification.
+    pub num_matches: usize,
+    /// Scale of the similarity from the merged map's world to the older one's (1 with depth
+    /// sensors).
+    pub scale: f64,
+    /// Cost of the essential graph before and after optimisation.
+    pub graph_cost: (f64, f64),
+}
+
+/// A place keyframe `kf` of `current` shares with keyframe `candidate` of `older`, verified.
+pub(crate) struct MergeMatch {
+    found: LoopMatch,
+    /// From the current map's world to the older map's: `p_older = S p_current`.
+    pub S_older_current: Sim3,
+}
+
+impl MergeMatch {
+    /// Map points of the older map matched in the current keyframe.
+    pub(crate) fn num_matches(&self) -> usize {
+        self.found.num_matches
+    }
+}
+
+/// Verifies `candidate` (of `older`) as the place `kf` (of `current`) shows; `fv` are their
+/// bag-of-words feature vectors. The maps' ids must be disjoint. `None` when any stage of the
+/// loop verification falls short: the maps are not touched.
+pub(crate) fn verify_merge(
+    (current, kf): (&Map, KeyFrameId),
+    (older, candidate): (&Map, KeyFrameId),
+    fv: (&FeatureVector, &FeatureVector),
+    ctx: &Context,
+) -> Result<Option<MergeMatch>, SlamError> {
+    let mut both = older.clone();
+    both.absorb(current.clone(), (kf, candidate))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(ctx.config.seed ^ u64::from(kf.0) ^ 0x6d65_7267);
+    let Some(found) = verify_loop(kf, candidate, &both, ctx, fv, &mut rng) else {
+        return Ok(None);
+    };
+    let T_cw = *current.keyframe(kf).expect("verified keyframe").T_c_w();
+    let S_older_current = found.S_cw.inverse() * Sim3::from_isometry(&T_cw);
+    Ok(Some(MergeMatch {
+        found,
+        S_older_current,
+    }))
+}
+
+/// Joins `current` (already moved into the older map's world, see [`MergeMatch`]) to
+/// `older` at the verified keyframes and corrects the seam as a loop; returns the merged map
+/// (the older one's origin and world) and the essential graph's costs.
+pub(crate) fn join_maps(
+    mut older: Map,
+    current: Map,
+    (kf, candidate): (KeyFrameId, KeyFrameId),
+    merge: &MergeMatch,
+    ctx: &Context,
+) -> Result<(Map, (f64, f64)), SlamError> {
+    older.absorb(current, (kf, candidate))?;
+    // The similarity is applied: the loop correction at the seam starts from identity.
+    let found = LoopMatch {
+        S_cw: Sim3::from_isometry(older.keyframe(kf).expect("absorbed keyframe").T_c_w()),
+        ..merge.found.clone()
+    };
+    let graph = correct_loop(kf, &found, &mut older, ctx)?;
+    let all = older.keyframe_ids();
+    adjust_keyframes(&all, &mut older, ctx, None)?;
+    Ok((older, graph))
+}
