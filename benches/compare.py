@@ -171,9 +171,8 @@ def worker(name: str, max_frames, out: Path, workdir: Path, runs: int,
         traj = res.trajectory
         status = (res.inertial or {}).get("status")
         align = ate_alignment(sensor, status == "aligned")
-        if align == "sim3" and res.segments is not None and res.segments.size:
-            longest = np.bincount(res.segments).argmax()  # as the pipeline's Sim(3) ATE
-            traj = traj.subset(np.flatnonzero(res.segments == longest))
+        if align == "sim3":
+            traj = res.largest_map_trajectory  # as the pipeline's Sim(3) ATE
         record = {
             "tracked": res.tracked_frames, "poses": len(res.trajectory),
             "keyframes": len(res.keyframes), "map_points": int(res.map_points.shape[0]),

@@ -165,7 +165,7 @@ def test_relocalises_in_the_same_map_after_a_loss(tum_rpy):
     assert states[100:110] == ["lost"] * 10
     assert "ok" in states[110:113], states[108:115]
     assert states[113:] == ["ok"] * (300 - 113)
-    assert result.num_segments == 1 and result.summary()["states"]["ok"] == 290
+    assert result.num_maps == 1 and result.summary()["states"]["ok"] == 290
     assert result.ate_frames.rmse < FRAME_ATE_BOUND_M
 
 

@@ -281,7 +281,7 @@ def test_fisheye_mono_with_the_border_in_and_the_circle_masked():
         closed.append(_on_closed_pixels(keypoints, seq.camera.mask))
 
     result = run_sequence(seq, sensor="mono", progress=False, on_frame=on_frame)
-    segments = len(np.unique(result.segments))
+    segments = len(np.unique(result.map_ids))
     print(f"fisheye mono, circle mask: {result.tracked_frames}/{result.frames} tracked, "
           f"{segments} segment(s), ATE {result.ate_frames.rmse * 100:.2f} cm")
     assert len(closed) == 300 and sum(closed) == 0

@@ -21,7 +21,8 @@ else:
 
 __all__ = [
     "KeyframeDatabase", "OrbExtractor", "SlamError", "SlamSystem", "TrackResult", "Vocabulary",
-    "__version__", "default_options", "load_sparse_model", "match_stereo", "option_table",
+    "__version__", "default_options", "load_sparse_model", "match_stereo", "merge_map_files",
+    "option_table",
     "project_points", "unproject_pixels",
 ]
 
@@ -404,9 +405,9 @@ class SlamSystem:
         ``relocalisation_window_s`` keeps its map in the atlas and starts a new one; maps
         have their own world frame (and, monocular, scale) until merged."""
     def maps(self) -> list[dict[str, Any]]:
-        """Every map of the run with frames or keyframes, the atlas's oldest first, then the
-        current one: ``id``, ``frames`` (poses tracked in it), ``keyframes``, ``points``,
-        ``current`` (tracking runs in it)."""
+        """Every map of the run with keyframes, the atlas's oldest first, then the current
+        one (the order ``save_map`` writes them): ``id``, ``frames`` (poses tracked in it),
+        ``keyframes``, ``points``, ``current`` (tracking runs in it)."""
     @property
     def current_map_id(self) -> int:
         """Id of the map tracking runs in."""
@@ -443,14 +444,25 @@ class SlamSystem:
         the keypoint observes, -1 for none), ``points_xyz (M, 3)`` float64 metres (the
         order of ``map_points``), ``point_colors (M, 3)`` uint8 RGB."""
     def save_map(self, path: str | os.PathLike[str]) -> None:
-        """Writes the map to ``path`` (versioned binary format with a checksum).
+        """Writes every map of ``maps()`` (the whole atlas, the current map last) to ``path``:
+        one versioned binary record with a checksum per map, back to back.
 
         Raises:
             FileNotFoundError: the folder does not exist; ValueError: not writable.
         """
+    def add_maps(self, path: str | os.PathLike[str]) -> list[int]:
+        """Adds every map saved at ``path`` to the atlas (the current map stays); their new
+        ids, in file order. Raises as ``load_map``."""
+    def merge_maps(self) -> list[dict[str, Any]]:
+        """Merges the atlas's maps where they overlap, offline (each map's keyframes, in id
+        order, look for a place of every older map; a verified one merges the newer map into
+        the older); the merges made (keys as ``TrackResult.merge``). Needs a vocabulary."""
     def load_map(self, path: str | os.PathLike[str]) -> None:
-        """Replaces the map with the one saved at ``path``; the next frames relocalise in it
-        (state ``"lost"`` until they do). The current trajectory is closed as a segment.
+        """Makes the last map saved at ``path`` the current one, the file's others and the
+        map tracked until now go to the atlas; the next frames relocalise in it (state
+        ``"lost"`` until they do) and map onward from it (unless localisation-only); lost
+        for ``relocalisation_window_s``, a map of the run's own starts and merges into a
+        loaded one once it recognises it.
 
         Raises:
             FileNotFoundError: no such file.
@@ -578,6 +590,23 @@ def load_sparse_model(
         FileNotFoundError: no file at ``path``.
         ValueError: a corrupt or truncated file, another format version, or a file without
             its camera record.
+    """
+
+def merge_map_files(
+    inputs: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    vocabulary: Vocabulary,
+) -> dict[str, Any]:
+    """Merges the maps saved in ``inputs`` where they overlap (``SlamSystem.merge_maps``,
+    without the GIL) and writes every map left, merged or not, to ``output``, in the order of
+    the returned ``maps``. The first file's sensor and camera build the merging system; the
+    others must match them. Returns ``inputs`` (per input file, the map ids its maps got, in
+    file order), ``merges`` (as ``SlamSystem.merges``, each with its ``similarity`` (4, 4)
+    ``[s R | t]``: ``p_into = s R p_merged + t``) and ``maps`` (as ``SlamSystem.maps``).
+
+    Raises:
+        FileNotFoundError / ValueError: a missing, corrupt or incompatible input (nothing is
+            written then); ValueError: no input, or maps of a multi-camera rig.
     """
 
 def default_options(sensor: _Sensor, width: int) -> dict[str, Any]:

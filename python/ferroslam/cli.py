@@ -31,6 +31,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}")
+    return value
+
+
 def _positive_rate(text: str) -> float:
     value = float(text)
     if not (0 < value < float("inf")):
@@ -191,6 +198,13 @@ def build_parser() -> argparse.ArgumentParser:
                            '{"n_features": 2000, "depth_threshold": 35}')
     algo.add_argument("--seed", type=int, help="random seed (overrides the config's 'seed')")
     algo.add_argument("--max-frames", type=_positive_int, help="process only the first N frames")
+    algo.add_argument("--first-frame", type=_non_negative_int, default=0, metavar="N",
+                      help="start at frame N of the sequence (a later session)")
+    algo.add_argument("--map", type=Path, metavar="PRIOR.map", dest="prior_map",
+                      help="map onward from a saved map (an earlier session): the run "
+                           "relocalises in it or merges into it once it recognises it")
+    algo.add_argument("--save-map", type=Path, metavar="OUT.map",
+                      help="write the run's maps (the whole atlas) to this file at the end")
     algo.add_argument("--no-stereo", action="store_true",
                       help="rig: match cameras 0 and 1 only at keyframes, where their keypoints "
                            "are triangulated across the rig (no per-frame stereo matching)")
@@ -463,8 +477,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     require_cheap_checks(seq, args.sensor)
     out = args.out if args.out is not None else Path("out") / seq.name
+    sessions = {"first_frame": args.first_frame, "prior_map": args.prior_map,
+                "save_map": args.save_map}
     return _track_and_report(seq, args.sensor, config, args.max_frames, out, args.silent,
-                             args.trajectory_format, _rerun_logger(args), notes)
+                             args.trajectory_format, _rerun_logger(args), notes, sessions)
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
@@ -519,13 +535,19 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int], out: Path,
                       silent: bool, trajectory_format: str = "tum", logger=None,
-                      notes: Sequence[str] = ()) -> int:
+                      notes: Sequence[str] = (), sessions: Optional[dict] = None) -> int:
     """Run ``seq`` (a live source through ``run_source``), write every output file into a
     staging folder moved into ``out`` when the run is over, and print the summary. A run that
     stops at an error (a corrupt image at frame N, a bad ground-truth line) leaves the results
     of an earlier run in ``out`` as they were, puts the results of the frames before the error
-    in ``out/partial-<UTC time>/``, then reports the error."""
+    in ``out/partial-<UTC time>/``, then reports the error. ``sessions``: ``first_frame``,
+    ``prior_map`` and ``save_map`` of :func:`~ferroslam.pipeline.run_sequence`."""
     from .pipeline import RunError, run_sequence, run_source
+
+    sessions = {k: v for k, v in (sessions or {}).items() if v}
+    if sessions and getattr(seq, "live", False):
+        raise ValueError("--first-frame, --map and --save-map are for recorded sequences, not "
+                         "a live source")
 
     on_frame = None
     if logger is not None:
@@ -542,7 +564,7 @@ def _track_and_report(seq, sensor: str, config: dict, max_frames: Optional[int],
                 else:
                     result = run_sequence(seq, config, max_frames=max_frames,
                                           progress=not silent, sensor=sensor,
-                                          on_frame=on_frame)
+                                          on_frame=on_frame, **sessions)
             except RunError as err:
                 write_run_outputs(err.partial, stage.path, trajectory_format)
                 _log_final_map(logger, err.partial)

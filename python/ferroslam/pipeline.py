@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional
+from pathlib import Path
+from typing import Any, Callable, Optional, Union
 
 import numpy as np
 from tqdm import tqdm
@@ -475,6 +476,9 @@ def run_sequence(
     system_factory: Optional[Callable[..., Any]] = None,
     realtime: bool = False,
     on_frame: Optional[Callable[..., None]] = None,
+    first_frame: int = 0,
+    prior_map: Optional[Union[str, Path]] = None,
+    save_map: Optional[Union[str, Path]] = None,
 ) -> RunResult:
     """Track a whole sequence and evaluate it.
 
@@ -493,7 +497,14 @@ def run_sequence(
             ``mapping_thread`` (``True``: local mapping and loop closing run in their own
             thread, as in ORB-SLAM, and ``tracking_ms`` is the tracking thread's time; the
             default, ``False``, maps inline and is deterministic).
-        max_frames: process only the first ``max_frames`` frames.
+        max_frames: process only the first ``max_frames`` frames (from ``first_frame``).
+        first_frame: start at this frame of the sequence (a later session of a sequence).
+        prior_map: a map file to map onward from (a session after an earlier one saved its
+            map): its maps are loaded first (``SlamSystem.load_map``); tracking relocalises
+            in them, or starts a map of its own that merges into them once it recognises
+            them, so the outputs are in the prior's frame once joined.
+        save_map: write the run's maps (the whole atlas) to this file at the end, through
+            :func:`ferroslam._files.atomic_output`.
         progress: show a tqdm progress bar.
         realtime: feed frames at the pace of their timestamps, as a live camera would
             (frames are otherwise fed as fast as they are processed).
@@ -528,6 +539,13 @@ def run_sequence(
     rig_feed = _RigFeed(seq) if camera == "rig" else None
     core_sensor = camera if rig_feed is None else rig_feed.core_sensor
     config = validate_options(config, core_sensor + sensor[len(camera):])
+    if isinstance(first_frame, bool) or int(first_frame) != first_frame or first_frame < 0:
+        raise ValueError(f"first_frame must be a non-negative integer, got {first_frame!r}")
+    if first_frame:
+        if first_frame >= len(seq):
+            raise ValueError(f"first_frame {first_frame} is past the sequence's last frame "
+                             f"({len(seq) - 1})")
+        seq = _FrameWindow(seq, int(first_frame))
     n = len(seq)
     if n == 0:  # a dataset says why when it is opened; any other sequence, here
         raise ValueError(f"{getattr(seq, 'name', seq)}: the sequence has no frames to track")
@@ -545,7 +563,41 @@ def run_sequence(
         imu_options={k: config[k] for k in IMU_KEYS if k in config},
         mapping_thread=config.get("mapping_thread", False), system_factory=system_factory,
         pair=feed.pair, observers=feed.observers)
-    return _run(seq, session, feed, n, sensor, config, progress, realtime, imu, on_frame)
+    if prior_map is not None:
+        from ._files import regular_file
+
+        session.system.load_map(regular_file(prior_map, "map file"))
+    try:
+        return _run(seq, session, feed, n, sensor, config, progress, realtime, imu, on_frame)
+    finally:
+        # Also after a failed frame: the maps built until then are the run's result too.
+        if save_map is not None:
+            from ._files import atomic_output
+
+            with atomic_output(save_map) as tmp:
+                session.system.save_map(tmp)
+
+
+class _FrameWindow:
+    """The frames ``first``.. of a sequence, indexed from 0: every ``load_*(i, ...)`` reads
+    frame ``first + i``; anything else is the sequence's (its IMU, ground truth, camera)."""
+
+    def __init__(self, seq, first: int) -> None:
+        self._seq = seq
+        self._first = first
+
+    def __len__(self) -> int:
+        return len(self._seq) - self._first
+
+    @property
+    def timestamps(self) -> np.ndarray:
+        return np.asarray(self._seq.timestamps)[self._first:]
+
+    def __getattr__(self, name: str):
+        value = getattr(self._seq, name)
+        if name.startswith("load_") and callable(value):
+            return lambda i, *args, **kwargs: value(i + self._first, *args, **kwargs)
+        return value
 
 
 def _imu_stream(seq, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -2,6 +2,8 @@
 //! `merges`, `loops`, `TrackResult.merge`).
 
 use ferroslam_slam::{LoopClosure, MapMerge, MapSummary};
+use numpy::ndarray::Array2;
+use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -24,7 +26,8 @@ pub(crate) fn map_dicts<'py>(
 }
 
 /// One merge: the two map ids ("merged_map" into "into_map"), the keyframes ("current",
-/// "matched"), their "timestamps", "num_matches", the similarity's "scale", "graph_cost".
+/// "matched"), their "timestamps", "num_matches", the similarity's "scale", "graph_cost"
+/// and the "similarity" itself, (4, 4) float64 `[s R | t]` (`p_into = s R p_merged + t`).
 pub(crate) fn merge_dict<'py>(py: Python<'py>, m: &MapMerge) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("merged_map", m.merged_map)?;
@@ -35,6 +38,15 @@ pub(crate) fn merge_dict<'py>(py: Python<'py>, m: &MapMerge) -> PyResult<Bound<'
     d.set_item("num_matches", m.num_matches)?;
     d.set_item("scale", m.scale)?;
     d.set_item("graph_cost", m.graph_cost)?;
+    let S = &m.similarity;
+    let sR = S.rotation.to_rotation_matrix().into_inner() * S.scale;
+    let similarity = Array2::from_shape_fn((4, 4), |(r, c)| match (r, c) {
+        (3, 3) => 1.0,
+        (3, _) => 0.0,
+        (_, 3) => S.translation[r],
+        _ => sR[(r, c)],
+    });
+    d.set_item("similarity", PyArray2::from_owned_array(py, similarity))?;
     Ok(d)
 }
 

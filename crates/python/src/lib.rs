@@ -12,6 +12,7 @@ mod convert;
 mod errors;
 mod extractor;
 mod inertial;
+mod map_merge;
 mod pool;
 mod rig_frame;
 mod sparse_model;
@@ -33,6 +34,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(camera::project_points, m)?)?;
     m.add_function(wrap_pyfunction!(camera::unproject_pixels, m)?)?;
     m.add_function(wrap_pyfunction!(sparse_model::load_sparse_model, m)?)?;
+    m.add_function(wrap_pyfunction!(map_merge::merge_map_files, m)?)?;
     m.add_class::<extractor::PyOrbExtractor>()?;
     m.add_class::<vocabulary::PyVocabulary>()?;
     m.add_class::<vocabulary::PyKeyframeDatabase>()?;

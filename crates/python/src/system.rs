@@ -451,7 +451,7 @@ impl PySlamSystem {
         Ok(PyArray1::from_vec(py, ids))
     }
 
-    /// Every map of the run with frames or keyframes: dicts "id", "frames", "keyframes",
+    /// Every map of the run with keyframes (save_map's order): dicts "id", "frames", "keyframes",
     /// "points", "current" (the one tracked in), the atlas's oldest first.
     fn maps<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
         let maps = self.engine()?.run(py, |s| s.maps())?;
@@ -574,11 +574,28 @@ impl PySlamSystem {
             .map_err(to_py)
     }
 
-    /// Replaces the map with the one saved at `path`; the next frames relocalise in it.
+    /// Makes the last map saved at `path` the current one (the others of the file, and the
+    /// map tracked until now, go to the atlas); the next frames relocalise in it.
     fn load_map(&self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<()> {
         self.engine()?
             .run(py, move |s| s.load_map(&path))?
             .map_err(to_py)
+    }
+
+    /// Adds every map saved at `path` to the atlas (the current map stays); their new ids.
+    fn add_maps(&self, py: Python<'_>, path: std::path::PathBuf) -> PyResult<Vec<usize>> {
+        self.engine()?
+            .run(py, move |s| s.add_maps(&path))?
+            .map_err(to_py)
+    }
+
+    /// Merges the maps of the atlas where they overlap (offline); the merges made.
+    fn merge_maps<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let merges = self.engine()?.run(py, |s| s.merge_maps())?.map_err(to_py)?;
+        merges
+            .iter()
+            .map(|m| crate::atlas::merge_dict(py, m))
+            .collect()
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by bag of words and lost frames are

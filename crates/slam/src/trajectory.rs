@@ -118,6 +118,11 @@ impl Trajectory {
             .sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp));
     }
 
+    /// Whether no frame was tracked.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
     /// Forgets everything.
     pub fn clear(&mut self) {
         self.frames.clear();

@@ -37,6 +37,9 @@ pub struct MapMerge {
     pub scale: f64,
     /// Cost of the essential graph before and after optimisation.
     pub graph_cost: (f64, f64),
+    /// The similarity that moved the merged map into the older one's world before the seam
+    /// was corrected: `p_into = S p_merged` (metres of the older map).
+    pub similarity: Sim3,
 }
 
 /// A place keyframe `kf` of `current` shares with keyframe `candidate` of `older`, verified.

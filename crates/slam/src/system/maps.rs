@@ -43,7 +43,7 @@ impl SlamSystem {
     }
 
     /// An empty keyframe index over the current one's vocabulary.
-    fn fresh_place(&self) -> Option<PlaceRecognition> {
+    pub(super) fn fresh_place(&self) -> Option<PlaceRecognition> {
         let config = self.ctx.config.place_recognition;
         self.place
             .as_ref()
@@ -106,9 +106,13 @@ impl SlamSystem {
     }
 
     /// Makes `stored` the current map; the current one goes to the atlas when it is worth
-    /// keeping.
-    fn make_current(&mut self, stored: StoredMap) {
-        let keep = self.map.num_keyframes() > self.ctx.config.tracking.min_keyframes_to_keep;
+    /// keeping: loaded (no frames tracked in it), or with more keyframes than
+    /// `tracking.min_keyframes_to_keep`.
+    pub(super) fn make_current(&mut self, stored: StoredMap) {
+        let keyframes = self.map.num_keyframes();
+        let young = keyframes <= self.ctx.config.tracking.min_keyframes_to_keep
+            && !self.trajectory.is_empty();
+        let keep = keyframes > 0 && !young;
         let previous = StoredMap {
             id: self.map_id,
             map: std::mem::replace(&mut self.map, stored.map),
@@ -133,14 +137,23 @@ impl SlamSystem {
 
     /// Looks for a place of a stored map in each keyframe mapped since the last frame and
     /// merges the current map into the first one verified (see `crate::loop_closing`'s
-    /// merging).
+    /// merging); with `loop_closing.loop_closure` only.
     pub(super) fn check_merges(&mut self) -> Result<(), SlamError> {
         let checks = std::mem::take(&mut self.merge_checks);
-        if !self.atlas_searchable() || self.tracker.state != TrackingState::Ok {
+        // Merging online is part of loop closing (as in ORB-SLAM3).
+        if self.tracker.state != TrackingState::Ok || !self.ctx.config.loop_closing.loop_closure {
+            return Ok(());
+        }
+        self.check_merges_at(&checks)
+    }
+
+    /// [`Self::check_merges`] for keyframes `checks` of the current map, in order.
+    pub(super) fn check_merges_at(&mut self, checks: &[KeyFrameId]) -> Result<(), SlamError> {
+        if !self.atlas_searchable() {
             return Ok(());
         }
         let consistency = self.ctx.config.loop_closing.consistency;
-        for kf in checks {
+        for &kf in checks {
             let Some(place) = self.place.as_ref() else {
                 return Ok(());
             };
@@ -250,6 +263,7 @@ impl SlamSystem {
             num_matches: merge.num_matches(),
             scale: merge.S_older_current.scale,
             graph_cost,
+            similarity: merge.S_older_current,
         });
     }
 
@@ -263,8 +277,8 @@ impl SlamSystem {
         self.map_id
     }
 
-    /// Every map of the run with something in it (the atlas's, oldest first, then the
-    /// current one).
+    /// Every map of the run with keyframes (the atlas's, oldest first, then the current
+    /// one), in the order `save_map` writes them.
     pub fn maps(&self) -> Vec<MapSummary> {
         let current = MapSummary {
             id: self.map_id,
@@ -277,7 +291,7 @@ impl SlamSystem {
             .iter()
             .map(StoredMap::summary)
             .chain(std::iter::once(current))
-            .filter(|m| m.frames > 0 || m.keyframes > 0)
+            .filter(|m| m.keyframes > 0)
             .collect()
     }
 

@@ -32,8 +32,10 @@ use crate::trajectory::Trajectory;
 
 mod door;
 mod imu;
+mod map_files;
 mod maps;
 use ferroslam_vocabulary::Vocabulary;
+pub use map_files::load_map_file;
 use std::sync::Arc;
 
 /// The SLAM system: tracking and local mapping run inline, in call order (deterministic).
@@ -662,80 +664,6 @@ impl SlamSystem {
         self.localization_only
     }
 
-    /// Writes the map to `path` (versioned binary format, see `ferroslam_map::map::persist`).
-    ///
-    /// # Errors
-    /// `InvalidInput` for an empty path or a folder; [`SlamError::MapFile`] when the file
-    /// cannot be written.
-    pub fn save_map(&self, path: &std::path::Path) -> Result<(), SlamError> {
-        if path.as_os_str().is_empty() || path.is_dir() {
-            return Err(SlamError::InvalidInput(format!(
-                "save_map: {:?} is {}: give a file path",
-                path.display().to_string(),
-                if path.as_os_str().is_empty() {
-                    "empty"
-                } else {
-                    "a folder"
-                }
-            )));
-        }
-        self.map
-            .save_to_path(path)
-            .map_err(|e| map_file_error(path, e))
-    }
-
-    /// Makes the map in `path` the current one; tracking then relocalises in it with the next
-    /// frame (state `Lost` until it does), and maps onward from it (unless
-    /// localisation-only). Lost in it for `tracking.relocalisation_window_s`, the run starts
-    /// a map of its own, merged into the loaded one once it recognises it. The map tracked
-    /// until now goes to the atlas.
-    ///
-    /// # Errors
-    /// [`SlamError::MapFile`] for a missing, truncated or corrupt file, another format version,
-    /// or a map built with another ORB pyramid than this system's; the system is unchanged.
-    pub fn load_map(&mut self, path: &std::path::Path) -> Result<(), SlamError> {
-        let mut map = load_map_file(path)?;
-        let ours = self.ctx.rig();
-        if let Some(reason) = map.rig().and_then(|theirs| theirs.mismatch(&ours)) {
-            return Err(SlamError::MapFile {
-                path: path.display().to_string(),
-                reason,
-                not_found: false,
-            });
-        }
-        map.set_rig(ours);
-        let (theirs, ours) = (map.pyramid(), self.map.pyramid());
-        if theirs.n_levels != ours.n_levels
-            || (theirs.scale_factor - ours.scale_factor).abs() > 1e-9
-        {
-            return Err(SlamError::MapFile {
-                path: path.display().to_string(),
-                reason: format!(
-                    "built with {} pyramid levels of scale {}, this system uses {} of {}",
-                    theirs.n_levels, theirs.scale_factor, ours.n_levels, ours.scale_factor
-                ),
-                not_found: false,
-            });
-        }
-        // The loaded map's ids follow every id this run has used, so it can merge with them.
-        let (kf, mp) = self.used_ids();
-        map.shift_ids(kf.0, mp.0)
-            .map_err(|e| map_file_error(path, e))?;
-        if self.map.num_keyframes() > 0 {
-            self.store_current_map();
-        }
-        self.clear_map();
-        self.map = map;
-        self.map_id = self.new_map_id();
-        self.index_keyframes();
-        self.tracker.state = if self.map.num_keyframes() > 0 {
-            TrackingState::Lost
-        } else {
-            TrackingState::NotInitialized
-        };
-        Ok(())
-    }
-
     /// Current tracking state.
     pub fn state(&self) -> TrackingState {
         self.tracker.state
@@ -798,24 +726,4 @@ fn points_of(map: &Map) -> Vec<Vector3<f64>> {
         .into_iter()
         .filter_map(|m| map.map_point(m).map(|p| p.position()))
         .collect()
-}
-
-/// The map saved at `path`, as it is: for reading it without a system (exports).
-///
-/// # Errors
-/// [`SlamError::MapFile`] for a missing, truncated or corrupt file or another format version.
-pub fn load_map_file(path: &std::path::Path) -> Result<Map, SlamError> {
-    Map::load_from_path(path).map_err(|e| map_file_error(path, e))
-}
-
-fn map_file_error(path: &std::path::Path, e: ferroslam_map::MapError) -> SlamError {
-    let not_found = matches!(
-        &e,
-        ferroslam_map::MapError::MapFileIo { kind, .. } if *kind == std::io::ErrorKind::NotFound
-    );
-    SlamError::MapFile {
-        path: path.display().to_string(),
-        reason: e.to_string(),
-        not_found,
-    }
 }

@@ -81,7 +81,7 @@
 //! assert!(Map::load(&mut &bytes[..bytes.len() - 1]).is_err()); // truncated
 //! ```
 
-use std::io::{BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 
 use ferroslam_features::ScalePyramid;
@@ -245,6 +245,40 @@ impl Map {
             return Err(corrupt("bytes after the checksum".into()));
         }
         Ok(map)
+    }
+
+    /// Writes an atlas file: the records of `maps` back to back, in order, through
+    /// [`ferroslam_files::write_atomically`] as [`Map::save_to_path`] (a one-map atlas file
+    /// is a map file).
+    ///
+    /// # Errors
+    /// [`MapError::MapFileIo`] naming the path.
+    pub fn save_all_to_path(maps: &[&Map], path: impl AsRef<Path>) -> Result<(), MapError> {
+        ferroslam_files::write_atomically(path.as_ref(), |w| {
+            maps.iter().try_for_each(|m| m.save(w))
+        })
+    }
+
+    /// Every map of an atlas file ([`Map::save_all_to_path`]), in file order; a map file
+    /// gives one.
+    ///
+    /// # Errors
+    /// As [`Map::load_from_path`]: bytes after a record that do not start another record
+    /// are [`MapError::CorruptMapFile`].
+    pub fn load_all_from_path(path: impl AsRef<Path>) -> Result<Vec<Map>, MapError> {
+        let file = ferroslam_files::open_regular(path.as_ref(), u64::MAX, "map file")?;
+        let mut r = BufReader::new(file);
+        let mut maps = vec![Self::load(&mut r)?];
+        while !r.fill_buf()?.is_empty() {
+            match Self::load(&mut r) {
+                Ok(map) => maps.push(map),
+                Err(MapError::NotAMapFile { .. }) => {
+                    return Err(corrupt("bytes after the checksum".into()))
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(maps)
     }
 
     /// The whole file: header, sections, checksum.
