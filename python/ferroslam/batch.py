@@ -53,7 +53,7 @@ from .options import validate_options
 from .pipeline import SENSORS
 
 __all__ = ["BatchOutcome", "RunSpec", "SPEC_EXAMPLE", "execute_run", "expand_spec",
-           "fetch_named_sequences", "load_spec", "run_batch", "write_summary", "write_table"]
+           "fetch_named_sequences", "load_spec", "read_spec", "run_batch", "write_summary", "write_table"]
 
 # ``DATASET:NAME`` as ``ferroslam download DATASET NAME`` takes them.
 _DATASET_NAME = re.compile(rf"^({'|'.join(DATASETS)}):(\S+)$")
@@ -137,16 +137,21 @@ def load_spec(path: Union[str, Path]) -> list[RunSpec]:
     the key for a malformed SPEC; a missing sequence folder is the run's failure, not the
     SPEC's."""
     path = Path(path)
+    return expand_spec(read_spec(path), path.parent, str(path))
+
+
+def read_spec(path: Union[str, Path]) -> Any:
+    """The parsed SPEC file, not yet expanded (JSON if it ends in ``.json``, YAML
+    otherwise); size- and depth-bounded, errors as :func:`load_spec`'s."""
+    path = Path(path)
     text = read_bounded_text(path, MAX_CONFIG_BYTES, "SPEC file")
     check_nesting(text, str(path))
     if path.suffix.lower() == ".json":
         try:
-            spec = json.loads(text)
+            return json.loads(text)
         except json.JSONDecodeError as err:
             raise ValueError(f"{path}: invalid JSON: {err}") from None
-    else:
-        spec = _load_yaml(text, path)
-    return expand_spec(spec, path.parent, str(path))
+    return _load_yaml(text, path)
 
 
 def _load_yaml(text: str, path: Path) -> Any:

@@ -260,6 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_batch_parser(sub)
     _add_check_parser(sub)
     _add_export_parser(sub)
+    _add_merge_parser(sub)
+    _add_fleet_parser(sub)
     return parser
 
 
@@ -376,6 +378,54 @@ def _add_batch_parser(sub: argparse._SubParsersAction) -> None:
     batch.add_argument("--retry-failed", action="store_true",
                        help="run the failed runs of an earlier call again")
     batch.add_argument("--silent", action="store_true", help="no progress bar, no summary")
+
+
+def _add_merge_parser(sub: argparse._SubParsersAction) -> None:
+    """``merge``: saved maps merged where they overlap (``ferroslam.fleet.merge_maps``)."""
+    merge = sub.add_parser(
+        "merge", help="merge saved maps (sessions) where they overlap",
+        description="Merge the maps of the map files (save_map / --save-map of the sessions)\n"
+                    "where they overlap and write every map left, merged or not, to\n"
+                    "MERGED.map. All inputs must come from the same sensor and camera. With\n"
+                    "--trajectory (one TUM file per input), each input's trajectory is written\n"
+                    "in the frame of the map the input's last map ended in.")
+    merge.add_argument("maps", nargs="*", type=Path, metavar="MAP", help="map files")
+    merge.add_argument("-o", "--output", type=Path, required=True, metavar="MERGED.map",
+                       help="atlas file to write")
+    merge.add_argument("--trajectory", nargs="+", type=Path, metavar="TRAJ",
+                       help="one TUM trajectory per input, in input order (e.g. each "
+                            "session's trajectory.txt)")
+    merge.add_argument("--out-trajectories", type=Path, metavar="DIR",
+                       help="folder of the re-expressed trajectories, DIR/<map stem>.txt "
+                            "(default: <MERGED stem>_trajectories next to MERGED.map)")
+
+
+def _add_fleet_parser(sub: argparse._SubParsersAction) -> None:
+    """``fleet``: sessions mapped as Ray tasks, then merged as a tree of Ray tasks."""
+    from .batch import SPEC_EXAMPLE
+
+    fleet = sub.add_parser(
+        "fleet", help="map sessions in parallel on Ray and merge their maps",
+        description="Map each run of SPEC (one session: a sequence, or a part of it with\n"
+                    "first_frame and max_frames) as one Ray task, then merge the maps\n"
+                    "pairwise as a tree of Ray tasks, within groups of the same sensor and\n"
+                    "camera. Writes DIR/merged.map (the largest group; merged_<k>.map the\n"
+                    "others), DIR/<run>/trajectory_merged.txt and DIR/summary.json. Needs Ray:\n"
+                    "pip install 'ferroslam[batch]'.",
+        epilog="SPEC: the format of 'ferroslam batch' (repeats 1, no grid), plus\n"
+               "'first_frame' (top level or per run). Example of the batch format:\n"
+               + SPEC_EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    fleet.add_argument("spec", type=Path, help="JSON or YAML file of runs")
+    fleet.add_argument("--out", type=Path, required=True, metavar="DIR",
+                       help="output folder (created)")
+    cluster = fleet.add_argument_group("cluster")
+    cluster.add_argument("--address", metavar="ADDR",
+                         help="existing Ray cluster: auto, HOST:PORT or ray://HOST:PORT "
+                              "(default: start a local one on 127.0.0.1, stopped at the end)")
+    cluster.add_argument("--num-cpus", type=_positive_int, metavar="N",
+                         help="CPUs of the local Ray instance (default: all)")
+    fleet.add_argument("--silent", action="store_true", help="no progress, no summary")
 
 
 def _load_config(path: Optional[Path]) -> dict:
@@ -681,6 +731,60 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _cmd_merge(args: argparse.Namespace) -> int:
+    from .export import write_trajectory
+    from .fleet import apply_similarity, merge_chain, merge_lines, merge_maps
+    from .io import read_tum_trajectory
+
+    if not args.maps:
+        raise ValueError("merge: no map files given (ferroslam merge A.map B.map ... -o OUT)")
+    trajectories = []
+    if args.trajectory is not None:
+        if len(args.trajectory) != len(args.maps):
+            raise ValueError(f"--trajectory: {len(args.trajectory)} file(s) for "
+                             f"{len(args.maps)} map file(s); give one per map, in order")
+        trajectories = [read_tum_trajectory(p) for p in args.trajectory]
+    elif args.out_trajectories is not None:
+        raise ValueError("--out-trajectories needs --trajectory (one TUM file per map)")
+    result = merge_maps(args.maps, args.output)
+    for line in merge_lines(result, [str(p) for p in args.maps]):
+        print(line)
+    print(f"{len(result['maps'])} map(s) from {len(args.maps)} file(s), "
+          f"{len(result['merges'])} merge(s): {args.output}")
+    if trajectories:
+        folder = (args.out_trajectories if args.out_trajectories is not None
+                  else args.output.parent / f"{args.output.stem}_trajectories")
+        stems = [p.stem for p in args.maps]
+        if len(set(stems)) < len(stems):
+            stems = [f"{i}_{stem}" for i, stem in enumerate(stems)]
+        for i, (traj, stem) in enumerate(zip(trajectories, stems)):
+            if not result["inputs"][i]:
+                print(f"{args.maps[i]}: holds no map, {args.trajectory[i]} not re-expressed")
+                continue
+            final, S = merge_chain(result["merges"], result["inputs"][i][-1])
+            moved = apply_similarity(S, traj)
+            path = write_trajectory(folder / f"{stem}.txt", moved.timestamps, moved.poses,
+                                    "tum")
+            print(f"{args.trajectory[i]} in the frame of map {final}: {path}")
+    return 0
+
+
+def _cmd_fleet(args: argparse.Namespace) -> int:
+    from .fleet import run_fleet, summary_lines
+
+    summary = run_fleet(args.spec, args.out, address=args.address, num_cpus=args.num_cpus,
+                        progress=not args.silent)
+    failed = [run for run in summary["runs"] if run["status"] != "ok"]
+    for run in failed:
+        print(f"ferroslam: run {run['run_dir']} {run['status']}: {run['error']}",
+              file=sys.stderr)
+    if not args.silent:
+        for line in summary_lines(summary):
+            print(line)
+        print(f"results in {args.out}/ (summary.json, merged map files, one folder per run)")
+    return 1 if failed else 0
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from . import io, metrics
 
@@ -763,7 +867,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     commands = {"run": _cmd_run, "demo": _cmd_demo, "eval": _cmd_eval,
                 "download": _cmd_download, "vocab": _cmd_vocab, "batch": _cmd_batch,
-                "check": _cmd_check, "export": _cmd_export}
+                "check": _cmd_check, "export": _cmd_export, "merge": _cmd_merge,
+                "fleet": _cmd_fleet}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:
