@@ -628,6 +628,11 @@ def _map_outputs(system) -> dict:
     keyframes, maps, merges, loops, map points."""
     stamps, poses = system.frame_trajectory()
     kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
+    # In time order: a session's keyframes in a prior map come after the prior's by id.
+    order = np.argsort(np.asarray(kf_stamps).reshape(-1), kind="stable")
+    kf_ids = np.asarray(kf_ids).reshape(-1)[order]
+    kf_stamps = np.asarray(kf_stamps).reshape(-1)[order]
+    kf_poses = np.asarray(kf_poses).reshape(-1, 4, 4)[order]
     return dict(
         trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
         keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),

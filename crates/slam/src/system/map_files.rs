@@ -66,8 +66,8 @@ impl SlamSystem {
         }
         self.clear_map();
         self.store_loaded(maps);
+        // The current map's id is still unused (a fresh one if the map went to the atlas).
         self.map = current;
-        self.map_id = self.new_map_id();
         self.index_keyframes();
         self.tracker.state = if self.map.num_keyframes() > 0 {
             TrackingState::Lost
