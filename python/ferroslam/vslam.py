@@ -498,7 +498,7 @@ class _VSlam:
 
     # -- maps -----------------------------------------------------------------------------
     def save_map(self, path: Union[str, Path]) -> None:
-        """Writes the map (versioned binary file with a checksum) through
+        """Writes every map (the whole atlas; versioned binary records with checksums) through
         :func:`ferroslam._files.atomic_output`: complete or not at all; a symlink at ``path``
         is replaced, not followed; a FIFO or device is refused with ``ValueError``, a folder
         with ``IsADirectoryError``."""
@@ -508,8 +508,10 @@ class _VSlam:
             self._system.save_map(tmp)
 
     def load_map(self, path: Union[str, Path], *, localization_only: bool = True) -> None:
-        """Replaces the map with a saved one; the next frames relocalise in it. With
-        ``localization_only`` (default) the map is used as it is, never extended.
+        """Loads saved maps (the whole atlas of a ``save_map``; the last one becomes current,
+        the map tracked until now is kept); the next frames relocalise in it. With
+        ``localization_only`` (default) the map is used as it is, never extended; without,
+        the object maps onward from it (a later session).
 
         Raises ``FileNotFoundError`` for a missing file, ``IsADirectoryError`` for a folder
         and ``ValueError`` for a FIFO or device (refused before opening: reading it would
