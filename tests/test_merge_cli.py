@@ -139,3 +139,19 @@ def test_bad_input_is_one_error_line(rpy_sessions, tmp_path, capsys):
     assert cli.main(["merge", "-o", str(out)]) == 1
     assert "no map files given" in _error(capsys)
     assert not out.exists()  # nothing written on an error
+
+
+def test_trajectories_of_maps_with_one_name(rpy_sessions, tmp_path, capsys):
+    """Sessions' folders each hold map.map: the re-expressed files are numbered, in the
+    default folder <MERGED stem>_trajectories next to MERGED.map."""
+    (_, map1, traj1), (_, map2, traj2) = rpy_sessions
+    maps = []
+    for name, source in (("a", map1), ("b", map2)):
+        (tmp_path / name).mkdir()
+        maps.append(tmp_path / name / "map.map")
+        maps[-1].write_bytes(source.read_bytes())
+    assert cli.main(["merge", *map(str, maps), "-o", str(tmp_path / "fleet.map"),
+                     "--trajectory", str(traj1), str(traj2)]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in (tmp_path / "fleet_trajectories").iterdir()) == [
+        "0_map.txt", "1_map.txt"]

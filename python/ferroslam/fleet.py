@@ -189,9 +189,9 @@ def map_session(run: FleetRun, out_dir: Path) -> dict:
     try:
         if run.spec.unavailable:
             raise FileNotFoundError(run.spec.unavailable)
-        folder.mkdir(parents=True, exist_ok=True)
         seq = open_sequence(run.spec.path, sensor=run.spec.sensor)
         key = camera_key(seq, run.spec.sensor)
+        folder.mkdir(parents=True, exist_ok=True)
         result = run_sequence(seq, run.spec.options, max_frames=run.spec.max_frames,
                               progress=False, sensor=run.spec.sensor,
                               first_frame=run.first_frame, save_map=folder / "map.map")
@@ -242,11 +242,13 @@ def run_fleet(spec_path: PathLike, out_dir: PathLike, *, address: Optional[str] 
     with _ray_session(address, num_cpus) as ray:
         ray_ready = time.perf_counter()
         env = {"env_vars": {"RAYON_NUM_THREADS": "1"}}
-        mapper = ray.remote(max_calls=1, max_retries=0)(map_session).options(
+        # Workers are reused (no max_calls=1 as in batch): a merge then starts in a process
+        # that has ferroslam loaded already; the tasks are seconds long at test scale.
+        mapper = ray.remote(max_retries=0)(map_session).options(
             num_cpus=1, runtime_env=env)
         rows = ray.get([mapper.remote(run, out_dir) for run in runs])
         mapped = time.perf_counter()
-        merger = ray.remote(max_calls=1, max_retries=0)(merge_task).options(
+        merger = ray.remote(max_retries=0)(merge_task).options(
             num_cpus=1, runtime_env=env)
         groups, merge_log, states = _merge_tree(ray, merger, rows, out_dir)
         done = time.perf_counter()
@@ -315,6 +317,10 @@ def _merge_tree(ray: Any, merger: Any, rows: list[dict], out_dir: Path):
             nodes[g] += kept
         level += 1
     largest = max(groups, key=lambda g: len(g["runs"]), default=None)
+    try:  # empty when every group was one merge
+        (out_dir / "merges").rmdir()
+    except OSError:
+        pass
     states: dict[int, tuple] = {}
     for g in groups:
         (node,) = nodes[g["index"]]
@@ -404,8 +410,8 @@ def summary_lines(summary: dict) -> list[str]:
                          f"{m['merged_map']} into map {m['into_map']} "
                          f"({m['num_matches']} matches) -> {task['output']}")
     for g in summary["groups"]:
-        lines.append(f"group {g['group']} ({g['sensor']}, {g['camera'][3]}x{g['camera'][4]} "
-                     f"fx {g['camera'][5]:g}): {len(g['runs'])} run(s) -> {g['file']}, "
+        lines.append(f"group {g['group']} ({g['sensor']}, {g['camera'][2]}x{g['camera'][3]} "
+                     f"fx {g['camera'][4]:g}): {len(g['runs'])} run(s) -> {g['file']}, "
                      f"{len(g['maps'])} map(s)")
     if len(summary["groups"]) > 1:
         lines.append(f"{len(summary['groups'])} groups kept apart (different sensor or camera: "
