@@ -177,7 +177,7 @@ def test_frame_callback_takes_the_vslam_frame_result(tmp_path):
     # and time are kept (frames dropped from a live camera leave gaps).
     camera = open_sequence(require_data("tum", "rgbd_dataset_freiburg1_desk")).camera
     track = SimpleNamespace(state="ok", T_w_c=np.eye(4), num_tracked=200, loop_closed=False,
-                            is_keyframe=False)
+                            is_keyframe=False, map_id=0, merge=None)
     path = tmp_path / "vslam.rrd"
     with RerunLogger(save_path=path) as logger:
         on_frame = make_frame_callback(logger, camera)
@@ -195,18 +195,27 @@ def test_lost_frame_keeps_the_last_pose_and_warns(tmp_path):
     path = tmp_path / "lost.rrd"
     recording.save(path)
     camera = open_sequence(require_data("tum", "rgbd_dataset_freiburg1_desk")).camera
-    ok = SimpleNamespace(state="ok", T_w_c=np.eye(4), num_tracked=200, loop_closed=False)
-    lost = SimpleNamespace(state="lost", T_w_c=None, num_tracked=3, loop_closed=False)
+    ok = SimpleNamespace(state="ok", T_w_c=np.eye(4), num_tracked=200, loop_closed=False,
+                         map_id=0, merge=None)
+    lost = SimpleNamespace(state="lost", T_w_c=None, num_tracked=3, loop_closed=False,
+                           map_id=0, merge=None)
+    # Then a new map (1) starts and merges back into map 0.
+    new_map = SimpleNamespace(**{**vars(ok), "map_id": 1})
+    merged = SimpleNamespace(**{**vars(ok), "map_id": 1,
+                                "merge": {"merged_map": 1, "into_map": 0, "num_matches": 321}})
     with RerunLogger(recording=recording) as logger:
-        for i, result in enumerate((ok, lost, lost)):
+        for i, result in enumerate((ok, lost, lost, new_map, merged, ok)):
             logger.log_frame(i, None, None, camera, result)
     recording.disconnect()
     rows = _read(path)
 
-    assert _frames_of(rows["/world/camera"], "Transform3D:translation") == [0]
+    assert _frames_of(rows["/world/camera"], "Transform3D:translation") == [0, 3, 4, 5]
     state = rows["/tracking/state"]
-    assert _cells(state, "TextLog:text") == [["ok (200 tracked)"], ["lost (3 tracked)"]]
-    assert _cells(state, "TextLog:level") == [["INFO"], ["WARN"]]
+    assert _cells(state, "TextLog:text") == [
+        ["ok (200 tracked)"], ["lost (3 tracked)"], ["ok (200 tracked)"], ["tracking in map 1"],
+        ["map 1 merged into map 0 (321 points matched)"]]
+    assert _cells(state, "TextLog:level") == [["INFO"], ["WARN"], ["INFO"], ["WARN"], ["INFO"]]
+    assert _cells(rows["/tracking/map_id"], "Scalars:scalars") == [[0], [0], [0], [1], [1], [0]]
     assert "time" not in rows["/tracking/num_tracked"][0]
 
 
@@ -237,7 +246,8 @@ def test_bad_destination_or_quality(tmp_path, monkeypatch, kwargs, match):
 
 def test_bad_map_and_frame_arguments_are_named(tmp_path):
     camera = open_sequence(require_data("tum", "rgbd_dataset_freiburg1_desk")).camera
-    ok = SimpleNamespace(state="ok", T_w_c=np.eye(4), num_tracked=200, loop_closed=False)
+    ok = SimpleNamespace(state="ok", T_w_c=np.eye(4), num_tracked=200, loop_closed=False,
+                         map_id=0, merge=None)
     with RerunLogger(save_path=tmp_path / "bad.rrd") as logger:
         with pytest.raises(ValueError, match="points_xyz must have shape"):
             logger.log_map(np.zeros((4, 2)))

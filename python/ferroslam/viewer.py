@@ -16,8 +16,9 @@ Frames, stated once for the whole module:
 Entities: ``world/map/points`` (map points in the colour of the image pixel each was
 first seen at), ``world/map/keyframes`` (keyframe centres as
 one line strip), ``world/map/loops`` (one segment per loop closure, between the two
-keyframes' centres), ``tracking/state`` (text log: state changes and loop closures),
-``tracking/num_tracked`` (scalar). Timelines: ``frame`` (frame index) and ``time``
+keyframes' centres), ``tracking/state`` (text log: state changes, loop closures, a new
+current map and merges), ``tracking/num_tracked`` and ``tracking/map_id`` (scalars: the map
+each pose is in; a merged map's poses move into the older map's world). Timelines: ``frame`` (frame index) and ``time``
 (the frame's timestamp as a duration in seconds: dataset clocks start at the epoch (TUM,
 EuRoC) or at 0 (KITTI), so it is not shown as a date).
 
@@ -52,6 +53,7 @@ LOOPS = "world/map/loops"
 MESH = "world/map/mesh"
 STATE = "tracking/state"
 NUM_TRACKED = "tracking/num_tracked"
+MAP_ID = "tracking/map_id"
 # Map points without colours.
 _GREY = (128, 128, 128)
 _STATE_LEVEL = {"ok": "INFO", "not_initialized": "INFO"}  # the other states: WARN
@@ -112,6 +114,7 @@ class RerunLogger:
         self.recording.log("world", self._rr.ViewCoordinates.RDF, static=True)
         self._camera: Optional[Camera] = None
         self._state: Optional[str] = None
+        self._map_id: Optional[int] = None
 
     # -- per frame --------------------------------------------------------------------------
     def log_frame(self, index: int, timestamp_s: Optional[float], image: Optional[np.ndarray],
@@ -124,12 +127,13 @@ class RerunLogger:
         core does not say which of them it tracked) and the tracking state.
 
         ``result``: a ``ferroslam._core.TrackResult`` (``state``, ``T_w_c``,
-        ``num_tracked``, ``loop_closed``).
+        ``num_tracked``, ``loop_closed``, ``map_id``, ``merge``).
         """
         self._set_time(index, timestamp_s)
         self._log_view(camera, image, keypoints)
         self._log_track(result.T_w_c, str(result.state), int(result.num_tracked),
                         bool(result.loop_closed))
+        self._log_maps(int(result.map_id), result.merge)
 
     def _set_time(self, index: int, timestamp_s: Optional[float]) -> None:
         self.recording.set_time("frame", sequence=int(index))
@@ -174,6 +178,18 @@ class RerunLogger:
             self._state = state
         if loop_closed:
             self.recording.log(STATE, rr.TextLog("loop closed", level="INFO"))
+
+    def _log_maps(self, map_id: int, merge: Optional[dict]) -> None:
+        """The map id every frame, text when the current map changes or a merge joins two."""
+        rr = self._rr
+        self.recording.log(MAP_ID, rr.Scalars(map_id))
+        if merge is not None:
+            self.recording.log(STATE, rr.TextLog(
+                f"map {merge['merged_map']} merged into map {merge['into_map']} "
+                f"({merge['num_matches']} points matched)", level="INFO"))
+        elif self._map_id is not None and map_id != self._map_id:
+            self.recording.log(STATE, rr.TextLog(f"tracking in map {map_id}", level="WARN"))
+        self._map_id = merge["into_map"] if merge is not None else map_id
 
     # -- the map ----------------------------------------------------------------------------
     def log_map(self, points_xyz: np.ndarray, colors: Optional[np.ndarray] = None,
