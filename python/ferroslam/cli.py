@@ -402,7 +402,7 @@ def _add_merge_parser(sub: argparse._SubParsersAction) -> None:
 
 def _add_fleet_parser(sub: argparse._SubParsersAction) -> None:
     """``fleet``: sessions mapped as Ray tasks, then merged as a tree of Ray tasks."""
-    from .batch import SPEC_EXAMPLE
+    from .fleet import FLEET_SPEC_EXAMPLE
 
     fleet = sub.add_parser(
         "fleet", help="map sessions in parallel on Ray and merge their maps",
@@ -412,9 +412,9 @@ def _add_fleet_parser(sub: argparse._SubParsersAction) -> None:
                     "camera. Writes DIR/merged.map (the largest group; merged_<k>.map the\n"
                     "others), DIR/<run>/trajectory_merged.txt and DIR/summary.json. Needs Ray:\n"
                     "pip install 'ferroslam[batch]'.",
-        epilog="SPEC: the format of 'ferroslam batch' (repeats 1, no grid), plus\n"
-               "'first_frame' (top level or per run). Example of the batch format:\n"
-               + SPEC_EXAMPLE,
+        epilog="SPEC (JSON or YAML): the format of 'ferroslam batch' (each run one session;\n"
+               "no repeats, no grid), plus 'first_frame' (top level or per run):\n"
+               + FLEET_SPEC_EXAMPLE,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     fleet.add_argument("spec", type=Path, help="JSON or YAML file of runs")
     fleet.add_argument("--out", type=Path, required=True, metavar="DIR",

@@ -24,10 +24,17 @@ import numpy as np
 from ._files import write_text
 from .trajectory import Trajectory
 
-__all__ = ["apply_similarity", "merge_chain", "merge_lines", "merge_maps", "read_fleet_spec",
+__all__ = ["FLEET_SPEC_EXAMPLE", "apply_similarity", "merge_chain", "merge_lines", "merge_maps", "read_fleet_spec",
            "run_fleet", "FleetRun"]
 
 PathLike = Union[str, "os.PathLike[str]"]
+
+FLEET_SPEC_EXAMPLE = """\
+{"max_frames": 80,
+ "runs": [{"sequence": "data/rgbd_dataset_freiburg1_rpy", "sensor": "rgbd"},
+          {"sequence": "data/rgbd_dataset_freiburg1_rpy", "sensor": "rgbd", "first_frame": 60},
+          {"sequence": "data/kitti_01", "sensor": "stereo", "max_frames": 30,
+           "options": {"n_features": 2000}}]}"""
 
 
 # -- merging map files ----------------------------------------------------------------------
