@@ -126,12 +126,7 @@ impl SlamSystem {
         self.map_id = stored.id;
         // A map brought back continues after every id used meanwhile.
         self.map.reserve_ids(self.used_ids());
-        self.mapping.reset();
-        self.initializer.reset();
-        self.new_points.clear();
-        self.merge_checks.clear();
-        self.lost_since = None;
-        self.predictor.clear();
+        self.forget_map_work();
         self.atlas.iter_mut().for_each(|s| s.detector.clear());
     }
 
@@ -237,8 +232,7 @@ impl SlamSystem {
         self.place = stored.place.take();
         self.map_id = stored.id;
         self.tracker.transform_world(&S);
-        self.mapping.reset();
-        self.new_points.clear();
+        self.forget_map_work();
         self.atlas.iter_mut().for_each(|s| s.detector.clear());
         if let Some(place) = self.place.as_mut() {
             place.forget_culled(&self.map);

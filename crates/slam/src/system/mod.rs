@@ -603,16 +603,23 @@ impl SlamSystem {
             place.clear();
         }
         self.tracker.reset();
-        self.mapping.reset();
-        self.new_points.clear();
-        self.initializer.reset();
         self.trajectory.clear();
-        self.lost_since = None;
-        self.merge_checks.clear();
-        self.predictor.clear();
+        self.forget_map_work();
         if let Some(inertial) = self.inertial.as_mut() {
             inertial.clear_map();
         }
+    }
+
+    /// Forgets what belonged to the current map's tracking and mapping (it was cleared or
+    /// replaced): the mapping pipeline's state, the points and keyframes waiting for it,
+    /// the initialiser, the lost time and the IMU-only poses.
+    fn forget_map_work(&mut self) {
+        self.mapping.reset();
+        self.new_points.clear();
+        self.initializer.reset();
+        self.lost_since = None;
+        self.merge_checks.clear();
+        self.predictor.clear();
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by their bag of words and a lost frame
