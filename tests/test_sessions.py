@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from conftest import require_data
-from ferroslam import cli
+from fuzzing import fuzz
+from ferroslam import _core, cli
 from ferroslam.datasets import TumSequence, open_sequence
 from ferroslam.io import read_tum_trajectory
 from ferroslam.metrics import ate
@@ -140,3 +143,20 @@ def test_cli_session_errors(tum_rpy, tmp_path, capsys):
                      "--out", str(tmp_path / "p"), "--silent"]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "first_frame 300" in err[0], err
+
+
+@given(map_id=st.one_of(st.integers(min_value=-(2 ** 70), max_value=2 ** 70), st.booleans(),
+                       st.floats(allow_nan=True), st.text(max_size=3)))
+@fuzz(120, deadline=None)
+def test_any_map_id_that_is_not_a_map_is_refused_by_name(map_id):
+    """Every value but the current (empty) map's id 0 (and None): an exception naming
+    ``map_id`` (not an int, negative or beyond any id, or no map of the run); 0 gives empty
+    arrays."""
+    system = _core.SlamSystem(500.0, 500.0, 320.0, 240.0, [0.0] * 5, 640, 480, sensor="rgbd")
+    if type(map_id) is int and map_id == 0:
+        assert system.map_points(map_id).shape == (0, 3)
+        assert system.keyframe_trajectory(map_id)[0].shape == (0,)
+        return
+    for call in (system.map_points, system.keyframe_trajectory):
+        with pytest.raises((ValueError, TypeError), match="map_id"):
+            call(map_id)

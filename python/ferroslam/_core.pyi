@@ -422,10 +422,11 @@ class SlamSystem:
     ) -> tuple[NDArray[np.uint32], NDArray[np.float64], NDArray[np.float64]]:
         """``(ids (K,) uint32, timestamps (K,) float64, T_w_c (K, 4, 4) float64)`` of the
         live keyframes of map ``map_id`` (default the current map). ``ValueError`` naming
-        the run's maps for an id that is none of them."""
+        the run's maps for an id that is none of them (or negative), ``TypeError`` for a
+        ``map_id`` that is not an int."""
     def map_points(self, map_id: int | None = None) -> NDArray[np.float64]:
         """World positions of the live map points of map ``map_id`` (default the current
-        map), (M, 3) float64 metres; ``ValueError`` as ``keyframe_trajectory``."""
+        map), (M, 3) float64 metres; errors as ``keyframe_trajectory``."""
     def map_point_colors(self) -> NDArray[np.uint8]:
         """Colours of the live map points, (M, 3) uint8 RGB in the order of ``map_points``:
         each the colour of the keypoint that created the point (the ``colors`` given with

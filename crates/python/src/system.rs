@@ -9,9 +9,9 @@ use std::sync::{Mutex, MutexGuard, TryLockError};
 use ferroslam_slam::{BackgroundSlam, InputGuard, OwnedFrame, SlamConfig, SlamError, SlamSystem};
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBool, PyDict, PyInt};
 
 use crate::camera::{self, camera_model_of};
 use crate::config;
@@ -514,8 +514,9 @@ impl PySlamSystem {
     fn keyframe_trajectory<'py>(
         &self,
         py: Python<'py>,
-        map_id: Option<usize>,
+        map_id: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<KeyFrameArrays<'py>> {
+        let map_id = map_id_arg(map_id)?;
         let kfs = self.engine()?.run(py, move |s| {
             s.keyframe_trajectory_of(map_id.unwrap_or(s.current_map_id()))
         })?;
@@ -536,8 +537,9 @@ impl PySlamSystem {
     fn map_points<'py>(
         &self,
         py: Python<'py>,
-        map_id: Option<usize>,
+        map_id: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let map_id = map_id_arg(map_id)?;
         let pts = self
             .engine()?
             .run(py, move |s| {
@@ -788,4 +790,20 @@ where
             Err(error)
         })
         .map_err(to_py)
+}
+
+/// A `map_id` argument: `None` or an int that can be a map id (the core says which exist).
+fn map_id_arg(map_id: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
+    let Some(obj) = map_id.filter(|o| !o.is_none()) else {
+        return Ok(None);
+    };
+    if obj.is_instance_of::<PyBool>() || !obj.is_instance_of::<PyInt>() {
+        return Err(PyTypeError::new_err(format!(
+            "map_id must be an int or None, got {}",
+            obj.get_type().name()?
+        )));
+    }
+    obj.extract::<usize>().map(Some).map_err(|_| {
+        PyValueError::new_err(format!("map_id must be a map id (0 or more), got {obj}"))
+    })
 }
