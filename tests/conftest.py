@@ -13,6 +13,10 @@ import pytest
 
 from ferroslam._data import data_dir
 
+# The tests' Ray clusters live on 127.0.0.1 (ferroslam.batch's loopback switch): set before
+# any test imports Ray, which reads it once.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+
 
 def require_data(*parts: str) -> Path:
     """Path inside the shared data folder; skip (locally) or fail (CI) if it is missing."""

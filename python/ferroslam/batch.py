@@ -405,7 +405,7 @@ def _done_row(folder: Path, retry_failed: bool) -> Optional[dict]:
 def _ray_session(address: Optional[str], num_cpus: Optional[int]) -> Iterator[Any]:
     """Ray, connected to the cluster at ``address`` or to a new local instance bound to
     127.0.0.1 (stopped on exit); disconnects on exit either way."""
-    if address is None:
+    if address is None or _on_loopback(address):
         os.environ.setdefault(_RAY_LOOPBACK_ENV, "0")
     try:
         import ray
@@ -424,6 +424,13 @@ def _ray_session(address: Optional[str], num_cpus: Optional[int]) -> Iterator[An
         yield ray
     finally:
         ray.shutdown()
+
+
+def _on_loopback(address: str) -> bool:
+    """Whether a cluster address (``host:port``, ``ray://host:port``) is on this machine's
+    loopback, which Ray would otherwise rewrite to the machine's public address."""
+    host = address.split("://")[-1].rsplit(":", 1)[0]
+    return host in (_LOOPBACK, "localhost")
 
 
 def _fan_out(ray: Any, todo: list[RunSpec], out_dir: Path, cpus_per_run: int,
