@@ -186,6 +186,25 @@ pub struct LoopClosingConfig {
     pub sim3_ransac_probability: f64,
     /// Most Sim(3) RANSAC iterations per candidate (ORB-SLAM: 300).
     pub sim3_ransac_iterations: usize,
+    /// Best covisible keyframes of a merge candidate matched with it by bag of words
+    /// (ORB-SLAM3 `DetectCommonRegionsFromBoW`'s `nNumCovisibles`: 10).
+    pub merge_window: usize,
+    /// Inliers the Sim(3) RANSAC of a merge needs (ORB-SLAM3 `nBoWInliers`: 15). It only
+    /// proposes a similarity, which projection then checks: on fr1/rpy monocular, hypotheses
+    /// of 6-10 inliers among 50 pooled matches project to 58-97 matches, and 15 are never
+    /// reached.
+    pub merge_ransac_inliers: usize,
+    /// Inliers of a merge's refined Sim(3). Below `min_stage_matches`: the refinement sees
+    /// only keypoints of the current keyframe with a map point, which a young monocular map
+    /// has few of (24 of 83 projection matches on fr1/rpy).
+    pub merge_refined_inliers: usize,
+    /// Matched points a merge needs after the final projection, the bar that makes up for
+    /// the lower stages (ORB-SLAM3 `nProjOptMatches`: 80).
+    pub merge_threshold: usize,
+    /// Largest scale, or inverse scale, of a merge's similarity: monocular maps of one camera
+    /// start at a median depth of 1 and differ by a few times, a diverged one by orders of
+    /// magnitude.
+    pub max_merge_scale: f64,
 }
 
 impl Default for LoopClosingConfig {
@@ -205,6 +224,11 @@ impl Default for LoopClosingConfig {
             bow_nn_ratio: 0.75,
             sim3_ransac_probability: 0.99,
             sim3_ransac_iterations: 300,
+            merge_window: 10,
+            merge_ransac_inliers: 6,
+            merge_refined_inliers: 15,
+            merge_threshold: 80,
+            max_merge_scale: 20.0,
         }
     }
 }

@@ -233,7 +233,7 @@ mod tests {
             };
         }
         type Case = (&'static str, fn(&mut SlamConfig));
-        let cases: [Case; 24] = [
+        let cases: [Case; 27] = [
             case!(extractor.n_features = 0),
             case!(extractor.min_fast = 0),
             case!(extractor.min_fast = 21),
@@ -256,6 +256,9 @@ mod tests {
             case!(place_recognition.group_score_ratio = 0.0),
             case!(loop_closing.loop_closure_threshold = 19),
             case!(loop_closing.sim3_ransac_probability = 1.0),
+            case!(loop_closing.merge_refined_inliers = 2),
+            case!(loop_closing.merge_threshold = 19),
+            case!(loop_closing.max_merge_scale = 0.5),
             case!(inertial.refinement_spans_s = vec![15.0, 5.0]),
             case!(inertial.anchor_sigma_gyro_rad_s = -1.0),
         ];

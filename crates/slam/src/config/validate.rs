@@ -174,13 +174,17 @@ impl SlamConfig {
         let (l, s) = (&self.loop_closing, Section("loop_closing"));
         // The Sim(3) RANSAC samples 3 correspondences.
         check!(s, >= 3, l.min_stage_matches);
+        check!(s, >= 3, l.merge_ransac_inliers, l.merge_refined_inliers);
         // The verification needs `min_stage_matches` before its final count: a lower bound
         // would never apply.
         check!(s, >= l.min_stage_matches, l.loop_closure_threshold);
+        // A merge's projection stage needs `min_stage_matches` too.
+        check!(s, >= l.min_stage_matches, l.merge_threshold);
         check!(s, >= 1, l.consistency, l.essential_graph_iterations);
         check!(s, > 0, l.sim3_huber_chi2, l.guided_radius_px);
         check!(s, > 0, l.projection_radius_px, l.fuse_radius_px);
         check!(s, >= 1, l.sim3_ransac_iterations);
+        check!(s, >= 1.0, l.max_merge_scale);
         check!(s, <= 1.0, l.bow_nn_ratio);
         if !(l.sim3_ransac_probability > 0.0 && l.sim3_ransac_probability < 1.0) {
             let got = l.sim3_ransac_probability;

@@ -12,10 +12,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::correction::correct_loop;
-use super::verification::{verify_loop, LoopMatch};
+use super::verification::{verify_window, LoopMatch};
 use crate::context::Context;
 use crate::error::SlamError;
 use crate::local_ba_problem::adjust_keyframes;
+use crate::place_recognition::PlaceRecognition;
 
 /// Two maps the system merged.
 #[derive(Clone, Debug, PartialEq)]
@@ -54,25 +55,42 @@ impl MergeMatch {
     pub(crate) fn num_matches(&self) -> usize {
         self.found.num_matches
     }
+
+    /// The older map's keyframe of the window the current one was matched to.
+    pub(crate) fn matched(&self) -> KeyFrameId {
+        self.found.loop_kf
+    }
 }
 
-/// Verifies `candidate` (of `older`) as the place `kf` (of `current`) shows; `fv` are their
-/// bag-of-words feature vectors. The maps' ids must be disjoint. `None` when any stage of the
-/// loop verification falls short: the maps are not touched.
+/// Verifies `candidate` (of `older`) as the place `kf` (of `current`) shows, over the
+/// candidate's window of covisible keyframes (`loop_closing.merge_window`, see
+/// [`verify_window`]); `fv` is `kf`'s bag-of-words feature vector and `place` the older map's
+/// index. The maps' ids must be disjoint. `None` when any stage falls short or the
+/// similarity's scale is implausible: the maps are not touched.
 pub(crate) fn verify_merge(
-    (current, kf): (&Map, KeyFrameId),
-    (older, candidate): (&Map, KeyFrameId),
-    fv: (&FeatureVector, &FeatureVector),
+    (current, kf, fv): (&Map, KeyFrameId, &FeatureVector),
+    (older, candidate, place): (&Map, KeyFrameId, &PlaceRecognition),
     ctx: &Context,
 ) -> Result<Option<MergeMatch>, SlamError> {
+    let config = &ctx.config.loop_closing;
+    let window: Vec<(KeyFrameId, &FeatureVector)> = std::iter::once(candidate)
+        .chain(older.best_covisibles(candidate, config.merge_window))
+        .filter_map(|k| place.feature_vector(k).map(|f| (k, f)))
+        .collect();
     let mut both = older.clone();
     both.absorb(current.clone(), (kf, candidate))?;
     let mut rng = ChaCha8Rng::seed_from_u64(ctx.config.seed ^ u64::from(kf.0) ^ 0x6d65_7267);
-    let Some(found) = verify_loop(kf, candidate, &both, ctx, fv, &mut rng) else {
+    let Some(found) = verify_window((kf, fv), &window, &both, ctx, &mut rng) else {
         return Ok(None);
     };
     let T_cw = *current.keyframe(kf).expect("verified keyframe").T_c_w();
     let S_older_current = found.S_cw.inverse() * Sim3::from_isometry(&T_cw);
+    // A map whose scale drifted by orders of magnitude (one diverged to a median point depth
+    // of 1e5) can still line up a few dozen points: its merge would rescale the older map.
+    let scale = S_older_current.scale;
+    if !(1.0 / config.max_merge_scale..=config.max_merge_scale).contains(&scale) {
+        return Ok(None);
+    }
     Ok(Some(MergeMatch {
         found,
         S_older_current,

@@ -191,19 +191,20 @@ impl SlamSystem {
         candidate: KeyFrameId,
     ) -> Result<bool, SlamError> {
         let stored = &self.atlas[i];
-        let fv = self.place.as_ref().and_then(|p| p.feature_vector(kf)).zip(
-            stored
-                .place
-                .as_ref()
-                .and_then(|p| p.feature_vector(candidate)),
-        );
-        let Some(fv) = fv else {
+        let fv = self.place.as_ref().and_then(|p| p.feature_vector(kf));
+        let (Some(fv), Some(place)) = (fv, stored.place.as_ref()) else {
             return Ok(false);
         };
-        let Some(merge) = verify_merge((&self.map, kf), (&stored.map, candidate), fv, &self.ctx)?
+        let Some(merge) = verify_merge(
+            (&self.map, kf, fv),
+            (&stored.map, candidate, place),
+            &self.ctx,
+        )?
         else {
             return Ok(false);
         };
+        // The maps are joined where they share the most: the window's reference keyframe.
+        let matched = merge.matched();
         let S = merge.S_older_current;
         // On copies (sharing their entries): an error leaves every map as it was.
         let mut current = self.map.clone();
@@ -215,13 +216,13 @@ impl SlamSystem {
                 join_maps(
                     stored.map.clone(),
                     current,
-                    (kf, candidate),
+                    (kf, matched),
                     &merge,
                     &self.ctx,
                 )
             })?;
         let mut stored = self.atlas.remove(i);
-        self.record_merge(&merge, &stored, (kf, candidate), graph_cost);
+        self.record_merge(&merge, &stored, (kf, matched), graph_cost);
         stored.trajectory.append(trajectory);
         if let (Some(theirs), Some(ours)) = (stored.place.as_mut(), self.place.take()) {
             theirs.absorb(ours);
