@@ -172,8 +172,6 @@ pub struct PointAtOffset {
     pub d_p_c_d_pose: Matrix3x6<f64>,
     /// d p_c(dt) / d xi_dot, xi_dot = [v; w].
     pub d_p_c_d_velocity: Matrix3x6<f64>,
-    /// d p_c(dt) / d p_w.
-    pub d_p_c_d_p_w: Matrix3<f64>,
 }
 
 /// `p_c(dt)` of [`point_at_offset`] alone (the same arithmetic), for a residual that needs no
@@ -235,7 +233,6 @@ pub fn point_at_offset(
         p_c,
         d_p_c_d_pose: R_d * d_p_c0_d_pose,
         d_p_c_d_velocity,
-        d_p_c_d_p_w: R_d * T_c_w.rotation.to_rotation_matrix().into_inner(),
     }
 }
 
@@ -367,24 +364,6 @@ mod tests {
         let analytic = DMatrix::from_column_slice(3, 6, at.d_p_c_d_velocity.as_slice());
         let x0 = DVector::from_column_slice(velocity().as_slice());
         check_jacobian("d_p_c_d_velocity", &analytic, f, &x0, 1e-6, 1e-7);
-    }
-
-    #[test]
-    fn jacobian_of_point_matches_numeric() {
-        let at = point_at_offset(&pose(), &velocity(), DT, &p_w());
-        let f = |x: &DVector<f64>| {
-            let p = Point3::new(x[0], x[1], x[2]);
-            dvec(&point_at_offset(&pose(), &velocity(), DT, &p).p_c)
-        };
-        let analytic = DMatrix::from_column_slice(3, 3, at.d_p_c_d_p_w.as_slice());
-        check_jacobian(
-            "d_p_c_d_p_w",
-            &analytic,
-            f,
-            &dvec(&p_w().coords),
-            1e-6,
-            1e-7,
-        );
     }
 
     #[test]

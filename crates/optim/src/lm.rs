@@ -130,9 +130,11 @@ pub(crate) fn dense_damped_step<const N: usize>(
 /// triangle of `h` (diagonal included) and `w J^T e` to `g`, over the first `rows` rows of
 /// `j` and `e` (the others must be zero, as a monocular observation's right row).
 ///
-/// Each entry is the one `w * j.transpose() * j` (and `* e`) gives, bit for bit, at about
-/// half the products of the full matrix and with no temporary matrix. The upper triangle of
-/// `h` is left alone: [`mirror_lower_triangle`] fills it once all observations are added.
+/// Each entry is the one `w * j.transpose() * j` (and `* e`) gives, bit for bit, with no
+/// temporary matrix. Columns of `h` are summed in blocks of contiguous entries, which
+/// vectorise where the triangle's ragged rows do not, so some upper-triangle entries get
+/// sums too (each entry still its own sum in the same order); [`mirror_lower_triangle`]
+/// overwrites the upper triangle once all observations are added.
 pub(crate) fn add_normal_equations<const R: usize, const N: usize>(
     h: &mut SMatrix<f64, N, N>,
     g: &mut SVector<f64, N>,
@@ -142,21 +144,103 @@ pub(crate) fn add_normal_equations<const R: usize, const N: usize>(
     rows: usize,
 ) {
     debug_assert!((1..=R).contains(&rows));
-    let wj = w * j;
-    for c in 0..N {
-        for r in c..N {
-            let mut s = wj[(0, r)] * j[(0, c)];
-            for k in 1..rows {
-                s += wj[(k, r)] * j[(k, c)];
+    // Transposed, each row of `j` is a contiguous column.
+    let (wj, jc) = ((w * j).transpose(), j.transpose());
+    let args = (
+        &mut h.data.0,
+        &mut g.data.0[0],
+        &wj.data.0,
+        &jc.data.0,
+        &e.data.0[0],
+    );
+    match rows {
+        2 => add_columns::<R, N, 2>(args),
+        3 => add_columns::<R, N, 3>(args),
+        _ => add_columns::<R, N, 1>(args),
+    }
+}
+
+/// Column `c` of `h` (`N` entries) gets `sum_k wj[k] * jc[k][c]` over `K` rows, `g[c]` the
+/// same with `e`; `wj[k]` and `jc[k]` are the `k`-th rows of `w J` and `J`.
+type Columns<'a, const R: usize, const N: usize> = (
+    &'a mut [[f64; N]; N],
+    &'a mut [f64; N],
+    &'a [[f64; N]; R],
+    &'a [[f64; N]; R],
+    &'a [f64; R],
+);
+
+/// [`add_normal_equations`] over the first `K` rows, known at compile time so that the
+/// inner sums unroll, 4 entries of a column at a time where the CPU has AVX.
+fn add_columns<const R: usize, const N: usize, const K: usize>(columns: Columns<'_, R, N>) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX, checked above.
+        unsafe { add_columns_avx::<R, N, K>(columns) };
+        return;
+    }
+    add_columns_scalar::<R, N, K>(columns, 0);
+}
+
+/// Rows `from..N` of every column and all of `g`, one entry at a time (upper triangle
+/// entries included: only the lower one is read).
+fn add_columns_scalar<const R: usize, const N: usize, const K: usize>(
+    (h, g, wj, jc, e): Columns<'_, R, N>,
+    from: usize,
+) {
+    for (c, column) in h.iter_mut().enumerate() {
+        for (r, entry) in column.iter_mut().enumerate().skip(from) {
+            let mut s = wj[0][r] * jc[0][c];
+            for k in 1..K {
+                s += wj[k][r] * jc[k][c];
             }
-            h[(r, c)] += s;
+            *entry += s;
         }
-        let mut s = wj[(0, c)] * e[0];
-        for k in 1..rows {
-            s += wj[(k, c)] * e[k];
+        let mut s = wj[0][c] * e[0];
+        for k in 1..K {
+            s += wj[k][c] * e[k];
         }
         g[c] += s;
     }
+}
+
+/// [`add_columns_scalar`] with the rows of each column in blocks of 4 lanes from the block
+/// holding the diagonal (the blocks above it are upper triangle): each lane multiplies and
+/// adds in the scalar order (AVX has no fused multiply-add), so every entry is the scalar
+/// one bit for bit.
+///
+/// # Safety
+/// The CPU must support AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn add_columns_avx<const R: usize, const N: usize, const K: usize>(
+    (h, g, wj, jc, e): Columns<'_, R, N>,
+) {
+    use std::arch::x86_64::{
+        _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_storeu_pd,
+    };
+    let blocks = N / 4 * 4;
+    for (c, column) in h.iter_mut().enumerate() {
+        for r in (c / 4 * 4..blocks).step_by(4) {
+            // SAFETY: r + 4 <= N for every array read or written.
+            unsafe {
+                let mut s = _mm256_mul_pd(
+                    _mm256_loadu_pd(wj[0][r..].as_ptr()),
+                    _mm256_set1_pd(jc[0][c]),
+                );
+                for k in 1..K {
+                    let p = _mm256_mul_pd(
+                        _mm256_loadu_pd(wj[k][r..].as_ptr()),
+                        _mm256_set1_pd(jc[k][c]),
+                    );
+                    s = _mm256_add_pd(s, p);
+                }
+                let at = column[r..].as_mut_ptr();
+                _mm256_storeu_pd(at, _mm256_add_pd(_mm256_loadu_pd(at), s));
+            }
+        }
+    }
+    add_columns_scalar::<R, N, K>((h, g, wj, jc, e), blocks);
 }
 
 /// Copies the lower triangle of `h` onto its upper one, once [`add_normal_equations`] has
@@ -170,16 +254,15 @@ pub(crate) fn mirror_lower_triangle<const N: usize>(h: &mut SMatrix<f64, N, N>) 
 mod tests {
     use super::*;
 
-    #[test]
-    fn normal_equations_equal_the_matrix_products_bit_for_bit() {
+    /// `add_normal_equations` against nalgebra's products on random `3 x N` Jacobians.
+    fn check_normal_equations<const N: usize>(seed: u64) {
         use rand::{Rng, SeedableRng};
-        let seed = 11;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let mut value =
             || -> f64 { rng.random_range(-1e3..1e3) * 10f64.powi(rng.random_range(-6..3)) };
         for trial in 0..200 {
             let rows = 2 + trial % 2;
-            let mut j = SMatrix::<f64, 3, 12>::from_fn(|_, _| value());
+            let mut j = SMatrix::<f64, 3, N>::from_fn(|_, _| value());
             let mut e = SVector::<f64, 3>::from_fn(|_, _| value());
             if rows == 2 {
                 j.row_mut(2).fill(0.0);
@@ -187,21 +270,21 @@ mod tests {
             }
             let w = value().abs();
             let (h0, g0) = (
-                SMatrix::<f64, 12, 12>::from_fn(|r, c| (r * 12 + c) as f64 * 0.37),
-                SVector::<f64, 12>::from_fn(|r, _| r as f64 * 1.9),
+                SMatrix::<f64, N, N>::from_fn(|r, c| (r * N + c) as f64 * 0.37),
+                SVector::<f64, N>::from_fn(|r, _| r as f64 * 1.9),
             );
             let (mut h, mut g) = (h0, g0);
             add_normal_equations(&mut h, &mut g, w, &j, &e, rows);
             mirror_lower_triangle(&mut h);
             let want_h = h0 + w * j.transpose() * j;
             let want_g = g0 + w * j.transpose() * e;
-            for c in 0..12 {
+            for c in 0..N {
                 assert_eq!(
                     g[c].to_bits(),
                     want_g[c].to_bits(),
                     "seed {seed}, trial {trial}, g[{c}]"
                 );
-                for r in c..12 {
+                for r in c..N {
                     assert_eq!(
                         h[(r, c)].to_bits(),
                         want_h[(r, c)].to_bits(),
@@ -211,6 +294,13 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn normal_equations_equal_the_matrix_products_bit_for_bit() {
+        // The pose-and-velocity system (12), the pose's (6: a block of 4 and a scalar tail).
+        check_normal_equations::<12>(11);
+        check_normal_equations::<6>(12);
     }
 
     #[test]
