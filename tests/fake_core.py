@@ -33,7 +33,8 @@ class FakeTrackResult:
 class FakeSlamSystem:
     # the native SlamSystem's option names (tests/test_core_api.py keeps them in step)
     KNOWN = {"n_features", "ini_fast", "min_fast", "scale_factor", "n_levels",
-             "track_feature_range", "skip_max_frames", "relocalisation_window_s", "bf",
+             "track_feature_range", "skip_max_frames", "relocalisation_window_s", "gap_frames",
+             "bf",
              "baseline", "depth_threshold",
              "depth_range", "match_pair_every_frame", "seed", "deterministic", "loop_closure",
              "loop_closure_threshold"}

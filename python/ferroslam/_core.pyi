@@ -69,6 +69,10 @@ class _SlamOptions(TypedDict, total=False):
     relocalisation_window_s: float
     """Seconds a lost map tries to relocalise before the atlas keeps it and a new map
     starts (monocular, or with a vocabulary to find it again)."""
+    gap_frames: int
+    """Frames without a pose (lost, before a map starts) kept and tracked backwards once a
+    later frame is tracked, so the trajectory fills in behind the live results; 0 keeps
+    none (visual maps only)."""
     bf: float
     """RGB-D only: fx * baseline of the virtual right camera, pixels * metres."""
     baseline: float

@@ -91,6 +91,7 @@ const OPTIONS: &[Opt] = &[
         tracking.relocalisation_window_s,
         number
     ),
+    field!("gap_frames", tracking.gap_frames, int),
     Opt {
         name: "bf",
         read: |p, value| {

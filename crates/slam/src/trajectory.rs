@@ -41,6 +41,31 @@ impl Trajectory {
         }
     }
 
+    /// Records an earlier frame (tracked after the frames around it) in time order; a
+    /// timestamp already recorded is left as it is. Whether it was recorded.
+    pub fn insert(
+        &mut self,
+        timestamp: f64,
+        T_c_w: &Isometry3<f64>,
+        reference: KeyFrameId,
+        map: &Map,
+    ) -> bool {
+        let at = self.frames.partition_point(|f| f.timestamp < timestamp);
+        let taken = self.frames.get(at).is_some_and(|f| f.timestamp == timestamp);
+        let Some(T_r_w) = map.resolve_keyframe_pose(reference).filter(|_| !taken) else {
+            return false;
+        };
+        self.frames.insert(
+            at,
+            FrameRecord {
+                timestamp,
+                reference,
+                T_c_r: T_c_w * T_r_w.inverse(),
+            },
+        );
+        true
+    }
+
     /// `(timestamp, T_w_c)` of every tracked frame with the current map's corrections
     /// (culled reference keyframes are followed to their live ancestors).
     pub fn poses(&self, map: &Map) -> Vec<(f64, Isometry3<f64>)> {

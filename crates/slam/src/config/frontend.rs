@@ -305,6 +305,10 @@ pub struct TrackingConfig {
     /// How long a lost map keeps trying to relocalise before the atlas keeps it and a new map
     /// starts, seconds (monocular, or with a vocabulary, which can find it again).
     pub relocalisation_window_s: f64,
+    /// Frames without a pose (lost, or before a map starts) kept to be tracked backwards
+    /// once a later frame is tracked, which poses as many of them as it can follow; 0 keeps
+    /// none. Enough for a second at 30 fps: longer gaps are rarely bridged by tracking.
+    pub gap_frames: usize,
     /// A lost map with at most this many keyframes is discarded, not kept (ORB-SLAM: 5).
     pub min_keyframes_to_keep: usize,
     /// Window of the motion-model search around the last frame's projected points, pixels
@@ -389,6 +393,7 @@ impl TrackingConfig {
             redundant_view_share: 0.8,
             redundant_view_keyframes: 3,
             relocalisation_window_s: 1.0,
+            gap_frames: 30,
             min_keyframes_to_keep: 5,
             motion_search_radius_px: 15.0,
             motion_retry_radius_px: 30.0,

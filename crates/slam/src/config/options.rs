@@ -272,6 +272,16 @@ pub fn user_options() -> Vec<UserOption> {
             "How long a lost map tries to relocalise before the atlas keeps it and a new map \
              starts (monocular, or with a vocabulary to find it again)",
         ),
+        option(
+            "gap_frames",
+            "tracking.gap_frames",
+            Int,
+            "frames",
+            count(0.0),
+            "Frames without a pose (lost, before a map starts) kept and tracked backwards \
+             once a later frame is tracked, so the trajectory fills in behind the live \
+             results; 0 keeps none (visual maps only)",
+        ),
         UserOption {
             sensors: &[Sensor::Rgbd],
             ..option(
@@ -443,6 +453,7 @@ mod tests {
             }
             "skip_max_frames" => c.tracking.skip_max_frames = value as u32 as usize,
             "relocalisation_window_s" => c.tracking.relocalisation_window_s = value,
+            "gap_frames" => c.tracking.gap_frames = value as u32 as usize,
             "bf" => c.depth.bf = value,
             "depth_threshold" => c.depth.depth_threshold = value,
             "depth_range" => c.depth.depth_range = (value, value + 1.0),

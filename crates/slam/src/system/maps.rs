@@ -122,6 +122,8 @@ impl SlamSystem {
         };
         if keep {
             self.atlas.push(previous);
+        } else {
+            self.unpose_young_frames();
         }
         self.map_id = stored.id;
         // A map brought back continues after every id used meanwhile.

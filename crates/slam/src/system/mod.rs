@@ -31,6 +31,7 @@ use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
 
 mod door;
+mod gap;
 mod imu;
 mod map_files;
 mod maps;
@@ -63,6 +64,10 @@ pub struct SlamSystem {
     /// Keyframes mapped since the last frame, to look for a merge with.
     merge_checks: Vec<KeyFrameId>,
     lost_since: Option<f64>,
+    /// Frames without a pose since the last frame with one (see `gap`).
+    untracked: Vec<Frame>,
+    /// The frames posed in the current map while it is young (see `gap`).
+    young_frames: Vec<Frame>,
     /// Track against the map without changing it (no keyframes, no mapping).
     localization_only: bool,
     /// Bag-of-words index of the keyframes for relocalisation, once a vocabulary is set
@@ -171,6 +176,8 @@ impl SlamSystem {
             merges: Vec::new(),
             merge_checks: Vec::new(),
             lost_since: None,
+            untracked: Vec::new(),
+            young_frames: Vec::new(),
             localization_only: false,
             place: None,
             loops: Vec::new(),
@@ -200,6 +207,7 @@ impl SlamSystem {
         let resumed = self.tracker.state == TrackingState::NotInitialized
             && self.relocalise_in_atlas(&mut frame)?;
         if self.tracker.state == TrackingState::NotInitialized {
+            let kept = self.keeps_untracked().then(|| frame.clone());
             let (T_w_c, init_status) = if self.ctx.config.sensor.has_depth() {
                 frame.match_pair(self.map.pyramid(), &self.ctx);
                 (self.initialise(frame)?, None)
@@ -209,6 +217,16 @@ impl SlamSystem {
                     Err(status) => (None, Some(status)),
                 }
             };
+            match (T_w_c, kept) {
+                (None, Some(kept)) => self.keep_untracked(kept),
+                (Some(_), kept) => {
+                    if let Some(kept) = kept {
+                        self.keep_young(&kept);
+                    }
+                    self.fill_gap()?;
+                }
+                (None, None) => {}
+            }
             return Ok(TrackResult {
                 state: self.tracker.state,
                 T_w_c,
@@ -286,6 +304,9 @@ impl SlamSystem {
         }
         if !tracked {
             self.handle_lost(frame.timestamp);
+            if self.keeps_untracked() {
+                self.keep_untracked(frame);
+            }
             return Ok(result);
         }
         self.lost_since = None;
@@ -348,8 +369,10 @@ impl SlamSystem {
         if !new_keyframe {
             self.record_frame(&frame);
         }
+        self.keep_young(&frame);
         self.tracker
             .set_last_frame(frame, &self.map, &self.ctx, new_keyframe);
+        self.fill_gap()?;
         let merges = self.merges.len();
         self.check_merges()?;
         result.merge = self.merges.get(merges).cloned();
@@ -519,6 +542,7 @@ impl SlamSystem {
             return;
         }
         if self.map.num_keyframes() <= self.ctx.config.tracking.min_keyframes_to_keep {
+            self.unpose_young_frames();
             self.reset();
             return;
         }
@@ -620,6 +644,7 @@ impl SlamSystem {
         self.lost_since = None;
         self.merge_checks.clear();
         self.predictor.clear();
+        self.young_frames.clear();
     }
 
     /// Sets the ORB vocabulary: keyframes are indexed by their bag of words and a lost frame

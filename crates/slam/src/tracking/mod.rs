@@ -284,6 +284,20 @@ impl Tracker {
         self.last_frame = Some(frame);
     }
 
+    /// A tracker that follows frames backwards in time from this one's last frame (tracked
+    /// in `self`'s map): the same state and reference keyframe, and a motion model that
+    /// starts from standing still; each frame it tracks becomes its last one.
+    pub(crate) fn backwards(&self) -> Option<Self> {
+        Some(Self {
+            state: TrackingState::Ok,
+            reference_kf: self.reference_kf,
+            last_frame: Some(self.last_frame.clone()?),
+            last_T_c_r: self.last_T_c_r,
+            velocity: Some(Isometry3::identity()),
+            ..Self::default()
+        })
+    }
+
     /// Starts tracking from scratch (after a map reset).
     pub fn reset(&mut self) {
         *self = Self::default();
