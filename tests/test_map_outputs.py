@@ -3,7 +3,8 @@ map's frames only, ``maps/map_<id>.txt`` each map's, ``results.json`` lists the 
 
 The multi-map run is real: TUM fr1/rpy, monocular, the first 200 frames, 1000 features,
 seed 2. Measured on this build (deterministic: the same figures twice): 142 frames "ok", 54
-"lost", 4 not initialised; 144 frame poses in 2 maps of 126 and 18 frames. Map 0 was kept
+"lost", 4 not initialised; 179 frame poses in 2 maps of 132 and 47 frames (144 in 126 + 18
+without the frames of tracking gaps posed afterwards, ``gap_frames`` 0). Map 0 was kept
 in the atlas after a second lost, map 1 started, was lost in turn, and a later frame
 relocalised in map 0, which is the current and largest map at the end (22 keyframes; map 1:
 6). Before the atlas (maps dropped when lost): 111 poses in 3 maps of 20, 18 and 73. About
@@ -69,8 +70,9 @@ def test_multi_map_run_outputs(multi_map_run, tmp_path, capsys):
     assert saved["maps"] == [m.summary() for m in maps]
     poses = saved["trajectory_poses"]
     assert sum(m["frames"] for m in saved["maps"]) == poses == len(result.trajectory)
-    # Measured here: every "ok" frame has a pose, plus each map's initial reference frame.
-    assert saved["tracked_frames"] <= poses <= saved["tracked_frames"] + len(maps)
+    # Every "ok" frame has a pose; the others are each map's initial reference frame and
+    # the frames of tracking gaps posed afterwards (measured 142 "ok" of 179 poses).
+    assert saved["tracked_frames"] < poses
     # The atlas keeps every map with its keyframes and points; the current one is the map
     # the run's keyframes (results.json "keyframes") come from.
     assert all(m["keyframes"] > 0 and m["points"] > 0 for m in saved["maps"])
