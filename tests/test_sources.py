@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -22,25 +24,14 @@ from ferroslam import cli, io, sources
 from ferroslam.datasets import TumSequence
 from ferroslam.vslam import MonoVSlam, TrackingStatus
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
+from atlas_stress import FR1_SETTINGS  # noqa: E402
+
 pytest.importorskip("ferroslam._core")
 
 N_FRAMES = 150
 # The fr1 camera in the legacy ORB-SLAM settings format (as ORB-SLAM2's TUM1.yaml).
-SETTINGS = """%YAML:1.0
-Camera.type: "PinHole"
-Camera.fx: 517.3
-Camera.fy: 516.5
-Camera.cx: 318.6
-Camera.cy: 255.3
-Camera.k1: 0.2624
-Camera.k2: -0.9531
-Camera.p1: -0.0054
-Camera.p2: 0.0026
-Camera.k3: 1.1633
-Camera.width: 640
-Camera.height: 480
-Camera.fps: 30.0
-"""
+SETTINGS = FR1_SETTINGS
 # Monocular runs on these frames track 122 (video) and 126 (folder, as the TUM sequence
 # itself) of the 150 (deterministic: mapping inline). The video differs because its grey
 # images come from decoded colour, not from the JPEGs' luma (FFV1 is lossless, so decoding
