@@ -513,11 +513,14 @@ mod tests {
                 .count()
         };
         let start = Instant::now();
-        // at least: other tests of this binary may run mappers of their own meanwhile
-        while lowest() < wanted && start.elapsed() < Duration::from_secs(10) {
+        // at least: other tests of this binary may run mappers of their own meanwhile, and
+        // end them, so the count is read once per round (a second read raced their exit)
+        let mut seen = lowest();
+        while seen < wanted && start.elapsed() < Duration::from_secs(10) {
             std::thread::sleep(Duration::from_millis(5));
+            seen = lowest();
         }
-        assert!(lowest() >= wanted, "{} of {wanted}", lowest());
+        assert!(seen >= wanted, "{seen} of {wanted}");
         // rayon's global pool (tracking's parallel loops) keeps the priority of the threads
         // that use it, even when the mapping thread was the first to use rayon
         let own_nice = || {
