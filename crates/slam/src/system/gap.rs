@@ -20,10 +20,7 @@ impl SlamSystem {
     /// Keeps `frame` (no pose) for [`Self::fill_gap`]; beyond `tracking.gap_frames` the
     /// oldest is dropped, as tracking would not reach it.
     pub(super) fn keep_untracked(&mut self, frame: Frame) {
-        if self.untracked.len() >= self.ctx.config.tracking.gap_frames {
-            self.untracked.remove(0);
-        }
-        self.untracked.push(frame);
+        push_newest(&mut self.untracked, frame, self.ctx.config.tracking.gap_frames);
     }
 
     /// Keeps a frame just posed in the current map while the map is young: a young map lost
@@ -34,10 +31,8 @@ impl SlamSystem {
             self.young_frames.clear();
             return;
         }
-        if self.young_frames.len() >= self.ctx.config.tracking.gap_frames {
-            self.young_frames.remove(0);
-        }
-        self.young_frames.push(frame.clone());
+        let keep = self.ctx.config.tracking.gap_frames;
+        push_newest(&mut self.young_frames, frame.clone(), keep);
     }
 
     /// The frames of the young map being dropped join those without a pose, in time order
@@ -82,4 +77,12 @@ impl SlamSystem {
         }
         Ok(())
     }
+}
+
+/// Appends `frame`, dropping the oldest beyond `keep` frames.
+fn push_newest(frames: &mut Vec<Frame>, frame: Frame, keep: usize) {
+    if frames.len() >= keep {
+        frames.remove(0);
+    }
+    frames.push(frame);
 }
