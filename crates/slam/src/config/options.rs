@@ -277,7 +277,7 @@ pub fn user_options() -> Vec<UserOption> {
             "tracking.gap_frames",
             Int,
             "frames",
-            count(0.0),
+            OptionRange::closed(0.0, 300.0),
             "Frames without a pose (lost, before a map starts) kept and tracked backwards \
              once a later frame is tracked, so the trajectory fills in behind the live \
              results; 0 keeps none (visual maps only)",

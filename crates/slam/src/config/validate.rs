@@ -115,6 +115,10 @@ impl SlamConfig {
         check!(s, <= 1.0, t.reference_ratio, t.first_keyframes_reference_ratio);
         // close_tracked_max, close_untracked_min, min_keyframe_inliers: any count.
         check!(s, > 0, t.relocalisation_window_s);
+        // Ten seconds at 30 fps: the frames are held in memory while tracking is lost.
+        if t.gap_frames > 300 {
+            return Err(s.bad("gap_frames", "be in 0..=300"));
+        }
         check!(s, > 0, t.motion_search_radius_px, t.local_search_width);
         check!(s, > 0, t.relocalised_search_width, t.imu_prediction_search_width);
         check!(s, > 0, t.velocity_prior_sigma_rad_s, t.velocity_prior_sigma_m_s);
