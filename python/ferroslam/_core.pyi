@@ -118,8 +118,9 @@ class TrackResult:
     def merge(self) -> dict[str, Any] | None:
         """The merge this frame made: ``merged_map`` (joined into) ``into_map``, whose id and
         world the merged map keeps; keyframes ``current`` and ``matched``, their
-        ``timestamps`` (s), ``num_matches``, the similarity's ``scale`` (1 with depth) and
-        the essential graph's ``graph_cost`` (before, after)."""
+        ``timestamps`` (s), ``num_matches``, the similarity's ``scale`` (1 with depth),
+        the essential graph's ``graph_cost`` (before, after) and ``welded_keyframes`` (the
+        seam's local BA)."""
     @property
     def is_keyframe(self) -> bool:
         """Whether this frame became a keyframe."""

@@ -26,8 +26,8 @@ pub(crate) fn map_dicts<'py>(
 }
 
 /// One merge: the two map ids ("merged_map" into "into_map"), the keyframes ("current",
-/// "matched"), their "timestamps", "num_matches", the similarity's "scale", "graph_cost"
-/// and the "similarity" itself, (4, 4) float64 `[s R | t]` (`p_into = s R p_merged + t`).
+/// "matched"), their "timestamps", "num_matches", the similarity's "scale", "graph_cost",
+/// "welded_keyframes" (the seam's local BA) and the "similarity" itself, (4, 4) float64 `[s R | t]` (`p_into = s R p_merged + t`).
 pub(crate) fn merge_dict<'py>(py: Python<'py>, m: &MapMerge) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("merged_map", m.merged_map)?;
@@ -38,6 +38,7 @@ pub(crate) fn merge_dict<'py>(py: Python<'py>, m: &MapMerge) -> PyResult<Bound<'
     d.set_item("num_matches", m.num_matches)?;
     d.set_item("scale", m.scale)?;
     d.set_item("graph_cost", m.graph_cost)?;
+    d.set_item("welded_keyframes", m.welded_keyframes)?;
     let S = &m.similarity;
     let sR = S.rotation.to_rotation_matrix().into_inner() * S.scale;
     let similarity = Array2::from_shape_fn((4, 4), |(r, c)| match (r, c) {

@@ -74,7 +74,8 @@ impl PyTrackResult {
 
     /// The merge this frame made, if any: a dict with the two map ids ("merged_map" into
     /// "into_map"), the keyframes ("current", "matched"), their "timestamps",
-    /// "num_matches", the similarity's "scale" and the essential graph's "graph_cost".
+    /// "num_matches", the similarity's "scale", the essential graph's "graph_cost" and
+    /// "welded_keyframes" (the seam's local BA).
     #[getter]
     fn merge<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         self.inner

@@ -51,7 +51,10 @@ impl Trajectory {
         map: &Map,
     ) -> bool {
         let at = self.frames.partition_point(|f| f.timestamp < timestamp);
-        let taken = self.frames.get(at).is_some_and(|f| f.timestamp == timestamp);
+        let taken = self
+            .frames
+            .get(at)
+            .is_some_and(|f| f.timestamp == timestamp);
         let Some(T_r_w) = map.resolve_keyframe_pose(reference).filter(|_| !taken) else {
             return false;
         };

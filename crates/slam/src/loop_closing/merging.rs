@@ -2,8 +2,14 @@
 //! the current map shares with an older one of the atlas is verified as a loop is (both maps
 //! seen as one, each keyframe posed in its own map's world), the current map is moved into the
 //! older map's world by the verified similarity and joined to it at the matched keyframes, and
-//! the seam is then corrected as a loop: duplicated points fused, new links, the essential
-//! graph, then global bundle adjustment.
+//! the seam is then corrected as a loop (duplicated points fused, new links, the essential
+//! graph) and welded: a local bundle adjustment of the two keyframes' neighbourhoods, the
+//! rest of the map fixed. Global bundle adjustment follows, run by the mapping pipeline
+//! (in the mapping thread, tracking goes on meanwhile on the welded map).
+//!
+//! ORB-SLAM3 welds before its essential graph; here the essential graph is loop closing's
+//! own stage, run as a loop's, and the weld after it refines the seam where the graph left
+//! it: the part of the map tracking continues in until global BA is done.
 
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_map::{KeyFrameId, Map};
@@ -38,6 +44,8 @@ pub struct MapMerge {
     pub scale: f64,
     /// Cost of the essential graph before and after optimisation.
     pub graph_cost: (f64, f64),
+    /// Keyframes of the seam's local BA (the two matched keyframes' neighbourhoods).
+    pub welded_keyframes: usize,
     /// The similarity that moved the merged map into the older one's world before the seam
     /// was corrected: `p_into = S p_merged` (metres of the older map).
     pub similarity: Sim3,
@@ -98,15 +106,16 @@ pub(crate) fn verify_merge(
 }
 
 /// Joins `current` (already moved into the older map's world, see [`MergeMatch`]) to
-/// `older` at the verified keyframes and corrects the seam as a loop; returns the merged map
-/// (the older one's origin and world) and the essential graph's costs.
+/// `older` at the verified keyframes, corrects the seam as a loop and welds it; returns the
+/// merged map (the older one's origin and world), the essential graph's costs and the
+/// keyframes welded.
 pub(crate) fn join_maps(
     mut older: Map,
     current: Map,
     (kf, candidate): (KeyFrameId, KeyFrameId),
     merge: &MergeMatch,
     ctx: &Context,
-) -> Result<(Map, (f64, f64)), SlamError> {
+) -> Result<(Map, (f64, f64), usize), SlamError> {
     older.absorb(current, (kf, candidate))?;
     // The similarity is applied: the loop correction at the seam starts from identity.
     let found = LoopMatch {
@@ -114,7 +123,24 @@ pub(crate) fn join_maps(
         ..merge.found.clone()
     };
     let graph = correct_loop(kf, &found, &mut older, ctx)?;
-    let all = older.keyframe_ids();
-    adjust_keyframes(&all, &mut older, ctx, None)?;
-    Ok((older, graph))
+    let welded = weld_seam((kf, candidate), &mut older, ctx)?;
+    Ok((older, graph, welded))
+}
+
+/// Local BA of the seam between `kf` and `candidate`: the two keyframes and their covisible
+/// keyframes (after fusion, each side's include the other's), every other keyframe that
+/// sees their points fixed. Returns the number of keyframes adjusted.
+fn weld_seam(
+    (kf, candidate): (KeyFrameId, KeyFrameId),
+    map: &mut Map,
+    ctx: &Context,
+) -> Result<usize, SlamError> {
+    let mut seam: Vec<KeyFrameId> = [kf, candidate]
+        .into_iter()
+        .flat_map(|k| std::iter::once(k).chain(map.covisibles(k).into_iter().map(|(n, _)| n)))
+        .collect();
+    seam.sort_unstable();
+    seam.dedup();
+    adjust_keyframes(&seam, map, ctx, None)?;
+    Ok(seam.len())
 }

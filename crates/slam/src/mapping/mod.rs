@@ -12,7 +12,7 @@ use std::sync::Arc;
 use ferroslam_map::Map;
 use ferroslam_vocabulary::Vocabulary;
 
-pub(crate) use pipeline::{KeyFrameWork, Mapped, MappingPipeline};
+pub(crate) use pipeline::{KeyFrameWork, Mapped, MappingPipeline, MappingRequest};
 use pipeline::{MappingJob, Progress};
 use thread::MappingThread;
 
@@ -51,20 +51,25 @@ impl Mapping {
         };
     }
 
-    /// Hands keyframe work over: inline it is processed at once and its result returned;
-    /// the thread queues it (its result comes with a later [`Self::collect`], or is waited
-    /// for and returned with `SlamConfig::deterministic`).
+    /// Hands a request over: inline it is processed at once and its result returned; the
+    /// thread queues it (its result comes with a later [`Self::collect`], or is waited for
+    /// and returned with `SlamConfig::deterministic`).
     pub(crate) fn submit(
         &mut self,
-        work: KeyFrameWork,
+        request: MappingRequest,
         map: &mut Map,
         ctx: &Context,
         vocabulary: Option<&Arc<Vocabulary>>,
     ) -> Option<Mapped> {
         match self {
             Self::Inline(pipeline) => {
+                let (adjust_map, work) = match request {
+                    MappingRequest::KeyFrame(work) => (false, vec![work]),
+                    MappingRequest::AdjustMap => (true, Vec::new()),
+                };
                 let job = MappingJob {
-                    work: vec![work],
+                    adjust_map,
+                    work,
                     fresh: false,
                     renamed: HashMap::new(),
                     vocabulary: vocabulary.cloned(),
@@ -75,7 +80,7 @@ impl Mapping {
                 }))
             }
             Self::Thread(thread) => {
-                thread.push(work, map, vocabulary);
+                thread.push(request, map, vocabulary);
                 // Deterministic: mapped before the call returns, in the inline order of
                 // events (the queue was empty: every keyframe before was waited for too).
                 ctx.config

@@ -5,7 +5,7 @@
 //! triangulation, fusion; [`LocalMapper::grow`]) and refines it (local BA, visual or inertial,
 //! and keyframe culling; [`LocalMapper::refine`]); the keyframe index catches up with the
 //! map (new and culled keyframes); loop closing looks for a loop at the keyframe and
-//! corrects it.
+//! corrects it. After a merge, a job first bundle-adjusts the whole merged map.
 
 use std::collections::HashMap;
 use std::sync::atomic::AtomicBool;
@@ -19,6 +19,7 @@ use ferroslam_vocabulary::{BowVector, FeatureVector, Vocabulary};
 
 use crate::context::Context;
 use crate::error::SlamError;
+use crate::local_ba_problem::adjust_keyframes;
 use crate::local_inertial_ba::InertialWindow;
 use crate::local_mapping::{Interrupt, LocalMapper, MappingReport};
 use crate::loop_closing::{LoopCloser, LoopClosure, LoopStats};
@@ -33,8 +34,18 @@ pub(crate) struct KeyFrameWork {
     pub inertial: Option<InertialWindow>,
 }
 
+/// What tracking hands the pipeline.
+pub(crate) enum MappingRequest {
+    /// A keyframe tracking inserted.
+    KeyFrame(KeyFrameWork),
+    /// Global bundle adjustment of the map (after a merge), ahead of the keyframes after it.
+    AdjustMap,
+}
+
 /// Keyframes to process, in insertion order, and what the pipeline must know with them.
 pub(crate) struct MappingJob {
+    /// Bundle-adjust every keyframe before the work ([`MappingRequest::AdjustMap`]).
+    pub adjust_map: bool,
     pub work: Vec<KeyFrameWork>,
     /// Start from a fresh pipeline state (the map was reset or replaced).
     pub fresh: bool,
@@ -143,6 +154,16 @@ impl MappingPipeline {
         let interrupt = waiting.map_or(Interrupt::NEVER, |w| Interrupt::on(w, job.hurried));
         let mut mapped = Mapped::default();
         let mut indexed = Vec::new();
+        let adjusted = if job.adjust_map {
+            adjust_keyframes(&map.keyframe_ids(), map, ctx, None).map(|_| ())
+        } else {
+            Ok(())
+        };
+        if let Err(e) = adjusted {
+            mapped.error = Some(e);
+            mapped.stats = closer.stats();
+            return mapped;
+        }
         for mut work in job.work {
             for m in work.new_points {
                 mapper.add_recent_point(m);

@@ -27,7 +27,9 @@ use std::time::{Duration, Instant};
 use ferroslam_map::{Map, MapJournal, MapPointId};
 use ferroslam_vocabulary::Vocabulary;
 
-use super::pipeline::{KeyFrameWork, Mapped, MappingJob, MappingPipeline, Progress};
+use super::pipeline::{
+    KeyFrameWork, Mapped, MappingJob, MappingPipeline, MappingRequest, Progress,
+};
 use crate::context::Context;
 use crate::error::SlamError;
 
@@ -66,6 +68,8 @@ pub(crate) struct MappingThread {
     fresh: bool,
     in_flight: bool,
     queue: Vec<KeyFrameWork>,
+    /// A global BA is queued, to run ahead of the queued keyframes.
+    adjust_map: bool,
     renamed: HashMap<MapPointId, MapPointId>,
     /// Renaming of the points the job in flight sent ahead.
     renamed_in_flight: HashMap<MapPointId, MapPointId>,
@@ -110,6 +114,7 @@ impl MappingThread {
             fresh: false,
             in_flight: false,
             queue: Vec::new(),
+            adjust_map: false,
             renamed: HashMap::new(),
             renamed_in_flight: HashMap::new(),
             backlog,
@@ -161,15 +166,21 @@ impl MappingThread {
         Arc::clone(&self.backlog)
     }
 
-    /// Queues a keyframe of `map`; sends it at once if the thread is idle.
+    /// Queues a request on `map`; sends it at once if the thread is idle. The backlog
+    /// counts keyframes only: a global BA keeps the thread busy, not keyframes waiting.
     pub(crate) fn push(
         &mut self,
-        work: KeyFrameWork,
+        request: MappingRequest,
         map: &Map,
         vocabulary: Option<&Arc<Vocabulary>>,
     ) {
-        self.backlog.fetch_add(1, Ordering::SeqCst);
-        self.queue.push(work);
+        match request {
+            MappingRequest::KeyFrame(work) => {
+                self.backlog.fetch_add(1, Ordering::SeqCst);
+                self.queue.push(work);
+            }
+            MappingRequest::AdjustMap => self.adjust_map = true,
+        }
         if !self.in_flight {
             self.dispatch(map, vocabulary);
         }
@@ -223,7 +234,7 @@ impl MappingThread {
                     // is free only now (waiting for it keeps `wait` honest: afterwards the
                     // backlog is empty).
                     self.in_flight = false;
-                    if !self.queue.is_empty() {
+                    if self.has_work() {
                         self.dispatch(map, vocabulary);
                     }
                     continue;
@@ -233,11 +244,16 @@ impl MappingThread {
             map.apply_journal_part(&journal, &mut self.renamed_in_flight);
             self.renamed.extend(self.renamed_in_flight.drain());
             out.push(mapped);
-            if !self.queue.is_empty() {
+            if self.has_work() {
                 self.dispatch(map, vocabulary);
             }
         }
         out
+    }
+
+    /// Whether anything is queued.
+    fn has_work(&self) -> bool {
+        self.adjust_map || !self.queue.is_empty()
     }
 
     /// Records that the mapping thread stopped: nothing is in flight or queued any more.
@@ -246,6 +262,7 @@ impl MappingThread {
         self.in_flight = false;
         self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
         self.queue.clear();
+        self.adjust_map = false;
     }
 
     /// Forgets the queue and the result of any job in flight (the map was reset or
@@ -255,6 +272,7 @@ impl MappingThread {
         self.fresh = true;
         self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
         self.queue.clear();
+        self.adjust_map = false;
         self.renamed.clear();
         self.renamed_in_flight.clear();
     }
@@ -266,6 +284,7 @@ impl MappingThread {
             epoch: self.epoch,
             map: map.clone(),
             job: MappingJob {
+                adjust_map: std::mem::take(&mut self.adjust_map),
                 work: std::mem::take(&mut self.queue),
                 fresh: std::mem::take(&mut self.fresh),
                 renamed: std::mem::take(&mut self.renamed),
@@ -446,6 +465,7 @@ mod tests {
             epoch: mapper.epoch,
             map: map.clone(),
             job: MappingJob {
+                adjust_map: false,
                 work: Vec::new(),
                 fresh: true,
                 renamed: HashMap::new(),

@@ -20,7 +20,11 @@ impl SlamSystem {
     /// Keeps `frame` (no pose) for [`Self::fill_gap`]; beyond `tracking.gap_frames` the
     /// oldest is dropped, as tracking would not reach it.
     pub(super) fn keep_untracked(&mut self, frame: Frame) {
-        push_newest(&mut self.untracked, frame, self.ctx.config.tracking.gap_frames);
+        push_newest(
+            &mut self.untracked,
+            frame,
+            self.ctx.config.tracking.gap_frames,
+        );
     }
 
     /// Keeps a frame just posed in the current map while the map is young: a young map lost

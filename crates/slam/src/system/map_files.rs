@@ -124,6 +124,8 @@ impl SlamSystem {
                 }
             }
         }
+        // Each merge's global BA, if the mapping thread runs it.
+        self.finish_mapping()?;
         self.tracker.state = TrackingState::Lost;
         Ok(self.merges[before..].to_vec())
     }

@@ -3,6 +3,8 @@
 //! found becomes current again; a keyframe that recognises a place of a stored map merges
 //! the current map into it (`crate::loop_closing`'s merging).
 
+use std::sync::Arc;
+
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use nalgebra::{Isometry3, Vector3};
 
@@ -13,6 +15,7 @@ use crate::frame::Frame;
 use crate::loop_closing::{
     join_maps, min_neighbour_score, verify_merge, LoopDetector, MapMerge, MergeMatch,
 };
+use crate::mapping::MappingRequest;
 use crate::place_recognition::PlaceRecognition;
 use crate::tracking::{Tracker, TrackingState};
 use crate::trajectory::Trajectory;
@@ -211,7 +214,7 @@ impl SlamSystem {
         // On copies (sharing their entries): an error leaves every map as it was.
         let mut current = self.map.clone();
         let mut trajectory = self.trajectory.clone();
-        let (merged, graph_cost) = trajectory
+        let (merged, graph_cost, welded) = trajectory
             .transform_world(&S, &mut current, |m| m.transform_world(&S))
             .map_err(SlamError::from)
             .and_then(|()| {
@@ -224,7 +227,7 @@ impl SlamSystem {
                 )
             })?;
         let mut stored = self.atlas.remove(i);
-        self.record_merge(&merge, &stored, (kf, matched), graph_cost);
+        self.record_merge(&merge, &stored, (kf, matched), (graph_cost, welded));
         stored.trajectory.append(trajectory);
         if let (Some(theirs), Some(ours)) = (stored.place.as_mut(), self.place.take()) {
             theirs.absorb(ours);
@@ -240,6 +243,16 @@ impl SlamSystem {
         if let Some(place) = self.place.as_mut() {
             place.forget_culled(&self.map);
         }
+        // Global BA of the merged map as loop closing runs it: in the mapping thread, with
+        // tracking going on in the welded map meanwhile (inline: here, within this call).
+        let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
+        let adjusted = self.mapping.submit(
+            MappingRequest::AdjustMap,
+            &mut self.map,
+            &self.ctx,
+            vocabulary.as_ref(),
+        );
+        self.absorb(adjusted.into_iter().collect())?;
         Ok(true)
     }
 
@@ -248,7 +261,7 @@ impl SlamSystem {
         merge: &MergeMatch,
         into: &StoredMap,
         (kf, candidate): (KeyFrameId, KeyFrameId),
-        graph_cost: (f64, f64),
+        (graph_cost, welded_keyframes): ((f64, f64), usize),
     ) {
         let time = |map: &Map, k| map.keyframe(k).map_or(f64::NAN, |k| k.timestamp());
         self.merges.push(MapMerge {
@@ -260,6 +273,7 @@ impl SlamSystem {
             num_matches: merge.num_matches(),
             scale: merge.S_older_current.scale,
             graph_cost,
+            welded_keyframes,
             similarity: merge.S_older_current,
         });
     }

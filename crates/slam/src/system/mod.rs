@@ -22,7 +22,7 @@ use crate::keyframe_insertion::insert_keyframe;
 use crate::local_mapping::MappingReport;
 use crate::loop_closing::MapMerge;
 use crate::loop_closing::{LoopClosure, LoopStats};
-use crate::mapping::{KeyFrameWork, Mapped, Mapping};
+use crate::mapping::{KeyFrameWork, Mapped, Mapping, MappingRequest};
 use crate::mono_init::{create_initial_map, InitStatus, InitialMap, MonoInitializer};
 use crate::place_recognition::PlaceRecognition;
 use crate::stereo_pair::UnrectifiedPair;
@@ -347,9 +347,12 @@ impl SlamSystem {
                 inertial: self.inertial.as_mut().and_then(|i| i.window(&self.map)),
             };
             let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
-            let mapped = self
-                .mapping
-                .submit(work, &mut self.map, &self.ctx, vocabulary.as_ref());
+            let mapped = self.mapping.submit(
+                MappingRequest::KeyFrame(work),
+                &mut self.map,
+                &self.ctx,
+                vocabulary.as_ref(),
+            );
             if let Some(mapped) = mapped {
                 // Inline: this frame's keyframe was mapped within the call.
                 if let Some((_, done)) = mapped.reports.first() {
