@@ -54,6 +54,14 @@ pub struct MappingConfig {
     /// next frame. ORB-SLAM instead refuses monocular keyframes while mapping is busy and
     /// queues up to 3 with depth, which loses tracking when frames come faster than real time.
     pub max_queued_keyframes: usize,
+    /// With the mapping thread, tracking first waits for the mapping work in flight when the
+    /// frame before tracked fewer inliers than this (0: never; 0 with depth). A monocular map
+    /// grows only by local mapping's triangulation: weak tracking that runs ahead of it,
+    /// on a map without the last keyframe's new points, lost the map where inline mapping
+    /// kept it, at places that moved with the threads' timing (docs/benchmarks.md, "Weak
+    /// monocular tracking waits for mapping"). 200: twice the monocular upper limit of
+    /// `tracking.track_feature_range`, below which tracking already asks for keyframes.
+    pub monocular_wait_inliers: usize,
     /// Keyframes after its first after which a recent point with too few observations
     /// (`min_point_observations`) dies (ORB-SLAM `MapPointCulling`: 2).
     pub recent_point_check_age: u32,
@@ -93,6 +101,7 @@ impl MappingConfig {
             redundant_keyframe_share: 0.9,
             max_scene_depth_ratio: 40.0,
             max_queued_keyframes: 1,
+            monocular_wait_inliers: if depth { 0 } else { 200 },
             recent_point_check_age: 2,
             recent_point_proven_age: 3,
             fusion_second_neighbours: 5,

@@ -142,6 +142,7 @@ impl SlamConfig {
         let (m, s) = (&self.mapping, Section("mapping"));
         check!(s, >= 1, m.triangulation_neighbours, m.hurried_triangulation_neighbours);
         check!(s, >= 1, m.always_searched_with_depth, m.max_queued_keyframes);
+        // monocular_wait_inliers: any count (0 never waits).
         check!(s, >= 1, m.min_point_observations, m.redundant_observations);
         check!(s, <= 1.0, m.min_found_ratio, m.redundant_keyframe_share);
         check!(s, >= 1, m.recent_point_check_age);

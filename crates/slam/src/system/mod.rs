@@ -201,7 +201,10 @@ impl SlamSystem {
     fn track_frame(&mut self, mut frame: Frame, start: Instant) -> Result<TrackResult, SlamError> {
         self.frames_seen += 1;
         self.mapping.frame_started();
-        self.collect_mapping(false)?;
+        // See `MappingConfig::monocular_wait_inliers` (0 with depth).
+        let weak = self.tracker.state == TrackingState::Ok
+            && self.tracker.matches_inliers < self.ctx.config.mapping.monocular_wait_inliers;
+        self.collect_mapping(weak)?;
         let lost_before = self.tracker.state == TrackingState::Lost;
         // A new map's first frames may show a stored map: tracking resumes there.
         let resumed = self.tracker.state == TrackingState::NotInitialized
