@@ -3,13 +3,13 @@
 //! seen as one, each keyframe posed in its own map's world), the current map is moved into the
 //! older map's world by the verified similarity and joined to it at the matched keyframes, and
 //! the seam is then corrected as a loop (duplicated points fused, new links, the essential
-//! graph) and welded: a local bundle adjustment of the two keyframes' neighbourhoods, the
-//! rest of the map fixed. Global bundle adjustment follows, run by the mapping pipeline
-//! (in the mapping thread, tracking goes on meanwhile on the welded map).
+//! graph). The mapping pipeline then welds it, a local bundle adjustment of the two
+//! keyframes' neighbourhoods ([`seam_keyframes`]) with the rest of the map fixed, and
+//! bundle-adjusts the whole map; in the mapping thread, tracking goes on meanwhile.
 //!
 //! ORB-SLAM3 welds before its essential graph; here the essential graph is loop closing's
 //! own stage, run as a loop's, and the weld after it refines the seam where the graph left
-//! it: the part of the map tracking continues in until global BA is done.
+//! it, ahead of global BA.
 
 use ferroslam_geometry::sim3::Sim3;
 use ferroslam_map::{KeyFrameId, Map};
@@ -21,7 +21,6 @@ use super::correction::correct_loop;
 use super::verification::{verify_window, LoopMatch};
 use crate::context::Context;
 use crate::error::SlamError;
-use crate::local_ba_problem::adjust_keyframes;
 use crate::place_recognition::PlaceRecognition;
 
 /// Two maps the system merged.
@@ -106,16 +105,15 @@ pub(crate) fn verify_merge(
 }
 
 /// Joins `current` (already moved into the older map's world, see [`MergeMatch`]) to
-/// `older` at the verified keyframes, corrects the seam as a loop and welds it; returns the
-/// merged map (the older one's origin and world), the essential graph's costs and the
-/// keyframes welded.
+/// `older` at the verified keyframes and corrects the seam as a loop; returns the merged
+/// map (the older one's origin and world) and the essential graph's costs.
 pub(crate) fn join_maps(
     mut older: Map,
     current: Map,
     (kf, candidate): (KeyFrameId, KeyFrameId),
     merge: &MergeMatch,
     ctx: &Context,
-) -> Result<(Map, (f64, f64), usize), SlamError> {
+) -> Result<(Map, (f64, f64)), SlamError> {
     older.absorb(current, (kf, candidate))?;
     // The similarity is applied: the loop correction at the seam starts from identity.
     let found = LoopMatch {
@@ -123,24 +121,21 @@ pub(crate) fn join_maps(
         ..merge.found.clone()
     };
     let graph = correct_loop(kf, &found, &mut older, ctx)?;
-    let welded = weld_seam((kf, candidate), &mut older, ctx)?;
-    Ok((older, graph, welded))
+    Ok((older, graph))
 }
 
-/// Local BA of the seam between `kf` and `candidate`: the two keyframes and their covisible
-/// keyframes (after fusion, each side's include the other's), every other keyframe that
-/// sees their points fixed. Returns the number of keyframes adjusted.
-fn weld_seam(
+/// The keyframes of the seam's local BA between `kf` and `candidate` of the merged `map`:
+/// the two and their covisible keyframes (after fusion, each side's include the other's),
+/// in id order.
+pub(crate) fn seam_keyframes(
     (kf, candidate): (KeyFrameId, KeyFrameId),
-    map: &mut Map,
-    ctx: &Context,
-) -> Result<usize, SlamError> {
+    map: &Map,
+) -> Vec<KeyFrameId> {
     let mut seam: Vec<KeyFrameId> = [kf, candidate]
         .into_iter()
         .flat_map(|k| std::iter::once(k).chain(map.covisibles(k).into_iter().map(|(n, _)| n)))
         .collect();
     seam.sort_unstable();
     seam.dedup();
-    adjust_keyframes(&seam, map, ctx, None)?;
-    Ok(seam.len())
+    seam
 }

@@ -38,7 +38,7 @@ use crate::local_ba_problem::adjust_keyframes;
 use crate::place_recognition::PlaceRecognition;
 pub(crate) use detection::{min_neighbour_score, LoopDetector};
 pub use merging::MapMerge;
-pub(crate) use merging::{join_maps, verify_merge, MergeMatch};
+pub(crate) use merging::{join_maps, seam_keyframes, verify_merge, MergeMatch};
 pub(crate) use verification::pose_of;
 
 /// A loop the system closed.

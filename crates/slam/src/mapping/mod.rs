@@ -63,12 +63,12 @@ impl Mapping {
     ) -> Option<Mapped> {
         match self {
             Self::Inline(pipeline) => {
-                let (adjust_map, work) = match request {
-                    MappingRequest::KeyFrame(work) => (false, vec![work]),
-                    MappingRequest::AdjustMap => (true, Vec::new()),
+                let (merged_seam, work) = match request {
+                    MappingRequest::KeyFrame(work) => (None, vec![work]),
+                    MappingRequest::AdjustMerged { seam } => (Some(seam), Vec::new()),
                 };
                 let job = MappingJob {
-                    adjust_map,
+                    merged_seam,
                     work,
                     fresh: false,
                     renamed: HashMap::new(),

@@ -5,7 +5,7 @@
 //! triangulation, fusion; [`LocalMapper::grow`]) and refines it (local BA, visual or inertial,
 //! and keyframe culling; [`LocalMapper::refine`]); the keyframe index catches up with the
 //! map (new and culled keyframes); loop closing looks for a loop at the keyframe and
-//! corrects it. After a merge, a job first bundle-adjusts the whole merged map.
+//! corrects it. After a merge, a job first welds the seam and bundle-adjusts the whole map.
 
 use std::collections::HashMap;
 use std::sync::atomic::AtomicBool;
@@ -38,14 +38,16 @@ pub(crate) struct KeyFrameWork {
 pub(crate) enum MappingRequest {
     /// A keyframe tracking inserted.
     KeyFrame(KeyFrameWork),
-    /// Global bundle adjustment of the map (after a merge), ahead of the keyframes after it.
-    AdjustMap,
+    /// After a merge, ahead of the keyframes that follow: local BA of the seam's keyframes
+    /// (the weld, see `crate::loop_closing`'s merging), then global BA.
+    AdjustMerged { seam: Vec<KeyFrameId> },
 }
 
 /// Keyframes to process, in insertion order, and what the pipeline must know with them.
 pub(crate) struct MappingJob {
-    /// Bundle-adjust every keyframe before the work ([`MappingRequest::AdjustMap`]).
-    pub adjust_map: bool,
+    /// The seam of a merge to weld and bundle-adjust before the work
+    /// ([`MappingRequest::AdjustMerged`]).
+    pub merged_seam: Option<Vec<KeyFrameId>>,
     pub work: Vec<KeyFrameWork>,
     /// Start from a fresh pipeline state (the map was reset or replaced).
     pub fresh: bool,
@@ -154,10 +156,11 @@ impl MappingPipeline {
         let interrupt = waiting.map_or(Interrupt::NEVER, |w| Interrupt::on(w, job.hurried));
         let mut mapped = Mapped::default();
         let mut indexed = Vec::new();
-        let adjusted = if job.adjust_map {
-            adjust_keyframes(&map.keyframe_ids(), map, ctx, None).map(|_| ())
-        } else {
-            Ok(())
+        let adjusted = match &job.merged_seam {
+            Some(seam) => adjust_keyframes(seam, map, ctx, None)
+                .and_then(|_| adjust_keyframes(&map.keyframe_ids(), map, ctx, None))
+                .map(|_| ()),
+            None => Ok(()),
         };
         if let Err(e) = adjusted {
             mapped.error = Some(e);

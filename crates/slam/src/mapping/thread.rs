@@ -68,8 +68,8 @@ pub(crate) struct MappingThread {
     fresh: bool,
     in_flight: bool,
     queue: Vec<KeyFrameWork>,
-    /// A global BA is queued, to run ahead of the queued keyframes.
-    adjust_map: bool,
+    /// A merge's seam to weld and bundle-adjust, queued ahead of the keyframes.
+    merged_seam: Option<Vec<ferroslam_map::KeyFrameId>>,
     renamed: HashMap<MapPointId, MapPointId>,
     /// Renaming of the points the job in flight sent ahead.
     renamed_in_flight: HashMap<MapPointId, MapPointId>,
@@ -114,7 +114,7 @@ impl MappingThread {
             fresh: false,
             in_flight: false,
             queue: Vec::new(),
-            adjust_map: false,
+            merged_seam: None,
             renamed: HashMap::new(),
             renamed_in_flight: HashMap::new(),
             backlog,
@@ -167,7 +167,7 @@ impl MappingThread {
     }
 
     /// Queues a request on `map`; sends it at once if the thread is idle. The backlog
-    /// counts keyframes only: a global BA keeps the thread busy, not keyframes waiting.
+    /// counts keyframes only: a merge's BA keeps the thread busy, not keyframes waiting.
     pub(crate) fn push(
         &mut self,
         request: MappingRequest,
@@ -179,7 +179,7 @@ impl MappingThread {
                 self.backlog.fetch_add(1, Ordering::SeqCst);
                 self.queue.push(work);
             }
-            MappingRequest::AdjustMap => self.adjust_map = true,
+            MappingRequest::AdjustMerged { seam } => self.merged_seam = Some(seam),
         }
         if !self.in_flight {
             self.dispatch(map, vocabulary);
@@ -253,7 +253,7 @@ impl MappingThread {
 
     /// Whether anything is queued.
     fn has_work(&self) -> bool {
-        self.adjust_map || !self.queue.is_empty()
+        self.merged_seam.is_some() || !self.queue.is_empty()
     }
 
     /// Records that the mapping thread stopped: nothing is in flight or queued any more.
@@ -262,7 +262,7 @@ impl MappingThread {
         self.in_flight = false;
         self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
         self.queue.clear();
-        self.adjust_map = false;
+        self.merged_seam = None;
     }
 
     /// Forgets the queue and the result of any job in flight (the map was reset or
@@ -272,7 +272,7 @@ impl MappingThread {
         self.fresh = true;
         self.backlog.fetch_sub(self.queue.len(), Ordering::SeqCst);
         self.queue.clear();
-        self.adjust_map = false;
+        self.merged_seam = None;
         self.renamed.clear();
         self.renamed_in_flight.clear();
     }
@@ -284,7 +284,7 @@ impl MappingThread {
             epoch: self.epoch,
             map: map.clone(),
             job: MappingJob {
-                adjust_map: std::mem::take(&mut self.adjust_map),
+                merged_seam: self.merged_seam.take(),
                 work: std::mem::take(&mut self.queue),
                 fresh: std::mem::take(&mut self.fresh),
                 renamed: std::mem::take(&mut self.renamed),
@@ -465,7 +465,7 @@ mod tests {
             epoch: mapper.epoch,
             map: map.clone(),
             job: MappingJob {
-                adjust_map: false,
+                merged_seam: None,
                 work: Vec::new(),
                 fresh: true,
                 renamed: HashMap::new(),

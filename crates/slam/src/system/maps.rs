@@ -13,7 +13,8 @@ use crate::atlas::{MapSummary, StoredMap};
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::loop_closing::{
-    join_maps, min_neighbour_score, verify_merge, LoopDetector, MapMerge, MergeMatch,
+    join_maps, min_neighbour_score, seam_keyframes, verify_merge, LoopDetector, MapMerge,
+    MergeMatch,
 };
 use crate::mapping::MappingRequest;
 use crate::place_recognition::PlaceRecognition;
@@ -177,14 +178,32 @@ impl SlamSystem {
                 if self.map.keyframe(kf).is_none() {
                     break;
                 }
-                // The merge joins the maps as tracking holds them: mapping finishes first.
-                self.finish_mapping()?;
                 if self.try_merge(kf, i, candidate)? {
                     return Ok(());
                 }
             }
         }
         Ok(())
+    }
+
+    /// Verifies `candidate` of stored map `i` as the place keyframe `kf` of the current map
+    /// shows, on the maps as they are (see `verify_merge`).
+    fn verify_place(
+        &self,
+        kf: KeyFrameId,
+        i: usize,
+        candidate: KeyFrameId,
+    ) -> Result<Option<MergeMatch>, SlamError> {
+        let stored = &self.atlas[i];
+        let fv = self.place.as_ref().and_then(|p| p.feature_vector(kf));
+        match (fv, stored.place.as_ref()) {
+            (Some(fv), Some(place)) if self.map.keyframe(kf).is_some() => verify_merge(
+                (&self.map, kf, fv),
+                (&stored.map, candidate, place),
+                &self.ctx,
+            ),
+            _ => Ok(None),
+        }
     }
 
     /// Verifies and, if verified, performs the merge of the current map into stored map `i`
@@ -195,26 +214,20 @@ impl SlamSystem {
         i: usize,
         candidate: KeyFrameId,
     ) -> Result<bool, SlamError> {
+        // The merge joins the maps as tracking holds them: mapping finishes first (verified
+        // before the thread's last edits are in, young monocular maps never merged).
+        self.finish_mapping()?;
+        let Some(merge) = self.verify_place(kf, i, candidate)? else {
+            return Ok(false);
+        };
         let stored = &self.atlas[i];
-        let fv = self.place.as_ref().and_then(|p| p.feature_vector(kf));
-        let (Some(fv), Some(place)) = (fv, stored.place.as_ref()) else {
-            return Ok(false);
-        };
-        let Some(merge) = verify_merge(
-            (&self.map, kf, fv),
-            (&stored.map, candidate, place),
-            &self.ctx,
-        )?
-        else {
-            return Ok(false);
-        };
         // The maps are joined where they share the most: the window's reference keyframe.
         let matched = merge.matched();
         let S = merge.S_older_current;
         // On copies (sharing their entries): an error leaves every map as it was.
         let mut current = self.map.clone();
         let mut trajectory = self.trajectory.clone();
-        let (merged, graph_cost, welded) = trajectory
+        let (merged, graph_cost) = trajectory
             .transform_world(&S, &mut current, |m| m.transform_world(&S))
             .map_err(SlamError::from)
             .and_then(|()| {
@@ -226,8 +239,9 @@ impl SlamSystem {
                     &self.ctx,
                 )
             })?;
+        let seam = seam_keyframes((kf, matched), &merged);
         let mut stored = self.atlas.remove(i);
-        self.record_merge(&merge, &stored, (kf, matched), (graph_cost, welded));
+        self.record_merge(&merge, &stored, (kf, matched), (graph_cost, seam.len()));
         stored.trajectory.append(trajectory);
         if let (Some(theirs), Some(ours)) = (stored.place.as_mut(), self.place.take()) {
             theirs.absorb(ours);
@@ -243,11 +257,11 @@ impl SlamSystem {
         if let Some(place) = self.place.as_mut() {
             place.forget_culled(&self.map);
         }
-        // Global BA of the merged map as loop closing runs it: in the mapping thread, with
-        // tracking going on in the welded map meanwhile (inline: here, within this call).
+        // The weld and global BA run where loop closing's BA runs: in the mapping thread, with
+        // tracking going on in the merged map meanwhile (inline: here, within this call).
         let vocabulary = self.place.as_ref().map(|p| Arc::clone(p.vocabulary()));
         let adjusted = self.mapping.submit(
-            MappingRequest::AdjustMap,
+            MappingRequest::AdjustMerged { seam },
             &mut self.map,
             &self.ctx,
             vocabulary.as_ref(),
