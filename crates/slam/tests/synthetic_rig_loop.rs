@@ -467,6 +467,23 @@ fn assert_true_merge(scene: &Scene, m: &ferroslam_slam::MapMerge) {
     );
 }
 
+/// [`run_with`] through the rig with the blackout.
+fn run_blackout(
+    scene: &Scene,
+    vocabulary: &Arc<Vocabulary>,
+    config: SlamConfig,
+    after_frame: &mut dyn FnMut(&mut SlamSystem, &TrackResult),
+) -> Run {
+    run_with(
+        scene,
+        vocabulary,
+        config,
+        true,
+        Some(BLACKOUT_S),
+        after_frame,
+    )
+}
+
 /// A map lost in a blackout is kept; the map started after it recognises the start at the
 /// return and merges into it (SE(3), depth): one map holds every tracked frame, in the first
 /// map's world, with about the error of a run that never lost its map and closed no loop
@@ -482,14 +499,7 @@ fn assert_true_merge(scene: &Scene, m: &ferroslam_slam::MapMerge) {
 fn a_map_lost_in_a_blackout_is_merged_back_at_the_return() {
     let scene = Scene::new(11);
     let vocabulary = scene.vocabulary();
-    let dark = run_with(
-        &scene,
-        &vocabulary,
-        blackout_config(),
-        true,
-        Some(BLACKOUT_S),
-        &mut |_, _| {},
-    );
+    let dark = run_blackout(&scene, &vocabulary, blackout_config(), &mut |_, _| {});
     let mut open = SlamConfig::default();
     open.loop_closing.loop_closure = false;
     let open_ate = ate_m(&run(&scene, &vocabulary, open, true).system);
@@ -527,14 +537,7 @@ fn two_saved_maps_merge_offline() {
     let vocabulary = scene.vocabulary();
     let mut apart = blackout_config();
     apart.loop_closing.loop_closure = false;
-    let dark = run_with(
-        &scene,
-        &vocabulary,
-        apart,
-        true,
-        Some(BLACKOUT_S),
-        &mut |_, _| {},
-    );
+    let dark = run_blackout(&scene, &vocabulary, apart, &mut |_, _| {});
     let built = dark.system.maps();
     assert_eq!(built.len(), 2, "{built:?}");
     let dir = std::env::temp_dir().join(format!("ferroslam-merge-{}", std::process::id()));
@@ -604,24 +607,10 @@ fn a_merge_s_bundle_adjustment_runs_in_the_mapping_thread() {
                 moved_m = Some(moved);
             }
         };
-        let run = run_with(
-            &scene,
-            &vocabulary,
-            config,
-            true,
-            Some(BLACKOUT_S),
-            &mut after_frame,
-        );
+        let run = run_blackout(&scene, &vocabulary, config, &mut after_frame);
         (run, moved_m)
     };
-    let inline = run_with(
-        &scene,
-        &vocabulary,
-        blackout_config(),
-        true,
-        Some(BLACKOUT_S),
-        &mut |_, _| {},
-    );
+    let inline = run_blackout(&scene, &vocabulary, blackout_config(), &mut |_, _| {});
     let (free, free_moved) = run_threaded(false);
     let (deterministic, deterministic_moved) = run_threaded(true);
     eprintln!(
