@@ -24,7 +24,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use ferroslam_map::{Map, MapJournal, MapPointId};
+use ferroslam_map::{KeyFrameId, Map, MapJournal, MapPointId};
 use ferroslam_vocabulary::Vocabulary;
 
 use super::pipeline::{
@@ -69,7 +69,7 @@ pub(crate) struct MappingThread {
     in_flight: bool,
     queue: Vec<KeyFrameWork>,
     /// A merge's seam to weld and bundle-adjust, queued ahead of the keyframes.
-    merged_seam: Option<Vec<ferroslam_map::KeyFrameId>>,
+    merged_seam: Option<Vec<KeyFrameId>>,
     renamed: HashMap<MapPointId, MapPointId>,
     /// Renaming of the points the job in flight sent ahead.
     renamed_in_flight: HashMap<MapPointId, MapPointId>,

@@ -82,7 +82,8 @@ impl SlamSystem {
         }
         if self.ctx.config.sensor == Sensor::Monocular {
             return refuse(
-                "a monocular rig's map has no metric scale for the cameras' metric poses: give                  the first camera depth or a stereo partner",
+                "a monocular rig's map has no metric scale for the cameras' metric poses: give \
+                 the first camera depth or a stereo partner",
             );
         }
         let rolling = |c: &CameraModel| !c.rolling_shutter().is_global();
