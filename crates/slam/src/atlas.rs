@@ -6,6 +6,7 @@
 
 use ferroslam_map::Map;
 
+use crate::inertial::InertialMapState;
 use crate::loop_closing::LoopDetector;
 use crate::place_recognition::PlaceRecognition;
 use crate::trajectory::Trajectory;
@@ -22,6 +23,8 @@ pub(crate) struct StoredMap {
     /// Merge candidates of the current map's recent keyframes in this map, with their
     /// consistency counts (as loop candidates are counted).
     pub detector: LoopDetector,
+    /// Its part of the IMU state, in a visual-inertial system.
+    pub inertial: Option<InertialMapState>,
 }
 
 /// What a map looks like from outside: for `maps()` listings and run summaries.

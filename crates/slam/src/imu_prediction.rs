@@ -81,6 +81,32 @@ impl ImuPredictor {
         *self = Self::default();
     }
 
+    /// `(timestamp, body state)` of the last tracked frame, its velocity measured over the
+    /// tracked baseline with the IMU (see the module doc); `None` before the alignment,
+    /// without a baseline of [`MIN_BASELINE_SHARE`] of `velocity_baseline_s` or without IMU
+    /// samples over it.
+    #[allow(non_snake_case)]
+    pub(crate) fn last_tracked_state(&self, inertial: &Inertial) -> Option<(f64, NavState)> {
+        let gravity_w = inertial.gravity_w()?;
+        let &(t_k, T_w_bk) = self.tracked.front()?;
+        let &(t_j, T_w_bj) = self.tracked.back()?;
+        let dt = t_j - t_k;
+        if dt < MIN_BASELINE_SHARE * inertial.tuning().velocity_baseline_s {
+            return None;
+        }
+        let delta = inertial.preintegrate(t_k, t_j)?.delta();
+        let R_k = T_w_bk.rotation;
+        let p_k = T_w_bk.translation.vector;
+        let p_j = T_w_bj.translation.vector;
+        let v_k = (p_j - p_k - gravity_w * (0.5 * dt * dt) - R_k * delta.delta_p) / dt;
+        let state = NavState {
+            R_w_b: T_w_bj.rotation,
+            v_w_b: v_k + gravity_w * dt + R_k * delta.delta_v,
+            p_w_b: p_j,
+        };
+        Some((t_j, state))
+    }
+
     /// The IMU's prediction for a frame at `timestamp` that vision could not localise;
     /// `None` before the alignment, without a tracked baseline of at least
     /// [`MIN_BASELINE_SHARE`] of `velocity_baseline_s`, beyond `imu_only_max_s` or without
@@ -91,25 +117,7 @@ impl ImuPredictor {
         let tuning = inertial.tuning();
         let (t_j, state_j) = match self.anchor {
             Some(anchor) => anchor,
-            None => {
-                let &(t_k, T_w_bk) = self.tracked.front()?;
-                let &(t_j, T_w_bj) = self.tracked.back()?;
-                let dt = t_j - t_k;
-                if dt < MIN_BASELINE_SHARE * tuning.velocity_baseline_s {
-                    return None;
-                }
-                let delta = inertial.preintegrate(t_k, t_j)?.delta();
-                let R_k = T_w_bk.rotation;
-                let p_k = T_w_bk.translation.vector;
-                let p_j = T_w_bj.translation.vector;
-                let v_k = (p_j - p_k - gravity_w * (0.5 * dt * dt) - R_k * delta.delta_p) / dt;
-                let state = NavState {
-                    R_w_b: T_w_bj.rotation,
-                    v_w_b: v_k + gravity_w * dt + R_k * delta.delta_v,
-                    p_w_b: p_j,
-                };
-                *self.anchor.insert((t_j, state))
-            }
+            None => *self.anchor.insert(self.last_tracked_state(inertial)?),
         };
         if timestamp - t_j > tuning.imu_only_max_s {
             return None;

@@ -245,6 +245,28 @@ pub(crate) struct Inertial {
     /// new keyframe, refined by local inertial BA).
     states: BTreeMap<KeyFrameId, KeyFrameState>,
     status: AlignmentStatus,
+    /// Tracking resumed in a stored map: its next keyframe has no IMU link to the ones
+    /// before and takes its state from [`Self::resume`].
+    resuming: bool,
+}
+
+/// What of an [`Inertial`] belongs to one map, kept with it in the atlas: preintegrations,
+/// history, scale, alignment and keyframe states (the samples and settings are the system's).
+#[derive(Clone, Debug)]
+pub(crate) struct InertialMapState {
+    keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
+    history: Vec<Seen>,
+    map_scale: f64,
+    first_aligned_s: Option<f64>,
+    states: BTreeMap<KeyFrameId, KeyFrameState>,
+    status: AlignmentStatus,
+}
+
+impl InertialMapState {
+    /// Whether the map was aligned with the IMU (gravity known in its world).
+    pub(crate) fn is_aligned(&self) -> bool {
+        matches!(self.status, AlignmentStatus::Aligned(_))
+    }
 }
 
 impl Inertial {
@@ -271,7 +293,67 @@ impl Inertial {
                 keyframes: 0,
                 needed,
             },
+            resuming: false,
         })
+    }
+
+    /// Takes the current map's part (the map goes to the atlas), leaving a new map's.
+    pub(crate) fn take_map_state(&mut self) -> InertialMapState {
+        let state = InertialMapState {
+            keyframes: std::mem::take(&mut self.keyframes),
+            history: std::mem::take(&mut self.history),
+            map_scale: self.map_scale,
+            first_aligned_s: self.first_aligned_s,
+            states: std::mem::take(&mut self.states),
+            status: self.status.clone(),
+        };
+        self.clear_map();
+        state
+    }
+
+    /// Makes a stored map's part current again (see [`Self::take_map_state`]).
+    pub(crate) fn restore_map_state(&mut self, state: InertialMapState) {
+        self.keyframes = state.keyframes;
+        self.history = state.history;
+        self.map_scale = state.map_scale;
+        self.first_aligned_s = state.first_aligned_s;
+        self.states = state.states;
+        self.status = state.status;
+        self.resuming = false;
+    }
+
+    /// Tracking resumed at `timestamp_s` in the map restored last. The IMU before that spans
+    /// the time the map was lost (seconds, nothing to tie it to): no keyframe links across
+    /// it, so the samples before are dropped, and the next keyframe's state comes from
+    /// [`Self::resume`].
+    pub(crate) fn resume_at(&mut self, timestamp_s: f64) {
+        // Keep the sample at or before the resumed frame: it brackets the next interval.
+        let first = self
+            .samples
+            .partition_point(|s| s.t_s <= timestamp_s)
+            .saturating_sub(1);
+        self.samples.drain(..first);
+        self.resuming = self.is_aligned();
+    }
+
+    /// Whether the current map waits for [`Self::resume`].
+    pub(crate) fn resuming(&self) -> bool {
+        self.resuming
+    }
+
+    /// Gives keyframe `kf`, the first since tracking resumed in this map, its IMU state:
+    /// `velocity_w` (the body's, in the world, m/s, as tracking measured it with the IMU)
+    /// and the map's newest biases; the keyframes after it link to it by IMU.
+    pub(crate) fn resume(&mut self, kf: KeyFrameId, velocity_w: Vector3<f64>) {
+        let bias = self.bias();
+        self.states.insert(
+            kf,
+            KeyFrameState {
+                velocity: velocity_w,
+                bias,
+            },
+        );
+        self.resuming = false;
     }
 
     pub(crate) fn config(&self) -> &InertialConfig {
@@ -351,6 +433,7 @@ impl Inertial {
             keyframes: 0,
             needed: self.config.num_poses_threshold,
         };
+        self.resuming = false;
     }
 
     /// Preintegrated IMU of `kf` since the previous live keyframe, if the samples cover it.

@@ -65,6 +65,18 @@ impl SlamSystem {
         self.inertial.as_ref()?.preintegrated(kf)
     }
 
+    /// Gives `kf`, a keyframe since tracking resumed in a stored visual-inertial map, its
+    /// IMU state once tracking has measured the body's velocity over its baseline (see
+    /// `Inertial::resume`); a keyframe before that waits for the next.
+    pub(super) fn resume_inertial(&mut self, kf: KeyFrameId) {
+        let Some(inertial) = self.inertial.as_mut().filter(|i| i.resuming()) else {
+            return;
+        };
+        if let Some((_, state)) = self.predictor.last_tracked_state(inertial) {
+            inertial.resume(kf, state.v_w_b);
+        }
+    }
+
     /// Whether a frame at `timestamp` must become a keyframe for the camera-IMU alignment
     /// (not aligned yet and `inertial.init_keyframe_interval_s` since the newest keyframe).
     pub(super) fn inertial_keyframe_due(&self, timestamp: f64) -> bool {

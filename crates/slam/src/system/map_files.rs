@@ -176,6 +176,7 @@ impl SlamSystem {
                 trajectory: Default::default(),
                 place,
                 detector: LoopDetector::default(),
+                inertial: None,
             };
             self.atlas.push(stored);
         }

@@ -12,6 +12,7 @@ use super::SlamSystem;
 use crate::atlas::{MapSummary, StoredMap};
 use crate::error::SlamError;
 use crate::frame::Frame;
+use crate::inertial::{Inertial, InertialMapState};
 use crate::loop_closing::{
     join_maps, min_neighbour_score, seam_keyframes, verify_merge, LoopDetector, MapMerge,
     MergeMatch,
@@ -64,19 +65,27 @@ impl SlamSystem {
             trajectory: std::mem::take(&mut self.trajectory),
             place: std::mem::replace(&mut self.place, place),
             detector: LoopDetector::default(),
+            inertial: self.inertial.as_mut().map(Inertial::take_map_state),
         };
         self.atlas.push(stored);
         self.map_id = self.new_map_id();
         self.clear_map();
     }
 
-    /// Whether stored maps can be found again: a vocabulary, visual maps (the inertial state
-    /// is the current map's only) and a map being built.
+    /// Whether stored maps can be found again: a vocabulary and a map being built.
     fn atlas_searchable(&self) -> bool {
-        !self.atlas.is_empty()
-            && self.place.is_some()
-            && self.inertial.is_none()
-            && !self.localization_only
+        !self.atlas.is_empty() && self.place.is_some() && !self.localization_only
+    }
+
+    /// Whether tracking can resume in `stored`: any map of a visual system; with an IMU, a
+    /// map aligned with it (its gravity and keyframe states kept with it: a loaded map or
+    /// one lost before its alignment would be re-aligned, its world turned).
+    fn relocalisable(&self, stored: &StoredMap) -> bool {
+        self.inertial.is_none()
+            || stored
+                .inertial
+                .as_ref()
+                .is_some_and(InertialMapState::is_aligned)
     }
 
     /// Relocalises `frame` in the atlas's maps, the most recently stored first. The map it
@@ -88,6 +97,9 @@ impl SlamSystem {
             return Ok(false);
         }
         for i in (0..self.atlas.len()).rev() {
+            if !self.relocalisable(&self.atlas[i]) {
+                continue;
+            }
             let stored = &mut self.atlas[i];
             let mut tracker = Tracker::default();
             tracker.state = TrackingState::Lost;
@@ -102,6 +114,9 @@ impl SlamSystem {
                 self.finish_mapping()?;
                 let stored = self.atlas.remove(i);
                 self.make_current(stored);
+                if let Some(inertial) = self.inertial.as_mut() {
+                    inertial.resume_at(frame.timestamp);
+                }
                 self.tracker = tracker;
                 return Ok(true);
             }
@@ -123,7 +138,11 @@ impl SlamSystem {
             trajectory: std::mem::replace(&mut self.trajectory, stored.trajectory),
             place: std::mem::replace(&mut self.place, stored.place),
             detector: LoopDetector::default(),
+            inertial: self.inertial.as_mut().map(Inertial::take_map_state),
         };
+        if let (Some(inertial), Some(state)) = (self.inertial.as_mut(), stored.inertial) {
+            inertial.restore_map_state(state);
+        }
         if keep {
             self.atlas.push(previous);
         } else {
@@ -150,7 +169,9 @@ impl SlamSystem {
 
     /// [`Self::check_merges`] for keyframes `checks` of the current map, in order.
     pub(super) fn check_merges_at(&mut self, checks: &[KeyFrameId]) -> Result<(), SlamError> {
-        if !self.atlas_searchable() {
+        // Visual-inertial maps are not merged: their gravity and keyframe states would have
+        // to be joined too (relocalisation does resume in them).
+        if !self.atlas_searchable() || self.inertial.is_some() {
             return Ok(());
         }
         let consistency = self.ctx.config.loop_closing.consistency;

@@ -344,6 +344,7 @@ impl SlamSystem {
                 ..MappingReport::default()
             };
             self.new_points.extend(created);
+            self.resume_inertial(kf);
             let work = KeyFrameWork {
                 kf,
                 new_points: std::mem::take(&mut self.new_points),
