@@ -233,6 +233,17 @@ pub(crate) struct Inertial {
     /// The map is metric (stereo, RGB-D): the alignment keeps its scale.
     known_scale: bool,
     samples: Vec<ImuSample>,
+    /// The current map's part.
+    per_map: InertialMapState,
+    /// Tracking resumed in a stored map: its next keyframe has no IMU link to the ones
+    /// before and takes its state from [`Self::resume`].
+    resuming: bool,
+}
+
+/// What of an [`Inertial`] belongs to one map, kept with it in the atlas: preintegrations,
+/// history, scale, alignment and keyframe states (the samples and settings are the system's).
+#[derive(Clone, Debug)]
+pub(crate) struct InertialMapState {
     keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
     /// Every keyframe of the map, culled ones too, by id, until the last refinement (since
     /// the first alignment once aligned).
@@ -245,24 +256,24 @@ pub(crate) struct Inertial {
     /// new keyframe, refined by local inertial BA).
     states: BTreeMap<KeyFrameId, KeyFrameState>,
     status: AlignmentStatus,
-    /// Tracking resumed in a stored map: its next keyframe has no IMU link to the ones
-    /// before and takes its state from [`Self::resume`].
-    resuming: bool,
-}
-
-/// What of an [`Inertial`] belongs to one map, kept with it in the atlas: preintegrations,
-/// history, scale, alignment and keyframe states (the samples and settings are the system's).
-#[derive(Clone, Debug)]
-pub(crate) struct InertialMapState {
-    keyframes: BTreeMap<KeyFrameId, KeyFrameImu>,
-    history: Vec<Seen>,
-    map_scale: f64,
-    first_aligned_s: Option<f64>,
-    states: BTreeMap<KeyFrameId, KeyFrameState>,
-    status: AlignmentStatus,
 }
 
 impl InertialMapState {
+    /// A new map's: nothing aligned, `needed` keyframes to wait for.
+    fn new(needed: usize) -> Self {
+        Self {
+            keyframes: BTreeMap::new(),
+            history: Vec::new(),
+            map_scale: 1.0,
+            first_aligned_s: None,
+            states: BTreeMap::new(),
+            status: AlignmentStatus::Waiting {
+                keyframes: 0,
+                needed,
+            },
+        }
+    }
+
     /// Whether the map was aligned with the IMU (gravity known in its world).
     pub(crate) fn is_aligned(&self) -> bool {
         matches!(self.status, AlignmentStatus::Aligned(_))
@@ -284,41 +295,21 @@ impl Inertial {
             tuning,
             known_scale,
             samples: Vec::new(),
-            keyframes: BTreeMap::new(),
-            history: Vec::new(),
-            map_scale: 1.0,
-            first_aligned_s: None,
-            states: BTreeMap::new(),
-            status: AlignmentStatus::Waiting {
-                keyframes: 0,
-                needed,
-            },
+            per_map: InertialMapState::new(needed),
             resuming: false,
         })
     }
 
     /// Takes the current map's part (the map goes to the atlas), leaving a new map's.
     pub(crate) fn take_map_state(&mut self) -> InertialMapState {
-        let state = InertialMapState {
-            keyframes: std::mem::take(&mut self.keyframes),
-            history: std::mem::take(&mut self.history),
-            map_scale: self.map_scale,
-            first_aligned_s: self.first_aligned_s,
-            states: std::mem::take(&mut self.states),
-            status: self.status.clone(),
-        };
-        self.clear_map();
-        state
+        let fresh = InertialMapState::new(self.config.num_poses_threshold);
+        self.resuming = false;
+        std::mem::replace(&mut self.per_map, fresh)
     }
 
     /// Makes a stored map's part current again (see [`Self::take_map_state`]).
     pub(crate) fn restore_map_state(&mut self, state: InertialMapState) {
-        self.keyframes = state.keyframes;
-        self.history = state.history;
-        self.map_scale = state.map_scale;
-        self.first_aligned_s = state.first_aligned_s;
-        self.states = state.states;
-        self.status = state.status;
+        self.per_map = state;
         self.resuming = false;
     }
 
@@ -346,7 +337,7 @@ impl Inertial {
     /// and the map's newest biases; the keyframes after it link to it by IMU.
     pub(crate) fn resume(&mut self, kf: KeyFrameId, velocity_w: Vector3<f64>) {
         let bias = self.bias();
-        self.states.insert(
+        self.per_map.states.insert(
             kf,
             KeyFrameState {
                 velocity: velocity_w,
@@ -365,12 +356,12 @@ impl Inertial {
     }
 
     pub(crate) fn status(&self) -> &AlignmentStatus {
-        &self.status
+        &self.per_map.status
     }
 
     /// Gravity in the map's world, m/s^2, once aligned.
     pub(crate) fn gravity_w(&self) -> Option<Vector3<f64>> {
-        match &self.status {
+        match &self.per_map.status {
             AlignmentStatus::Aligned(a) => Some(a.gravity_w),
             _ => None,
         }
@@ -384,7 +375,7 @@ impl Inertial {
 
     /// Whether the camera-IMU alignment has succeeded for the current map.
     pub(crate) fn is_aligned(&self) -> bool {
-        matches!(self.status, AlignmentStatus::Aligned(_))
+        matches!(self.per_map.status, AlignmentStatus::Aligned(_))
     }
 
     /// Appends samples after the buffered ones; all or nothing.
@@ -424,21 +415,13 @@ impl Inertial {
 
     /// Forgets the map's keyframes and alignment (after a map reset); samples stay.
     pub(crate) fn clear_map(&mut self) {
-        self.keyframes.clear();
-        self.history.clear();
-        self.map_scale = 1.0;
-        self.first_aligned_s = None;
-        self.states.clear();
-        self.status = AlignmentStatus::Waiting {
-            keyframes: 0,
-            needed: self.config.num_poses_threshold,
-        };
-        self.resuming = false;
+        self.take_map_state();
     }
 
     /// Preintegrated IMU of `kf` since the previous live keyframe, if the samples cover it.
     pub(crate) fn preintegrated(&self, kf: KeyFrameId) -> Option<(KeyFrameId, &Preintegrated)> {
-        self.keyframes
+        self.per_map
+            .keyframes
             .get(&kf)
             .map(|k| (k.previous, &k.preintegrated))
     }
@@ -453,7 +436,11 @@ impl Inertial {
         let mut synced = BTreeMap::new();
         for pair in live.windows(2) {
             let ((a, ta), (b, tb)) = (pair[0], pair[1]);
-            let kept = self.keyframes.remove(&b).filter(|k| k.previous == a);
+            let kept = self
+                .per_map
+                .keyframes
+                .remove(&b)
+                .filter(|k| k.previous == a);
             let entry = kept.or_else(|| {
                 Preintegrated::between(&self.samples, ta, tb, bias, &self.config.params)
                     .ok()
@@ -466,26 +453,27 @@ impl Inertial {
                 synced.insert(b, entry);
             }
         }
-        self.keyframes = synced;
+        self.per_map.keyframes = synced;
         if self.next_refinement().is_some() {
-            let last = self.history.last().map(|k| k.id);
+            let last = self.per_map.history.last().map(|k| k.id);
             let mut new: Vec<_> = live.iter().filter(|&&(id, _)| Some(id) > last).collect();
             new.sort_by_key(|&&(id, _)| id);
-            self.history
+            self.per_map
+                .history
                 .extend(new.into_iter().map(|&(id, timestamp)| Seen {
                     id,
                     timestamp,
                     T_c_w: Isometry3::identity(),
                     map_scale: f64::NAN,
                 }));
-            for seen in &mut self.history {
+            for seen in &mut self.per_map.history {
                 if let Some(kf) = map.keyframe(seen.id) {
                     seen.T_c_w = *kf.T_c_w();
-                    seen.map_scale = self.map_scale;
+                    seen.map_scale = self.per_map.map_scale;
                 }
             }
         }
-        let oldest = self.history.first().map(|k| k.timestamp);
+        let oldest = self.per_map.history.first().map(|k| k.timestamp);
         if let Some(t0) = oldest
             .into_iter()
             .chain(live.first().map(|&(_, t)| t))
@@ -503,10 +491,10 @@ impl Inertial {
     /// The newest keyframe's biases (local inertial BA refines them), else those of the
     /// current alignment (zero before).
     fn bias(&self) -> Bias {
-        if let Some((_, state)) = self.states.last_key_value() {
+        if let Some((_, state)) = self.per_map.states.last_key_value() {
             return state.bias;
         }
-        match &self.status {
+        match &self.per_map.status {
             AlignmentStatus::Aligned(a) => Bias::new(a.gyro_bias, a.accel_bias),
             _ => Bias::default(),
         }
@@ -527,15 +515,20 @@ impl Inertial {
         }
         self.sync(map);
         let live = live_keyframes(map);
-        self.states.retain(|id, _| map.keyframe(*id).is_some());
+        self.per_map
+            .states
+            .retain(|id, _| map.keyframe(*id).is_some());
         let T_c_b = self.config.T_b_c.inverse();
         let R_w_b = |id: KeyFrameId| map.keyframe(id).map(|k| (k.T_w_c() * T_c_b).rotation);
         for &(id, _) in &live {
-            let (Some(imu), None) = (self.keyframes.get(&id), self.states.get(&id)) else {
+            let (Some(imu), None) = (
+                self.per_map.keyframes.get(&id),
+                self.per_map.states.get(&id),
+            ) else {
                 continue;
             };
             let (Some(previous), Some(R_prev)) =
-                (self.states.get(&imu.previous), R_w_b(imu.previous))
+                (self.per_map.states.get(&imu.previous), R_w_b(imu.previous))
             else {
                 continue;
             };
@@ -544,31 +537,36 @@ impl Inertial {
                 velocity: previous.velocity + gravity_w * delta.dt + R_prev * delta.delta_v,
                 bias: previous.bias,
             };
-            self.states.insert(id, state);
+            self.per_map.states.insert(id, state);
         }
         let mut ids = vec![live.last()?.0];
         while ids.len() < self.tuning.window_keyframes {
             let oldest = *ids.last()?;
-            match self.keyframes.get(&oldest) {
-                Some(imu) if self.states.contains_key(&imu.previous) => ids.push(imu.previous),
+            match self.per_map.keyframes.get(&oldest) {
+                Some(imu) if self.per_map.states.contains_key(&imu.previous) => {
+                    ids.push(imu.previous)
+                }
                 _ => break,
             }
         }
-        if ids.len() < 2 || !self.states.contains_key(&ids[0]) {
+        if ids.len() < 2 || !self.per_map.states.contains_key(&ids[0]) {
             return None;
         }
         ids.reverse();
         let mut edges = Vec::with_capacity(ids.len() - 1);
         for &id in &ids[1..] {
-            let pre = &self.keyframes.get(&id)?.preintegrated;
+            let pre = &self.per_map.keyframes.get(&id)?.preintegrated;
             let factor = InertialFactor::new(pre.clone(), gravity_w).ok()?;
             let walk = BiasWalkFactor::new(&self.config.params, pre.dt()).ok()?;
             edges.push((factor, walk));
         }
         Some(InertialWindow {
             T_b_c: self.config.T_b_c,
-            velocities: ids.iter().map(|id| self.states[id].velocity).collect(),
-            biases: ids.iter().map(|id| self.states[id].bias).collect(),
+            velocities: ids
+                .iter()
+                .map(|id| self.per_map.states[id].velocity)
+                .collect(),
+            biases: ids.iter().map(|id| self.per_map.states[id].bias).collect(),
             keyframes: ids,
             edges,
         })
@@ -577,14 +575,14 @@ impl Inertial {
     /// The newest keyframe's IMU state `(id, body velocity in the world m/s, biases)`, once
     /// aligned.
     pub(crate) fn newest_state(&self) -> Option<(KeyFrameId, Vector3<f64>, Bias)> {
-        let (id, state) = self.states.last_key_value()?;
+        let (id, state) = self.per_map.states.last_key_value()?;
         Some((*id, state.velocity, state.bias))
     }
 
     /// Keeps the states local inertial BA found for `window`'s keyframes.
     pub(crate) fn store(&mut self, window: &InertialWindow) {
         for (k, id) in window.keyframes.iter().enumerate() {
-            self.states.insert(
+            self.per_map.states.insert(
                 *id,
                 KeyFrameState {
                     velocity: window.velocities[k],
@@ -597,7 +595,7 @@ impl Inertial {
     /// Index into `refinement_spans_s` of the next alignment (0 before the first one,
     /// which [`InertialAlignment::refinement`] counts as 0 too), `None` when all are done.
     fn next_refinement(&self) -> Option<usize> {
-        match &self.status {
+        match &self.per_map.status {
             AlignmentStatus::Aligned(a) if a.refinement < self.tuning.refinement_spans_s.len() => {
                 Some(a.refinement)
             }
@@ -616,36 +614,39 @@ impl Inertial {
     /// relative to the keyframe that adopted it.
     pub(crate) fn try_align(&mut self, map: &Map) -> Option<InertialAlignment> {
         self.sync(map);
-        if let (AlignmentStatus::Aligned(a), Some(t0)) = (&self.status, self.first_aligned_s) {
+        if let (AlignmentStatus::Aligned(a), Some(t0)) =
+            (&self.per_map.status, self.per_map.first_aligned_s)
+        {
             let span = *self.tuning.refinement_spans_s.get(a.refinement)?;
-            let newest = self.history.last()?.timestamp;
+            let newest = self.per_map.history.last()?.timestamp;
             if newest - t0 < span {
                 return None;
             }
             let start = self
+                .per_map
                 .history
                 .partition_point(|k| k.timestamp < newest - span);
             let refinement = a.refinement + 1;
             // A failed refinement keeps the current alignment and retries at the next keyframe.
             return self
-                .align_window(map, &self.history[start..])
+                .align_window(map, &self.per_map.history[start..])
                 .ok()
                 .map(|a| InertialAlignment { refinement, ..a });
         }
         let needed = self.config.num_poses_threshold;
-        let n = self.history.len();
+        let n = self.per_map.history.len();
         if n < needed {
-            self.status = AlignmentStatus::Waiting {
+            self.per_map.status = AlignmentStatus::Waiting {
                 keyframes: n,
                 needed,
             };
             return None;
         }
-        let window = &self.history[n - self.config.window(n)..];
+        let window = &self.per_map.history[n - self.config.window(n)..];
         match self.align_window(map, window) {
             Ok(alignment) => Some(alignment),
             Err(reason) => {
-                self.status = AlignmentStatus::Failed {
+                self.per_map.status = AlignmentStatus::Failed {
                     keyframes: window.len(),
                     reason,
                 };
@@ -660,12 +661,13 @@ impl Inertial {
     fn align_window(&self, map: &Map, window: &[Seen]) -> Result<InertialAlignment, String> {
         let mut poses = Vec::with_capacity(window.len());
         for seen in window {
-            let T_c_w = if map.keyframe(seen.id).is_some() || seen.map_scale == self.map_scale {
-                map.resolve_keyframe_pose(seen.id)
-                    .ok_or_else(|| format!("keyframe {} has no pose", seen.id.0))?
-            } else {
-                scale_translation(&seen.T_c_w, self.map_scale / seen.map_scale)
-            };
+            let T_c_w =
+                if map.keyframe(seen.id).is_some() || seen.map_scale == self.per_map.map_scale {
+                    map.resolve_keyframe_pose(seen.id)
+                        .ok_or_else(|| format!("keyframe {} has no pose", seen.id.0))?
+                } else {
+                    scale_translation(&seen.T_c_w, self.per_map.map_scale / seen.map_scale)
+                };
             poses.push(T_c_w.inverse());
         }
         let prior = self.bias();
@@ -727,22 +729,25 @@ impl Inertial {
     /// the refinements still need and reintegrates the keyframes' IMU at the new biases.
     pub(crate) fn accept(&mut self, alignment: InertialAlignment, map: &Map) {
         if alignment.map_rescaled {
-            self.map_scale *= alignment.scale;
+            self.per_map.map_scale *= alignment.scale;
         }
-        let t0 = *self.first_aligned_s.get_or_insert(alignment.timestamp);
+        let t0 = *self
+            .per_map
+            .first_aligned_s
+            .get_or_insert(alignment.timestamp);
         let bias = Bias::new(alignment.gyro_bias, alignment.accel_bias);
-        self.states = alignment
+        self.per_map.states = alignment
             .keyframes
             .iter()
             .zip(&alignment.velocities)
             .map(|(&(id, _), &velocity)| (id, KeyFrameState { velocity, bias }))
             .collect();
-        self.status = AlignmentStatus::Aligned(alignment);
-        self.keyframes.clear();
+        self.per_map.status = AlignmentStatus::Aligned(alignment);
+        self.per_map.keyframes.clear();
         if self.next_refinement().is_some() {
-            self.history.retain(|k| k.timestamp >= t0);
+            self.per_map.history.retain(|k| k.timestamp >= t0);
         } else {
-            self.history.clear();
+            self.per_map.history.clear();
         }
         self.sync(map);
     }
