@@ -117,10 +117,10 @@ class FakeSlamSystem:
     def map_points(self, map_id=None):
         return np.zeros((10, 3))
 
-    def map_point_colors(self):
+    def map_point_colors(self, map_id=None):
         return np.full((10, 3), 128, np.uint8)
 
-    def sparse_model(self):
+    def sparse_model(self, map_id=None):
         ids, stamps, poses = self.keyframe_trajectory()
         return {"keyframe_ids": ids, "timestamps": stamps, "T_w_c": poses,
                 "keypoint_offsets": np.zeros(len(ids) + 1, np.int64),

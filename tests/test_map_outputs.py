@@ -23,7 +23,7 @@ from ferroslam import cli
 from ferroslam.datasets import TumSequence
 from ferroslam.export import write_trajectory
 from ferroslam.outputs import publish_run_outputs, write_run_outputs
-from ferroslam.pipeline import RunResult, run_sequence
+from ferroslam.pipeline import RunResult, _map_outputs, run_sequence
 from ferroslam.trajectory import Trajectory
 
 MULTI_MAP_CONFIG = {"n_features": 1000, "seed": 2}
@@ -73,12 +73,12 @@ def test_multi_map_run_outputs(multi_map_run, tmp_path, capsys):
     # Every "ok" frame has a pose; the others are each map's initial reference frame and
     # the frames of tracking gaps posed afterwards (measured 142 "ok" of 179 poses).
     assert saved["tracked_frames"] < poses
-    # The atlas keeps every map with its keyframes and points; the current one is the map
-    # the run's keyframes (results.json "keyframes") come from.
+    # The atlas keeps every map with its keyframes and points; the largest one is the map
+    # the run's keyframes (results.json "keyframes") and points come from.
     assert all(m["keyframes"] > 0 and m["points"] > 0 for m in saved["maps"])
-    current = [m["id"] for m in result.atlas if m["current"]]
-    (current_map,) = [m for m in saved["maps"] if m["id"] in current]
-    assert current_map["keyframes"] == saved["keyframes"] == len(result.keyframes)
+    (largest_saved,) = [m for m in saved["maps"] if m["id"] == largest.id]
+    assert largest_saved["keyframes"] == saved["keyframes"] == len(result.keyframes)
+    assert largest_saved["points"] == len(result.map_points)
     # ATE of a scale-free run: over the same poses trajectory.txt holds.
     assert result.ate_frames.pairs == largest.frames
 
@@ -164,3 +164,61 @@ def test_nothing_tracked_writes_an_empty_maps_folder(tmp_path):
     assert summary["maps"] == [] and summary["trajectory_map"] is None
     assert list((tmp_path / "maps").iterdir()) == []
     assert (tmp_path / "trajectory.txt").read_text() == (tmp_path / "keyframes.txt").read_text()
+
+
+class _EndsInAYoungMap:
+    """The calls ``_map_outputs`` makes of a ``SlamSystem`` whose run ended in map 1, young
+    (2 poses), after map 0 (3 poses) was lost: each map's keyframes and points differ."""
+
+    def __init__(self):
+        self.asked = []
+
+    def frame_trajectory(self):
+        return np.arange(5.0), np.tile(np.eye(4), (5, 1, 1))
+
+    def frame_map_ids(self):
+        return np.array([0, 0, 0, 1, 1])
+
+    def _map(self, map_id):
+        self.asked.append(map_id)
+        return 1 if map_id is None else map_id  # the current map is 1
+
+    def keyframe_trajectory(self, map_id=None):
+        n = 4 - 2 * self._map(map_id)  # map 0: 4 keyframes, map 1: 2
+        return np.arange(n, dtype=np.uint32), np.arange(float(n)), np.tile(np.eye(4), (n, 1, 1))
+
+    def map_points(self, map_id=None):
+        return np.full((30 - 20 * self._map(map_id), 3), 1.0)
+
+    def map_point_colors(self, map_id=None):
+        return np.full((30 - 20 * self._map(map_id), 3), 128, np.uint8)
+
+    def sparse_model(self, map_id=None):
+        ids, stamps, poses = self.keyframe_trajectory(map_id)
+        points = self.map_points(map_id)
+        return {"keyframe_ids": ids, "timestamps": stamps, "T_w_c": poses,
+                "keypoint_offsets": np.zeros(len(ids) + 1, np.int64),
+                "keypoints_px": np.zeros((0, 2)), "point_index": np.zeros(0, np.int64),
+                "points_xyz": points, "point_colors": self.map_point_colors(map_id)}
+
+    def maps(self):
+        return [{"id": 0, "frames": 3, "keyframes": 4, "points": 30, "current": False},
+                {"id": 1, "frames": 2, "keyframes": 2, "points": 10, "current": True}]
+
+    def merges(self):
+        return []
+
+    def loops(self):
+        return []
+
+    def loop_stats(self):
+        return {}
+
+
+def test_keyframes_points_and_model_are_the_largest_maps_not_the_young_current_one():
+    system = _EndsInAYoungMap()
+    outputs = _map_outputs(system)
+    # Map 0, which trajectory.txt holds, asked for by id, not the current map 1.
+    assert set(system.asked) == {0}
+    assert len(outputs["keyframes"]) == 4 and len(outputs["map_points"]) == 30
+    assert len(outputs["map_point_colors"]) == 30

@@ -432,13 +432,15 @@ class SlamSystem:
     def map_points(self, map_id: int | None = None) -> NDArray[np.float64]:
         """World positions of the live map points of map ``map_id`` (default the current
         map), (M, 3) float64 metres; errors as ``keyframe_trajectory``."""
-    def map_point_colors(self) -> NDArray[np.uint8]:
-        """Colours of the live map points, (M, 3) uint8 RGB in the order of ``map_points``:
+    def map_point_colors(self, map_id: int | None = None) -> NDArray[np.uint8]:
+        """Colours of the live map points of map ``map_id`` (default the current map; errors
+        as ``keyframe_trajectory``), (M, 3) uint8 RGB in the order of ``map_points(map_id)``:
         each the colour of the keypoint that created the point (the ``colors`` given with
         its frame); grey ``(128, 128, 128)`` for points made from frames given without
         colours, as the exporters draw uncoloured points."""
-    def sparse_model(self) -> dict[str, Any]:
-        """The map as images and tracks, in one call (GIL released), one image per keyframe
+    def sparse_model(self, map_id: int | None = None) -> dict[str, Any]:
+        """Map ``map_id`` (default the current map; errors as ``keyframe_trajectory``) as
+        images and tracks, in one call (GIL released), one image per keyframe
         and rig camera: ``keyframe_ids (K,)`` uint32, ``camera_index (K,)`` uint32 (the
         image's camera, 0 the tracked one), ``rig_cameras`` (list of dicts of cameras 1..:
         ``model``, ``fx``, ``fy``, ``cx``, ``cy``, ``dist``, ``width``, ``height``, ``T_c0_c

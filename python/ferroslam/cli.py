@@ -96,14 +96,14 @@ outputs (in --out):
   trajectory.txt      the tracked frames of the largest map (most frames; ties: the older), in
                       its frame; TUM format (timestamp tx ty tz qx qy qz qw, T_w_c);
                       --trajectory-format kitti / euroc (trajectory.csv) for the others
-  keyframes.txt       keyframe poses of the current (last) map, same format
+  keyframes.txt       keyframe poses of the map trajectory.txt holds, same format
   maps/map_<id>.txt   each map's tracked frames in its own frame, same format (a monocular run
                       starts a new map, id 1, 2, ..., after its map stays lost; one file with
                       one map)
-  colmap/             COLMAP model: images/ (the keyframes' images), sparse/0/ (cameras,
-                      images with their 2-D points, points with their tracks; text)
+  colmap/             COLMAP model of that map: images/ (its keyframes' images), sparse/0/
+                      (cameras, images with their 2-D points, points with their tracks; text)
   mesh.ply, dense.ply with --dense (rgbd): TSDF mesh and dense cloud of the keyframes
-  map.ply             map points (world frame = first camera, metres), PLY
+  map.ply             that map's points (world frame = first camera, metres), PLY
   plot.png            top and side views against the ground truth, map points
   trajectory_top.png  top view only
   results.json        settings, tracking states, timings, ATE/RPE, "maps" (id, frames,

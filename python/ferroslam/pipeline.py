@@ -196,8 +196,8 @@ class RunResult:
     def largest_map(self) -> Optional[MapInfo]:
         """The map with the most frame poses (ties: the older), ``None`` when nothing was
         tracked: what ``trajectory.txt`` holds and monocular ATE is computed over."""
-        # max() keeps the first of equal maxima and maps are oldest first.
-        return max(self.maps, key=lambda m: m.frames, default=None)
+        largest = largest_map_id(self._pose_map_ids())
+        return next((m for m in self.maps if m.id == largest), None)
 
     @property
     def largest_map_trajectory(self) -> Trajectory:
@@ -623,11 +623,23 @@ def imu_batch_end(stamps: np.ndarray, frame_s: float, period_s: float,
     return end
 
 
+def largest_map_id(map_ids: np.ndarray) -> Optional[int]:
+    """The map with the most frame poses, given the map of each pose (ties: the older, its
+    id the lower: ids count up in creation order); ``None`` for no poses."""
+    ids, counts = np.unique(np.asarray(map_ids, dtype=np.int64), return_counts=True)
+    # argmax keeps the first of equal maxima.
+    return None if len(ids) == 0 else int(ids[np.argmax(counts)])
+
+
 def _map_outputs(system) -> dict:
     """The ``RunResult`` fields a ``SlamSystem`` holds at the end of a run: trajectories,
-    keyframes, maps, merges, loops, map points."""
+    keyframes, maps, merges, loops, map points. Keyframes, points and the sparse model are
+    those of the largest map, the one ``trajectory.txt`` holds (a run may end in a young
+    map started after its main one was lost): the current one when nothing was tracked."""
     stamps, poses = system.frame_trajectory()
-    kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory()
+    map_ids = np.asarray(system.frame_map_ids(), dtype=np.int64).reshape(-1)
+    shown = largest_map_id(map_ids)
+    kf_ids, kf_stamps, kf_poses = system.keyframe_trajectory(shown)
     # In time order: a session's keyframes in a prior map come after the prior's by id.
     order = np.argsort(np.asarray(kf_stamps).reshape(-1), kind="stable")
     kf_ids = np.asarray(kf_ids).reshape(-1)[order]
@@ -637,14 +649,15 @@ def _map_outputs(system) -> dict:
         trajectory=Trajectory(np.asarray(stamps).reshape(-1), np.asarray(poses).reshape(-1, 4, 4)),
         keyframes=Trajectory(np.asarray(kf_stamps).reshape(-1), np.asarray(kf_poses).reshape(-1, 4, 4)),
         keyframe_ids=np.asarray(kf_ids, dtype=np.uint32).reshape(-1),
-        map_ids=np.asarray(system.frame_map_ids(), dtype=np.int64).reshape(-1),
+        map_ids=map_ids,
         atlas=system.maps(),
         merges=system.merges(),
         loops=system.loops(),
         loop_stats=system.loop_stats(),
-        map_points=np.asarray(system.map_points(), dtype=np.float64).reshape(-1, 3),
-        map_point_colors=np.asarray(system.map_point_colors(), dtype=np.uint8).reshape(-1, 3),
-        sparse_model=SparseModel.from_core(system.sparse_model()),
+        map_points=np.asarray(system.map_points(shown), dtype=np.float64).reshape(-1, 3),
+        map_point_colors=np.asarray(system.map_point_colors(shown),
+                                    dtype=np.uint8).reshape(-1, 3),
+        sparse_model=SparseModel.from_core(system.sparse_model(shown)),
     )
 
 

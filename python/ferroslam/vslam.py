@@ -457,10 +457,11 @@ class _VSlam:
         """Maps merged so far (see ``ferroslam._core.TrackResult.merge``)."""
         return self._system.merges()
 
-    def map_point_colors(self) -> np.ndarray:
-        """Colours of the map points, ``(M, 3)`` uint8 RGB in the order of :meth:`map_points`:
-        each the pixel of the image the point was first seen in (grey images give grey)."""
-        return np.asarray(self._system.map_point_colors(), dtype=np.uint8).reshape(-1, 3)
+    def map_point_colors(self, map_id: Optional[int] = None) -> np.ndarray:
+        """Colours of the map points of map ``map_id`` (default the current map), ``(M, 3)``
+        uint8 RGB in the order of :meth:`map_points`: each the pixel of the image the point
+        was first seen in (grey images give grey)."""
+        return np.asarray(self._system.map_point_colors(map_id), dtype=np.uint8).reshape(-1, 3)
 
     def inertial_alignment(self) -> Optional[dict]:
         """The camera-IMU alignment (``None`` without an IMU): status ``"waiting"``,

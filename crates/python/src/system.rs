@@ -552,20 +552,42 @@ impl PySlamSystem {
         ))
     }
 
-    /// Colours of the map points, (M, 3) uint8 RGB in the order of map_points(): the colour
-    /// of the keypoint that created each; grey 128 for points made without colours.
-    fn map_point_colors<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u8>>> {
-        let colors = self.engine()?.run(py, |s| s.map_point_colors())?;
+    /// Colours of the map points of map `map_id` (default: the current map), (M, 3) uint8
+    /// RGB in the order of map_points(map_id): the colour of the keypoint that created each;
+    /// grey 128 for points made without colours.
+    #[pyo3(signature = (map_id=None))]
+    fn map_point_colors<'py>(
+        &self,
+        py: Python<'py>,
+        map_id: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray2<u8>>> {
+        let map_id = map_id_arg(map_id)?;
+        let colors = self
+            .engine()?
+            .run(py, move |s| {
+                s.map_point_colors_of(map_id.unwrap_or(s.current_map_id()))
+            })?
+            .map_err(to_py)?;
         Ok(convert::colors_array(py, &colors))
     }
 
-    /// The map as images and tracks, in one dict of arrays (see `ferroslam._core.pyi`):
-    /// every keyframe's pose and keypoints (raw image pixels) in each camera of the rig
-    /// with the map point each observes (row of `points_xyz`, -1 for none), and the points.
-    fn sparse_model<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let (rig, model) = self
-            .engine()?
-            .run(py, |s| crate::sparse_model::rig_sparse_model(s.map()))??;
+    /// Map `map_id` (default: the current map) as images and tracks, in one dict of arrays
+    /// (see `ferroslam._core.pyi`): every keyframe's pose and keypoints (raw image pixels) in
+    /// each camera of the rig with the map point each observes (row of `points_xyz`, -1 for
+    /// none), and the points.
+    #[pyo3(signature = (map_id=None))]
+    fn sparse_model<'py>(
+        &self,
+        py: Python<'py>,
+        map_id: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let map_id = map_id_arg(map_id)?;
+        let (rig, model) = self.engine()?.run(py, move |s| {
+            let map = s
+                .map_by_id(map_id.unwrap_or(s.current_map_id()))
+                .map_err(to_py)?;
+            crate::sparse_model::rig_sparse_model(map)
+        })??;
         crate::sparse_model::model_dict(py, model, Some(&rig))
     }
 

@@ -385,6 +385,17 @@ impl SlamSystem {
         self.map_by_id(id).map(super::points_of)
     }
 
+    /// [`Self::map_point_colors`] of map `id`.
+    ///
+    /// # Errors
+    /// As [`Self::map_by_id`].
+    pub fn map_point_colors_of(
+        &self,
+        id: usize,
+    ) -> Result<Vec<Option<ferroslam_map::Rgb>>, SlamError> {
+        self.map_by_id(id).map(super::colors_of)
+    }
+
     /// `(timestamp, T_w_c, map id)` of every tracked frame in time order, with all map
     /// corrections applied; each pose is in its map's world (and, monocular, scale).
     fn frames_with_maps(&self) -> Vec<(f64, Isometry3<f64>, usize)> {

@@ -743,12 +743,16 @@ impl SlamSystem {
     /// Colour of every live map point, in the order of [`Self::map_points`] (see
     /// [`ferroslam_map::MapPoint::color`]); `None` for points made from frames without colours.
     pub fn map_point_colors(&self) -> Vec<Option<ferroslam_map::Rgb>> {
-        self.map
-            .map_point_ids()
-            .into_iter()
-            .filter_map(|m| self.map.map_point(m).map(|p| p.color()))
-            .collect()
+        colors_of(&self.map)
     }
+}
+
+/// The colour of every live point of `map`, in the order of [`points_of`].
+fn colors_of(map: &Map) -> Vec<Option<ferroslam_map::Rgb>> {
+    map.map_point_ids()
+        .into_iter()
+        .filter_map(|m| map.map_point(m).map(|p| p.color()))
+        .collect()
 }
 
 /// `(id, timestamp, T_w_c)` of every live keyframe of `map`, in id order.
