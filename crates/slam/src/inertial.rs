@@ -877,6 +877,55 @@ mod tests {
     }
 
     #[test]
+    fn a_stored_map_s_imu_state_comes_back_and_resumes_after_the_gap() {
+        let mut inertial = Inertial::new(config(), InertialTuning::default(), true).unwrap();
+        let samples: Vec<ImuSample> = (0..200).map(|i| sample(f64::from(i) * 0.005)).collect();
+        inertial.add(&samples).unwrap();
+        let (kf, velocity) = (KeyFrameId(7), Vector3::new(0.2, 0.0, 0.1));
+        let bias = Bias::new(Vector3::new(0.01, 0.0, 0.0), Vector3::zeros());
+        inertial
+            .per_map
+            .states
+            .insert(kf, KeyFrameState { velocity, bias });
+        inertial.per_map.status = AlignmentStatus::Aligned(InertialAlignment {
+            scale: 1.0,
+            refinement: 2,
+            map_rescaled: false,
+            gravity_w: Vector3::new(0.0, 0.0, -9.81),
+            R_w_g: UnitQuaternion::identity(),
+            gyro_bias: bias.gyro,
+            accel_bias: bias.accel,
+            keyframes: vec![(kf, 0.5)],
+            velocities: vec![velocity],
+            timestamp: 0.5,
+            acceleration_excitation: 1.0,
+        });
+        // Stored: the system's part (samples) stays, the map's leaves with it.
+        let stored = inertial.take_map_state();
+        assert!(stored.is_aligned() && !inertial.is_aligned());
+        assert!(inertial.per_map.states.is_empty() && inertial.samples.len() == 200);
+        // Brought back and resumed at 0.6 s: its states and alignment return, the samples
+        // of the gap go (but the one bracketing 0.6 s), and the next keyframe's state waits
+        // for `resume`, with the map's newest biases.
+        inertial.restore_map_state(stored);
+        assert!(inertial.is_aligned() && !inertial.resuming());
+        inertial.resume_at(0.6);
+        assert!(inertial.resuming());
+        assert!((inertial.samples[0].t_s - 0.6).abs() < 1e-12);
+        inertial.resume(KeyFrameId(9), Vector3::new(0.0, 0.3, 0.0));
+        assert!(!inertial.resuming());
+        let (newest, v, b) = inertial.newest_state().unwrap();
+        assert_eq!(
+            (newest, v, b),
+            (KeyFrameId(9), Vector3::new(0.0, 0.3, 0.0), bias)
+        );
+        // A map never aligned does not wait for a velocity.
+        inertial.clear_map();
+        inertial.resume_at(0.7);
+        assert!(!inertial.resuming());
+    }
+
+    #[test]
     fn implausible_alignments_name_the_sensor() {
         let plausible = ferroslam_imu::alignment::Alignment {
             scale: 1.0,
@@ -968,7 +1017,7 @@ mod tests {
             })
         };
         for (refinement, next) in [(0, Some(0)), (1, Some(1)), (2, None)] {
-            inertial.status = aligned(refinement);
+            inertial.per_map.status = aligned(refinement);
             assert_eq!(
                 inertial.next_refinement(),
                 next,
