@@ -1,7 +1,7 @@
 """A visual-inertial run that loses its map for good resumes in it when it sees it again
 (issue "Never lose a run": relocalisation searches every map, the IMU's maps too).
 
-The kidnapped drone: EuRoC MH_01 stereo-inertial, frames 0-249 with the real IMU, then
+The kidnapped drone: EuRoC MH_01 stereo- and mono-inertial, frames 0-249 with the real IMU, then
 ``BLACK_S`` seconds of black frames (the IMU alone carries the pose for
 ``imu_only_max_s`` = 5 s, then tracking is lost and the map goes to the atlas after
 ``relocalisation_window_s``), then frames 150-399 again, shifted in time, with their own
@@ -67,6 +67,12 @@ class Kidnapped:
             return np.zeros_like(left), np.zeros_like(right)
         return self._seq.load_stereo(source)
 
+    def load_gray(self, i):
+        source = self.sources[i]
+        if source is None:
+            return np.zeros_like(self._seq.load_gray(0))
+        return self._seq.load_gray(source)
+
     def truth(self) -> Trajectory:
         """The ground truth at the frames shown (the second pass at its shifted times)."""
         stamps, poses = self._seq.groundtruth()
@@ -77,23 +83,28 @@ class Kidnapped:
         return Trajectory(np.array([t for t, _ in shown]), poses[index])
 
 
-@pytest.fixture(scope="module")
-def kidnapped():
-    seq = open_sequence(require_data("euroc", "MH_01_easy_window"), sensor="stereo-inertial")
+# Measured, both passes in one SE(3) alignment: stereo 4.6 mm, monocular 9.2 mm (before:
+# 130.9 / 131.8 mm over two maps); one pass alone 4.3 / 5.2 mm (the real-data matrix).
+BOUNDS_M = {"stereo-inertial": 0.008, "mono-inertial": 0.012}
+
+
+@pytest.fixture(scope="module", params=list(BOUNDS_M))
+def kidnapped(request):
+    seq = open_sequence(require_data("euroc", "MH_01_easy_window"), sensor=request.param)
     drone = Kidnapped(seq)
-    return drone, run_sequence(drone, sensor="stereo-inertial", progress=False)
+    return request.param, drone, run_sequence(drone, sensor=request.param, progress=False)
 
 
 def test_the_second_pass_resumes_in_the_first_pass_s_map(kidnapped):
-    drone, result = kidnapped
+    sensor, drone, result = kidnapped
     maps = {m.id: len(m.trajectory) for m in result.maps}
     second = result.map_ids[-len(SECOND):]
     error = ate(drone.truth(), result.trajectory)
-    print(f"kidnapped MH_01 stereo-inertial: maps {maps}, trajectory {len(result.trajectory)} "
-          f"poses, ATE {error.rmse * 1000:.1f} mm, inertial {result.inertial}")
+    print(f"kidnapped MH_01 {sensor}: maps {maps}, trajectory {len(result.trajectory)} "
+          f"poses, ATE {error.rmse * 1000:.1f} mm")
     # One map holds both passes: the second one relocalised in the first one's map.
     assert len(set(second.tolist())) == 1 and second[0] == result.map_ids[0]
     assert len(result.trajectory) >= len(FIRST) + len(SECOND) - 5
-    # Both passes in one frame, SE(3)-aligned once (one pass alone: 4.3 mm).
-    assert error.rmse < 0.008
+    # Both passes in one frame, SE(3)-aligned once (metric through the IMU).
+    assert error.rmse < BOUNDS_M[sensor]
     assert (result.inertial or {}).get("status") == "aligned"
