@@ -156,7 +156,10 @@ def test_any_map_id_that_is_not_a_map_is_refused_by_name(map_id):
     if type(map_id) is int and map_id == 0:
         assert system.map_points(map_id).shape == (0, 3)
         assert system.keyframe_trajectory(map_id)[0].shape == (0,)
+        assert system.map_point_colors(map_id).shape == (0, 3)
+        assert len(system.sparse_model(map_id)["keyframe_ids"]) == 0
         return
-    for call in (system.map_points, system.keyframe_trajectory):
+    for call in (system.map_points, system.keyframe_trajectory, system.map_point_colors,
+                 system.sparse_model):
         with pytest.raises((ValueError, TypeError), match="map_id"):
             call(map_id)

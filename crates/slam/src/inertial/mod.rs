@@ -318,12 +318,7 @@ impl Inertial {
     /// it, so the samples before are dropped, and the next keyframe's state comes from
     /// [`Self::resume`].
     pub(crate) fn resume_at(&mut self, timestamp_s: f64) {
-        // Keep the sample at or before the resumed frame: it brackets the next interval.
-        let first = self
-            .samples
-            .partition_point(|s| s.t_s <= timestamp_s)
-            .saturating_sub(1);
-        self.samples.drain(..first);
+        self.drop_samples_before(timestamp_s);
         self.resuming = self.is_aligned();
     }
 
@@ -375,7 +370,7 @@ impl Inertial {
 
     /// Whether the camera-IMU alignment has succeeded for the current map.
     pub(crate) fn is_aligned(&self) -> bool {
-        matches!(self.per_map.status, AlignmentStatus::Aligned(_))
+        self.per_map.is_aligned()
     }
 
     /// Appends samples after the buffered ones; all or nothing.
@@ -479,13 +474,18 @@ impl Inertial {
             .chain(live.first().map(|&(_, t)| t))
             .reduce(f64::min)
         {
-            // Keep the sample at or before the oldest keyframe: it brackets the interval.
-            let first = self
-                .samples
-                .partition_point(|s| s.t_s <= t0)
-                .saturating_sub(1);
-            self.samples.drain(..first);
+            self.drop_samples_before(t0);
         }
+    }
+
+    /// Drops the samples before `t_s` but the one at or before it, which brackets an
+    /// interval starting at `t_s`.
+    fn drop_samples_before(&mut self, t_s: f64) {
+        let first = self
+            .samples
+            .partition_point(|s| s.t_s <= t_s)
+            .saturating_sub(1);
+        self.samples.drain(..first);
     }
 
     /// The newest keyframe's biases (local inertial BA refines them), else those of the
