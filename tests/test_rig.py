@@ -145,6 +145,18 @@ def test_rig_frame_errors():
     assert vslam.num_frames == 1
 
 
+def test_rolling_shutter_cameras_make_a_rig():
+    """Each camera's rows at their own times (issue 52's observation offsets, per camera):
+    a rig of rolling-shutter cameras is tracked as any rig (it was refused before)."""
+    rs = Camera(458.0, 457.0, 367.0, 248.0, [-0.28, 0.07, 0.0, 0.0, 0.0], 752, 480,
+                rolling_shutter_readout_s=0.03)
+    rig = Rig((rs, rs, _camera()), (np.eye(4), _at(0.11), _at(0.3)), stereo=True)
+    vslam = RigVSlam(rig, threaded=False, vocabulary=None)
+    image = np.zeros((480, 752), np.uint8)
+    vslam.add_frame([image, image, image], timestamp=0.0)
+    assert vslam.num_frames == 1
+
+
 def test_core_pair_errors():
     left, args = _camera(), (458.0, 457.0, 367.0, 248.0, [-0.28, 0.07, 0.0, 0.0, 0.0], 752, 480)
     with pytest.raises(ValueError, match="needs both right_camera and T_left_right"):

@@ -145,6 +145,14 @@ pub fn motion_over(xi_dot: &Vector6<f64>, dt: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::from(dt * v), so3::exp(&(dt * w)))
 }
 
+/// The motion over a readout of a camera mounted at `T_c_c0` on a rig whose first camera
+/// moves by `D_c0` (see [`motion_over`]): the rig is rigid, so the camera sees the world
+/// from `T_c_c0 * D_c0 * T_c0_w = (T_c_c0 * D_c0 * T_c_c0^-1) * T_c_w`; `D_c0` itself for
+/// the first camera (`None`).
+pub fn mounted_motion(D_c0: &Isometry3<f64>, T_c_c0: Option<&Isometry3<f64>>) -> Isometry3<f64> {
+    T_c_c0.map_or(*D_c0, |T| T * D_c0 * T.inverse())
+}
+
 /// The velocity `[v; w]` of `T_c_w` that moves `T_c0_w` onto `T_c1_w` in `dt` seconds
 /// (`dt != 0`): the inverse of [`motion_over`], `motion_over(xi_dot, dt) * T_c0_w == T_c1_w`.
 /// A motion model's velocity, and the prior of a frame's velocity in tracking.
@@ -242,16 +250,19 @@ pub fn point_at_offset(
 /// measured in the tests), so three steps leave under a thousandth of a pixel.
 const PREDICTION_STEPS: usize = 3;
 
-/// The motion `D(dt)` (see the module doc) of a camera moving at `xi_dot` from its reference
-/// line to the line on which it sees the point `p_c` (the reference line's camera frame,
-/// metres): the line is that of the pixel `D(dt) * p_c` projects to, found by iteration.
-/// For projection searches, where the keypoint (and so its line) is not known yet.
+/// The motion `D(dt)` (see the module doc) of a camera from its reference line to the line
+/// on which it sees the point `p_c` (the reference line's camera frame, metres), the camera
+/// mounted at `T_c_c0` on a rig whose first camera moves at `xi_dot` (`None`: the first
+/// camera, moving at `xi_dot` itself; see [`mounted_motion`]): the line is that of the pixel
+/// `D(dt) * p_c` projects to, found by iteration. For projection searches, where the
+/// keypoint (and so its line) is not known yet.
 ///
 /// `None` for a global shutter or a point `camera` does not project, where the reference
 /// pose itself is the one to project through (global-shutter arithmetic unchanged).
 pub fn predicted_readout_motion(
     camera: &CameraModel,
     xi_dot: &Vector6<f64>,
+    T_c_c0: Option<&Isometry3<f64>>,
     p_c: &Vector3<f64>,
 ) -> Option<Isometry3<f64>> {
     if camera.rolling_shutter().is_global() {
@@ -260,7 +271,7 @@ pub fn predicted_readout_motion(
     let mut uv_raw = camera.project_raw(p_c)?;
     let mut motion = Isometry3::identity();
     for _ in 0..PREDICTION_STEPS {
-        motion = motion_over(xi_dot, camera.time_offset_s(&uv_raw));
+        motion = mounted_motion(&motion_over(xi_dot, camera.time_offset_s(&uv_raw)), T_c_c0);
         match camera.project_raw(&(motion * Point3::from(*p_c)).coords) {
             Some(uv) => uv_raw = uv,
             None => break,
@@ -421,7 +432,7 @@ mod tests {
         for camera in readout_cameras() {
             let mut largest_shift_px = 0.0f64;
             for p_c in points_in_view(&camera) {
-                let D = predicted_readout_motion(&camera, &velocity(), &p_c).unwrap();
+                let D = predicted_readout_motion(&camera, &velocity(), None, &p_c).unwrap();
                 let uv = camera.project_raw(&(D * Point3::from(p_c)).coords).unwrap();
                 let at_line = motion_over(&velocity(), camera.time_offset_s(&uv));
                 let uv_line = camera.project_raw(&(at_line * Point3::from(p_c)).coords);
@@ -437,16 +448,46 @@ mod tests {
         }
         let global = readout_cameras()[0].with_readout(0.0, ReadoutDirection::TopToBottom);
         let p_c = Vector3::new(0.1, 0.2, 2.0);
-        assert!(predicted_readout_motion(&global.unwrap(), &velocity(), &p_c).is_none());
+        assert!(predicted_readout_motion(&global.unwrap(), &velocity(), None, &p_c).is_none());
         let behind = Vector3::new(0.1, 0.2, -2.0);
-        assert!(predicted_readout_motion(&readout_cameras()[0], &velocity(), &behind).is_none());
+        assert!(
+            predicted_readout_motion(&readout_cameras()[0], &velocity(), None, &behind).is_none()
+        );
+    }
+
+    #[test]
+    fn a_mounted_camera_moves_with_the_rig() {
+        // A camera yawed 90 degrees and 12 cm to the side: the world it sees at each line
+        // is the one the first camera's motion shows it, `T_c_c0 * D_c0 * T_c0_w`.
+        let T_c_c0 = Isometry3::new(
+            Vector3::new(0.12, -0.02, 0.05),
+            Vector3::new(0.0, 1.57, 0.1),
+        );
+        let D_c0 = motion_over(&velocity(), 0.011);
+        let T_c0_w = Isometry3::new(Vector3::new(0.3, 0.1, -0.2), Vector3::new(0.1, 0.2, -0.3));
+        let p_w = Point3::new(0.5, -0.4, 3.0);
+        let via_rig = T_c_c0 * (D_c0 * (T_c0_w * p_w));
+        let via_camera = mounted_motion(&D_c0, Some(&T_c_c0)) * (T_c_c0 * T_c0_w * p_w);
+        assert_relative_eq!(via_rig, via_camera, epsilon = 1e-12);
+        assert_eq!(mounted_motion(&D_c0, None), D_c0);
+        for camera in readout_cameras() {
+            for p_c in points_in_view(&camera) {
+                let D = predicted_readout_motion(&camera, &velocity(), Some(&T_c_c0), &p_c);
+                let D = D.unwrap();
+                let uv = camera.project_raw(&(D * Point3::from(p_c)).coords).unwrap();
+                let at_line = motion_over(&velocity(), camera.time_offset_s(&uv));
+                let at_line = mounted_motion(&at_line, Some(&T_c_c0));
+                let uv_line = camera.project_raw(&(at_line * Point3::from(p_c)).coords);
+                assert_relative_eq!(uv, uv_line.unwrap(), epsilon = 0.01);
+            }
+        }
     }
 
     #[test]
     fn a_keypoint_moved_to_the_reference_line_keeps_its_residuals() {
         for camera in readout_cameras() {
             for p_c in points_in_view(&camera) {
-                let D = predicted_readout_motion(&camera, &velocity(), &p_c).unwrap();
+                let D = predicted_readout_motion(&camera, &velocity(), None, &p_c).unwrap();
                 let seen = camera.project(&(D * Point3::from(p_c)).coords).unwrap();
                 let moved = pixel_at_reference_line(&camera, &seen, &p_c, &D).unwrap();
                 assert_relative_eq!(moved, camera.project(&p_c).unwrap(), epsilon = 1e-9);

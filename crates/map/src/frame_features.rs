@@ -45,9 +45,10 @@ pub struct FrameFeatures {
     /// row in its camera (from the raw pixel it was detected at); empty for a global shutter
     /// (every offset 0). Set by [`FrameFeatures::with_time_offsets`].
     pub time_offsets_s: Vec<f64>,
-    /// Velocity `[v; w]` (metres and radians per second) of the frame's `T_c_w` over its
-    /// readout, as tracking estimated it (zero for a global shutter): keypoint `i` was seen
-    /// from `D(time_offsets_s[i]) * T_c_w` (`ferroslam_geometry::rolling_shutter`).
+    /// Velocity `[v; w]` (metres and radians per second) of the frame's `T_c_w` (its first
+    /// camera's) over its readout, as tracking estimated it (zero for a global shutter):
+    /// keypoint `i` of camera `k` was seen from `T_ck_c0 * D(time_offsets_s[i]) * T_c0_w`
+    /// (`ferroslam_geometry::rolling_shutter`).
     pub xi_dot: Vector6<f64>,
 }
 

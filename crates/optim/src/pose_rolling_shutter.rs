@@ -1,6 +1,6 @@
-//! Motion-only bundle adjustment of a rolling-shutter camera: the frame's pose `T_c_w` (at
-//! its reference line) together with its velocity `xi_dot = [v; w]`, the motion model's
-//! velocity as a prior.
+//! Motion-only bundle adjustment of a rolling-shutter camera (or rig): the frame's pose
+//! `T_c_w` (at its reference line) together with its velocity `xi_dot = [v; w]`, the motion
+//! model's velocity as a prior.
 //!
 //! Observation `i` was read `dt_i` seconds after the frame's timestamp
 //! (`ferroslam_geometry::rolling_shutter::RollingShutter::time_offset_s` of its raw pixel),
@@ -12,7 +12,6 @@
 //! chi-square thresholds; with every `dt_i = 0` the pose part is that problem's.
 
 use crate::error::OptimError;
-use crate::intrinsics::Intrinsics;
 use crate::lm::{
     add_normal_equations, damping_diagonal, dense_damped_step, mirror_lower_triangle, Damping,
 };
@@ -75,13 +74,13 @@ pub struct PoseVelocityEstimate {
 /// `time_offsets_s` (seconds after the frame's timestamp, one per observation), classifying
 /// outliers as [`crate::optimize_pose`] does (`outlier` in: initial flags, out: final).
 ///
-/// `cameras` is the rig of [`crate::optimize_pose`], but only its first camera, seen from
-/// `T_c_w` itself, is supported here (a readout motion of another camera would need its own
-/// velocity, `T_c_c0` carried through it).
+/// `cameras` is the rig of [`crate::optimize_pose`]: `T_c_w` and `xi_dot` are its first
+/// camera's (the body's), and camera `k` sees observation `i` from `T_ck_c0 * D(dt_i) *
+/// T_c_w`: the rig moves rigidly over a readout, each camera's rows timed by its own shutter
+/// (`dt_i` is the offset of the row in the camera that saw it).
 ///
 /// # Errors
-/// As [`crate::optimize_pose`], and [`OptimError::InvalidInput`] for an observation of a
-/// camera other than the first or a first camera with a `T_c_c0`, when `time_offsets_s` does
+/// As [`crate::optimize_pose`], and [`OptimError::InvalidInput`] when `time_offsets_s` does
 /// not have one finite entry per observation or the prior is not finite with a positive
 /// semi-definite information (its diagonal >= 0); [`OptimError::NotPositiveDefinite`] when
 /// no damping makes a round's system factorisable.
@@ -96,15 +95,10 @@ pub fn optimize_pose_and_velocity(
 ) -> Result<PoseVelocityEstimate, OptimError> {
     pose::validate(T_c_w, obs, cameras, outlier)?;
     validate(prior, obs, time_offsets_s)?;
-    if cameras[0].T_c_c0.is_some() || obs.iter().any(|o| o.camera != 0) {
-        return Err(OptimError::InvalidInput(
-            "rolling shutter with several cameras is not supported".into(),
-        ));
-    }
     let problem = Problem {
         obs,
         dt: time_offsets_s,
-        k: &cameras[0].intrinsics,
+        cameras,
         prior,
     };
     let start = (*T_c_w, prior.xi_dot);
@@ -169,7 +163,7 @@ type State = (Isometry3<f64>, Vector6<f64>);
 struct Problem<'a> {
     obs: &'a [PoseObservation],
     dt: &'a [f64],
-    k: &'a Intrinsics,
+    cameras: &'a [RigCamera],
     prior: &'a VelocityPrior,
 }
 
@@ -182,18 +176,28 @@ struct Evaluation {
 
 impl Problem<'_> {
     /// Residual of observation `i` and its Jacobian over the 12 variables.
+    #[allow(non_snake_case)]
     fn linearize(&self, state: &State, i: usize) -> Option<(Vector3<f64>, SMatrix<f64, 3, 12>)> {
         let o = &self.obs[i];
         let at = point_at_offset(&state.0, &state.1, self.dt[i], &Point3::from(o.p_w));
-        let (e, mut d_pred_d_p_c) = self.error_at(i, &at.p_c)?;
+        let (p_c, R_c_c0) = match &self.cameras[o.camera].T_c_c0 {
+            None => (at.p_c, None),
+            Some(T) => (
+                (T * Point3::from(at.p_c)).coords,
+                Some(T.rotation.to_rotation_matrix().into_inner()),
+            ),
+        };
+        let (e, mut d_pred_d_p_c) = self.error_at(i, &p_c)?;
         if o.u_right.is_none() {
             d_pred_d_p_c.row_mut(2).fill(0.0);
         }
+        // The camera's point moves with the first camera's: d p_ck = R_ck_c0 d p_c0.
+        let d_pred_d_p_c0 = R_c_c0.map_or(d_pred_d_p_c, |R| d_pred_d_p_c * R);
         let mut j = SMatrix::<f64, 3, 12>::zeros();
         j.fixed_view_mut::<3, 6>(0, 0)
-            .copy_from(&(-d_pred_d_p_c * at.d_p_c_d_pose));
+            .copy_from(&(-d_pred_d_p_c0 * at.d_p_c_d_pose));
         j.fixed_view_mut::<3, 6>(0, 6)
-            .copy_from(&(-d_pred_d_p_c * at.d_p_c_d_velocity));
+            .copy_from(&(-d_pred_d_p_c0 * at.d_p_c_d_velocity));
         Some((e, j))
     }
 
@@ -201,7 +205,7 @@ impl Problem<'_> {
     /// it does not project or the residual is not finite.
     fn error_at(&self, i: usize, p_c: &Vector3<f64>) -> Option<(Vector3<f64>, Matrix3<f64>)> {
         let o = &self.obs[i];
-        let (pred, d_pred_d_p_c) = residual::predict(self.k, p_c)?;
+        let (pred, d_pred_d_p_c) = residual::predict(&self.cameras[o.camera].intrinsics, p_c)?;
         let e = Vector3::new(
             o.uv.x - pred.x,
             o.uv.y - pred.y,
@@ -214,7 +218,10 @@ impl Problem<'_> {
     /// computes (the classification of every observation each round).
     fn chi2(&self, state: &State, i: usize) -> Option<f64> {
         let o = &self.obs[i];
-        let p_c = position_at_offset(&state.0, &state.1, self.dt[i], &Point3::from(o.p_w));
+        let p_c0 = position_at_offset(&state.0, &state.1, self.dt[i], &Point3::from(o.p_w));
+        let p_c = self.cameras[o.camera]
+            .T_c_c0
+            .map_or(p_c0, |t| (t * Point3::from(p_c0)).coords);
         let (e, _) = self.error_at(i, &p_c)?;
         Some(o.inv_sigma2 * e.norm_squared())
     }

@@ -42,15 +42,16 @@ impl RigCamera {
         }
     }
 
-    /// The fixed motion an observation of this camera is seen through: `D * T_c_c0` with an
-    /// optional readout motion `D` (rolling shutter), either alone if the other is absent,
-    /// `None` if both are (the pose's own arithmetic).
+    /// The fixed motion an observation of this camera is seen through: `T_c_c0 * D` with an
+    /// optional readout motion `D` of the first camera (rolling shutter: the rig moves
+    /// rigidly over the readout), either alone if the other is absent, `None` if both are
+    /// (the pose's own arithmetic).
     pub fn view(&self, readout_motion: Option<&Isometry3<f64>>) -> Option<Isometry3<f64>> {
         match (readout_motion, &self.T_c_c0) {
             (None, None) => None,
             (Some(D), None) => Some(*D),
             (None, Some(T)) => Some(*T),
-            (Some(D), Some(T)) => Some(D * T),
+            (Some(D), Some(T)) => Some(T * D),
         }
     }
 

@@ -151,6 +151,16 @@ impl Context {
         });
     }
 
+    /// Whether a camera of the rig has a rolling shutter: frames are then estimated with
+    /// their velocity, every camera's rows at their own times.
+    pub fn has_rolling_shutter(&self) -> bool {
+        !self.camera.rolling_shutter().is_global()
+            || self
+                .observers
+                .iter()
+                .any(|o| !o.camera.rolling_shutter().is_global())
+    }
+
     /// Number of cameras whose keypoints a frame holds.
     pub fn num_cameras(&self) -> usize {
         1 + self.observers.len()

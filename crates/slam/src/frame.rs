@@ -249,10 +249,19 @@ impl Frame {
         let mut starts = vec![0];
         let mut bounds = vec![ctx.bounds];
         let mut colors = f.colors.take();
+        // Each camera's rows timed by its own shutter; none for a rig of global shutters.
+        let mut offsets = std::mem::take(&mut f.time_offsets_s);
+        let rolling = ctx.has_rolling_shutter();
+        if rolling {
+            offsets.resize(f.keypoints.len(), 0.0);
+        }
         for (k, input) in observed.iter().enumerate() {
             let view = ctx.view(k + 1);
             starts.push(f.keypoints.len());
             bounds.push(*view.bounds);
+            if rolling {
+                offsets.extend(row_time_offsets_s(input.keypoints, view.camera));
+            }
             let (keypoints, depth, u_right) = match input.depth_m {
                 Some(d) => with_depth(&view, input.keypoints, d, ctx),
                 None => {
@@ -274,6 +283,9 @@ impl Frame {
                 .with_cameras(starts, &bounds)?;
         if let Some(colors) = colors {
             features = features.with_colors(colors)?;
+        }
+        if rolling {
+            features = features.with_time_offsets(offsets)?;
         }
         let n = features.len();
         Ok(Self {
@@ -583,17 +595,18 @@ pub fn unproject_depth(
         CameraModel::KannalaBrandt(_) => point_at_depth(&camera.unproject(&uv)?, z)?,
     };
     // Depth is measured in the camera at its row's time (RGB-D: registered to the colour
-    // image, so sampled at the colour row's time): D^-1 brings it to the reference line.
+    // image, so sampled at the colour row's time): D^-1 of the first camera's motion brings
+    // it, in that camera's frame, to the reference line.
     let p_c = Point3::from(p_c);
-    let p_c = readout_motion(features, i).map_or(p_c, |D| D.inverse_transform_point(&p_c));
     let p_c0 = view.T_c_c0.map_or(p_c, |T| T.inverse_transform_point(&p_c));
+    let p_c0 = readout_motion(features, i).map_or(p_c0, |D| D.inverse_transform_point(&p_c0));
     Some((T_w_c0 * p_c0).coords)
 }
 
-/// The motion `D` of the camera from its frame's reference line to the row of keypoint `i`
-/// (`D(dt) * T_c_w` is the pose it was seen from, see
-/// [`ferroslam_geometry::rolling_shutter`]), at the velocity tracking estimated; `None` for
-/// a global shutter or the reference line, where the pose is `T_c_w` itself.
+/// The motion `D` of the rig's first camera from its frame's reference line to the row of
+/// keypoint `i` in the camera that saw it (camera `k` saw it from `T_ck_c0 * D(dt) * T_c0_w`,
+/// see [`ferroslam_geometry::rolling_shutter`]), at the velocity tracking estimated; `None`
+/// for a global shutter or the reference line, where the pose is `T_c0_w` itself.
 #[allow(non_snake_case)]
 pub fn readout_motion(features: &FrameFeatures, i: usize) -> Option<Isometry3<f64>> {
     let dt = features.time_offset_s(i);
@@ -606,10 +619,17 @@ fn time_offsets_s(keypoints: &[Keypoint], camera: &CameraModel) -> Vec<f64> {
     if camera.rolling_shutter().is_global() {
         return Vec::new();
     }
+    row_time_offsets_s(keypoints, camera).collect()
+}
+
+/// Each keypoint's row time offset (seconds, 0 for a global shutter) in `camera`.
+fn row_time_offsets_s<'a>(
+    keypoints: &'a [Keypoint],
+    camera: &'a CameraModel,
+) -> impl Iterator<Item = f64> + 'a {
     keypoints
         .iter()
         .map(|kp| camera.time_offset_s(&Vector2::new(kp.x as f64, kp.y as f64)))
-        .collect()
 }
 
 /// The point along unit `ray` at z-depth `z` (depth cameras measure along the optical

@@ -17,7 +17,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ferroslam_features::{Descriptor, Keypoint};
-use ferroslam_geometry::camera::{PinholeCamera, RadTan};
+use ferroslam_geometry::camera::{CameraModel, PinholeCamera, RadTan};
+use ferroslam_geometry::rolling_shutter::ReadoutDirection;
 use ferroslam_slam::{
     ObserverInput, RgbdInput, SlamConfig, SlamSystem, TrackResult, TrackingState,
 };
@@ -79,6 +80,11 @@ struct Scene {
     /// Camera 1 (right side) in camera 0's frame.
     T_c0_c1: Isometry3<f64>,
     landmarks: Vec<Landmark>,
+    /// Seconds both cameras take to read their rows, top first, centred on the frame's
+    /// time (0: global shutters): each landmark is seen from the pose of its row's time.
+    readout_s: f64,
+    /// The readout the system is told (a run that ignores the shutter is told 0).
+    told_readout_s: f64,
 }
 
 impl Scene {
@@ -133,7 +139,16 @@ impl Scene {
             camera,
             T_c0_c1,
             landmarks,
+            readout_s: 0.0,
+            told_readout_s: 0.0,
         }
+    }
+
+    /// The cameras as the system is told them: the readout it models.
+    fn system_camera(&self) -> CameraModel {
+        CameraModel::from(self.camera)
+            .with_readout(self.told_readout_s, ReadoutDirection::TopToBottom)
+            .unwrap()
     }
 
     /// Seconds one lap takes.
@@ -186,11 +201,33 @@ impl Scene {
         seen
     }
 
-    /// What a camera at `T_w_c` measures: noisy pixels and depths of the landmarks it sees.
-    fn observe(&self, T_w_c: &Isometry3<f64>, rng: &mut ChaCha8Rng) -> Observed {
+    /// What a camera measures: noisy pixels and depths of the landmarks it sees, the camera
+    /// at `T_w_c(dt)` `dt` seconds after the frame's time (each landmark at its row's time,
+    /// [`Scene::readout_s`]; all at `T_w_c(0)` for a global shutter).
+    fn observe(&self, T_w_c: &dyn Fn(f64) -> Isometry3<f64>, rng: &mut ChaCha8Rng) -> Observed {
         let mut o = Observed::default();
         let (w, h) = (self.camera.width as f64, self.camera.height as f64);
-        for (i, uv, z) in self.visible(T_w_c) {
+        let shutter = CameraModel::from(self.camera)
+            .with_readout(self.readout_s, ReadoutDirection::TopToBottom)
+            .unwrap();
+        let at_rows = self
+            .visible(&T_w_c(0.0))
+            .into_iter()
+            .filter_map(|(i, uv0, z0)| {
+                if self.readout_s == 0.0 {
+                    return Some((i, uv0, z0));
+                }
+                // The row a landmark is read at depends on where the moving camera sees it.
+                let (mut uv, mut z) = (uv0, z0);
+                for _ in 0..5 {
+                    let p_c = T_w_c(shutter.time_offset_s(&uv)).inverse()
+                        * Point3::from(self.landmarks[i].p_w);
+                    uv = self.camera.project(&p_c.coords).filter(|_| p_c.z > 0.1)?;
+                    z = p_c.z;
+                }
+                Some((i, uv, z))
+            });
+        for (i, uv, z) in at_rows {
             let noisy = uv
                 + nalgebra::Vector2::new(
                     common::gaussian(rng, PIXEL_NOISE_PX),
@@ -223,7 +260,7 @@ impl Scene {
                 let T_w_c0 = Self::T_w_c0(i as f64 / FPS);
                 [T_w_c0, self.T_w_c1(&T_w_c0)]
             })
-            .map(|T_w_c| self.observe(&T_w_c, &mut rng).descriptors)
+            .map(|T_w_c| self.observe(&|_| T_w_c, &mut rng).descriptors)
             .collect();
         let params = TrainParams {
             levels: 4,
@@ -250,10 +287,10 @@ fn run_with(
     blackout: Option<(f64, f64)>,
     after_frame: &mut dyn FnMut(&mut SlamSystem, &TrackResult),
 ) -> Run {
-    let mut system = SlamSystem::new(scene.camera, config).unwrap();
+    let mut system = SlamSystem::new(scene.system_camera(), config).unwrap();
     if rig {
         system
-            .add_camera(scene.camera, scene.T_c0_c1, true)
+            .add_camera(scene.system_camera(), scene.T_c0_c1, true)
             .unwrap();
     }
     system.set_vocabulary(Arc::clone(vocabulary));
@@ -261,14 +298,13 @@ fn run_with(
     let start = Instant::now();
     for i in 0..Scene::frames() {
         let t = i as f64 / FPS;
-        let T_w_c0 = Scene::T_w_c0(t);
         let dark = blackout.is_some_and(|(from, to)| (from..to).contains(&t));
         let (first, side) = if dark {
             (Observed::default(), Observed::default())
         } else {
             (
-                scene.observe(&T_w_c0, &mut rng),
-                scene.observe(&scene.T_w_c1(&T_w_c0), &mut rng),
+                scene.observe(&|dt| Scene::T_w_c0(t + dt), &mut rng),
+                scene.observe(&|dt| scene.T_w_c1(&Scene::T_w_c0(t + dt)), &mut rng),
             )
         };
         let input = RgbdInput {
@@ -435,6 +471,42 @@ fn a_loop_seen_only_by_the_side_camera_is_closed() {
     assert!(
         closed_ate < 0.5 * open_ate,
         "ATE {closed_ate} m with loop closing, {open_ate} m without"
+    );
+}
+
+/// Both cameras read their rows over 30 ms while the rig drives the lap: each landmark is
+/// seen from the rig's true pose at its row's time (up to 18 mm and 6 mrad from the middle
+/// row). Modelling the shutter (each camera's rows at their times, the rig's velocity
+/// estimated with its pose) keeps about the global-shutter run's error; a system told the
+/// cameras are global carries the readouts' motion into its poses and points.
+///
+/// The rig is a vehicle turning steadily: its angular rate changes by far less than
+/// 0.05 rad/s from frame to frame, which is the prior given here; the default 0.2 rad/s is a
+/// hand-held camera's.
+///
+/// Measured (release, seed 11, loop closing off): every frame tracked in both runs; ATE
+/// modelled 0.0170 m, ignored 0.0560 m (global shutters: 0.0176 m). With the default
+/// prior, 0.0657 m: one frame's rows leave the angular rate free enough to trade against
+/// the pose. Noise-free, the side camera's shutter alone is modelled to 0.4 mm (ignored
+/// 84.6 mm), the first camera's alone to 3.6 mm (ignored 32.5 mm; global 0.1 mm).
+#[test]
+fn a_rolling_shutter_rig_is_tracked_at_each_camera_s_rows() {
+    let rolling = |told_readout_s| Scene {
+        readout_s: 0.03,
+        told_readout_s,
+        ..Scene::new(11)
+    };
+    let (modelled, ignored) = (rolling(0.03), rolling(0.0));
+    let vocabulary = modelled.vocabulary();
+    let mut config = SlamConfig::default();
+    config.loop_closing.loop_closure = false;
+    config.tracking.velocity_prior_sigma_rad_s = 0.05;
+    let modelled_ate = ate_m(&run(&modelled, &vocabulary, config.clone(), true).system);
+    let ignored_ate = ate_m(&run(&ignored, &vocabulary, config, true).system);
+    eprintln!("rolling-shutter rig: ATE modelled {modelled_ate:.4} m, ignored {ignored_ate:.4} m");
+    assert!(
+        modelled_ate < 0.025 && modelled_ate < 0.5 * ignored_ate,
+        "ATE {modelled_ate} m modelled, {ignored_ate} m with the shutter ignored"
     );
 }
 

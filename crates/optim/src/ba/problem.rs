@@ -23,11 +23,12 @@ pub struct Observation {
     pub u_right: Option<f64>,
     /// Information weight `1 / sigma^2` (1/pixels^2).
     pub inv_sigma2: f64,
-    /// Rolling shutter: the fixed motion `D` of the camera from its pose's reference line
-    /// to this observation's row (`ferroslam_geometry::rolling_shutter::motion_over`), so
-    /// that the point is seen from `D * T_c_c0 * T_c_w` (see [`RigCamera::view`]); `None`
-    /// for a global shutter (or the reference line), which keeps the arithmetic of the
-    /// camera's pose itself.
+    /// Rolling shutter: the fixed motion `D` of the rig's first camera from its pose's
+    /// reference line to this observation's row (timed by the observing camera's shutter,
+    /// `ferroslam_geometry::rolling_shutter::motion_over`), so that the point is seen from
+    /// `T_c_c0 * D * T_c_w` (see [`RigCamera::view`]): the rig moves rigidly over a readout;
+    /// `None` for a global shutter (or the reference line), which keeps the arithmetic of
+    /// the camera's pose itself.
     pub readout_motion: Option<Isometry3<f64>>,
 }
 
@@ -38,7 +39,7 @@ impl Observation {
         self.u_right.is_some()
     }
 
-    /// The fixed motion the observation is seen through, `D * T_c_c0` (see
+    /// The fixed motion the observation is seen through, `T_c_c0 * D` (see
     /// [`RigCamera::view`]), and its camera; `cameras` is the problem's, with the
     /// observation's camera in range.
     fn view<'a>(&self, cameras: &'a [RigCamera]) -> (&'a RigCamera, Option<Isometry3<f64>>) {
@@ -67,7 +68,7 @@ impl Observation {
     }
 
     /// [`residual::linearize`] of the point `p_w` seen by the observation's camera from
-    /// `V * T_c_w` (`V = D * T_c_c0`, see [`RigCamera::view`]), with `d_e_d_xi` for the left
+    /// `V * T_c_w` (`V = T_c_c0 * D`, see [`RigCamera::view`]), with `d_e_d_xi` for the left
     /// perturbation of `T_c_w`: `V * exp(xi) * T_c_w` is `exp(Ad(V) xi) * V * T_c_w`, so the
     /// Jacobian of the camera's pose is carried through the adjoint.
     pub fn linearize(
@@ -266,7 +267,7 @@ mod tests {
     }
 
     /// `linearize` of an observation of `camera` (index 1 of a rig) against central
-    /// differences of the residual seen from `D * T_c_c0 * T_c_w`, written out.
+    /// differences of the residual seen from `T_c_c0 * D * T_c_w`, written out.
     fn check_rig_derivatives(camera: RigCamera, D: Option<Isometry3<f64>>) {
         let cameras = [RigCamera::first(intrinsics()), camera];
         let (T, p_w) = (pose(), Vector3::new(0.4, 0.3, 2.5));
@@ -278,7 +279,7 @@ mod tests {
         let T_c_c0 = camera.T_c_c0.unwrap();
         let D = D.unwrap_or_else(Isometry3::identity);
         let e_at = |T: &Isometry3<f64>, p: &Vector3<f64>| {
-            let e = residual::residual(&k, &(D * (T_c_c0 * T)), p, &o.uv, o.u_right).unwrap();
+            let e = residual::residual(&k, &(T_c_c0 * (D * T)), p, &o.uv, o.u_right).unwrap();
             DVector::from_column_slice(e.as_slice())
         };
         let l = o.linearize(&cameras, &T, &p_w).unwrap();

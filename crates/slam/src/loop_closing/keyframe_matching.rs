@@ -108,7 +108,7 @@ pub(super) fn match_by_sim3(
             for k in 0..cameras {
                 let view = ctx.view(k);
                 let p_k = view.point_in_camera(&p_to);
-                let p_row = seen_from_row(view.camera, &f.xi_dot, &p_k);
+                let p_row = seen_from_row(&view, &f.xi_dot, &p_k);
                 let Some(uv) = view.camera.project(&p_row).filter(|uv| view.contains(uv)) else {
                     continue;
                 };

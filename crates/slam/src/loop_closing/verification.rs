@@ -370,7 +370,7 @@ fn correspondences(
         let (p1_c, p2_c) = (view1.point_in_camera(&p1), view2.point_in_camera(&p2));
         let (uv2, octave2) = match i2 {
             Some(i2) => (
-                keypoint_at_reference_line(view2.camera, k2.features(), i2, &p2_c),
+                keypoint_at_reference_line(&view2, k2.features(), i2, &p2_c),
                 k2.features().keypoints[i2].octave,
             ),
             None => match view2.camera.project(&p2_c) {
@@ -382,7 +382,7 @@ fn correspondences(
         out.push(Sim3Match {
             p1,
             p2,
-            uv1: keypoint_at_reference_line(view1.camera, k1.features(), i1, &p1_c),
+            uv1: keypoint_at_reference_line(&view1, k1.features(), i1, &p1_c),
             uv2,
             camera1: c1,
             camera2: c2,

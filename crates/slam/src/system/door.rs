@@ -63,8 +63,8 @@ impl SlamSystem {
     ///
     /// # Errors
     /// `InvalidConfig`, the system unchanged, after the first frame or with the mapping
-    /// thread running, on a monocular system (its map's scale is not the rig's metres), with
-    /// a rolling-shutter camera on the rig, or for a pose that is not finite.
+    /// thread running, on a monocular system (its map's scale is not the rig's metres), or
+    /// for a pose that is not finite.
     #[allow(non_snake_case)]
     pub fn add_camera(
         &mut self,
@@ -85,10 +85,6 @@ impl SlamSystem {
                 "a monocular rig's map has no metric scale for the cameras' metric poses: give \
                  the first camera depth or a stereo partner",
             );
-        }
-        let rolling = |c: &CameraModel| !c.rolling_shutter().is_global();
-        if rolling(&camera) || rolling(&self.ctx.camera) {
-            return refuse("rolling-shutter cameras are tracked alone, not in a rig");
         }
         let pose = T_c0_c
             .translation

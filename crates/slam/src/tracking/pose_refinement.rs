@@ -13,11 +13,11 @@ use crate::frame::Frame;
 /// Motion-only BA of `frame` on its map point and temporary point matches; sets the pose and
 /// the outlier flags.
 ///
-/// A rolling-shutter camera's frame is estimated with its velocity (the velocity of
-/// `T_c_w`, kept in `frame.features.xi_dot` for the depth points and the keyframe it may
-/// become), each match seen at its row's time, `prior_xi_dot` the velocity it is drawn to
-/// (`tracking.velocity_prior_sigma_*` of the configuration). A global shutter keeps
-/// ORB-SLAM's pose-only problem and arithmetic.
+/// The frame of a rig with a rolling-shutter camera is estimated with its velocity (the
+/// velocity of the first camera's `T_c_w`, kept in `frame.features.xi_dot` for the depth
+/// points and the keyframe it may become), each match seen at its row's time in its camera,
+/// `prior_xi_dot` the velocity it is drawn to (`tracking.velocity_prior_sigma_*` of the
+/// configuration). Global shutters keep ORB-SLAM's pose-only problem and arithmetic.
 pub fn optimize_frame_pose(
     frame: &mut Frame,
     map: &Map,
@@ -29,7 +29,7 @@ pub fn optimize_frame_pose(
         return Ok(0);
     }
     let mut outlier = vec![false; obs.len()];
-    let num_inliers = if ctx.camera.rolling_shutter().is_global() {
+    let num_inliers = if !ctx.has_rolling_shutter() {
         let estimate = optimize_pose(&frame.T_c_w, &obs, &ctx.optim_cameras, &mut outlier)?;
         frame.T_c_w = estimate.T_c_w;
         estimate.num_inliers

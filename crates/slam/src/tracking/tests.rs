@@ -8,7 +8,7 @@ use nalgebra::Vector3;
 
 use super::*;
 use crate::config::{Sensor, SlamConfig};
-use crate::frame::{MonoInput, RgbdInput};
+use crate::frame::{MonoInput, ObserverInput, RgbdInput};
 
 const N: usize = 800;
 const FRAME: usize = 40;
@@ -189,13 +189,15 @@ fn observations_carry_the_time_of_their_raw_row() {
     assert_eq!(frame.features.time_offset_s(1), 0.0);
 }
 
-/// A camera panning at 1.5 rad/s (fr1/rpy's peaks) past 300 points 2-4 m away, each seen at
-/// the row it is read at; returns the map, the frame (its matches set, its pose the true
-/// one perturbed) and the true `T_c_w` and velocity.
+/// A rig panning at 1.5 rad/s (fr1/rpy's peaks) past 300 points 2-4 m away per camera of
+/// `ctx`, each seen at the row its camera reads it at (camera `k` of `readout_cameras`, the
+/// rig's cameras with their shutters, sees from `T_ck_c0 * D(dt) * T_c0_w`); returns the map,
+/// the frame (its matches set, its pose the true one perturbed) and the true `T_c0_w` and
+/// velocity.
 #[allow(non_snake_case)]
 fn panning_frame(
     ctx: &Context,
-    readout_camera: &CameraModel,
+    readout_cameras: &[CameraModel],
 ) -> (Map, Frame, Isometry3<f64>, Vector6<f64>) {
     use ferroslam_geometry::rolling_shutter::motion_over;
     let T_c_w = Isometry3::new(
@@ -211,44 +213,61 @@ fn panning_frame(
             .wrapping_add(1442695040888963407);
         (rng_state >> 11) as f64 / (1u64 << 53) as f64
     };
-    let (mut keypoints, mut points_w) = (Vec::new(), Vec::new());
-    while keypoints.len() < 300 {
-        let uv0 = Vector2::new(30.0 + 580.0 * uniform(), 30.0 + 420.0 * uniform());
-        let z = 2.0 + 2.0 * uniform();
-        let ray = readout_camera.unproject(&uv0).unwrap();
-        let p_w = T_c_w.inverse() * Point3::from(ray * (z / ray.z));
-        // The row a point is read at depends on where the moving camera sees it: iterate.
-        let mut uv = uv0;
-        for _ in 0..10 {
-            let dt = readout_camera.time_offset_s(&uv);
-            let Some(next) =
-                readout_camera.project(&(motion_over(&xi_dot, dt) * T_c_w * p_w).coords)
-            else {
-                break;
-            };
-            uv = next;
+    let (mut keypoints, mut points_w) = (vec![Vec::new(); readout_cameras.len()], Vec::new());
+    for (k, camera) in readout_cameras.iter().enumerate() {
+        let T_ck_c0 = ctx
+            .view(k)
+            .T_c_c0
+            .copied()
+            .unwrap_or_else(Isometry3::identity);
+        while keypoints[k].len() < 300 {
+            let uv0 = Vector2::new(30.0 + 580.0 * uniform(), 30.0 + 420.0 * uniform());
+            let z = 2.0 + 2.0 * uniform();
+            let ray = camera.unproject(&uv0).unwrap();
+            let p_w = (T_ck_c0 * T_c_w).inverse() * Point3::from(ray * (z / ray.z));
+            // The row a point is read at depends on where the moving camera sees it: iterate.
+            let mut uv = uv0;
+            for _ in 0..10 {
+                let dt = camera.time_offset_s(&uv);
+                let p_c = T_ck_c0 * (motion_over(&xi_dot, dt) * T_c_w * p_w);
+                let Some(next) = camera.project(&p_c.coords) else {
+                    break;
+                };
+                uv = next;
+            }
+            if !(0.0..640.0).contains(&uv.x) || !(0.0..480.0).contains(&uv.y) {
+                continue;
+            }
+            keypoints[k].push(Keypoint {
+                x: uv.x as f32,
+                y: uv.y as f32,
+                octave: 0,
+                angle_deg: 0.0,
+                response: 1.0,
+            });
+            points_w.push(p_w.coords);
         }
-        if !(0.0..640.0).contains(&uv.x) || !(0.0..480.0).contains(&uv.y) {
-            continue;
-        }
-        keypoints.push(Keypoint {
-            x: uv.x as f32,
-            y: uv.y as f32,
-            octave: 0,
-            angle_deg: 0.0,
-            response: 1.0,
-        });
-        points_w.push(p_w.coords);
     }
-    let n = keypoints.len();
-    let descriptors = vec![[0u8; 32]; n];
+    let descriptors = vec![[0u8; 32]; 300];
     let input = MonoInput {
         timestamp: 1.0,
-        keypoints: &keypoints,
+        keypoints: &keypoints[0],
         descriptors: &descriptors,
         colors: None,
     };
+    let observers: Vec<ObserverInput<'_>> = keypoints[1..]
+        .iter()
+        .map(|kps| ObserverInput {
+            keypoints: kps,
+            descriptors: &descriptors,
+            colors: &[],
+            depth_m: None,
+        })
+        .collect();
     let mut frame = Frame::from_mono(0, &input, ctx).unwrap();
+    if !observers.is_empty() {
+        frame = frame.with_observers(&observers, ctx).unwrap();
+    }
     let mut map = Map::new(ScalePyramid::new(1.2, 8).unwrap());
     let kf = map.insert_keyframe(0.0, 0, Isometry3::identity(), frame.features.clone());
     for (i, p_w) in points_w.iter().enumerate() {
@@ -263,31 +282,43 @@ fn panning_frame(
     (map, frame, T_c_w, xi_dot)
 }
 
+/// Pose error (metres, radians), inliers and velocity of `frame` refined under `ctx` from
+/// the motion model's `prior`, against the true `T_c_w`.
+#[allow(non_snake_case)]
+fn refined(
+    ctx: &Context,
+    map: &Map,
+    frame: &Frame,
+    T_c_w: &Isometry3<f64>,
+    prior: &Vector6<f64>,
+) -> (f64, f64, usize, Vector6<f64>) {
+    let mut f = frame.clone();
+    let inliers = optimize_frame_pose(&mut f, map, ctx, prior).unwrap();
+    let d = f.T_c_w * T_c_w.inverse();
+    (
+        d.translation.vector.norm(),
+        d.rotation.angle(),
+        inliers,
+        f.features.xi_dot,
+    )
+}
+
+/// The motion model a frame interval behind: its rates off by 0.3 rad/s.
+fn motion_model(xi_dot: &Vector6<f64>) -> Vector6<f64> {
+    xi_dot + Vector6::new(0.0, 0.0, 0.0, -0.3, 0.2, 0.1)
+}
+
 #[test]
 #[allow(non_snake_case)]
 fn rolling_shutter_tracking_recovers_the_pose_a_global_shutter_model_misses() {
     let readout_camera = rolling_shutter_camera(0.03, true);
     let rs = Context::new(readout_camera, SlamConfig::for_sensor(Sensor::Monocular));
     let gs = Context::new(rolling_shutter_camera(0.0, true), rs.config.clone());
-    let (map, frame, T_c_w, xi_dot) = panning_frame(&rs, &readout_camera);
-    let error = |ctx: &Context, prior: &Vector6<f64>| {
-        let mut f = frame.clone();
-        if !ctx.camera.rolling_shutter().is_global() {
-            assert_eq!(f.features.time_offsets_s.len(), f.len());
-        }
-        let inliers = optimize_frame_pose(&mut f, &map, ctx, prior).unwrap();
-        let d = f.T_c_w * T_c_w.inverse();
-        (
-            d.translation.vector.norm(),
-            d.rotation.angle(),
-            inliers,
-            f.features.xi_dot,
-        )
-    };
-    // The motion model a frame interval behind: its rates off by 0.3 rad/s.
-    let prior = xi_dot + Vector6::new(0.0, 0.0, 0.0, -0.3, 0.2, 0.1);
-    let (gs_t, gs_r, gs_inliers, gs_xi) = error(&gs, &prior);
-    let (rs_t, rs_r, rs_inliers, rs_xi) = error(&rs, &prior);
+    let (map, frame, T_c_w, xi_dot) = panning_frame(&rs, &[readout_camera]);
+    assert_eq!(frame.features.time_offsets_s.len(), frame.len());
+    let prior = motion_model(&xi_dot);
+    let (gs_t, gs_r, gs_inliers, gs_xi) = refined(&gs, &map, &frame, &T_c_w, &prior);
+    let (rs_t, rs_r, rs_inliers, rs_xi) = refined(&rs, &map, &frame, &T_c_w, &prior);
     println!("global shutter model: {gs_t:.2e} m {gs_r:.2e} rad, {gs_inliers} inliers");
     println!("rolling shutter model: {rs_t:.2e} m {rs_r:.2e} rad, {rs_inliers} inliers");
     // Noise-free rows: the rolling-shutter model is exact up to its prior's pull, the
@@ -303,4 +334,68 @@ fn rolling_shutter_tracking_recovers_the_pose_a_global_shutter_model_misses() {
         "{rs_xi} vs {xi_dot}"
     );
     assert_eq!(gs_xi, Vector6::zeros());
+}
+
+/// The rig of [`rolling_shutter_rig_tracking_takes_each_camera_s_rows_at_their_times`]: the
+/// fr1 camera in front (read over `readout_s`) and a second one yawed 90 degrees, 8 cm to
+/// its side, read over `side_readout_s`.
+#[allow(non_snake_case)]
+fn side_camera_rig(readout_s: f64, side_readout_s: f64) -> (Context, Vec<CameraModel>) {
+    let cameras = vec![
+        rolling_shutter_camera(readout_s, true),
+        rolling_shutter_camera(side_readout_s, true),
+    ];
+    let mut ctx = Context::new(
+        cameras[0].clone(),
+        SlamConfig::for_sensor(Sensor::Monocular),
+    );
+    let T_c0_c = Isometry3::new(
+        Vector3::new(0.08, 0.0, -0.02),
+        Vector3::new(0.0, std::f64::consts::FRAC_PI_2, 0.0),
+    );
+    ctx.add_observer(cameras[1].clone(), T_c0_c, false);
+    (ctx, cameras)
+}
+
+#[test]
+#[allow(non_snake_case)]
+fn rolling_shutter_rig_tracking_takes_each_camera_s_rows_at_their_times() {
+    // Both cameras read over 30 ms: each keypoint carries its own camera's row time, and the
+    // rig's pose and velocity come back where the global model misses them.
+    let (rs, cameras) = side_camera_rig(0.03, 0.03);
+    let (map, frame, T_c_w, xi_dot) = panning_frame(&rs, &cameras);
+    for i in [0, 299, 300, 599] {
+        let kp = frame.features.keypoints[i];
+        let camera = &cameras[frame.features.camera_of(i)];
+        // Ideal cameras: the core pixel is the raw one.
+        let expected = camera.time_offset_s(&Vector2::new(kp.x as f64, kp.y as f64));
+        assert!((frame.features.time_offset_s(i) - expected).abs() < 1e-9);
+    }
+    let (gs, _) = side_camera_rig(0.0, 0.0);
+    let prior = motion_model(&xi_dot);
+    let (gs_t, gs_r, _, _) = refined(&gs, &map, &frame, &T_c_w, &prior);
+    let (rs_t, rs_r, rs_inliers, rs_xi) = refined(&rs, &map, &frame, &T_c_w, &prior);
+    println!("rig, global shutter model: {gs_t:.2e} m {gs_r:.2e} rad");
+    println!("rig, rolling shutter model: {rs_t:.2e} m {rs_r:.2e} rad, {rs_inliers} inliers");
+    assert!(rs_t < 1e-3 && rs_r < 1e-3, "{rs_t} m, {rs_r} rad");
+    assert!(
+        gs_t > 10.0 * rs_t && gs_r > 10.0 * rs_r,
+        "{gs_t} vs {rs_t}, {gs_r} vs {rs_r}"
+    );
+    assert_eq!(rs_inliers, frame.len());
+    assert!(
+        (rs_xi - xi_dot).fixed_rows::<3>(3).norm() < 0.1,
+        "{rs_xi} vs {xi_dot}"
+    );
+
+    // A global-shutter side camera beside a rolling-shutter first one: its rows all at the
+    // frame's time (offset 0), and the rig still estimated with its velocity.
+    let (mixed, cameras) = side_camera_rig(0.03, 0.0);
+    let (map, frame, T_c_w, xi_dot) = panning_frame(&mixed, &cameras);
+    assert_eq!(frame.features.time_offsets_s.len(), 600);
+    assert!(frame.features.time_offsets_s[300..]
+        .iter()
+        .all(|&t| t == 0.0));
+    let (t, r, _, _) = refined(&mixed, &map, &frame, &T_c_w, &motion_model(&xi_dot));
+    assert!(t < 1e-3 && r < 1e-3, "{t} m, {r} rad");
 }
