@@ -186,7 +186,7 @@ class SlamSystem:
         threaded: bool = False,
         right_camera: Optional[Any] = None,
         T_left_right: Optional[NDArray[np.float64]] = None,
-        cameras: Optional[Sequence[tuple[Any, NDArray[np.float64]] | tuple[Any, NDArray[np.float64], bool]]] = None,
+        cameras: Optional[Sequence[tuple[Any, NDArray[np.float64]] | tuple[Any, NDArray[np.float64], bool | tuple[Any, NDArray[np.float64]]]]] = None,
         **options: Unpack[_SlamOptions],
     ) -> SlamSystem:
         """Creates a system for a pinhole + radial-tangential or a Kannala-Brandt camera.
@@ -218,12 +218,16 @@ class SlamSystem:
             T_left_right: ``(4, 4)`` float64 pose of the right camera in the left one
                 (``p_left = T_left_right @ p_right``, metres).
             cameras: the rig's further cameras, ``(camera, T_c0_c)`` or ``(camera, T_c0_c,
-                has_depth)`` each: a ``ferroslam.Camera`` (raw, any model and size), its
-                ``(4, 4)`` pose in the first camera (``p_0 = T_c0_c @ p``, metres) and whether
-                its frames come with a depth image. Their images follow the first camera's
-                (and the pair partner's) in every ``track``; their keypoints are tracked,
-                optimised and triangulated with the first camera's. Not with
-                ``sensor="mono"`` nor a rolling shutter.
+                depth)`` each: a ``ferroslam.Camera`` (raw, any model and size), its
+                ``(4, 4)`` pose in the first camera (``p_0 = T_c0_c @ p``, metres) and
+                ``depth``: ``True`` when its frames come with a depth image, or
+                ``(partner_camera, T_left_right)`` for a stereo partner (its pose in this
+                camera), whose image follows this camera's and gives its keypoints depth by
+                matching along epipolar curves (a rig of several stereo pairs). Their images
+                follow the first camera's (and the pair partner's) in every ``track``; their
+                keypoints are tracked, optimised and triangulated with the first camera's,
+                each at its own rows' times with a rolling shutter. Not with
+                ``sensor="mono"``.
             options: see ``_SlamOptions``.
 
         Raises:

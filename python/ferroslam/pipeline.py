@@ -439,7 +439,7 @@ class _RigFeed(_StereoFeed):
     def camera_images(self, data) -> tuple[np.ndarray, ...]:
         """The images of the core's cameras (the tracked one, then the further cameras:
         a pair partner gives depths only, it has no keyframe image of its own)."""
-        return (data[0], *data[self.rig.first_observer:])
+        return tuple(data[k] for k in self.rig.observing_cameras())
 
 
 _FEEDS = {"mono": _MonoFeed, "rgbd": _RgbdFeed, "stereo": _StereoFeed}

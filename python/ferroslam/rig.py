@@ -19,7 +19,7 @@ camera with further cameras is refused, naming the reason.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -42,12 +42,18 @@ class Rig:
         stereo: cameras 0 and 1 are a stereo pair, matched at every frame (metric depth).
         depth: per camera, whether its frames come with a registered depth image (metres);
             empty for none.
+        pairs: further stereo pairs ``(k, k + 1)`` among the cameras after the first (and
+            its partner): camera ``k``'s keypoints get depth by matching into camera
+            ``k + 1``'s image along epipolar curves (any model, no rectification); the
+            partner observes nothing itself. A rig of a front and a rear pair is
+            ``Rig(cameras, poses, stereo=True, pairs=((2, 3),))``.
     """
 
     cameras: tuple[Camera, ...]
     T_body_cam: tuple[np.ndarray, ...] = field(default=())
     stereo: bool = False
     depth: tuple[bool, ...] = field(default=())
+    pairs: tuple[tuple[int, int], ...] = field(default=())
 
     def __post_init__(self) -> None:
         cameras = tuple(self.cameras)
@@ -72,9 +78,27 @@ class Rig:
             raise ValueError("the cameras of a stereo pair take their depth from each other, "
                              "not from depth images")
         object.__setattr__(self, "depth", depth)
+        object.__setattr__(self, "pairs", self._checked_pairs(len(cameras), depth))
         object.__setattr__(self, "cameras", cameras)
         object.__setattr__(self, "T_body_cam", poses)
         object.__setattr__(self, "stereo", bool(self.stereo))
+
+    def _checked_pairs(self, n: int, depth: tuple[bool, ...]) -> tuple[tuple[int, int], ...]:
+        first = 2 if self.stereo else 1
+        pairs = tuple(tuple(int(k) for k in p) for p in self.pairs)
+        used: set[int] = set()
+        for p in pairs:
+            if len(p) != 2 or p[1] != p[0] + 1 or not first <= p[0] < n - 1:
+                raise ValueError(
+                    f"pairs: {p} is not a further stereo pair (k, k + 1) of cameras "
+                    f"{first}..{n - 1} (cameras 0 and 1 are a pair by stereo=True)")
+            if used & set(p):
+                raise ValueError(f"pairs: camera {sorted(used & set(p))[0]} is in two pairs")
+            if depth[p[0]] or depth[p[1]]:
+                raise ValueError(f"pairs: the cameras of pair {p} take their depth from each "
+                                 "other, not from depth images")
+            used |= set(p)
+        return pairs
 
     @classmethod
     def from_calibration(cls, calibration: Calibration, *, stereo: Optional[bool] = None
@@ -137,13 +161,29 @@ class Rig:
         """The index of the first camera after the tracked one and its pair partner."""
         return 2 if self.stereo else 1
 
-    def observers(self) -> list[tuple[Camera, np.ndarray, bool]]:
-        """``(camera, T_c0_c, has_depth)`` of every camera after the first (and its pair
-        partner): its pose in camera 0 (``p_0 = T_c0_c @ p``, metres) and whether it has depth
-        images."""
+    def observing_cameras(self) -> list[int]:
+        """The cameras whose keypoints the map holds, in order: the first and every further
+        camera but the stereo partners (which give depths only)."""
+        partners = {p[1] for p in self.pairs}
+        return [0, *(k for k in range(self.first_observer, len(self.cameras))
+                     if k not in partners)]
+
+    def observers(self) -> list[tuple[Camera, np.ndarray, Any]]:
+        """``(camera, T_c0_c, depth)`` of every camera after the first (and its pair
+        partner), partners left out: its pose in camera 0 (``p_0 = T_c0_c @ p``, metres) and
+        whether it has depth images, or ``(partner_camera, T_left_right)`` for a camera of
+        :attr:`pairs` (the partner's pose in it)."""
         T_c0_body = np.linalg.inv(self.T_body_cam[0])
-        return [(self.cameras[k], T_c0_body @ self.T_body_cam[k], self.depth[k])
-                for k in range(self.first_observer, len(self.cameras))]
+        partner = dict(self.pairs)
+        out = []
+        for k in self.observing_cameras()[1:]:
+            depth: Any = self.depth[k]
+            if k in partner:
+                j = partner[k]
+                depth = (self.cameras[j],
+                         np.linalg.inv(self.T_body_cam[k]) @ self.T_body_cam[j])
+            out.append((self.cameras[k], T_c0_body @ self.T_body_cam[k], depth))
+        return out
 
     def camera_to_imu(self, T_body_imu: Optional[np.ndarray] = None) -> np.ndarray:
         """Camera 0's pose in the IMU frame, ``inv(T_body_imu) @ T_body_cam[0]`` (the body
@@ -156,7 +196,8 @@ class Rig:
     def __repr__(self) -> str:
         models = ", ".join(f"{c.model} {c.width}x{c.height}" for c in self.cameras)
         depth = f", depth={self.depth}" if any(self.depth) else ""
-        return f"Rig({len(self.cameras)} camera(s): {models}; stereo={self.stereo}{depth})"
+        pairs = f", pairs={self.pairs}" if self.pairs else ""
+        return f"Rig({len(self.cameras)} camera(s): {models}; stereo={self.stereo}{depth}{pairs})"
 
 
 def rig_images(rig: Rig, images: Sequence[np.ndarray] | np.ndarray) -> list[np.ndarray]:

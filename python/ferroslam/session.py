@@ -69,9 +69,10 @@ class Session:
         pair: ``(right_camera, T_left_right)`` of an UNRECTIFIED stereo pair (``sensor``
             ``"stereo"``, ``camera`` the raw left one): the core matches the raw images along
             epipolar curves; its baseline is that of ``T_left_right``.
-        observers: ``(camera, T_c0_c, has_depth)`` of each further camera of a rig
-            (:meth:`ferroslam.rig.Rig.observers`): its image follows the first camera's (and
-            the pair partner's) in every frame.
+        observers: ``(camera, T_c0_c, depth)`` of each further camera of a rig
+            (:meth:`ferroslam.rig.Rig.observers`; ``depth`` a bool, or ``(partner_camera,
+            T_left_right)`` of its stereo partner, whose image follows its own): its image
+            follows the first camera's (and the pair partner's) in every frame.
 
     Raises:
         ValueError, TypeError: bad options, naming them (from the core).
@@ -83,7 +84,7 @@ class Session:
                  mapping_thread: bool = False,
                  system_factory: Optional[Callable[..., Any]] = None,
                  pair: Optional[tuple[Camera, np.ndarray]] = None,
-                 observers: Sequence[tuple[Camera, np.ndarray, bool]] = ()) -> None:
+                 observers: Sequence[tuple[Camera, np.ndarray, Any]] = ()) -> None:
         c = camera
         self.sensor = sensor
         inertial = imu is not None
@@ -106,10 +107,14 @@ class Session:
             c.fx, c.fy, c.cx, c.cy, c.dist, c.width, c.height, sensor=sensor,
             model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s,
             **paired, **options)
-        first_observer = 2 if sensor == "stereo" else 1
-        for k, (observer, _, _) in enumerate(observers):
-            if observer.mask is not None:
-                self.system.set_mask(first_observer + k, observer.mask)
+        # Each further camera's image, then its stereo partner's, after the first camera's.
+        image_index = 2 if sensor == "stereo" else 1
+        for observer, _, depth in observers:
+            partner = depth[0] if isinstance(depth, tuple) else None
+            for masked in (observer, partner) if partner is not None else (observer,):
+                if masked.mask is not None:
+                    self.system.set_mask(image_index, masked.mask)
+                image_index += 1
         if pair is not None:  # each camera's own static mask
             for camera_index, masked in enumerate((c, pair[0])):
                 if masked.mask is not None:

@@ -163,7 +163,7 @@ class _VSlam:
 
     _sensor = ""
     # An unrectified pair's (right camera, T_left_right) and the further cameras
-    # (camera, T_c0_c, has_depth), for the core (RigVSlam).
+    # (camera, T_c0_c, depth), for the core (RigVSlam, see Rig.observers).
     _pair: Optional[tuple[Camera, np.ndarray]] = None
     _observers: tuple = ()
 

@@ -47,8 +47,13 @@ pub struct RigMember {
     pub height: u32,
     /// Pose of this camera in the first camera's frame (`p_c0 = T_c0_c p_c`), metres.
     pub T_c0_c: Isometry3<f64>,
-    /// Whether the camera's keypoints come with depths (an RGB-D camera of the rig).
+    /// Whether the camera's keypoints come with depths (an RGB-D camera of the rig, or one
+    /// with a stereo partner).
     pub has_depth: bool,
+    /// The camera's stereo partner (map files of version 9 on; older files hold none): its
+    /// depths come from matching into the partner's image, `T_left_right` the partner's pose
+    /// in this camera.
+    pub pair: Option<PairCamera>,
 }
 
 /// The second camera of an unrectified stereo pair, as map files record it: of the first
@@ -139,14 +144,24 @@ impl RigMember {
                 system.T_c0_c.rotation.coords.as_slice()
             ));
         }
-        (self.has_depth != system.has_depth).then(|| {
+        if self.has_depth != system.has_depth {
             let with = |d: bool| if d { "with" } else { "without" };
-            format!(
+            return Some(format!(
                 "the map was built with the camera {} depth, this system's is {} depth",
                 with(self.has_depth),
                 with(system.has_depth)
-            )
-        })
+            ));
+        }
+        match (&self.pair, &system.pair) {
+            (None, None) => None,
+            (Some(_), None) => {
+                Some("the map was built with a stereo partner, this system's has none".into())
+            }
+            (None, Some(_)) => {
+                Some("the map was built without a stereo partner, this system's has one".into())
+            }
+            (Some(a), Some(b)) => a.mismatch(b),
+        }
     }
 }
 

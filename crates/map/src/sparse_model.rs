@@ -285,6 +285,7 @@ mod tests {
             height: 480,
             T_c0_c: T_c0_c1,
             has_depth: false,
+            pair: None,
         });
         map.set_rig(rig);
         let cameras = [tum_fr1(), member];

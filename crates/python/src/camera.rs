@@ -178,18 +178,27 @@ pub fn unproject_pixels<'py>(
     })
 }
 
-/// `cameras` of the constructor: `(camera, T_c0_c)` or `(camera, T_c0_c, has_depth)` per
-/// further camera of the rig.
+/// How a further camera of the rig gets depth: none, its own depth images, or its stereo
+/// partner (the partner camera and `T_left_right`, its pose in this camera).
+pub enum FurtherDepth {
+    None,
+    Images,
+    Partner(CameraModel, Isometry3<f64>),
+}
+
+/// `cameras` of the constructor: `(camera, T_c0_c)` or `(camera, T_c0_c, depth)` per further
+/// camera of the rig, `depth` a bool (depth images) or `(partner_camera, T_left_right)`.
 #[allow(non_snake_case)]
 pub fn further_cameras(
     cameras: Option<&Bound<'_, PyAny>>,
-) -> PyResult<Vec<(CameraModel, Isometry3<f64>, bool)>> {
+) -> PyResult<Vec<(CameraModel, Isometry3<f64>, FurtherDepth)>> {
     let Some(cameras) = cameras.filter(|c| !c.is_none()) else {
         return Ok(Vec::new());
     };
     let entry_error = |k: usize| {
         PyTypeError::new_err(format!(
-            "cameras[{k}] must be (camera, T_c0_c) or (camera, T_c0_c, has_depth)"
+            "cameras[{k}] must be (camera, T_c0_c) or (camera, T_c0_c, depth), depth a bool \
+             or (partner_camera, T_left_right)"
         ))
     };
     let mut out = Vec::new();
@@ -204,13 +213,25 @@ pub fn further_cameras(
         }
         let camera = camera_model(&items[0])?;
         let T_c0_c = inertial::rigid_transform(&items[1], &format!("cameras[{k}] T_c0_c"))?;
-        let has_depth = match items.get(2) {
-            Some(d) => d.extract::<bool>().map_err(|_| {
-                PyTypeError::new_err(format!("cameras[{k}] has_depth must be a bool"))
-            })?,
-            None => false,
+        let depth = match items.get(2) {
+            None => FurtherDepth::None,
+            Some(d) => match d.extract::<bool>() {
+                Ok(true) => FurtherDepth::Images,
+                Ok(false) => FurtherDepth::None,
+                Err(_) => {
+                    let partner: Vec<Bound<'_, PyAny>> = d
+                        .try_iter()
+                        .map_err(|_| entry_error(k))?
+                        .collect::<PyResult<_>>()?;
+                    let [partner, T] = partner.as_slice() else {
+                        return Err(entry_error(k));
+                    };
+                    let T = inertial::rigid_transform(T, &format!("cameras[{k}] T_left_right"))?;
+                    FurtherDepth::Partner(camera_model(partner)?, T)
+                }
+            },
         };
-        out.push((camera, T_c0_c, has_depth));
+        out.push((camera, T_c0_c, depth));
     }
     Ok(out)
 }

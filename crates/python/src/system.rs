@@ -146,10 +146,15 @@ impl PySlamSystem {
         }
         .map_err(to_py)?;
         let mut system = system;
-        for (camera, T_c0_c, has_depth) in camera::further_cameras(cameras)? {
-            system
-                .add_camera(camera, T_c0_c, has_depth)
-                .map_err(to_py)?;
+        for (camera, T_c0_c, depth) in camera::further_cameras(cameras)? {
+            match depth {
+                camera::FurtherDepth::Partner(partner, T_left_right) => {
+                    system.add_camera_pair(camera, T_c0_c, partner, T_left_right)
+                }
+                camera::FurtherDepth::Images => system.add_camera(camera, T_c0_c, true),
+                camera::FurtherDepth::None => system.add_camera(camera, T_c0_c, false),
+            }
+            .map_err(to_py)?;
         }
         let engine = if threaded {
             let guard = system.input_guard();

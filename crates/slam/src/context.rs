@@ -52,8 +52,13 @@ pub struct Observer {
     pub intrinsics: Intrinsics,
     /// Maps points from the first camera's frame to this camera's, metres.
     pub T_c_c0: Isometry3<f64>,
-    /// Whether its frames come with a registered depth image.
+    /// Whether its keypoints come with depths: from a registered depth image, or from its
+    /// stereo partner.
     pub has_depth: bool,
+    /// Its stereo partner, whose image follows its own in every frame: its keypoints get
+    /// depth by matching into the partner's along epipolar curves (as the first camera's
+    /// unrectified pair), the partner observing nothing itself.
+    pub pair: Option<UnrectifiedPair>,
 }
 
 /// One camera of the rig as geometry sees it: the first camera or an [`Observer`].
@@ -148,7 +153,29 @@ impl Context {
             intrinsics,
             T_c_c0,
             has_depth,
+            pair: None,
         });
+    }
+
+    /// Adds a further camera at `T_c0_c` whose keypoints get depth from its stereo partner
+    /// `pair` (its virtual right coordinate at the pair's own `bf`, its focal length times
+    /// the baseline).
+    #[allow(non_snake_case)]
+    pub fn add_observer_pair(
+        &mut self,
+        camera: CameraModel,
+        T_c0_c: Isometry3<f64>,
+        pair: UnrectifiedPair,
+    ) {
+        let intrinsics = Intrinsics::new(&camera, camera.fx() * pair.baseline_m());
+        self.add_observer(camera, T_c0_c, true);
+        let (observer, optim) = (
+            self.observers.last_mut().expect("just added"),
+            self.optim_cameras.last_mut().expect("just added"),
+        );
+        observer.intrinsics = intrinsics;
+        optim.intrinsics = intrinsics;
+        observer.pair = Some(pair);
     }
 
     /// Whether a camera of the rig has a rolling shutter: frames are then estimated with
@@ -191,15 +218,7 @@ impl Context {
     pub fn rig(&self) -> Rig {
         let (model, intrinsics, distortion) = camera_record(&self.camera);
         let (width, height) = self.camera.size();
-        let pair = self.pair.as_ref().map(|pair| {
-            let (model, intrinsics, distortion) = camera_record(&pair.right);
-            PairCamera {
-                model: model.to_owned(),
-                intrinsics,
-                distortion,
-                T_left_right: pair.T_left_right,
-            }
-        });
+        let pair = self.pair.as_ref().map(pair_record);
         let cameras = self
             .observers
             .iter()
@@ -214,6 +233,7 @@ impl Context {
                     height,
                     T_c0_c: o.T_c_c0.inverse(),
                     has_depth: o.has_depth,
+                    pair: o.pair.as_ref().map(pair_record),
                 }
             })
             .collect();
@@ -247,6 +267,7 @@ impl Context {
                 width: o.camera.size().0,
                 height: o.camera.size().1,
                 has_depth: o.has_depth,
+                paired: o.pair.is_some(),
             })
             .collect()
     }
@@ -273,6 +294,17 @@ fn image_bounds(camera: &CameraModel) -> ImageBounds {
 }
 
 /// A camera's model name, `fx fy cx cy` and distortion as map files record them.
+/// The second camera of a pair as map files record it.
+fn pair_record(pair: &UnrectifiedPair) -> PairCamera {
+    let (model, intrinsics, distortion) = camera_record(&pair.right);
+    PairCamera {
+        model: model.to_owned(),
+        intrinsics,
+        distortion,
+        T_left_right: pair.T_left_right,
+    }
+}
+
 fn camera_record(camera: &CameraModel) -> (&'static str, [f64; 4], [f64; 5]) {
     match camera {
         CameraModel::Pinhole(c) => {
@@ -309,8 +341,22 @@ pub struct ObserverShape {
     pub width: u32,
     /// Image height, pixels.
     pub height: u32,
-    /// Whether each image comes with a registered depth image.
+    /// Whether its keypoints come with depths (given with its features; from a depth
+    /// image or its partner's image with its image).
     pub has_depth: bool,
+    /// Whether its stereo partner's image follows its own (depth from the pair, no depth
+    /// image).
+    pub paired: bool,
+}
+
+impl ObserverShape {
+    /// The images a frame holds for this camera, in order: `(width, height)` and whether a
+    /// depth image comes with it; the partner's after the camera's own.
+    pub fn images(&self) -> impl Iterator<Item = ((usize, usize), bool)> {
+        let size = (self.width as usize, self.height as usize);
+        let own = (size, self.has_depth && !self.paired);
+        std::iter::once(own).chain(self.paired.then_some((size, false)))
+    }
 }
 
 #[cfg(test)]

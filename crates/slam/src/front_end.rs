@@ -167,12 +167,19 @@ impl<D: AsRef<[u8]>, F: AsRef<[f32]>> RigFrame<D, F> {
             return Err(invalid("timestamp is not finite".into()));
         }
         let (first, what) = expected_cameras(sensor);
-        let n = first + observers.len();
+        let further: Vec<((usize, usize), bool)> =
+            observers.iter().flat_map(ObserverShape::images).collect();
+        let n = first + further.len();
         if self.cameras.len() != n {
+            let partners = if observers.iter().any(|o| o.paired) {
+                ", a stereo partner's after its camera's"
+            } else {
+                ""
+            };
             let what = if observers.is_empty() {
                 what.to_owned()
             } else {
-                format!("{what} and one per further camera ({n} in all)")
+                format!("{what} and one per further camera{partners} ({n} in all)")
             };
             return Err(invalid(format!(
                 "a {} frame has {what}, got {} image(s)",
@@ -190,10 +197,7 @@ impl<D: AsRef<[u8]>, F: AsRef<[f32]>> RigFrame<D, F> {
                     (shape.width as usize, shape.height as usize),
                     sensor == Sensor::Rgbd,
                 ),
-                Some(o) => (
-                    (observers[o].width as usize, observers[o].height as usize),
-                    observers[o].has_depth,
-                ),
+                Some(o) => further[o],
             };
             camera.image.check(&name("image"), &[1, 3, 4], size)?;
             if let Some(color) = &camera.color {
@@ -265,14 +269,39 @@ impl Measured {
         if ctx.observers.is_empty() {
             return Ok(frame);
         }
-        let first_observer = expected_cameras(sensor).0;
-        let observed: Vec<ObserverInput<'_>> = self.cameras[first_observer..]
+        // Each further camera's image, then its stereo partner's if it has one.
+        let mut images = self.cameras[expected_cameras(sensor).0..].iter();
+        let mut measured = Vec::with_capacity(ctx.observers.len());
+        for observer in &ctx.observers {
+            let (Some(c), partner) = (images.next(), observer.pair.as_ref().map(|_| images.next()))
+            else {
+                return Err(invalid(
+                    "a frame has fewer images than the rig's cameras".into(),
+                ));
+            };
+            let paired_depth = match (&observer.pair, partner.flatten()) {
+                (Some(pair), Some(right)) => Some(pair.depths(
+                    &observer.camera,
+                    (&c.features.keypoints, &c.features.descriptors),
+                    (&right.features.keypoints, &right.features.descriptors),
+                    &pyramid.sigma2,
+                )),
+                (Some(_), None) => {
+                    return Err(invalid(
+                        "a frame has fewer images than the rig's cameras".into(),
+                    ))
+                }
+                (None, _) => None,
+            };
+            measured.push((c, paired_depth));
+        }
+        let observed: Vec<ObserverInput<'_>> = measured
             .iter()
-            .map(|c| ObserverInput {
+            .map(|(c, paired_depth)| ObserverInput {
                 keypoints: &c.features.keypoints,
                 descriptors: &c.features.descriptors,
                 colors: &c.colors,
-                depth_m: c.depth_m.as_deref(),
+                depth_m: paired_depth.as_deref().or(c.depth_m.as_deref()),
             })
             .collect();
         frame.with_observers(&observed, ctx)

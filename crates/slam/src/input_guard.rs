@@ -172,7 +172,13 @@ impl InputGuard {
         mask: Option<&OwnedGrayImage>,
     ) -> Result<(), SlamError> {
         let first = if self.sensor == Sensor::Stereo { 2 } else { 1 };
-        let cameras = first + self.observers.len();
+        let further: Vec<(usize, usize)> = self
+            .observers
+            .iter()
+            .flat_map(ObserverShape::images)
+            .map(|(size, _)| size)
+            .collect();
+        let cameras = first + further.len();
         if camera >= cameras {
             return Err(SlamError::InvalidInput(format!(
                 "mask for camera {camera}, but a {} system has {cameras} camera(s)",
@@ -181,10 +187,7 @@ impl InputGuard {
         }
         let size = match camera.checked_sub(first) {
             None => (self.shape.width as usize, self.shape.height as usize),
-            Some(o) => (
-                self.observers[o].width as usize,
-                self.observers[o].height as usize,
-            ),
+            Some(o) => further[o],
         };
         match mask.map(|m| (m.view().width(), m.view().height())) {
             Some(got) if got != size => Err(SlamError::InvalidInput(format!(
@@ -268,6 +271,7 @@ mod tests {
             width,
             height,
             has_depth,
+            paired: false,
         };
         InputGuard::new(Sensor::Rgbd, shape, false)
             .with_observers(vec![observer(320, 240, true), observer(640, 480, false)])

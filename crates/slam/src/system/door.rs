@@ -12,6 +12,7 @@ use crate::config::Sensor;
 use crate::error::SlamError;
 use crate::frame::{Frame, MonoInput, ObserverInput, RgbdInput, StereoInput};
 use crate::front_end::RigFrame;
+use crate::stereo_pair::UnrectifiedPair;
 
 impl SlamSystem {
     /// Tracks one instant of the rig from its images: the one door for images. The front end
@@ -72,8 +73,50 @@ impl SlamSystem {
         T_c0_c: Isometry3<f64>,
         has_depth: bool,
     ) -> Result<(), SlamError> {
+        self.check_new_camera("add_camera", &T_c0_c)?;
+        self.ctx.add_observer(camera.into(), T_c0_c, has_depth);
+        self.camera_added();
+        Ok(())
+    }
+
+    /// Adds a further camera to the rig at `T_c0_c` with its stereo partner at
+    /// `T_left_right` (the partner's pose in this camera, `p_c = T_left_right p_partner`,
+    /// metres): its image follows the camera's own in every frame given to [`Self::track`],
+    /// and the camera's keypoints get depth by matching into it along epipolar curves (any
+    /// model, no rectification), as the first camera's unrectified pair; the partner observes
+    /// nothing itself. A rig of several stereo pairs is the first camera's pair (or depth)
+    /// and one of these per further pair. Frames given as features ([`Self::track_rgbd_rig`])
+    /// bring this camera's depths themselves.
+    ///
+    /// # Errors
+    /// As [`Self::add_camera`], and `InvalidConfig` for a partner of another image size or
+    /// no baseline.
+    #[allow(non_snake_case)]
+    pub fn add_camera_pair(
+        &mut self,
+        camera: impl Into<CameraModel>,
+        T_c0_c: Isometry3<f64>,
+        partner: impl Into<CameraModel>,
+        T_left_right: Isometry3<f64>,
+    ) -> Result<(), SlamError> {
+        self.check_new_camera("add_camera_pair", &T_c0_c)?;
         let camera = camera.into();
-        let refuse = |why: &str| Err(SlamError::InvalidConfig(format!("add_camera: {why}")));
+        let pair =
+            UnrectifiedPair::new(&camera, partner.into(), T_left_right).map_err(|e| match e {
+                SlamError::InvalidConfig(why) => {
+                    SlamError::InvalidConfig(format!("add_camera_pair: {why}"))
+                }
+                other => other,
+            })?;
+        self.ctx.add_observer_pair(camera, T_c0_c, pair);
+        self.camera_added();
+        Ok(())
+    }
+
+    /// Why a camera at `T_c0_c` cannot be added now (`call` names the method), if it cannot.
+    #[allow(non_snake_case)]
+    fn check_new_camera(&self, call: &str, T_c0_c: &Isometry3<f64>) -> Result<(), SlamError> {
+        let refuse = |why: &str| Err(SlamError::InvalidConfig(format!("{call}: {why}")));
         if self.frames_seen > 0 || self.map.num_keyframes() > 0 {
             return refuse("cameras are added before the first frame");
         }
@@ -94,10 +137,13 @@ impl SlamSystem {
         if !pose.clone().all(|v| v.is_finite()) {
             return refuse("T_c0_c is not finite");
         }
-        self.ctx.add_observer(camera, T_c0_c, has_depth);
+        Ok(())
+    }
+
+    /// The input rules and the map's rig record after a camera was added.
+    fn camera_added(&mut self) {
         self.guard = self.input_guard();
         self.map.set_rig(self.ctx.rig());
-        Ok(())
     }
 
     /// Tracks one RGB-D frame; keypoints are raw (distorted) pixels with sensor depth.

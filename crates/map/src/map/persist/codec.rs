@@ -16,7 +16,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3, Vec
 use super::super::CulledKeyFrame;
 use super::{
     CAMERA_MODEL_SINCE, COLORS_SINCE, FORMAT_VERSION, PAIR_CAMERA_SINCE, RIG_CAMERAS_SINCE,
-    ROLLING_SHUTTER_SINCE,
+    RIG_CAMERA_PAIRS_SINCE, ROLLING_SHUTTER_SINCE,
 };
 use crate::frame_features::cameras::camera_grids;
 use crate::{
@@ -566,7 +566,7 @@ impl Codec for PairCamera {
 }
 
 /// Model name (bytes, UTF-8), intrinsics, distortion, image size, pose in the first camera,
-/// whether it has depth.
+/// whether it has depth, its stereo partner (version 9 on).
 impl Codec for RigMember {
     const MIN_SIZE: usize = 8 + 9 * 8 + 2 * 4 + 7 * 8 + 1;
     fn encode(&self, e: &mut Encoder) {
@@ -579,6 +579,7 @@ impl Codec for RigMember {
         e.put(&self.height);
         e.put(&self.T_c0_c);
         e.put(&self.has_depth);
+        e.put(&self.pair);
     }
     fn decode(d: &mut Decoder) -> Result<Self, MapError> {
         let model = String::from_utf8(d.get::<Vec<u8>>()?)
@@ -592,6 +593,11 @@ impl Codec for RigMember {
             height: d.get()?,
             T_c0_c: d.get()?,
             has_depth: d.get()?,
+            pair: if d.has(RIG_CAMERA_PAIRS_SINCE) {
+                d.get()?
+            } else {
+                None
+            },
         })
     }
 }

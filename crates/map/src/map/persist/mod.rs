@@ -1,6 +1,6 @@
 //! Versioned binary map files: [`Map::save`] / [`Map::load`] and their path helpers.
 //!
-//! # Format (version 8, all numbers little-endian)
+//! # Format (version 9, all numbers little-endian)
 //! ```text
 //! offset  size  field
 //! 0       8     magic b"FSLAMMAP"
@@ -15,7 +15,7 @@
 //!                        name Vec<u8>, fx fy cx cy f64, 5 distortion coefficients f64, pose
 //!                        T_left_right; a rig camera = model name Vec<u8>, fx fy cx cy f64,
 //!                        5 distortion coefficients f64, width u32, height u32, pose T_c0_c,
-//!                        has depth u8 0/1)
+//!                        has depth u8 0/1, Option<pair camera> (version 9 on))
 //!                 "PYRM" scale factor f64, number of levels u64
 //!                 "IDS_" next keyframe id u32, next map point id u32, origin Option<u32>
 //!                 "KEYF" keyframes by increasing id (Vec<KeyFrame>)
@@ -30,6 +30,8 @@
 //! w xyz f64; sets/maps = sorted unique `Vec`s.
 //!
 //! # Versions
+//! - 9: each further camera of the rig ends with its stereo partner (`Option<pair camera>`):
+//!   a rig of several stereo pairs. Files of version 8 load with none.
 //! - 8: the record ends with the rig's further cameras (`Vec`, camera 1 on), and keyframe
 //!   features hold their cameras: in place of the one grid bounds, `Vec<(first keypoint
 //!   u64, grid bounds)>`, one per camera, so that the keyframes of a multi-camera rig load
@@ -103,7 +105,7 @@ pub const MAGIC_TEXT: &str = "FSLAMMAP";
 pub const MAGIC: &[u8] = MAGIC_TEXT.as_bytes();
 /// The map-file format version this build writes (and the newest it reads); see the module
 /// docs for what each version added.
-pub const FORMAT_VERSION: u32 = 8;
+pub const FORMAT_VERSION: u32 = 9;
 /// The oldest map-file format version this build reads.
 pub const OLDEST_READABLE_VERSION: u32 = 3;
 /// The version that added keypoint and map-point colours.
@@ -116,6 +118,8 @@ const ROLLING_SHUTTER_SINCE: u32 = 6;
 const PAIR_CAMERA_SINCE: u32 = 7;
 /// The version that added the rig's further cameras and each keyframe's camera starts.
 const RIG_CAMERAS_SINCE: u32 = 8;
+/// The version that added the further cameras' stereo partners.
+const RIG_CAMERA_PAIRS_SINCE: u32 = 9;
 /// Magic, version, payload length.
 const HEADER_LEN: usize = 8 + 4 + 8;
 const CHECKSUM_LEN: usize = 8;

@@ -50,10 +50,25 @@ fn member(x: f64, has_depth: bool) -> RigMember {
             nalgebra::Vector3::new(0.0, 0.3, 0.0),
         ),
         has_depth,
+        pair: None,
     }
 }
 
-/// The persist tests' uncoloured sample map, its keyframes of a 3-camera rig.
+/// `camera` with a stereo partner 8 cm to its right.
+fn paired(camera: RigMember) -> RigMember {
+    RigMember {
+        pair: Some(crate::PairCamera {
+            model: camera.model.clone(),
+            intrinsics: camera.intrinsics,
+            distortion: camera.distortion,
+            T_left_right: nalgebra::Isometry3::translation(0.08, 0.0, 0.0),
+        }),
+        ..camera
+    }
+}
+
+/// The persist tests' uncoloured sample map, its keyframes of a 3-camera rig (camera 2 with
+/// a stereo partner).
 fn rig_map() -> (Map, Vec<KeyFrameId>) {
     let (mut map, kfs) = map_with_keyframes(5, 60);
     for kf in &kfs {
@@ -73,7 +88,7 @@ fn rig_map() -> (Map, Vec<KeyFrameId>) {
         width: 640,
         height: 480,
         pair: None,
-        cameras: vec![member(0.064, false), member(-0.1, true)],
+        cameras: vec![member(0.064, false), paired(member(-0.1, true))],
     });
     (map, kfs)
 }
