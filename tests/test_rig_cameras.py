@@ -153,7 +153,7 @@ def two_pair_flight(room):
                  for T_w_b in body_path(N_FRAMES, RATE_HZ)]
 
 
-def test_a_rig_of_two_stereo_pairs_keeps_metric_depth_behind(two_pair_flight):
+def test_a_rig_of_two_stereo_pairs_keeps_metric_depth_behind(two_pair_flight, tmp_path):
     """A front and a rear stereo pair (``Rig(stereo=True, pairs=((2, 3),))``), no depth
     images; the front pair fully masked for frames 60-89: the rear pair's own matching
     carries the run, metric, as the front pair's did.
@@ -167,13 +167,16 @@ def test_a_rig_of_two_stereo_pairs_keeps_metric_depth_behind(two_pair_flight):
     T_body_cam, frames = two_pair_flight
     blank = np.zeros((CAMERA.height, CAMERA.width), np.uint8)
 
+    def rig(pairs):
+        return Rig((CAMERA,) * 4, tuple(T_body_cam), stereo=True, pairs=pairs)
+
     def run(pairs):
-        rig = Rig((CAMERA,) * 4, tuple(T_body_cam), stereo=True, pairs=pairs)
-        with RigVSlam(rig, threaded=False, vocabulary=None) as vslam:
+        with RigVSlam(rig(pairs), threaded=False, vocabulary=None) as vslam:
             for i, (images, _) in enumerate(frames):
                 masks = [blank, blank, None, None] if i in MASKED else None
                 vslam.add_frame(images, timestamp=i / RATE_HZ, mask=masks)
             stamps, poses, _ = vslam.frame_trajectory()
+            vslam.save_map(tmp_path / f"pairs{len(pairs)}.fsmap")
         truth = Trajectory(np.arange(len(frames)) / RATE_HZ, np.stack([f[1] for f in frames]))
         return Trajectory(stamps, poses), truth
 
@@ -187,6 +190,13 @@ def test_a_rig_of_two_stereo_pairs_keeps_metric_depth_behind(two_pair_flight):
     assert len(estimate.timestamps) == N_FRAMES and error.pairs == N_FRAMES
     assert error.rmse <= 0.006
     assert len(mono_estimate.timestamps) < N_FRAMES
+    # The map file records the partner: it loads into the paired rig only.
+    with RigVSlam(rig(((2, 3),)), threaded=False, vocabulary=None) as same:
+        same.load_map(tmp_path / "pairs1.fsmap")
+    with RigVSlam(rig(()), threaded=False, vocabulary=None) as other:
+        with pytest.raises(ValueError, match="the map was built with a rig of 2 cameras, this "
+                                             "system's has 3"):
+            other.load_map(tmp_path / "pairs1.fsmap")
 
 
 def test_further_pairs_are_checked():
@@ -199,6 +209,10 @@ def test_further_pairs_are_checked():
         Rig(cams, tuple(rig), stereo=True, pairs=((2, 4),))
     with pytest.raises(ValueError, match=r"the cameras of pair \(2, 3\) take their depth"):
         Rig(cams, tuple(rig), stereo=True, pairs=((2, 3),), depth=(False, False, True, False))
+    with pytest.raises(TypeError, match="pairs must be a sequence of"):
+        Rig(cams, tuple(rig), stereo=True, pairs=5)
+    with pytest.raises(TypeError, match=r"pairs must hold camera indices \(int\)"):
+        Rig(cams, tuple(rig), stereo=True, pairs=((2.0, 3),))
     with pytest.raises(ValueError, match="camera 2 is in two pairs"):
         Rig((CAMERA,) * 5, (*rig, rig[0]), pairs=((1, 2), (2, 3)))
     paired = Rig(cams, tuple(rig), stereo=True, pairs=((2, 3),))

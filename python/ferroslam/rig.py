@@ -85,7 +85,15 @@ class Rig:
 
     def _checked_pairs(self, n: int, depth: tuple[bool, ...]) -> tuple[tuple[int, int], ...]:
         first = 2 if self.stereo else 1
-        pairs = tuple(tuple(int(k) for k in p) for p in self.pairs)
+        try:
+            pairs = tuple(tuple(p) for p in self.pairs)
+        except TypeError:
+            raise TypeError(f"pairs must be a sequence of (k, k + 1) camera index pairs, got "
+                            f"{self.pairs!r}") from None
+        if not all(isinstance(k, (int, np.integer)) and not isinstance(k, bool)
+                   for p in pairs for k in p):
+            raise TypeError(f"pairs must hold camera indices (int), got {self.pairs!r}")
+        pairs = tuple(tuple(int(k) for k in p) for p in pairs)
         used: set[int] = set()
         for p in pairs:
             if len(p) != 2 or p[1] != p[0] + 1 or not first <= p[0] < n - 1:
@@ -101,13 +109,14 @@ class Rig:
         return pairs
 
     @classmethod
-    def from_calibration(cls, calibration: Calibration, *, stereo: Optional[bool] = None
-                         ) -> "Rig":
+    def from_calibration(cls, calibration: Calibration, *, stereo: Optional[bool] = None,
+                         pairs: Sequence[tuple[int, int]] = ()) -> "Rig":
         """The rig of a calibration file (:func:`ferroslam.load_calibration`: Kalibr
         camchain ``cam0..camN``, ORB-SLAM3 ``Camera1``/``Camera2`` with ``Stereo.T_c1_c2``):
         body = the IMU where the file relates every camera to one, else camera 0 (the
         cameras chained by the file's relative poses).
-        ``stereo`` defaults to whether the file relates cameras 0 and 1."""
+        ``stereo`` defaults to whether the file relates cameras 0 and 1; ``pairs`` declares
+        further stereo pairs (no calibration format names them)."""
         cameras = tuple(calibration.cameras)
         T_imu_cam = list(calibration.camera_to_imu)
         if all(T is not None for T in T_imu_cam[: len(cameras)]) and len(T_imu_cam) >= len(
@@ -124,12 +133,12 @@ class Rig:
                              "chaining every camera to the first)")
         if stereo is None:
             stereo = len(cameras) >= 2 and calibration.T_left_right is not None
-        rig = cls(cameras, poses, stereo)
+        rig = cls(cameras, poses, stereo, pairs=tuple(pairs))
         if rig.stereo and calibration.T_left_right is not None:
             # The file's own relative pose, not the product of two rounded ones.
             T_body_right = rig.T_body_cam[0] @ np.asarray(calibration.T_left_right)
             poses = (rig.T_body_cam[0], T_body_right, *rig.T_body_cam[2:])
-            rig = cls(cameras, poses, stereo)
+            rig = cls(cameras, poses, stereo, pairs=tuple(pairs))
         return rig
 
     @property

@@ -108,7 +108,8 @@ class Session:
             model=c.model, rolling_shutter_readout_s=c.rolling_shutter_readout_s,
             **paired, **options)
         # Each further camera's image, then its stereo partner's, after the first camera's.
-        image_index = 2 if sensor == "stereo" else 1
+        first_observer = 2 if sensor == "stereo" else 1
+        image_index = first_observer
         for observer, _, depth in observers:
             partner = depth[0] if isinstance(depth, tuple) else None
             for masked in (observer, partner) if partner is not None else (observer,):
