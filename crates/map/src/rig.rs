@@ -328,6 +328,7 @@ mod tests {
             height: 800,
             T_c0_c: Isometry3::translation(x, 0.0, 0.0),
             has_depth: false,
+            pair: None,
         };
         let rig_of = |cameras| Rig {
             cameras,
@@ -371,5 +372,34 @@ mod tests {
             m.starts_with("camera 1: ") && m.contains("848x800") && m.contains("640x800"),
             "{m}"
         );
+        // A further camera's stereo partner: present or not, and where.
+        let partnered = |x: f64| {
+            rig_of(vec![
+                member(0.064),
+                RigMember {
+                    has_depth: true,
+                    pair: Some(PairCamera {
+                        model: Rig::PINHOLE.into(),
+                        intrinsics: [284.0, 285.3, 417.2, 400.4],
+                        distortion: [0.0; 5],
+                        T_left_right: Isometry3::translation(x, 0.0, 0.0),
+                    }),
+                    ..member(-0.1)
+                },
+            ])
+        };
+        assert_eq!(partnered(0.08).mismatch(&partnered(0.08)), None);
+        let m = partnered(0.08).mismatch(&deep).unwrap();
+        assert_eq!(
+            m,
+            "camera 2: the map was built with a stereo partner, this system's has none"
+        );
+        let m = deep.mismatch(&partnered(0.08)).unwrap();
+        assert!(
+            m.ends_with("without a stereo partner, this system's has one"),
+            "{m}"
+        );
+        let m = partnered(0.08).mismatch(&partnered(0.12)).unwrap();
+        assert!(m.starts_with("camera 2: ") && m.contains("0.12"), "{m}");
     }
 }
