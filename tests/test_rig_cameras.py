@@ -280,10 +280,14 @@ SIZES = ((160, 120), (200, 150))
 
 @st.composite
 def rig_and_frame(draw):
-    """A rig (an RGB-D first camera and 0-2 further cameras of drawn sizes, with or without
-    depth) and a frame for it that may be wrong in any of its parts."""
-    observers = draw(st.lists(st.tuples(st.sampled_from(SIZES), st.booleans()), max_size=2))
-    cameras = [((160, 120), True)] + observers
+    """A rig (an RGB-D first camera and 0-2 further cameras of drawn sizes, without depth,
+    with depth images or with a stereo partner) and a frame for it that may be wrong in any
+    of its parts: the rig's further cameras, and per image its size and depth."""
+    observers = draw(st.lists(st.tuples(st.sampled_from(SIZES),
+                                        st.sampled_from(["none", "depth", "pair"])), max_size=2))
+    cameras = [((160, 120), True)]
+    for size, kind in observers:  # a partner's image follows its camera's, without depth
+        cameras += [(size, kind == "depth")] + ([(size, False)] if kind == "pair" else [])
     n_images = draw(st.sampled_from([len(cameras)] * 3 + [len(cameras) - 1, len(cameras) + 1]))
     images, depths, masks = [], [], []
     for k in range(max(n_images, 1)):
@@ -296,7 +300,7 @@ def rig_and_frame(draw):
         depths.append(np.ones((dh, dw), np.float32) if want else None)
         masks.append(draw(st.sampled_from([None, None, np.ones((h, w), np.uint8),
                                            np.ones((h + 2, w), np.uint8)])))
-    return cameras, images[:n_images], depths[:n_images], masks[:n_images]
+    return observers, cameras, images[:n_images], depths[:n_images], masks[:n_images]
 
 
 def _frame_is_valid(cameras, images, depths, masks) -> bool:
@@ -317,9 +321,14 @@ def _frame_is_valid(cameras, images, depths, masks) -> bool:
 def test_generated_rig_frames_track_or_fail_naming_the_problem(case):
     """Any rig, any frame: a valid frame tracks, any other raises ValueError naming what is
     wrong, and the system takes the next valid frame as if the bad one never came."""
-    cameras, images, depths, masks = case
-    further = [(Camera(100.0, 100.0, w / 2, h / 2, [0.0] * 5, w, h), np.eye(4), d)
-               for (w, h), d in cameras[1:]]
+    observers, cameras, images, depths, masks = case
+
+    def camera(w, h):
+        return Camera(100.0, 100.0, w / 2, h / 2, [0.0] * 5, w, h)
+
+    further = [(camera(w, h), np.eye(4),
+                (camera(w, h), _shifted(0.1)) if kind == "pair" else kind == "depth")
+               for (w, h), kind in observers]
     system = _core.SlamSystem(100.0, 100.0, 80.0, 60.0, [0.0] * 5, 160, 120, sensor="rgbd",
                               cameras=further, n_levels=2)
     if _frame_is_valid(cameras, images, depths, masks):
