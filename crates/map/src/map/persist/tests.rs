@@ -431,7 +431,7 @@ fn wrong_magic_and_version_are_named() {
     );
     let message = format!("version {} is not supported", FORMAT_VERSION + 1);
     assert!(err.to_string().contains(&message), "{err}");
-    assert!(err.to_string().contains("reads versions 3 to 8"), "{err}");
+    assert!(err.to_string().contains("reads versions 3 to 9"), "{err}");
     // A version 2 file (before the sensor and camera record) is refused, not misread.
     bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
     let err = load(&bytes).unwrap_err();
