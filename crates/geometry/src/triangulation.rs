@@ -1,6 +1,7 @@
-//! Two-view triangulation of a point from normalized rays.
+//! Two-view triangulation of a point from normalized rays, and the epipolar constraint that
+//! finds its matches.
 
-use nalgebra::{Isometry3, Matrix3x4, Matrix4, SMatrix, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix3x4, Matrix4, SMatrix, Vector3};
 
 /// Minimum camera baseline (metres) below which two views cannot triangulate.
 const MIN_BASELINE: f64 = 1e-9;
@@ -145,6 +146,17 @@ pub fn parallax_cos(p_w: &Vector3<f64>, center1_w: &Vector3<f64>, center2_w: &Ve
     }
 }
 
+/// Essential matrix `E21 = [t21]x R21` of two posed cameras: `r2^T E21 r1 = 0` for the rays
+/// `r1`, `r2` (each camera's frame) of one point, `T_c2_c1 = T_c2_w * T_c1_w^-1 = [R21 | t21]`.
+/// The constraint keyframe triangulation and an unrectified pair search along.
+#[allow(non_snake_case)]
+pub fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>) -> Matrix3<f64> {
+    let T_21 = T_c2_w * T_c1_w.inverse();
+    let t = T_21.translation.vector;
+    let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
+    t_hat * T_21.rotation.to_rotation_matrix().into_inner()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,5 +247,21 @@ mod tests {
             parallax_cos(&Vector3::zeros(), &Vector3::zeros(), &Vector3::x()),
             1.0
         );
+    }
+
+    #[test]
+    #[allow(non_snake_case)]
+    fn rays_of_one_point_satisfy_the_epipolar_constraint() {
+        let T_c1_w = Isometry3::new(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.2, -0.1, 0.05));
+        let T_c2_w = Isometry3::new(Vector3::new(-0.4, 0.1, 0.2), Vector3::new(-0.1, 0.3, 0.1));
+        let E = essential_matrix(&T_c1_w, &T_c2_w);
+        for p_w in [Vector3::new(0.5, -0.3, 3.0), Vector3::new(-1.0, 0.4, 6.0)] {
+            let r1 = (T_c1_w * nalgebra::Point3::from(p_w)).coords.normalize();
+            let r2 = (T_c2_w * nalgebra::Point3::from(p_w)).coords.normalize();
+            assert!((r2.transpose() * E * r1)[0].abs() < 1e-12);
+            // Another point's ray in camera 2 breaks it.
+            let off = (r2 + Vector3::new(0.0, 0.05, 0.0)).normalize();
+            assert!((off.transpose() * E * r1)[0].abs() > 1e-3);
+        }
     }
 }

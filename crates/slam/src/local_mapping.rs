@@ -11,7 +11,7 @@ use ferroslam_features::{
     search_for_triangulation, search_for_triangulation_rays, Keypoint, MatchOptions,
 };
 use ferroslam_geometry::camera::{CameraModel, PinholeCamera};
-use ferroslam_geometry::triangulation::{triangulate_dlt, triangulate_rays};
+use ferroslam_geometry::triangulation::{essential_matrix, triangulate_dlt, triangulate_rays};
 use ferroslam_map::{KeyFrameId, Map, MapPointId};
 use ferroslam_optim::robust::{CHI2_MONO, CHI2_STEREO};
 #[cfg(feature = "bench")]
@@ -481,14 +481,6 @@ impl CameraPair {
         }
         Some(new_points)
     }
-}
-
-/// Essential matrix `E21 = [t21]x R21` with `r2^T E21 r1 = 0` for rays of two cameras.
-pub(crate) fn essential_matrix(T_c1_w: &Isometry3<f64>, T_c2_w: &Isometry3<f64>) -> Matrix3<f64> {
-    let T_21 = T_c2_w * T_c1_w.inverse();
-    let t = T_21.translation.vector;
-    let t_hat = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
-    t_hat * T_21.rotation.to_rotation_matrix().into_inner()
 }
 
 /// Fundamental matrix `F21` with `x2^T F21 x1 = 0` for undistorted pixels of pinhole

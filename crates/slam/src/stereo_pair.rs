@@ -13,12 +13,11 @@
 use ferroslam_features::matcher::{TH_HIGH, TH_LOW};
 use ferroslam_features::{search_for_triangulation_rays, Descriptor, Keypoint, MatchOptions};
 use ferroslam_geometry::camera::CameraModel;
-use ferroslam_geometry::triangulation::triangulate_rays;
+use ferroslam_geometry::triangulation::{essential_matrix, triangulate_rays};
 use ferroslam_optim::robust::CHI2_MONO;
 use nalgebra::{Isometry3, Vector2, Vector3};
 
 use crate::error::SlamError;
-use crate::local_mapping::essential_matrix;
 
 /// The second camera of an unrectified pair and where it is.
 #[derive(Clone, Debug)]
