@@ -272,26 +272,20 @@ impl Measured {
         // Each further camera's image, then its stereo partner's if it has one.
         let mut images = self.cameras[expected_cameras(sensor).0..].iter();
         let mut measured = Vec::with_capacity(ctx.observers.len());
+        let missing = || invalid("a frame has fewer images than the rig's cameras".into());
         for observer in &ctx.observers {
-            let (Some(c), partner) = (images.next(), observer.pair.as_ref().map(|_| images.next()))
-            else {
-                return Err(invalid(
-                    "a frame has fewer images than the rig's cameras".into(),
-                ));
-            };
-            let paired_depth = match (&observer.pair, partner.flatten()) {
-                (Some(pair), Some(right)) => Some(pair.depths(
-                    &observer.camera,
-                    (&c.features.keypoints, &c.features.descriptors),
-                    (&right.features.keypoints, &right.features.descriptors),
-                    &pyramid.sigma2,
-                )),
-                (Some(_), None) => {
-                    return Err(invalid(
-                        "a frame has fewer images than the rig's cameras".into(),
+            let c = images.next().ok_or_else(missing)?;
+            let paired_depth = match &observer.pair {
+                Some(pair) => {
+                    let right = images.next().ok_or_else(missing)?;
+                    Some(pair.depths(
+                        &observer.camera,
+                        (&c.features.keypoints, &c.features.descriptors),
+                        (&right.features.keypoints, &right.features.descriptors),
+                        &pyramid.sigma2,
                     ))
                 }
-                (None, _) => None,
+                None => None,
             };
             measured.push((c, paired_depth));
         }
