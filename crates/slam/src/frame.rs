@@ -33,16 +33,19 @@ pub struct Frame {
     pub outlier: Vec<bool>,
     /// Camera pose, world to camera.
     pub T_c_w: Isometry3<f64>,
-    /// An unrectified pair matched at keyframes only: what matching needs, until the frame
-    /// is matched ([`Frame::match_pair`]) or dropped.
-    pub unmatched_pair: Option<UnmatchedPair>,
+    /// Unrectified pairs matched at keyframes only: what matching needs, until the frame is
+    /// matched ([`Frame::match_pair`]) or dropped.
+    pub unmatched_pairs: Vec<UnmatchedPair>,
 }
 
-/// The first camera's raw keypoints and its pair partner's features, kept on a frame whose
-/// pair is matched only if it starts the map or becomes a keyframe.
+/// A camera's raw keypoints and its pair partner's features, kept on a frame whose pairs are
+/// matched only if it starts the map or becomes a keyframe.
 #[derive(Clone, Debug)]
 pub struct UnmatchedPair {
-    /// The first camera's keypoints in raw pixels.
+    /// The rig camera whose keypoints the pair gives depth (0, the first, or a further
+    /// camera with a partner).
+    pub camera: usize,
+    /// The camera's keypoints in raw pixels.
     pub left_raw: Vec<Keypoint>,
     /// The partner's keypoints, raw pixels.
     pub right_keypoints: Vec<Keypoint>,
@@ -384,7 +387,7 @@ impl Frame {
             vo_points: vec![None; n],
             outlier: vec![false; n],
             T_c_w: Isometry3::identity(),
-            unmatched_pair: None,
+            unmatched_pairs: Vec::new(),
         })
     }
 
@@ -393,25 +396,31 @@ impl Frame {
         self.map_points.len()
     }
 
-    /// Gives the first camera's keypoints their depth from the unrectified pair kept unmatched
+    /// Gives the keypoints of each camera whose pair was kept unmatched their depth from it
     /// (see [`UnmatchedPair`]); nothing for a frame matched already.
     pub fn match_pair(&mut self, pyramid: &ScalePyramid, ctx: &Context) {
-        let (Some(unmatched), Some(pair)) = (self.unmatched_pair.take(), &ctx.pair) else {
-            return;
-        };
-        let first = self.features.camera_range(0);
-        let depth_m = pair.depths(
-            &ctx.camera,
-            (
-                &unmatched.left_raw,
-                &self.features.descriptors[first.clone()],
-            ),
-            (&unmatched.right_keypoints, &unmatched.right_descriptors),
-            &pyramid.sigma2,
-        );
-        let (_, depth, u_right) = with_depth(&ctx.view(0), &unmatched.left_raw, &depth_m, ctx);
-        self.features.depth[first.clone()].copy_from_slice(&depth);
-        self.features.u_right[first].copy_from_slice(&u_right);
+        for unmatched in std::mem::take(&mut self.unmatched_pairs) {
+            let k = unmatched.camera;
+            let pair = match k.checked_sub(1) {
+                None => ctx.pair.as_ref(),
+                Some(o) => ctx.observers.get(o).and_then(|o| o.pair.as_ref()),
+            };
+            let Some(pair) = pair else { continue };
+            let view = ctx.view(k);
+            let range = self.features.camera_range(k);
+            let depth_m = pair.depths(
+                view.camera,
+                (
+                    &unmatched.left_raw,
+                    &self.features.descriptors[range.clone()],
+                ),
+                (&unmatched.right_keypoints, &unmatched.right_descriptors),
+                &pyramid.sigma2,
+            );
+            let (_, depth, u_right) = with_depth(&view, &unmatched.left_raw, &depth_m, ctx);
+            self.features.depth[range.clone()].copy_from_slice(&depth);
+            self.features.u_right[range].copy_from_slice(&u_right);
+        }
     }
 
     /// Camera centre in the world frame, metres.

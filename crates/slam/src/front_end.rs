@@ -272,10 +272,23 @@ impl Measured {
         // Each further camera's image, then its stereo partner's if it has one.
         let mut images = self.cameras[expected_cameras(sensor).0..].iter();
         let mut measured = Vec::with_capacity(ctx.observers.len());
+        let mut unmatched = Vec::new();
         let missing = || invalid("a frame has fewer images than the rig's cameras".into());
-        for observer in &ctx.observers {
+        for (k, observer) in ctx.observers.iter().enumerate() {
             let c = images.next().ok_or_else(missing)?;
             let paired_depth = match &observer.pair {
+                Some(_) if !ctx.config.depth.match_pair_every_frame => {
+                    // Matched if the frame starts the map or becomes a keyframe, as the
+                    // first camera's pair.
+                    let right = &images.next().ok_or_else(missing)?.features;
+                    unmatched.push(UnmatchedPair {
+                        camera: k + 1,
+                        left_raw: c.features.keypoints.clone(),
+                        right_keypoints: right.keypoints.clone(),
+                        right_descriptors: right.descriptors.clone(),
+                    });
+                    Some(vec![0.0; c.features.keypoints.len()])
+                }
                 Some(pair) => {
                     let right = images.next().ok_or_else(missing)?;
                     Some(pair.depths(
@@ -298,7 +311,9 @@ impl Measured {
                 depth_m: paired_depth.as_deref().or(c.depth_m.as_deref()),
             })
             .collect();
-        frame.with_observers(&observed, ctx)
+        let mut frame = frame.with_observers(&observed, ctx)?;
+        frame.unmatched_pairs.extend(unmatched);
+        Ok(frame)
     }
 
     /// The first camera's frame, as its sensor's.
@@ -345,7 +360,8 @@ impl Measured {
                         colors,
                     };
                     let mut frame = Frame::from_rgbd(index, &input, ctx)?;
-                    frame.unmatched_pair = Some(UnmatchedPair {
+                    frame.unmatched_pairs.push(UnmatchedPair {
+                        camera: 0,
                         left_raw: keypoints.clone(),
                         right_keypoints: right.keypoints.clone(),
                         right_descriptors: right.descriptors.clone(),
