@@ -99,6 +99,13 @@ pub fn optimize_pose_and_velocity(
         obs,
         dt: time_offsets_s,
         cameras,
+        rotations: cameras
+            .iter()
+            .map(|c| {
+                c.T_c_c0
+                    .map(|T| T.rotation.to_rotation_matrix().into_inner())
+            })
+            .collect(),
         prior,
     };
     let start = (*T_c_w, prior.xi_dot);
@@ -164,6 +171,8 @@ struct Problem<'a> {
     obs: &'a [PoseObservation],
     dt: &'a [f64],
     cameras: &'a [RigCamera],
+    /// Each camera's `R_c_c0` (the Jacobians' rotation into it), once per problem.
+    rotations: Vec<Option<Matrix3<f64>>>,
     prior: &'a VelocityPrior,
 }
 
@@ -180,13 +189,10 @@ impl Problem<'_> {
     fn linearize(&self, state: &State, i: usize) -> Option<(Vector3<f64>, SMatrix<f64, 3, 12>)> {
         let o = &self.obs[i];
         let at = point_at_offset(&state.0, &state.1, self.dt[i], &Point3::from(o.p_w));
-        let (p_c, R_c_c0) = match &self.cameras[o.camera].T_c_c0 {
-            None => (at.p_c, None),
-            Some(T) => (
-                (T * Point3::from(at.p_c)).coords,
-                Some(T.rotation.to_rotation_matrix().into_inner()),
-            ),
-        };
+        let p_c = self.cameras[o.camera]
+            .T_c_c0
+            .map_or(at.p_c, |t| (t * Point3::from(at.p_c)).coords);
+        let R_c_c0 = self.rotations[o.camera];
         let (e, mut d_pred_d_p_c) = self.error_at(i, &p_c)?;
         if o.u_right.is_none() {
             d_pred_d_p_c.row_mut(2).fill(0.0);

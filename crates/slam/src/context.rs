@@ -142,19 +142,8 @@ impl Context {
     /// with depth images when `has_depth` (their virtual baseline is the first camera's `bf`).
     #[allow(non_snake_case)]
     pub fn add_observer(&mut self, camera: CameraModel, T_c0_c: Isometry3<f64>, has_depth: bool) {
-        let bounds = image_bounds(&camera);
         let bf = if has_depth { self.config.depth.bf } else { 0.0 };
-        let intrinsics = Intrinsics::new(&camera, bf);
-        let T_c_c0 = T_c0_c.inverse();
-        self.optim_cameras.push(RigCamera::new(intrinsics, T_c_c0));
-        self.observers.push(Observer {
-            camera,
-            bounds,
-            intrinsics,
-            T_c_c0,
-            has_depth,
-            pair: None,
-        });
+        self.push_observer(camera, T_c0_c, bf, has_depth, None);
     }
 
     /// Adds a further camera at `T_c0_c` whose keypoints get depth from its stereo partner
@@ -167,15 +156,31 @@ impl Context {
         T_c0_c: Isometry3<f64>,
         pair: UnrectifiedPair,
     ) {
-        let intrinsics = Intrinsics::new(&camera, camera.fx() * pair.baseline_m());
-        self.add_observer(camera, T_c0_c, true);
-        let (observer, optim) = (
-            self.observers.last_mut().expect("just added"),
-            self.optim_cameras.last_mut().expect("just added"),
-        );
-        observer.intrinsics = intrinsics;
-        optim.intrinsics = intrinsics;
-        observer.pair = Some(pair);
+        let bf = camera.fx() * pair.baseline_m();
+        self.push_observer(camera, T_c0_c, bf, true, Some(pair));
+    }
+
+    #[allow(non_snake_case)]
+    fn push_observer(
+        &mut self,
+        camera: CameraModel,
+        T_c0_c: Isometry3<f64>,
+        bf: f64,
+        has_depth: bool,
+        pair: Option<UnrectifiedPair>,
+    ) {
+        let bounds = image_bounds(&camera);
+        let intrinsics = Intrinsics::new(&camera, bf);
+        let T_c_c0 = T_c0_c.inverse();
+        self.optim_cameras.push(RigCamera::new(intrinsics, T_c_c0));
+        self.observers.push(Observer {
+            camera,
+            bounds,
+            intrinsics,
+            T_c_c0,
+            has_depth,
+            pair,
+        });
     }
 
     /// Whether a camera of the rig has a rolling shutter: frames are then estimated with
